@@ -1,0 +1,85 @@
+"""Backend registry.
+
+``name -> (module that must be importable, install hint, loader)``, checked
+with :func:`importlib.util.find_spec` so listing backends imports nothing.
+``"auto"`` walks :data:`PREFERENCE`; a backend asked for by name that cannot
+run is an error that says what to install, never a silent fallback.
+"""
+
+from __future__ import annotations
+
+import importlib
+import importlib.util
+
+from ..errors import BackendUnavailableError, ParameterError
+from .base import Backend, Hits
+
+#: name -> (required module, pip package, "module:Class")
+REGISTRY = {
+    "embree": ("embreex", "embreex", "geovox.backends.embree:EmbreeBackend"),
+    "numpy": ("numpy", "numpy", "geovox.backends.numpy:NumpyBackend"),
+}
+#: Order tried by ``backend="auto"``.
+PREFERENCE = ("embree", "numpy")
+
+_instances: dict = {}
+
+
+def _present(module: str) -> bool:
+    try:
+        return importlib.util.find_spec(module) is not None
+    except (ImportError, ValueError):
+        return False
+
+
+def available_backends() -> list:
+    """Names of the backends whose packages are installed, in preference order."""
+    return [name for name in PREFERENCE if _present(REGISTRY[name][0])]
+
+
+def _load(name: str) -> Backend:
+    if name not in _instances:
+        module, cls = REGISTRY[name][2].split(":")
+        _instances[name] = getattr(importlib.import_module(module), cls)()
+    return _instances[name]
+
+
+def get_backend(name: str = "auto") -> Backend:
+    """Return a ready backend instance.
+
+    Parameters
+    ----------
+    name : {"auto", "embree", "numpy"}
+
+    Raises
+    ------
+    ParameterError
+        Unknown name.
+    BackendUnavailableError
+        The named backend's package is missing or fails to import.
+    """
+    if not isinstance(name, str):
+        raise ParameterError(f"`backend` must be one of auto, {', '.join(REGISTRY)}; got {name!r}")
+    name = name.lower()
+    if name == "auto":
+        for candidate in PREFERENCE:
+            if _present(REGISTRY[candidate][0]):
+                try:
+                    return _load(candidate)
+                except ImportError:
+                    continue
+        raise BackendUnavailableError("no ray-casting backend can run: install numpy")
+    if name not in REGISTRY:
+        raise ParameterError(f"`backend` must be one of auto, {', '.join(REGISTRY)}; got {name!r}")
+    module, package, _ = REGISTRY[name]
+    try:
+        return _load(name)
+    except ImportError as exc:
+        raise BackendUnavailableError(
+            f"backend {name!r} needs the {package!r} package, which is not installed "
+            f"or does not import here ({exc}); install it with `pip install {package}` "
+            f"or use --backend numpy"
+        ) from exc
+
+
+__all__ = ["Backend", "Hits", "available_backends", "get_backend", "REGISTRY", "PREFERENCE"]

@@ -1,0 +1,94 @@
+"""The backend interface: column rays in, every crossing out."""
+
+from __future__ import annotations
+
+import abc
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..grid import Columns
+
+
+@dataclass
+class Hits:
+    """Every crossing of a lattice of column rays with a mesh.
+
+    Attributes
+    ----------
+    ray : (m,) int64
+        Ray index ``i + nu * j`` (see :class:`geovox.grid.Columns`).
+    depth : (m,) float64
+        Coordinate of the crossing along the ray axis; the distance along the
+        ray is ``depth - columns.start``.
+    triangle : (m,) int64
+        Index of the crossed triangle in the mesh's face array.
+    bary : (m, 2) float64
+        Barycentric weights ``(u, v)`` of the triangle's vertices 1 and 2 at
+        the crossing (vertex 0 has ``1 - u - v``).
+
+    Hits are sorted by ray, then depth.
+    """
+
+    ray: np.ndarray
+    depth: np.ndarray
+    triangle: np.ndarray
+    bary: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.ray)
+
+    @classmethod
+    def concatenate(cls, parts) -> "Hits":
+        parts = list(parts)
+        if not parts:
+            return cls.empty()
+        out = cls(
+            ray=np.concatenate([p.ray for p in parts]),
+            depth=np.concatenate([p.depth for p in parts]),
+            triangle=np.concatenate([p.triangle for p in parts]),
+            bary=np.concatenate([p.bary for p in parts]),
+        )
+        return out.sorted()
+
+    @classmethod
+    def empty(cls) -> "Hits":
+        return cls(
+            ray=np.zeros(0, np.int64),
+            depth=np.zeros(0, np.float64),
+            triangle=np.zeros(0, np.int64),
+            bary=np.zeros((0, 2), np.float64),
+        )
+
+    def sorted(self) -> "Hits":
+        # Ties in depth are ordered by triangle so the order is deterministic.
+        order = np.lexsort((self.triangle, self.depth, self.ray))
+        return Hits(self.ray[order], self.depth[order], self.triangle[order], self.bary[order])
+
+
+class Backend(abc.ABC):
+    """A ray-casting engine.
+
+    A backend has one job: for a lattice of axis-parallel column rays, report
+    every crossing with the mesh. It finds candidate (ray, triangle) pairs its
+    own way and must settle each one with :class:`geovox.exact.Projection`,
+    the shared numeric contract, so that all backends agree exactly.
+    """
+
+    #: Registry name.
+    name: str = ""
+
+    @abc.abstractmethod
+    def cast(self, mesh, columns: Columns) -> Hits:
+        """Return every crossing of the column rays with ``mesh``.
+
+        Parameters
+        ----------
+        mesh : geovox.mesh.Mesh
+        columns : Columns
+
+        Returns
+        -------
+        Hits
+            Sorted by ray, then depth.
+        """

@@ -1,0 +1,201 @@
+"""Embree backend: embreex through trimesh's ray module finds the candidates.
+
+Embree traces in float32, and a multi-hit loop that restarts each ray just
+past its last hit reports a crossing twice, or not at all, where a ray runs
+through an edge or vertex shared by several triangles (trimesh's own loop
+does exactly that). So Embree is used here only to *find* which triangles
+each ray meets; every decision is settled by the exact shared predicate in
+:mod:`geovox.exact`:
+
+1. Multi-hit loop with :meth:`RayMeshIntersector.intersects_first`, each ray
+   restarted a small step past its last hit (in a centred, scaled copy of
+   the mesh so float32 keeps its precision).
+2. Every reported pair is tested exactly. Where Embree's answer could be
+   wrong -- the exact test rejects it, or the ray passes within a hair of an
+   edge -- every triangle sharing a vertex with the reported one is tested
+   too, which recovers the neighbours a restart skipped.
+3. A ray with an odd number of exact crossings (impossible on a closed mesh
+   when no crossing was lost), or one that ran out of restarts, is redone by
+   the exact NumPy rasteriser.
+
+The result equals the NumPy backend's whenever step 1 meets each crossing or
+one of its vertex neighbours; the rare exception would need two crossings of
+unrelated triangles closer together than the restart step (1e-6 of the mesh
+size) on the same ray.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..exact import Projection
+from ..grid import Columns
+from .base import Backend, Hits
+from .numpy import rasterise
+
+#: Restart step past a hit, as a fraction of the mesh's bounding-box diagonal.
+STEP = 1e-6
+#: Rays closer than this to an edge (in columns, or in 1e-5 mesh sizes,
+#: whichever is larger) have their hit's vertex neighbours tested exactly.
+NEAR_EDGE = 1e-3
+#: Restarts per ray before the ray is handed to the exact rasteriser.
+MAX_RESTARTS = 2000
+
+
+def _vertex_faces(geometric_faces: np.ndarray):
+    """CSR map vertex -> faces using it: ``(offsets, faces)``."""
+    flat = geometric_faces.reshape(-1)
+    order = np.argsort(flat, kind="stable")
+    faces = order // 3
+    counts = np.bincount(flat, minlength=int(flat.max()) + 1)
+    offsets = np.r_[0, np.cumsum(counts)]
+    return offsets, faces
+
+
+def _expand(ray, tri, geometric_faces, offsets, vfaces):
+    """All (ray, face) pairs where face shares a vertex with tri."""
+    verts = geometric_faces[tri].reshape(-1)  # (3n,)
+    rays3 = np.repeat(ray, 3)
+    n = offsets[verts + 1] - offsets[verts]
+    r = np.repeat(rays3, n)
+    start = np.repeat(offsets[verts], n)
+    local = np.arange(int(n.sum()), dtype=np.int64) - np.repeat(np.cumsum(n) - n, n)
+    return r, vfaces[start + local]
+
+
+class EmbreeBackend(Backend):
+    """Embree (embreex, via trimesh.ray.ray_pyembree) with exact verification."""
+
+    name = "embree"
+
+    def __init__(self):
+        # Importing here keeps `import geovox` working where embreex is absent.
+        from trimesh.ray import ray_pyembree  # noqa: F401  (raises ImportError without embreex)
+
+        self._ray_pyembree = ray_pyembree
+
+    def _intersector(self, mesh):
+        cache = mesh._cache
+        if "embree" not in cache:
+            import trimesh
+
+            centre = mesh.bounds.mean(axis=0)
+            factor = 100.0 / mesh.scale
+            local = trimesh.Trimesh(
+                (mesh.vertices - centre) * factor, mesh.faces, process=False, validate=False
+            )
+            cache["embree"] = (self._ray_pyembree.RayMeshIntersector(local, scale_to_box=False),
+                               centre, factor)
+        return cache["embree"]
+
+    def cast(self, mesh, columns: Columns) -> Hits:
+        proj = Projection(mesh.triangles, columns)
+        if len(proj) == 0:
+            return Hits.empty()
+        intersector, centre, factor = self._intersector(mesh)
+        nu = columns.nu
+        ax, ua, va = columns.axis, columns.u_axis, columns.v_axis
+
+        # Only columns inside the projected bounding box of the active triangles.
+        i0, i1 = int(proj.imin.min()), int(proj.imax.max())
+        j0, j1 = int(proj.jmin.min()), int(proj.jmax.max())
+        ii, jj = np.meshgrid(np.arange(i0, i1 + 1), np.arange(j0, j1 + 1), indexing="ij")
+        rays = (ii + nu * jj).reshape(-1)
+        n = len(rays)
+
+        origin = np.zeros((n, 3))
+        origin[:, ua] = (columns.centres_u()[rays % nu] - centre[ua]) * factor
+        origin[:, va] = (columns.centres_v()[rays // nu] - centre[va]) * factor
+        lo = (mesh.bounds[0, ax] - centre[ax]) * factor - 1.0  # outside the mesh
+        direction = np.zeros((n, 3))
+        direction[:, ax] = 1.0
+        step = STEP * 100.0  # the scaled mesh has a diagonal of 100
+
+        tris = (mesh.triangles - centre) * factor
+        v0 = tris[:, 0]
+        normal = np.cross(tris[:, 1] - v0, tris[:, 2] - v0)
+
+        pos = np.full(n, lo)
+        offset = np.full(n, step)
+        last = np.full(n, -1, dtype=np.int64)
+        live = np.arange(n)
+        found_ray, found_tri = [], []
+        for _ in range(MAX_RESTARTS):
+            if len(live) == 0:
+                break
+            o = origin[live]
+            o[:, ax] = pos[live]
+            tri = intersector.intersects_first(o, direction[live])
+            hit = tri >= 0
+            live, tri, o = live[hit], tri[hit], o[hit]
+            if len(live) == 0:
+                break
+            # Where the hit lies along the ray, in float64 from its plane.
+            nz = normal[tri, ax]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                d = v0[tri, ax] - (normal[tri, ua] * (o[:, ua] - v0[tri, ua])
+                                   + normal[tri, va] * (o[:, va] - v0[tri, va])) / nz
+            d = np.where(np.isfinite(d), d, pos[live])
+            repeat = tri == last[live]
+            found_ray.append(rays[live[~repeat]])
+            found_tri.append(tri[~repeat])
+            # A repeat means float32 put the old hit past our restart point:
+            # step further each time; otherwise restart just past the hit.
+            offset[live] = np.where(repeat, offset[live] * 2.0, step)
+            pos[live] = np.maximum(pos[live], d) + offset[live]
+            last[live] = tri
+        stuck = rays[live] if len(live) else np.zeros(0, np.int64)
+
+        ray = np.concatenate(found_ray) if found_ray else np.zeros(0, np.int64)
+        tri = np.concatenate(found_tri) if found_tri else np.zeros(0, np.int64)
+        ray, tri = self._verify(mesh, proj, columns, ray, tri)
+        hits = self._settle(proj, ray, tri)
+
+        # Rays with odd parity (or stuck) are redone exactly.
+        counts = np.bincount(hits.ray, minlength=columns.count)
+        redo = (counts % 2 == 1)
+        redo[stuck] = True
+        if redo.any():
+            keep = ~redo[hits.ray]
+            exact = rasterise(proj, column_mask=redo)
+            hits = Hits.concatenate([
+                Hits(hits.ray[keep], hits.depth[keep], hits.triangle[keep], hits.bary[keep]),
+                exact,
+            ])
+        return hits
+
+    def _verify(self, mesh, proj, columns, ray, tri):
+        """Exact test of Embree's pairs, expanded to vertex neighbours where unsure."""
+        pairs = np.unique(np.stack([ray, tri], axis=1), axis=0) if len(ray) else np.zeros((0, 2), np.int64)
+        ray, tri = pairs[:, 0], pairs[:, 1]
+        t = proj.local[tri]
+        i, j = ray % columns.nu, ray // columns.nu
+        active = t >= 0
+        unsure = ~active
+        hit = np.zeros(len(ray), dtype=bool)
+        if active.any():
+            h, _, _, w = proj.crossings(t[active], i[active], j[active])
+            dist = proj.edge_distance(t[active], w)
+            tol = max(NEAR_EDGE, 1e-5 * mesh.scale / min(columns.du, columns.dv))
+            hit[active] = h
+            unsure[active] = (~h) | (dist < tol)
+        if unsure.any():
+            offsets, vfaces = _vertex_faces(mesh.geometric_faces)
+            r2, f2 = _expand(ray[unsure], tri[unsure], mesh.geometric_faces, offsets, vfaces)
+            ray = np.concatenate([ray, r2])
+            tri = np.concatenate([tri, f2])
+        return ray, tri
+
+    @staticmethod
+    def _settle(proj, ray, tri) -> Hits:
+        """Exact crossings among candidate pairs (duplicates removed)."""
+        if len(ray) == 0:
+            return Hits.empty()
+        nu = proj.columns.nu
+        key = np.unique(tri * np.int64(proj.columns.count) + ray)
+        tri, ray = key // proj.columns.count, key % proj.columns.count
+        t = proj.local[tri]
+        ok = t >= 0
+        ray, tri, t = ray[ok], tri[ok], t[ok]
+        hit, depth, bary, _ = proj.crossings(t, ray % nu, ray // nu)
+        return Hits(ray[hit], depth[hit], tri[hit], bary[hit]).sorted()

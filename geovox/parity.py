@@ -1,0 +1,82 @@
+"""Crossings -> inside intervals -> occupancy, shared by every backend.
+
+Along each column the rays start outside the whole mesh, so after an odd
+number of crossings a point is inside. A voxel is inside when an odd number
+of crossings lie at or before its centre: the interval ``[enter, leave)``
+(a centre exactly on a crossing counts as past it, matching the tie rule
+across the rays in :mod:`geovox.exact`).
+
+The fill never materialises per-voxel intermediates: each crossing toggles
+the first voxel at or past it, toggles that land on the same voxel cancel,
+and a running XOR along the ray axis, one slice at a time and in place,
+turns toggles into occupancy. Peak memory is the output plus the hits.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .backends.base import Hits
+from .grid import Columns, Grid
+
+
+def toggle_indices(hits: Hits, columns: Columns, grid: Grid) -> np.ndarray:
+    """F-order linear indices of the voxels where parity flips an odd number of times.
+
+    Returns
+    -------
+    (k,) int64, sorted, unique.
+    """
+    axis = columns.axis
+    centres = grid.centres(axis)
+    # First voxel whose centre is at or past the crossing.
+    k = np.searchsorted(centres, hits.depth, side="left")
+    keep = k < len(centres)
+    k = k[keep].astype(np.int64)
+    ray = hits.ray[keep]
+    idx = [None, None, None]
+    idx[columns.u_axis] = ray % columns.nu
+    idx[columns.v_axis] = ray // columns.nu
+    idx[axis] = k
+    nx, ny, _ = grid.shape
+    lin = idx[0] + nx * (idx[1] + ny * idx[2])
+    lin.sort()
+    if len(lin) == 0:
+        return lin
+    # Keep the indices that occur an odd number of times.
+    starts = np.flatnonzero(np.r_[True, lin[1:] != lin[:-1]])
+    counts = np.diff(np.r_[starts, len(lin)])
+    return lin[starts[counts % 2 == 1]]
+
+
+def fill(hits: Hits, columns: Columns, grid: Grid, out: np.ndarray | None = None) -> np.ndarray:
+    """Occupancy of ``grid`` from the crossings of its column rays.
+
+    Parameters
+    ----------
+    hits : Hits
+        Crossings of ``columns`` (any order).
+    columns : Columns
+        The rays, one per voxel column of ``grid``.
+    grid : Grid
+    out : (nx, ny, nz) bool, Fortran order, optional
+        Array to fill (zeroed first).
+
+    Returns
+    -------
+    occupancy : (nx, ny, nz) bool, Fortran order (x fastest in memory).
+    """
+    if out is None:
+        out = np.zeros(grid.shape, dtype=bool, order="F")
+    else:
+        out[...] = False
+    flat = out.reshape(-1, order="F")  # a view: `out` is Fortran-ordered
+    flat[toggle_indices(hits, columns, grid)] = True
+    axis = columns.axis
+    prev = [slice(None)] * 3
+    cur = [slice(None)] * 3
+    for k in range(1, grid.shape[axis]):
+        prev[axis] = k - 1
+        cur[axis] = k
+        np.logical_xor(out[tuple(cur)], out[tuple(prev)], out=out[tuple(cur)])
+    return out
