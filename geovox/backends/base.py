@@ -27,7 +27,9 @@ class Hits:
         Barycentric weights ``(u, v)`` of the triangle's vertices 1 and 2 at
         the crossing (vertex 0 has ``1 - u - v``).
 
-    Hits are sorted by ray, then depth.
+    Hits come in no particular order (sorting a million hits costs more
+    than the parity fill, which does not need it); call :meth:`sorted` for
+    ray-then-depth order.
     """
 
     ray: np.ndarray
@@ -43,13 +45,16 @@ class Hits:
         parts = list(parts)
         if not parts:
             return cls.empty()
-        out = cls(
+        return cls(
             ray=np.concatenate([p.ray for p in parts]),
             depth=np.concatenate([p.depth for p in parts]),
             triangle=np.concatenate([p.triangle for p in parts]),
             bary=np.concatenate([p.bary for p in parts]),
         )
-        return out.sorted()
+
+    def take(self, index) -> "Hits":
+        """The hits selected by a boolean mask or index array."""
+        return Hits(self.ray[index], self.depth[index], self.triangle[index], self.bary[index])
 
     @classmethod
     def empty(cls) -> "Hits":
@@ -62,8 +67,7 @@ class Hits:
 
     def sorted(self) -> "Hits":
         # Ties in depth are ordered by triangle so the order is deterministic.
-        order = np.lexsort((self.triangle, self.depth, self.ray))
-        return Hits(self.ray[order], self.depth[order], self.triangle[order], self.bary[order])
+        return self.take(np.lexsort((self.triangle, self.depth, self.ray)))
 
 
 class Backend(abc.ABC):
@@ -90,5 +94,5 @@ class Backend(abc.ABC):
         Returns
         -------
         Hits
-            Sorted by ray, then depth.
+            Each crossing once, in any order.
         """

@@ -118,6 +118,7 @@ class EmbreeBackend(Backend):
         pos = np.full(n, lo)
         offset = np.full(n, step)
         last = np.full(n, -1, dtype=np.int64)
+        behind = np.zeros(n, dtype=bool)
         live = np.arange(n)
         found_ray, found_tri = [], []
         for _ in range(MAX_RESTARTS):
@@ -136,6 +137,8 @@ class EmbreeBackend(Backend):
                 d = v0[tri, ax] - (normal[tri, ua] * (o[:, ua] - v0[tri, ua])
                                    + normal[tri, va] * (o[:, va] - v0[tri, va])) / nz
             d = np.where(np.isfinite(d), d, pos[live])
+            # A hit behind the restart point may be one already recorded.
+            behind[live[d < pos[live]]] = True
             repeat = tri == last[live]
             found_ray.append(rays[live[~repeat]])
             found_tri.append(tri[~repeat])
@@ -148,8 +151,9 @@ class EmbreeBackend(Backend):
 
         ray = np.concatenate(found_ray) if found_ray else np.zeros(0, np.int64)
         tri = np.concatenate(found_tri) if found_tri else np.zeros(0, np.int64)
-        ray, tri = self._verify(mesh, proj, columns, ray, tri)
-        hits = self._settle(proj, ray, tri)
+        recheck = np.zeros(columns.count, dtype=bool)
+        recheck[rays[behind]] = True
+        hits = self._verify(mesh, proj, columns, ray, tri, recheck)
 
         # Rays with odd parity (or stuck) are redone exactly.
         counts = np.bincount(hits.ray, minlength=columns.count)
@@ -158,44 +162,40 @@ class EmbreeBackend(Backend):
         if redo.any():
             keep = ~redo[hits.ray]
             exact = rasterise(proj, column_mask=redo)
-            hits = Hits.concatenate([
-                Hits(hits.ray[keep], hits.depth[keep], hits.triangle[keep], hits.bary[keep]),
-                exact,
-            ])
+            hits = Hits.concatenate([hits.take(keep), exact])
         return hits
 
-    def _verify(self, mesh, proj, columns, ray, tri):
-        """Exact test of Embree's pairs, expanded to vertex neighbours where unsure."""
-        pairs = np.unique(np.stack([ray, tri], axis=1), axis=0) if len(ray) else np.zeros((0, 2), np.int64)
-        ray, tri = pairs[:, 0], pairs[:, 1]
+    def _verify(self, mesh, proj, columns, ray, tri, recheck) -> Hits:
+        """Exact crossings among Embree's pairs and, where unsure, their vertex neighbours.
+
+        ``recheck`` (per ray, bool) marks rays that may hold a pair twice.
+        """
         t = proj.local[tri]
-        i, j = ray % columns.nu, ray // columns.nu
         active = t >= 0
-        unsure = ~active
-        hit = np.zeros(len(ray), dtype=bool)
-        if active.any():
-            h, _, _, w = proj.crossings(t[active], i[active], j[active])
-            dist = proj.edge_distance(t[active], w)
-            tol = max(NEAR_EDGE, 1e-5 * mesh.scale / min(columns.du, columns.dv))
-            hit[active] = h
-            unsure[active] = (~h) | (dist < tol)
+        ray, tri, t = ray[active], tri[active], t[active]
+        nu = columns.nu
+        hit, depth, bary, w = proj.crossings(t, ray % nu, ray // nu)
+        tol = max(NEAR_EDGE, 1e-5 * mesh.scale / min(columns.du, columns.dv))
+        unsure = ~hit | (proj.edge_distance(t, w) < tol)
+        parts = [Hits(ray[hit], depth[hit], tri[hit], bary[hit])]
         if unsure.any():
             offsets, vfaces = _vertex_faces(mesh.geometric_faces)
             r2, f2 = _expand(ray[unsure], tri[unsure], mesh.geometric_faces, offsets, vfaces)
-            ray = np.concatenate([ray, r2])
-            tri = np.concatenate([tri, f2])
-        return ray, tri
-
-    @staticmethod
-    def _settle(proj, ray, tri) -> Hits:
-        """Exact crossings among candidate pairs (duplicates removed)."""
-        if len(ray) == 0:
-            return Hits.empty()
-        nu = proj.columns.nu
-        key = np.unique(tri * np.int64(proj.columns.count) + ray)
-        tri, ray = key // proj.columns.count, key % proj.columns.count
-        t = proj.local[tri]
-        ok = t >= 0
-        ray, tri, t = ray[ok], tri[ok], t[ok]
-        hit, depth, bary, _ = proj.crossings(t, ray % nu, ray // nu)
-        return Hits(ray[hit], depth[hit], tri[hit], bary[hit]).sorted()
+            t2 = proj.local[f2]
+            ok = t2 >= 0
+            r2, f2, t2 = r2[ok], f2[ok], t2[ok]
+            h2, d2, b2, _ = proj.crossings(t2, r2 % nu, r2 // nu)
+            parts.append(Hits(r2[h2], d2[h2], f2[h2], b2[h2]))
+        hits = Hits.concatenate(parts)
+        # A pair can be reported twice only on a ray that met an edge or
+        # vertex (an unsure pair) or had a hit behind its restart point.
+        recheck[ray[unsure]] = True
+        sel = np.flatnonzero(recheck[hits.ray])
+        if len(sel):
+            key = hits.triangle[sel] * np.int64(columns.count) + hits.ray[sel]
+            _, first = np.unique(key, return_index=True)
+            keep = np.ones(len(hits), dtype=bool)
+            keep[sel] = False
+            keep[sel[first]] = True
+            hits = hits.take(keep)
+        return hits
