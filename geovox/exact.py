@@ -26,11 +26,15 @@ The rules
   exactly one triangle of the fan. Parity is therefore exact on closed meshes.
 * Triangles with zero projected area (parallel to the rays) are never crossed.
 * Depth along the ray is interpolated in float64 from the exact barycentric
-  weights, ``z0 + u (z1 - z0) + v (z2 - z0)``, so a face parallel to the grid
-  gets exactly its vertices' coordinate.
-* Along the ray the same perturbation holds: a voxel centre exactly at a
-  crossing's depth counts as past it (see :mod:`geovox.parity`), so inside
-  is the half-open interval ``[enter, leave)`` on every axis.
+  weights, based at the vertex of largest weight, so a vertex gets exactly
+  its own coordinate from every triangle around it and a face parallel to
+  the grid gets exactly its vertices' coordinate.
+* Along the ray a voxel centre exactly at a crossing's depth counts as past
+  it (see :mod:`geovox.parity`), so inside is the half-open interval
+  ``[enter, leave)`` on every axis. A ray that only touches the surface
+  (two crossings at one depth) changes nothing, even for a centre exactly at
+  the touching point: that is the perturbation with the offset along the ray
+  much larger than the one across it.
 """
 
 from __future__ import annotations
@@ -201,14 +205,22 @@ class Projection:
         return hit, depth, bary, w
 
     def interpolate(self, t, w):
-        """Depth and barycentric weights from tie-resolved edge functions."""
-        ww = (w - self.tie[t]).astype(np.float64)
-        area = self.area[t]
-        u = ww[:, 1] / area
-        v = ww[:, 2] / area
+        """Depth and barycentric weights from tie-resolved edge functions.
+
+        The depth is interpolated from the vertex with the largest weight,
+        ``z_k + sum_i l_i (z_i - z_k)``: exact at a vertex (so every triangle
+        of a fan reports the vertex's own coordinate, and a ray that touches
+        the surface at a vertex gets two crossings at one depth) and exact on
+        faces parallel to the grid.
+        """
+        lam = (w - self.tie[t]).astype(np.float64) / self.area[t][:, None]  # (n, 3)
         z = self.z[t]
-        depth = z[:, 0] + u * (z[:, 1] - z[:, 0]) + v * (z[:, 2] - z[:, 0])
-        return depth, np.stack([u, v], axis=1)
+        k = np.argmax(lam, axis=1)[:, None]
+        zk = np.take_along_axis(z, k, axis=1)
+        dz = z - zk
+        np.put_along_axis(dz, k, 0.0, axis=1)
+        depth = zk[:, 0] + (lam * dz).sum(axis=1)
+        return depth, lam[:, 1:]
 
     def edge_distance(self, t, w):
         """(n,) float64: distance in columns from the ray to the nearest edge line."""

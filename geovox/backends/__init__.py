@@ -73,6 +73,8 @@ def get_backend(name: str = "auto") -> Backend:
         raise ParameterError(f"`backend` must be one of auto, {', '.join(REGISTRY)}; got {name!r}")
     module, package, _ = REGISTRY[name]
     try:
+        if not _present(module):
+            raise ImportError(f"No module named {module!r}")
         return _load(name)
     except ImportError as exc:
         raise BackendUnavailableError(

@@ -70,9 +70,10 @@ class EmbreeBackend(Backend):
 
     def __init__(self):
         # Importing here keeps `import geovox` working where embreex is absent.
-        from trimesh.ray import ray_pyembree  # noqa: F401  (raises ImportError without embreex)
+        import importlib
 
-        self._ray_pyembree = ray_pyembree
+        # Raises ImportError where embreex is missing or has no working build.
+        self._ray_pyembree = importlib.import_module("trimesh.ray.ray_pyembree")
 
     def _intersector(self, mesh):
         cache = mesh._cache

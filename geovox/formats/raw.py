@@ -1,0 +1,75 @@
+"""Headerless RAW (x fastest) with a JSON sidecar that says how to read it."""
+
+from __future__ import annotations
+
+import json
+import os
+
+import numpy as np
+
+#: Voxels converted per slab, which bounds the extra memory of writing.
+SLAB_VOXELS = 1 << 24
+
+
+def metadata(volume, data_file: str, dtype: str = "uint8", values: str = "0 outside, 255 inside") -> dict:
+    """Everything a reader needs to interpret the RAW file, as plain JSON types."""
+    nx, ny, nz = volume.shape
+    lo, hi = volume.bounds
+    return {
+        "data_file": os.path.basename(data_file),
+        "shape": [nx, ny, nz],
+        "dtype": dtype,
+        "byte_order": "little" if np.dtype(dtype).itemsize > 1 else "n/a",
+        "axis_order": "x fastest, then y, then z (Fortran order of a [x, y, z] array)",
+        "values": values,
+        "spacing": list(volume.spacing),
+        "bounds": [list(lo), list(hi)],
+        "origin_of_first_voxel_centre": [lo[a] + 0.5 * volume.spacing[a] for a in range(3)],
+        "backend": volume.backend,
+        "source": volume.source,
+        "numpy": (f"np.fromfile({os.path.basename(data_file)!r}, dtype=np.{dtype})"
+                  f".reshape(({nx}, {ny}, {nz}), order='F')"),
+    }
+
+
+def write_raw(volume, path) -> list:
+    """Write occupancy as uint8 0/255, x fastest, and ``<path minus .raw>.json``.
+
+    Parameters
+    ----------
+    volume : Volume
+    path : str
+        Target ``.raw`` file.
+
+    Returns
+    -------
+    list of str
+        The RAW file and its sidecar.
+    """
+    from . import atomic_output
+
+    path = os.fspath(path)
+    occ = volume.occupancy
+    nz = occ.shape[2]
+    per = max(1, SLAB_VOXELS // max(1, occ.shape[0] * occ.shape[1]))
+    with atomic_output(path) as tmp:
+        with open(tmp, "wb") as f:
+            for z0 in range(0, nz, per):
+                slab = occ[:, :, z0:z0 + per]
+                # Transposed, the Fortran-ordered slab is C-contiguous in
+                # (z, y, x): its bytes are already x fastest.
+                (slab.T.view(np.uint8) * np.uint8(255)).tofile(f)
+    sidecar = os.path.splitext(path)[0] + ".json"
+    with atomic_output(sidecar) as tmp:
+        with open(tmp, "w") as f:
+            json.dump(metadata(volume, path), f, indent=2)
+            f.write("\n")
+    return [path, sidecar]
+
+
+def read_raw(path) -> np.ndarray:
+    """Read a RAW file written by :func:`write_raw` back as a [x, y, z] array."""
+    sidecar = os.path.splitext(os.fspath(path))[0] + ".json"
+    with open(sidecar) as f:
+        meta = json.load(f)
+    return np.fromfile(path, dtype=meta["dtype"]).reshape(meta["shape"], order="F")

@@ -1,0 +1,103 @@
+"""Shared fixtures: one `backend` fixture over every available backend, and
+small meshes built to hit the edge cases of column ray casting."""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import pytest
+import trimesh
+
+import geovox
+from geovox.mesh import Mesh
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+ROOT = os.path.dirname(HERE)
+CORPUS = os.path.join(ROOT, "..", "shared", "corpus")
+SPOT = os.path.join(ROOT, "data", "spot", "spot.obj")
+
+
+@pytest.fixture(params=geovox.available_backends())
+def backend(request):
+    """Every test using this runs once per installed backend."""
+    return request.param
+
+
+def corpus(*parts):
+    """Path into ../shared/corpus, skipping the test when it is absent."""
+    path = os.path.join(CORPUS, *parts)
+    if not os.path.exists(path):
+        pytest.skip(f"corpus file not present: {path}")
+    return path
+
+
+def box_mesh(lo, hi, diagonals="alternate") -> Mesh:
+    """Axis-aligned box; each face split along a chosen diagonal.
+
+    ``diagonals="alternate"`` flips the diagonal between opposite faces so
+    that the diagonals of the top and bottom faces cross in projection.
+    """
+    lo = np.asarray(lo, float)
+    hi = np.asarray(hi, float)
+    corners = np.array([[(hi if (k >> a) & 1 else lo)[a] for a in range(3)] for k in range(8)])
+    # quads as (v0, v1, v2, v3) counter-clockwise seen from outside
+    quads = [
+        (0, 2, 3, 1),  # z = lo
+        (4, 5, 7, 6),  # z = hi
+        (0, 1, 5, 4),  # y = lo
+        (2, 6, 7, 3),  # y = hi
+        (0, 4, 6, 2),  # x = lo
+        (1, 3, 7, 5),  # x = hi
+    ]
+    faces = []
+    for n, (a, b, c, d) in enumerate(quads):
+        if diagonals == "alternate" and n % 2:
+            faces += [(a, b, d), (b, c, d)]
+        else:
+            faces += [(a, b, c), (a, c, d)]
+    return Mesh(corners, np.array(faces), source="box")
+
+
+def from_tm(m: trimesh.Trimesh, name: str) -> Mesh:
+    return Mesh(np.asarray(m.vertices, float), np.asarray(m.faces, np.int64), source=name)
+
+
+def reference_occupancy(mesh: Mesh, grid, axis: int = 2) -> np.ndarray:
+    """Slow, independent float64 classification of every voxel centre.
+
+    Each centre is nudged across the rays by (1e-8, 1e-10) voxels along the
+    two other axes (in increasing axis order) and by 1e-6 voxels along the
+    ray, which puts it in general position; it is inside when an odd number
+    of triangles lie before it along ``axis`` (strict tests only, no tie
+    rules). This realises the symbolic-perturbation convention of
+    geovox.exact, whose nudge along the ray dominates the one across it.
+    """
+    eps = np.zeros(3)
+    eps[axis] = 1e-6
+    eps[[a for a in range(3) if a != axis]] = [1e-8, 1e-10]
+    eps = eps * grid.spacing
+    cs = [grid.centres(a) + eps[a] for a in range(3)]
+    P = np.stack(np.meshgrid(*cs, indexing="ij"), axis=-1).reshape(-1, 3)
+    u, v = (a for a in range(3) if a != axis)
+    T = mesh.triangles
+    count = np.zeros(len(P), dtype=np.int64)
+    for start in range(0, len(T), 64):
+        t = T[start:start + 64]
+        a, b, c = t[:, 0], t[:, 1], t[:, 2]
+
+        def orient(p, q, r):
+            return ((q[..., u] - p[..., u]) * (r[..., v] - p[..., v])
+                    - (q[..., v] - p[..., v]) * (r[..., u] - p[..., u]))
+
+        area = orient(a, b, c)
+        ok = area != 0
+        a, b, c, area = a[ok], b[ok], c[ok], area[ok]
+        Pe = P[:, None, :]
+        w0 = orient(b[None], c[None], Pe) / area
+        w1 = orient(c[None], a[None], Pe) / area
+        w2 = orient(a[None], b[None], Pe) / area
+        inside2d = (w0 > 0) & (w1 > 0) & (w2 > 0)
+        depth = w0 * a[None, :, axis] + w1 * b[None, :, axis] + w2 * c[None, :, axis]
+        count += (inside2d & (depth < Pe[..., axis])).sum(axis=1)
+    return (count % 2 == 1).reshape(grid.shape)

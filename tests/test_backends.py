@@ -1,0 +1,144 @@
+"""Cross-backend consistency and the backend registry."""
+
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+import pytest
+import trimesh
+
+import geovox
+from geovox import backends
+from geovox.errors import BackendUnavailableError, ParameterError
+
+from conftest import SPOT, corpus, from_tm
+
+needs_two = pytest.mark.skipif(len(geovox.available_backends()) < 2,
+                               reason="needs both backends installed")
+
+CLOSED_CORPUS = [
+    ("spot", "spot/spot.obj"),
+    ("bunny_oded", "bunny_watertight/bunny_oded.obj"),
+    ("fuze", "fuze/fuze.obj"),
+    ("quadknot", "trimesh_edge_cases/quadknot.obj"),
+    ("box", "trimesh_edge_cases/box.obj"),
+    ("negative_indices", "trimesh_edge_cases/negative_indices.obj"),
+    ("textured_tetrahedron", "trimesh_edge_cases/textured_tetrahedron.obj"),
+    ("rabbit", "trimesh_edge_cases/rabbit.obj"),
+]
+
+
+def _closed_synthetic():
+    ico = trimesh.creation.icosphere(subdivisions=3, radius=1.0)
+    yield "icosphere", from_tm(ico, "icosphere")
+    tor = trimesh.creation.torus(major_radius=1.0, minor_radius=0.3)
+    yield "torus", from_tm(tor, "torus")
+    cap = trimesh.creation.capsule(height=1.0, radius=0.4)
+    yield "capsule", from_tm(cap, "capsule")
+    two = trimesh.util.concatenate([trimesh.creation.box((1, 1, 1)),
+                                    trimesh.creation.box((1, 1, 1)).apply_translation((0.5, 0.5, 0.5))])
+    yield "overlapping_boxes", from_tm(two, "overlapping_boxes")
+
+
+SYNTHETIC = list(_closed_synthetic())
+
+
+def _both(mesh, **kw):
+    return [geovox.voxelize(mesh, backend=b, **kw) for b in ("numpy", "embree")]
+
+
+@needs_two
+@pytest.mark.parametrize("name,rel", CLOSED_CORPUS, ids=[c[0] for c in CLOSED_CORPUS])
+@pytest.mark.parametrize("res", [17, 64])
+def test_backends_agree_on_corpus(name, rel, res):
+    path = corpus(rel)
+    a, b = _both(path, resolution=res)
+    assert a.inside_count > 0
+    np.testing.assert_array_equal(a.occupancy, b.occupancy)
+
+
+@needs_two
+@pytest.mark.parametrize("name,mesh", SYNTHETIC, ids=[s[0] for s in SYNTHETIC])
+@pytest.mark.parametrize("res", [1, 2, 31, 96])
+@pytest.mark.parametrize("axis", [0, 2])
+def test_backends_agree_on_synthetic(name, mesh, res, axis):
+    a, b = _both(mesh, resolution=res, axis=axis)
+    np.testing.assert_array_equal(a.occupancy, b.occupancy)
+
+
+@needs_two
+@pytest.mark.parametrize("bounds", [
+    (-0.2, -0.3, -0.1, 0.3, 0.4, 0.5),  # cuts through the middle
+    (0.0, 0.0, 0.0, 2.0, 2.0, 2.0),     # overhangs one corner
+    (-0.05, -0.7, -0.6, 0.05, 0.9, 1.0),  # a thin slab
+])
+def test_backends_agree_on_subsections(bounds):
+    a, b = _both(SPOT, shape=(40, 33, 27), bounds=bounds)
+    np.testing.assert_array_equal(a.occupancy, b.occupancy)
+
+
+@needs_two
+def test_backends_agree_with_anisotropic_voxels():
+    a, b = _both(SPOT, shape=(7, 90, 41))
+    np.testing.assert_array_equal(a.occupancy, b.occupancy)
+
+
+def test_spot_is_closed_so_every_column_is_even(backend):
+    m = geovox.load_mesh(SPOT)
+    grid = geovox.grid.make_grid(m.bounds, resolution=80)
+    columns = grid.columns(2, start=m.bounds[0, 2] - 1)
+    hits = backends.get_backend(backend).cast(m, columns)
+    assert np.all(np.bincount(hits.ray, minlength=columns.count) % 2 == 0)
+
+
+def test_hits_carry_triangle_and_barycentrics(backend):
+    # The hit point rebuilt from (triangle, bary) lies on the ray at `depth`.
+    m = geovox.load_mesh(SPOT)
+    grid = geovox.grid.make_grid(m.bounds, resolution=32)
+    columns = grid.columns(1, start=m.bounds[0, 1] - 1)
+    hits = backends.get_backend(backend).cast(m, columns)
+    tri = m.triangles[hits.triangle]
+    u, v = hits.bary[:, 0:1], hits.bary[:, 1:2]
+    p = (1 - u - v) * tri[:, 0] + u * tri[:, 1] + v * tri[:, 2]
+    assert np.all(hits.bary >= 0) and np.all(hits.bary.sum(axis=1) <= 1 + 1e-12)
+    np.testing.assert_allclose(p[:, 1], hits.depth, atol=1e-9)
+    np.testing.assert_allclose(p[:, 0], columns.centres_u()[hits.ray % columns.nu], atol=1e-6)
+    np.testing.assert_allclose(p[:, 2], columns.centres_v()[hits.ray // columns.nu], atol=1e-6)
+
+
+def test_available_backends_lists_numpy_first_fallback():
+    names = geovox.available_backends()
+    assert "numpy" in names
+    assert names == [n for n in backends.PREFERENCE if n in names]
+
+
+def test_auto_prefers_embree_when_it_imports():
+    vol = geovox.voxelize(SPOT, resolution=8)
+    assert vol.backend == geovox.available_backends()[0]
+
+
+@pytest.fixture
+def no_embreex(monkeypatch):
+    """Make embreex (and trimesh's module that wraps it) fail to import."""
+    monkeypatch.setitem(sys.modules, "embreex", None)
+    monkeypatch.setitem(sys.modules, "trimesh.ray.ray_pyembree", None)
+    monkeypatch.setattr(backends, "_instances", {})
+    monkeypatch.setattr(backends, "_present", lambda m: m != "embreex")
+
+
+def test_explicit_embree_without_embreex_names_the_package(no_embreex):
+    with pytest.raises(BackendUnavailableError, match="embreex") as info:
+        geovox.voxelize(SPOT, resolution=8, backend="embree")
+    assert isinstance(info.value, ImportError)
+    assert "pip install embreex" in str(info.value)
+
+
+def test_auto_without_embreex_uses_numpy(no_embreex):
+    assert geovox.available_backends() == ["numpy"]
+    assert geovox.voxelize(SPOT, resolution=8).backend == "numpy"
+
+
+def test_unknown_backend_is_a_parameter_error():
+    with pytest.raises(ParameterError, match="`backend`.*'optix'"):
+        geovox.voxelize(SPOT, resolution=8, backend="optix")
