@@ -58,7 +58,7 @@ def write_raw(volume, path) -> list:
                 slab = occ[:, :, z0:z0 + per]
                 # Transposed, the Fortran-ordered slab is C-contiguous in
                 # (z, y, x): its bytes are already x fastest.
-                (slab.T.view(np.uint8) * np.uint8(255)).tofile(f)
+                f.write((slab.T.view(np.uint8) * np.uint8(255)).data)
     sidecar = os.path.splitext(path)[0] + ".json"
     with atomic_output(sidecar) as tmp:
         with open(tmp, "w") as f:

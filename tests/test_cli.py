@@ -1,0 +1,204 @@
+"""The CLI, in-process: outputs read back, bad input gives one line and exit 2."""
+
+from __future__ import annotations
+
+import json
+import os
+
+import h5py
+import numpy as np
+import pytest
+
+import geovox
+from geovox.cli import main
+from geovox.formats.raw import read_raw
+
+from conftest import SPOT
+
+
+@pytest.fixture(scope="module")
+def spot32():
+    return geovox.voxelize(SPOT, resolution=32, backend="numpy")
+
+
+def test_convert_raw_reads_back(tmp_path, spot32, capsys):
+    out = tmp_path / "spot.raw"
+    assert main(["convert", SPOT, "-o", str(out), "-r", "32", "--backend", "numpy"]) == 0
+    raw = np.fromfile(out, dtype=np.uint8)
+    assert raw.size == 32**3
+    assert set(np.unique(raw)) == {0, 255}
+    meta = json.loads((tmp_path / "spot.json").read_text())
+    assert meta["shape"] == [32, 32, 32] and meta["dtype"] == "uint8"
+    np.testing.assert_allclose(meta["spacing"], spot32.spacing)
+    # x fastest: Fortran-order reshape gives [x, y, z].
+    np.testing.assert_array_equal(raw.reshape(meta["shape"], order="F") == 255, spot32.occupancy)
+    np.testing.assert_array_equal(read_raw(out) == 255, spot32.occupancy)
+    text = capsys.readouterr().out
+    assert "32 x 32 x 32" in text and "voxel size" in text and "backend numpy" in text
+    assert f"inside {spot32.inside_count:,}" in text
+    assert os.stat(out).st_mode & 0o044  # readable by others, like a plain open()
+
+
+@pytest.mark.parametrize("ext", [".h5", ".hdf5"])
+def test_convert_hdf5_reads_back(tmp_path, spot32, ext):
+    out = tmp_path / f"spot{ext}"
+    assert main(["convert", SPOT, "-o", str(out), "-r", "32", "--backend", "numpy", "-q"]) == 0
+    with h5py.File(out, "r") as f:
+        d = f["occupancy"]
+        assert d.dtype == np.uint8 and d.compression == "gzip" and d.chunks is not None
+        np.testing.assert_array_equal(d[...] == 1, spot32.occupancy)
+        np.testing.assert_allclose(d.attrs["spacing"], spot32.spacing)
+        np.testing.assert_allclose(d.attrs["bounds"], spot32.bounds)
+        assert list(d.attrs["shape"]) == [32, 32, 32]
+        assert d.attrs["axis_order"] == "xyz"
+        assert d.attrs["backend"] == "numpy"
+        assert d.attrs["source"].endswith("spot.obj")
+
+
+def test_convert_options(tmp_path):
+    out = tmp_path / "v.h5"
+    args = ["convert", SPOT, "-o", str(out), "--shape", "8", "9", "10",
+            "--bounds", "-0.5", "-0.8", "-0.7", "0.5", "1", "1.1", "-q"]
+    assert main(args) == 0
+    with h5py.File(out) as f:
+        assert f["occupancy"].shape == (8, 9, 10)
+        np.testing.assert_allclose(f["occupancy"].attrs["bounds"], [[-0.5, -0.8, -0.7], [0.5, 1, 1.1]])
+    assert main(["convert", SPOT, "-o", str(out), "--voxel-size", "0.05", "-q"]) == 0
+    with h5py.File(out) as f:
+        np.testing.assert_allclose(f["occupancy"].attrs["spacing"], 0.05)
+
+
+def test_backends_command(capsys):
+    assert main(["backends"]) == 0
+    text = capsys.readouterr().out
+    assert "numpy" in text and "embree" in text
+
+
+def test_python_dash_m(tmp_path):
+    import subprocess
+    import sys
+
+    r = subprocess.run([sys.executable, "-m", "geovox", "backends"], capture_output=True, text=True)
+    assert r.returncode == 0 and "numpy" in r.stdout
+
+
+def _bad_inputs(tmp_path):
+    empty = tmp_path / "empty.obj"
+    empty.write_bytes(b"")
+    text = tmp_path / "notes.txt"
+    text.write_text("hello\n")
+    garbage = tmp_path / "garbage.obj"
+    garbage.write_bytes(bytes(range(256)) * 40)
+    verts_only = tmp_path / "verts.obj"
+    verts_only.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\n")
+    nan = tmp_path / "nan.obj"
+    nan.write_text("v 0 0 0\nv nan 0 0\nv 0 1 0\nv 0 0 1\nf 1 2 3\nf 1 3 4\nf 1 4 2\nf 2 4 3\n")
+    return {
+        "missing input": ([str(tmp_path / "nope.obj")], "not found"),
+        "folder as input": ([str(tmp_path)], "folder"),
+        "empty file": ([str(empty)], "empty"),
+        "not a mesh": ([str(text)], "cannot be read as a mesh"),
+        "binary garbage": ([str(garbage)], "garbage.obj"),
+        "vertices only": ([str(verts_only)], "verts.obj"),
+        "nan vertices": ([str(nan)], "nan.obj"),
+        "bounds min >= max": ([SPOT, "--bounds", "0", "0", "0", "0", "1", "1"], "min < max"),
+        "resolution zero": ([SPOT, "-r", "0"], "positive integer, got '0'"),
+        "resolution negative": ([SPOT, "-r", "-3"], "positive integer, got '-3'"),
+        "resolution not a number": ([SPOT, "-r", "abc"], "positive integer, got 'abc'"),
+        "voxel size zero": ([SPOT, "--voxel-size", "0"], "positive number"),
+        "unknown extension": ([SPOT, "-o", str(tmp_path / "x.xyz")], "output format"),
+        "missing output folder": ([SPOT, "-o", str(tmp_path / "no" / "x.raw")], "does not exist"),
+    }
+
+
+CASES = ["missing input", "folder as input", "empty file", "not a mesh", "binary garbage",
+         "vertices only", "nan vertices", "bounds min >= max", "resolution zero",
+         "resolution negative", "resolution not a number", "voxel size zero",
+         "unknown extension", "missing output folder"]
+
+
+@pytest.mark.parametrize("case", CASES)
+def test_bad_input_one_line_exit_2_nothing_written(case, tmp_path, capsys):
+    args, needle = _bad_inputs(tmp_path)[case]
+    outdir = tmp_path / "out"
+    outdir.mkdir()
+    if "-o" not in args:
+        args = args + ["-o", str(outdir / "v.raw")]
+    before = sorted(os.listdir(tmp_path))
+    status = main(["convert"] + args)
+    err = capsys.readouterr().err
+    assert status == 2
+    assert err.count("\n") == 1 and err.startswith("geovox: error:"), err
+    assert "Traceback" not in err
+    assert needle in err
+    assert os.listdir(outdir) == []
+    assert sorted(os.listdir(tmp_path)) == before
+
+
+def test_debug_shows_the_traceback(tmp_path):
+    with pytest.raises(geovox.InputNotFoundError):
+        main(["--debug", "convert", str(tmp_path / "nope.obj"), "-o", str(tmp_path / "x.raw")])
+
+
+class _FullDisk:
+    """A binary file whose third write fails with ENOSPC, as on a full disk."""
+
+    def __init__(self, f):
+        self.f, self.writes = f, 0
+
+    def write(self, data):
+        self.writes += 1
+        if self.writes > 2:
+            raise OSError(28, "No space left on device")
+        return self.f.write(data)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.f.close()
+
+
+def test_full_disk_leaves_existing_file_untouched(tmp_path, monkeypatch, capsys):
+    import geovox.formats.raw as raw
+
+    out = tmp_path / "v.raw"
+    out.write_bytes(b"previous")
+    monkeypatch.setattr(raw, "SLAB_VOXELS", 1)  # one write per z slice
+    monkeypatch.setattr(raw, "open", lambda p, mode="r": _FullDisk(open(p, mode)), raising=False)
+    status = main(["convert", SPOT, "-o", str(out), "-r", "8", "-q"])
+    assert status == 2
+    assert "disk full" in capsys.readouterr().err
+    assert out.read_bytes() == b"previous"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["v.raw"]
+
+
+def test_interrupt_while_writing_leaves_nothing(tmp_path, monkeypatch):
+    import geovox.formats.hdf5 as hdf5
+
+    monkeypatch.setattr(hdf5, "SLAB_VOXELS", 1)  # one write per x slab
+    real = h5py.Dataset.__setitem__
+    calls = {"n": 0}
+
+    def interrupt_on_second_slab(self, key, value):
+        calls["n"] += 1
+        if calls["n"] == 2:
+            raise KeyboardInterrupt
+        return real(self, key, value)
+
+    monkeypatch.setattr(h5py.Dataset, "__setitem__", interrupt_on_second_slab)
+    vol = geovox.voxelize(SPOT, resolution=70, backend="numpy")
+    with pytest.raises(KeyboardInterrupt):
+        geovox.formats.write(vol, tmp_path / "v.h5")
+    assert calls["n"] == 2
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_unwritable_folder(tmp_path, capsys):
+    if os.geteuid() == 0:
+        pytest.skip("root can write anywhere")
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    ro.chmod(0o500)
+    assert main(["convert", SPOT, "-o", str(ro / "v.raw")]) == 2
+    assert "not writable" in capsys.readouterr().err
