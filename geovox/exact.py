@@ -12,8 +12,8 @@ The rules
   centre is an integer point: ``q = rint((x - u0) / du * 2**s)``, column ``i``
   at ``i * 2**s + 2**(s - 1)``. ``s`` is chosen per call so that every
   coordinate stays below ``2**MAX_BITS``; with ``s`` capped at ``MAX_SUB_BITS``
-  the snapping moves a vertex by at most ``2**-(s+1)`` of a column (1e-6 of a
-  voxel at 1024 voxels across the mesh). Snapping is a function of the vertex
+  the snapping moves a vertex by at most ``2**-(s+1)`` of a column (under 1e-5
+  of a voxel at 1024 voxels across the mesh). Snapping is a function of the vertex
   value alone, so shared vertices stay shared and a closed mesh stays closed.
 * Edge functions (2-D orientation determinants) are then exact ``int64``
   arithmetic: ``|q| < 2**28`` keeps every product below ``2**59``.
