@@ -84,23 +84,27 @@ class Projection:
     """
 
     def __init__(self, triangles: np.ndarray, columns: Columns):
+        # Written with one 1-D array per vertex: reductions over a length-3
+        # axis and fancy indexing on (n, 3) arrays cost several times more.
         self.columns = columns
         tris = np.asarray(triangles, dtype=np.float64)
         n_all = len(tris)
         a, b, c = columns.u_axis, columns.v_axis, columns.axis
         with np.errstate(invalid="ignore", over="ignore"):
-            fu = (tris[:, :, a] - columns.u0) / columns.du  # column units
-            fv = (tris[:, :, b] - columns.v0) / columns.dv
+            fu = [(tris[:, k, a] - columns.u0) / columns.du for k in range(3)]  # column units
+            fv = [(tris[:, k, b] - columns.v0) / columns.dv for k in range(3)]
+        lo_u = np.minimum(np.minimum(fu[0], fu[1]), fu[2])
+        hi_u = np.maximum(np.maximum(fu[0], fu[1]), fu[2])
+        lo_v = np.minimum(np.minimum(fv[0], fv[1]), fv[2])
+        hi_v = np.maximum(np.maximum(fv[0], fv[1]), fv[2])
         # Column i's centre sits at i + 0.5 in these units: keep triangles
         # whose bounding box reaches a centre.
-        lo_u, hi_u = fu.min(axis=1), fu.max(axis=1)
-        lo_v, hi_v = fv.min(axis=1), fv.max(axis=1)
         keep = (hi_u >= 0.5 - 1e-9) & (lo_u <= columns.nu - 0.5 + 1e-9)
         keep &= (hi_v >= 0.5 - 1e-9) & (lo_v <= columns.nv - 0.5 + 1e-9)
         idx = np.flatnonzero(keep)
-        fu, fv = fu[idx], fv[idx]
-
-        m = max(np.abs(fu).max(initial=1.0), np.abs(fv).max(initial=1.0),
+        fu = [x[idx] for x in fu]
+        fv = [x[idx] for x in fv]
+        m = max(max(np.abs(x).max(initial=1.0) for x in fu + fv),
                 float(columns.nu), float(columns.nv))
         s = int(min(MAX_SUB_BITS, np.floor(MAX_BITS - 1 - np.log2(m + 1.0))))
         if s < 1:
@@ -112,46 +116,49 @@ class Projection:
         self.sub_bits = s
         S = np.int64(1) << np.int64(s)
         half = S // 2
-        qu = np.rint(fu * float(S)).astype(np.int64)
-        qv = np.rint(fv * float(S)).astype(np.int64)
+        qu = [np.rint(x * float(S)).astype(np.int64) for x in fu]
+        qv = [np.rint(x * float(S)).astype(np.int64) for x in fv]
 
-        # Edge k runs from vertex k+1 to vertex k+2 (opposite vertex k).
-        A = [1, 2, 0]
-        B = [2, 0, 1]
-        ex = qu[:, B] - qu[:, A]  # (m, 3)
-        ey = qv[:, B] - qv[:, A]
-        # orient(A, B, P) = ex * (Py - Ay) - ey * (Px - Ax); with
-        # P = (i*S + half, j*S + half) it is K0 + Ki*i + Kj*j.
-        const = ey * qu[:, A] - ex * qv[:, A]
-        K0 = const + (ex - ey) * half
-        Ki = -ey * S
-        Kj = ex * S
-        area2 = ex[:, 0] * (qv[:, 0] - qv[:, 1]) - ey[:, 0] * (qu[:, 0] - qu[:, 1])
+        # Edge k runs from vertex k+1 to vertex k+2 (opposite vertex k):
+        # orient(A, B, P) = ex * (Py - Ay) - ey * (Px - Ax), which for
+        # P = (i*S + half, j*S + half) is K0 + Ki*i + Kj*j.
+        ex = [qu[(k + 2) % 3] - qu[(k + 1) % 3] for k in range(3)]
+        ey = [qv[(k + 2) % 3] - qv[(k + 1) % 3] for k in range(3)]
+        area2 = ex[0] * (qv[0] - qv[1]) - ey[0] * (qu[0] - qu[1])
         sign = np.sign(area2)
-        nondegen = sign != 0
-        # Tie rule: d/dP of orient(A, B, P) along (1, delta) is -ey, or ex when
-        # ey == 0. A tie counts as inside when that sign matches the winding.
-        tie_sign = np.where(ey != 0, -np.sign(ey), np.sign(ex))
-        tie = (tie_sign == sign[:, None]).astype(np.int64)
-        # Orient every triangle positively, then fold the tie into K0:
-        # w > 0 or (w == 0 and tie) <=> w + tie > 0, because w is an integer.
-        K0 = K0 * sign[:, None] + tie
-        Ki = Ki * sign[:, None]
-        Kj = Kj * sign[:, None]
-
-        sel = np.flatnonzero(nondegen)
+        sel = np.flatnonzero(sign)  # zero projected area: never crossed
+        sign = sign[sel]
+        coef = np.empty((len(sel), 3, 3), dtype=np.int64)
+        tie = np.empty((len(sel), 3), dtype=np.int64)
+        edge_len = np.empty((len(sel), 3), dtype=np.float64)
+        for k in range(3):
+            exk, eyk = ex[k][sel], ey[k][sel]
+            A = (k + 1) % 3
+            const = eyk * qu[A][sel] - exk * qv[A][sel]
+            # Tie rule: d/dP of orient(A, B, P) along (1, delta) is -ey, or ex
+            # when ey == 0. A tie counts as inside when that sign matches the
+            # winding. Orient every triangle positively, then fold the tie
+            # into K0: w > 0 or (w == 0 and tie) <=> w + tie > 0 for integer w.
+            tie_sign = np.where(eyk != 0, -np.sign(eyk), np.sign(exk))
+            tie[:, k] = tie_sign == sign
+            coef[:, k, 0] = (const + (exk - eyk) * half) * sign + tie[:, k]
+            coef[:, k, 1] = -eyk * S * sign
+            coef[:, k, 2] = exk * S * sign
+            edge_len[:, k] = np.hypot(exk, eyk)
         self.tri = idx[sel]
-        self.coef = np.stack([K0[sel], Ki[sel], Kj[sel]], axis=-1)  # (m, 3, 3)
-        self.tie = tie[sel]
+        self.coef = coef
+        self.tie = tie
         self.area = np.abs(area2[sel]).astype(np.float64)
-        self.edge_len = np.hypot(ex[sel], ey[sel]).astype(np.float64)
-        self.z = tris[self.tri][:, :, c]
-        lu, hu = qu[sel].min(axis=1), qu[sel].max(axis=1)
-        lv, hv = qv[sel].min(axis=1), qv[sel].max(axis=1)
+        self.edge_len = edge_len
+        self.z = tris[self.tri, :, c]
+        lu = np.minimum(np.minimum(qu[0], qu[1]), qu[2])[sel]
+        hu = np.maximum(np.maximum(qu[0], qu[1]), qu[2])[sel]
+        lv = np.minimum(np.minimum(qv[0], qv[1]), qv[2])[sel]
+        hv = np.maximum(np.maximum(qv[0], qv[1]), qv[2])[sel]
         # Column i is in range when lu <= i*S + half <= hu.
-        self.imin = np.maximum(-((-(lu - half)) // S), 0)
+        self.imin = np.maximum(-((half - lu) // S), 0)
         self.imax = np.minimum((hu - half) // S, columns.nu - 1)
-        self.jmin = np.maximum(-((-(lv - half)) // S), 0)
+        self.jmin = np.maximum(-((half - lv) // S), 0)
         self.jmax = np.minimum((hv - half) // S, columns.nv - 1)
         self.local = np.full(n_all, -1, dtype=np.int64)
         self.local[self.tri] = np.arange(len(self.tri))

@@ -85,15 +85,18 @@ class EmbreeBackend(Backend):
             local = trimesh.Trimesh(
                 (mesh.vertices - centre) * factor, mesh.faces, process=False, validate=False
             )
+            tris = (mesh.triangles - centre) * factor
+            v0 = tris[:, 0]
+            normal = np.cross(tris[:, 1] - v0, tris[:, 2] - v0)
             cache["embree"] = (self._ray_pyembree.RayMeshIntersector(local, scale_to_box=False),
-                               centre, factor)
+                               centre, factor, v0, normal)
         return cache["embree"]
 
     def cast(self, mesh, columns: Columns) -> Hits:
         proj = Projection(mesh.triangles, columns)
         if len(proj) == 0:
             return Hits.empty()
-        intersector, centre, factor = self._intersector(mesh)
+        intersector, centre, factor, v0, normal = self._intersector(mesh)
         nu = columns.nu
         ax, ua, va = columns.axis, columns.u_axis, columns.v_axis
 
@@ -111,10 +114,6 @@ class EmbreeBackend(Backend):
         direction = np.zeros((n, 3))
         direction[:, ax] = 1.0
         step = STEP * 100.0  # the scaled mesh has a diagonal of 100
-
-        tris = (mesh.triangles - centre) * factor
-        v0 = tris[:, 0]
-        normal = np.cross(tris[:, 1] - v0, tris[:, 2] - v0)
 
         pos = np.full(n, lo)
         offset = np.full(n, step)
@@ -180,7 +179,9 @@ class EmbreeBackend(Backend):
         unsure = ~hit | (proj.edge_distance(t, w) < tol)
         parts = [Hits(ray[hit], depth[hit], tri[hit], bary[hit])]
         if unsure.any():
-            offsets, vfaces = _vertex_faces(mesh.geometric_faces)
+            if "vertex_faces" not in mesh._cache:
+                mesh._cache["vertex_faces"] = _vertex_faces(mesh.geometric_faces)
+            offsets, vfaces = mesh._cache["vertex_faces"]
             r2, f2 = _expand(ray[unsure], tri[unsure], mesh.geometric_faces, offsets, vfaces)
             t2 = proj.local[f2]
             ok = t2 >= 0
