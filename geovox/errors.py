@@ -36,3 +36,7 @@ class OutputError(GeovoxError, OSError):
 
 class GridTooLargeError(GeovoxError, MemoryError):
     """The requested grid would not fit in memory; raised before allocating."""
+
+
+class GeovoxWarning(UserWarning):
+    """Something was missing or had to be guessed; the conversion went on."""

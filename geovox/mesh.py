@@ -11,6 +11,37 @@ from .errors import InputNotFoundError, MeshError
 
 
 @dataclass
+class Material:
+    """An MTL material: the parts that colour a voxel.
+
+    Attributes
+    ----------
+    name : str
+    kd : (3,) float64 or None
+        Diffuse colour ``Kd``; None when the file gives none.
+    ka : (3,) float64
+        Ambient colour ``Ka`` (black when absent).
+    texture_file : str or None
+        Resolved path of ``map_Kd``.
+    defined : bool
+        False for a ``usemtl`` name no material file defines.
+    """
+
+    name: str = "default"
+    kd: np.ndarray | None = None
+    ka: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    texture_file: str | None = None
+    defined: bool = True
+    image: np.ndarray | None = field(default=None, repr=False)
+
+    def diffuse(self) -> np.ndarray:
+        """``Kd``, or the default: 1 under a texture (so it shows as painted), else 0.8 grey."""
+        if self.kd is not None:
+            return self.kd
+        return np.ones(3) if self.texture_file or self.image is not None else np.full(3, 0.8)
+
+
+@dataclass
 class Mesh:
     """A triangle soup with the facts the pipeline needs.
 
@@ -22,11 +53,26 @@ class Mesh:
         OBJ files have them; :attr:`geometric_faces` merges them by position.
     source : str
         Where the mesh came from (file path or a description).
+    face_material : (m,) int64 or None
+        Index into ``materials`` per face; -1 for faces without a material.
+    materials : list of Material
+    corner_uv : (m, 3, 2) float64 or None
+        Texture coordinates of each face corner (NaN where a face has none).
+    vertex_colors : (n, 3) float64 or None
+        Per-vertex RGB in [0, 1] (OBJ ``v x y z r g b``, or trimesh colours).
+    problems : list of str
+        Missing or unreadable material files and textures found while
+        loading; reported as warnings when colour is asked for.
     """
 
     vertices: np.ndarray
     faces: np.ndarray
     source: str = "<mesh>"
+    face_material: np.ndarray | None = None
+    materials: list = field(default_factory=list)
+    corner_uv: np.ndarray | None = None
+    vertex_colors: np.ndarray | None = None
+    problems: list = field(default_factory=list)
     _cache: dict = field(default_factory=dict, repr=False, compare=False)
 
     @property
@@ -63,7 +109,7 @@ class Mesh:
         return self._cache["geometric_faces"]
 
 
-def _check(vertices, faces, source) -> Mesh:
+def _check(vertices, faces, source, **extra) -> Mesh:
     vertices = np.ascontiguousarray(vertices, dtype=np.float64)
     faces = np.ascontiguousarray(faces, dtype=np.int64)
     if vertices.ndim != 2 or vertices.shape[1] != 3:
@@ -81,26 +127,82 @@ def _check(vertices, faces, source) -> Mesh:
     if not np.all(np.isfinite(used)):
         bad = int((~np.isfinite(used)).any(axis=1).sum())
         raise MeshError(f"{source}: {bad} vertices have NaN or infinite coordinates")
-    return Mesh(vertices=vertices, faces=faces, source=source)
+    return Mesh(vertices=vertices, faces=faces, source=source, **extra)
+
+
+def check_mesh(mesh: Mesh) -> Mesh:
+    """Validate a Mesh built elsewhere (shapes, indices, finite coordinates)."""
+    extra = {k: getattr(mesh, k) for k in
+             ("face_material", "materials", "corner_uv", "vertex_colors", "problems")}
+    return _check(mesh.vertices, mesh.faces, mesh.source, **extra)
+
+
+def _visual_parts(g, nfaces, materials):
+    """Per-face material, corner UVs and vertex colours of one trimesh geometry."""
+    visual = getattr(g, "visual", None)
+    kind = getattr(visual, "kind", None)
+    fm = np.full(nfaces, -1, dtype=np.int64)
+    uv = vc = None
+    if kind == "texture":
+        mat = getattr(visual, "material", None)
+        m = Material(name=getattr(mat, "name", None) or "material")
+        image = getattr(mat, "image", None) or getattr(mat, "baseColorTexture", None)
+        if image is not None:
+            m.image = np.asarray(image.convert("RGB"))
+        colour = getattr(mat, "diffuse", None)
+        if colour is None:
+            colour = getattr(mat, "baseColorFactor", None)
+        if colour is not None:
+            m.kd = np.asarray(colour, dtype=np.float64)[:3] / 255.0
+        fm[:] = len(materials)
+        materials.append(m)
+        if visual.uv is not None and len(visual.uv) == len(g.vertices):
+            uv = np.asarray(visual.uv, dtype=np.float64)[g.faces]
+    elif kind == "vertex":
+        vc = np.asarray(visual.vertex_colors, dtype=np.float64)[:, :3] / 255.0
+    elif kind == "face":
+        # Face colours become flat per-face materials.
+        fc = np.asarray(visual.face_colors, dtype=np.float64)[:, :3] / 255.0
+        uniq, inverse = np.unique(fc, axis=0, return_inverse=True)
+        for colour in uniq:
+            materials.append(Material(name="face colour", kd=colour))
+        fm[:] = len(materials) - len(uniq) + inverse.reshape(-1)
+    return fm, uv, vc
 
 
 def from_trimesh(obj, source: str = "<trimesh>") -> Mesh:
-    """Convert a ``trimesh.Trimesh`` or ``trimesh.Scene`` (transforms applied)."""
+    """Convert a ``trimesh.Trimesh`` or ``trimesh.Scene`` (transforms applied),
+    keeping each geometry's material, UVs and vertex colours."""
     import trimesh
 
     if isinstance(obj, trimesh.Scene):
         parts = [g for g in obj.dump(concatenate=False) if isinstance(g, trimesh.Trimesh)]
         if not parts:
             raise MeshError(f"{source}: contains no triangle mesh")
-        verts, faces, offset = [], [], 0
-        for g in parts:
-            verts.append(np.asarray(g.vertices, dtype=np.float64))
-            faces.append(np.asarray(g.faces, dtype=np.int64) + offset)
-            offset += len(g.vertices)
-        return _check(np.concatenate(verts), np.concatenate(faces), source)
-    if isinstance(obj, trimesh.Trimesh):
-        return _check(obj.vertices, obj.faces, source)
-    raise MeshError(f"{source}: contains no triangle mesh (got {type(obj).__name__})")
+    elif isinstance(obj, trimesh.Trimesh):
+        parts = [obj]
+    else:
+        raise MeshError(f"{source}: contains no triangle mesh (got {type(obj).__name__})")
+    verts, faces, fms, uvs, vcs, materials, offset = [], [], [], [], [], [], 0
+    have_uv, have_vc = False, False
+    for g in parts:
+        f = np.asarray(g.faces, dtype=np.int64).reshape(-1, 3)
+        verts.append(np.asarray(g.vertices, dtype=np.float64).reshape(-1, 3))
+        faces.append(f + offset)
+        offset += len(g.vertices)
+        fm, uv, vc = _visual_parts(g, len(f), materials)
+        fms.append(fm)
+        uvs.append(uv if uv is not None else np.full((len(f), 3, 2), np.nan))
+        vcs.append(vc if vc is not None else np.ones((len(verts[-1]), 3)))
+        have_uv |= uv is not None
+        have_vc |= vc is not None
+    return _check(
+        np.concatenate(verts), np.concatenate(faces), source,
+        face_material=np.concatenate(fms),
+        materials=materials,
+        corner_uv=np.concatenate(uvs) if have_uv else None,
+        vertex_colors=np.concatenate(vcs) if have_vc else None,
+    )
 
 
 def load_mesh(source) -> Mesh:
@@ -127,6 +229,10 @@ def load_mesh(source) -> Mesh:
             raise InputNotFoundError(f"input is a folder, not a mesh file: {path}")
         if os.path.getsize(path) == 0:
             raise MeshError(f"{path}: the file is empty")
+        if path.lower().endswith(".obj"):
+            from .obj import read_obj
+
+            return check_mesh(read_obj(path))
         import trimesh
 
         try:

@@ -95,6 +95,9 @@ def voxelize(
     shape=None,
     voxel_size=None,
     axis=2,
+    color=False,
+    diffuse=True,
+    ambient=False,
 ) -> Volume:
     """Turn a closed triangle mesh into a solid voxel volume.
 
@@ -122,6 +125,13 @@ def voxelize(
     axis : {0, 1, 2}
         Direction of the rays. The result is the same up to ties on the
         surface; it only changes the cost.
+    color : bool
+        Also fill ``Volume.colors`` from the model's materials, textures or
+        vertex colours (see :mod:`geovox.colour` for the exact rule).
+    diffuse : bool
+        Multiply by the material's ``Kd`` (MTL semantics for ``map_Kd``).
+    ambient : bool
+        Add the material's ``Ka``.
 
     Returns
     -------
@@ -135,19 +145,37 @@ def voxelize(
     t_load = time.perf_counter()
     grid = make_grid(m.bounds, bounds=bounds, resolution=resolution, shape=shape,
                      voxel_size=voxel_size)
-    check_memory(grid)
-    # Rays start outside the whole mesh, not at the region's edge.
-    start = min(float(m.bounds[0, axis]), float(grid.lo[axis])) - 1e-3 * m.scale
-    columns = grid.columns(axis, start=start)
-    hits = engine.cast(m, columns)
+    # Occupancy is 1 byte a voxel; colour adds 4 for RGBA and about 16 of
+    # working arrays while nearest crossings are found.
+    check_memory(grid, 1.0 + (20.0 if color else 0.0))
+
+    def cast(ax):
+        # Rays start outside the whole mesh, not at the region's edge.
+        start = min(float(m.bounds[0, ax]), float(grid.lo[ax])) - 1e-3 * m.scale
+        columns = grid.columns(ax, start=start)
+        return engine.cast(m, columns), columns
+
+    hits, columns = cast(axis)
     t_rays = time.perf_counter()
     occ = parity.fill(hits, columns, grid)
     t_fill = time.perf_counter()
+    timings = {"load": t_load - t0, "rays": t_rays - t_load, "fill": t_fill - t_rays}
+    colors = None
+    if color:
+        from .colour import colour_volume
+
+        crossings = {axis: (hits, columns)}
+        for other in range(3):
+            if other != axis:
+                crossings[other] = cast(other)
+        colors = colour_volume(m, grid, occ, crossings, diffuse=diffuse, ambient=ambient)
+        timings["colour"] = time.perf_counter() - t_fill
+    timings["total"] = time.perf_counter() - t0
     return Volume(
         occupancy=occ,
         grid=grid,
         backend=engine.name,
         source=m.source,
-        timings={"load": t_load - t0, "rays": t_rays - t_load, "fill": t_fill - t_rays,
-                 "total": t_fill - t0},
+        colors=colors,
+        timings=timings,
     )
