@@ -76,6 +76,12 @@ def build_parser() -> argparse.ArgumentParser:
                    help="region of interest (default: the mesh's bounding box)")
     c.add_argument("--backend", default="auto", choices=["auto", "embree", "numpy"],
                    help="ray-casting backend (default: auto = embree if installed, else numpy)")
+    c.add_argument("--color", "--colour", dest="color", action="store_true",
+                   help="also colour the voxels from the model's materials and textures")
+    c.add_argument("--no-diffuse", dest="diffuse", action="store_false",
+                   help="with --color: do not multiply by the material's Kd")
+    c.add_argument("--ambient", action="store_true",
+                   help="with --color: add the material's Ka")
     c.add_argument("--format", dest="fmt", help="output format, overriding the extension")
     c.add_argument("-q", "--quiet", action="store_true", help="print nothing on success")
 
@@ -91,8 +97,20 @@ def _convert(args) -> int:
     formats.format_for(args.output, args.fmt)  # unknown extension: fail before work
     formats.check_writable(args.output)
     t0 = time.perf_counter()
-    vol = voxelize(args.input, resolution=args.resolution, shape=args.shape,
-                   voxel_size=args.voxel_size, bounds=args.bounds, backend=args.backend)
+    import warnings
+
+    from .errors import GeovoxWarning
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", GeovoxWarning)
+        vol = voxelize(args.input, resolution=args.resolution, shape=args.shape,
+                       voxel_size=args.voxel_size, bounds=args.bounds, backend=args.backend,
+                       color=args.color, diffuse=args.diffuse, ambient=args.ambient)
+    for w in caught:
+        if issubclass(w.category, GeovoxWarning):
+            print(f"geovox: warning: {w.message}", file=sys.stderr)
+        else:
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
     t1 = time.perf_counter()
     written = formats.write(vol, args.output, fmt=args.fmt)
     t2 = time.perf_counter()
@@ -106,8 +124,9 @@ def _convert(args) -> int:
               f"over ({lo[0]:.6g}, {lo[1]:.6g}, {lo[2]:.6g})..({hi[0]:.6g}, {hi[1]:.6g}, {hi[2]:.6g})")
         print(f"voxel size {dx:.6g} x {dy:.6g} x {dz:.6g}, backend {vol.backend}")
         print(f"inside {inside:,} of {nx * ny * nz:,} voxels ({100.0 * inside / (nx * ny * nz):.2f}%)")
+        colour = f", colour {t['colour']:.2f}" if "colour" in t else ""
         print(f"time {t2 - t0:.2f} s (load {t['load']:.2f}, rays {t['rays']:.2f}, "
-              f"fill {t['fill']:.2f}, write {t2 - t1:.2f})")
+              f"fill {t['fill']:.2f}{colour}, write {t2 - t1:.2f})")
         print("wrote " + ", ".join(written))
     return EXIT_OK
 

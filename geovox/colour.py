@@ -17,12 +17,14 @@ Finding the nearest surface point is done in columns, from the ray hits
 themselves (every hit already carries its triangle and barycentric
 coordinates): rays are cast along all three axes, and for each inside voxel
 the crossings just before and just after it in its x, y and z columns are
-the candidates; the nearest of these six is taken, and for voxels within
-``REFINE`` voxels of it the exact closest point on that crossing's triangle
-replaces it. Deeper voxels take the crossing's own colour. The result equals
-the brute-force nearest point wherever the nearest triangle is one the six
-axis directions reach (always for voxels next to a flat-enough surface), and
-is otherwise within about a voxel of it.
+the candidates. The nearest of these six by distance to the crossing
+triangle's plane (see :func:`nearest_crossings`) is taken, and for voxels
+within ``REFINE`` voxels of the surface the exact closest point on that
+crossing's triangle replaces the crossing. Deeper voxels take the crossing's
+own colour. The result equals the brute-force nearest point wherever the
+nearest triangle is one of the six candidates (nearly always next to the
+surface; measured in tests/test_colour.py), and is otherwise a nearby point
+of the surface.
 """
 
 from __future__ import annotations
@@ -106,12 +108,14 @@ def shade(mesh, tri: np.ndarray, bary: np.ndarray, *, diffuse=True, ambient=Fals
     fm = mesh.face_material[tri] if mesh.face_material is not None else np.full(n, -1)
     factor = np.ones((n, 3))
     add = np.zeros((n, 3))
-    no_material = fm < 0
+    # A `usemtl` name that no material file defines counts as no material.
+    undefined = np.array([not m.defined for m in mesh.materials] + [True])
+    no_material = undefined[fm]  # fm == -1 picks the final True
     if no_material.any() and diffuse and mesh.vertex_colors is None:
         factor[no_material] = DEFAULT_GREY
     for k, m in enumerate(mesh.materials):
         sel = np.flatnonzero(fm == k)
-        if len(sel) == 0:
+        if len(sel) == 0 or not m.defined:
             continue
         if m.image is not None and mesh.corner_uv is not None:
             uv = np.einsum("nk,nkc->nc", w[sel], mesh.corner_uv[tri[sel]])
@@ -196,7 +200,15 @@ def _running_max(g: np.ndarray, axis: int) -> None:
         np.maximum(g[tuple(cur)], g[tuple(prev)], out=g[tuple(cur)])
 
 
-def nearest_crossings(grid, occupancy, cast):
+def _unit_normals(mesh) -> np.ndarray:
+    t = mesh.triangles
+    n = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
+    length = np.linalg.norm(n, axis=1, keepdims=True)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(length > 0, n / length, 0.0)
+
+
+def nearest_crossings(mesh, grid, occupancy, cast):
     """For every inside voxel, the nearest crossing among its six axis neighbours.
 
     Parameters
@@ -216,7 +228,17 @@ def nearest_crossings(grid, occupancy, cast):
     best : (k,) int64
         Index into ``hits`` of each inside voxel's nearest crossing.
     dist : (k,) float32
-        Distance from the voxel centre to that crossing, in voxels.
+        Estimated distance from the voxel centre to the surface there, in
+        voxels.
+
+    Notes
+    -----
+    A crossing at axis distance ``d`` on a triangle with unit normal ``n``
+    is ranked by ``d * max(|n_axis|, 1/sqrt(3))``: the distance to the
+    triangle's plane where that plane faces the axis, which is the true
+    distance for the axis that sees the nearest surface best (some axis has
+    ``|n_axis| >= 1/sqrt(3)``), while a crossing far along the axis cannot win
+    just because its plane happens to pass close by.
     """
     from .backends.base import Hits
 
@@ -228,6 +250,7 @@ def nearest_crossings(grid, occupancy, cast):
     best_d = np.full(len(inside), np.inf, dtype=np.float32)
     best = np.zeros(len(inside), np.int64)
     scale = grid.spacing.min()
+    normals = _unit_normals(mesh)
     parts, offset = [], 0
     for axis in (2, 1, 0):  # ties go to z, then y, then x
         if axis not in cast:
@@ -260,6 +283,9 @@ def nearest_crossings(grid, occupancy, cast):
         depth = np.r_[hits.depth, -np.inf].astype(np.float32)
         next_depth = np.r_[np.where(same, np.r_[hits.depth[1:], 0.0], np.inf),
                            np.inf].astype(np.float32)
+        facing = np.maximum(np.abs(normals[hits.triangle, axis]), 1 / np.sqrt(3))
+        facing = np.r_[facing, 1.0].astype(np.float32)
+        next_facing = np.r_[facing[1:-1], 1.0, 1.0].astype(np.float32)
         if len(hits):
             first = np.full(cols.count, np.inf)
             starts = np.r_[True, ~same[:-1]]
@@ -271,8 +297,8 @@ def nearest_crossings(grid, occupancy, cast):
             e = s + BLOCK
             prev = gflat[inside[s:e]]
             c = centres32[coords[axis][s:e]]
-            d_prev = c - depth[prev]
-            d_next = next_depth[prev] - c
+            d_prev = (c - depth[prev]) * facing[prev]
+            d_next = (next_depth[prev] - c) * next_facing[prev]
             pick = prev + 1
             before = np.flatnonzero(prev < 0)
             if len(before) and len(hits):
@@ -280,8 +306,8 @@ def nearest_crossings(grid, occupancy, cast):
                 # possible with inside tests other than this axis's parity.
                 ray = (coords[cols.u_axis][s:e][before].astype(np.int64)
                        + cols.nu * coords[cols.v_axis][s:e][before])
-                d_next[before] = first[ray] - c[before]
                 pick[before] = first_hit[ray]
+                d_next[before] = (first[ray] - c[before]) * facing[pick[before]]
             use_next = d_next < d_prev
             d = np.where(use_next, d_next, d_prev) * np.float32(1.0 / scale)
             better = np.flatnonzero(d < best_d[s:e])
@@ -315,7 +341,7 @@ def colour_volume(mesh, grid, occupancy, cast, *, diffuse=True, ambient=False) -
     nx, ny, nz = grid.shape
     base = np.zeros((nz, ny, nx, 4), dtype=np.uint8)
     colors = base.transpose(2, 1, 0, 3)
-    inside, hits, best, dist = nearest_crossings(grid, occupancy, cast)
+    inside, hits, best, dist = nearest_crossings(mesh, grid, occupancy, cast)
     if len(inside) == 0:
         return colors
     # Every crossing is a surface point with a known triangle and

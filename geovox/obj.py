@@ -191,11 +191,13 @@ def read_obj(path: str) -> Mesh:
 
     problems: list = []
     library: dict = {}
+    missing_lib = False
     for lib in libs:
         found = resolve_path(lib, folder)
         if found is None:
             problems.append(f"material file not found: {lib!r} (named in {path}); "
                             f"using default colours")
+            missing_lib = True
             continue
         library.update(read_mtl(found, problems))
     materials = []
@@ -203,7 +205,7 @@ def read_obj(path: str) -> Mesh:
         if name in library:
             materials.append(library[name])
         else:
-            if libs:
+            if libs and not missing_lib:
                 problems.append(f"material {name!r} is not defined in {', '.join(libs)}; "
                                 f"using the default colour")
             materials.append(Material(name=name, defined=False))

@@ -34,6 +34,14 @@ def write_hdf5(volume, path) -> list:
             per = max(chunks[0], per // chunks[0] * chunks[0])
             for x0 in range(0, nx, per):
                 d[x0:x0 + per] = occ[x0:x0 + per].view(np.uint8)
+            if volume.colors is not None:
+                c = f.create_dataset("color", shape=occ.shape + (4,), dtype=np.uint8,
+                                     chunks=chunks + (4,), compression="gzip",
+                                     compression_opts=4)
+                for x0 in range(0, nx, per):
+                    c[x0:x0 + per] = volume.colors[x0:x0 + per]
+                c.attrs["components"] = "RGBA"
+                c.attrs["axis_order"] = "xyzc"
             lo, hi = volume.bounds
             attrs = {
                 "spacing": np.asarray(volume.spacing, dtype=np.float64),

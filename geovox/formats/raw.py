@@ -32,8 +32,17 @@ def metadata(volume, data_file: str, dtype: str = "uint8", values: str = "0 outs
     }
 
 
+def colour_path(path: str) -> str:
+    """Where the RGBA file goes beside an occupancy RAW file."""
+    root, ext = os.path.splitext(path)
+    return f"{root}_rgba{ext}"
+
+
 def write_raw(volume, path) -> list:
     """Write occupancy as uint8 0/255, x fastest, and ``<path minus .raw>.json``.
+
+    With colour, ``<name>_rgba.raw`` beside it holds uint8 RGBA interleaved
+    per voxel, x fastest (the sidecar names it and says so).
 
     Parameters
     ----------
@@ -50,7 +59,7 @@ def write_raw(volume, path) -> list:
 
     path = os.fspath(path)
     occ = volume.occupancy
-    nz = occ.shape[2]
+    nx, ny, nz = occ.shape
     per = max(1, SLAB_VOXELS // max(1, occ.shape[0] * occ.shape[1]))
     with atomic_output(path) as tmp:
         with open(tmp, "wb") as f:
@@ -59,12 +68,33 @@ def write_raw(volume, path) -> list:
                 # Transposed, the Fortran-ordered slab is C-contiguous in
                 # (z, y, x): its bytes are already x fastest.
                 f.write((slab.T.view(np.uint8) * np.uint8(255)).data)
+    written = [path]
+    meta = metadata(volume, path)
+    if volume.colors is not None:
+        cpath = colour_path(path)
+        # colors is a [x, y, z, c] view of a C-ordered (z, y, x, c) array:
+        # its transpose's bytes are RGBA interleaved with x fastest.
+        base = volume.colors.transpose(2, 1, 0, 3)
+        with atomic_output(cpath) as tmp:
+            with open(tmp, "wb") as f:
+                for z0 in range(0, nz, per):
+                    f.write(np.ascontiguousarray(base[z0:z0 + per]).data)
+        written.append(cpath)
+        meta["color"] = {
+            "data_file": os.path.basename(cpath),
+            "dtype": "uint8",
+            "components": 4,
+            "layout": "RGBA interleaved per voxel, x fastest, then y, then z",
+            "values": "alpha 255 inside, 0 outside",
+            "numpy": (f"np.fromfile({os.path.basename(cpath)!r}, dtype=np.uint8)"
+                      f".reshape(({nz}, {ny}, {nx}, 4)).transpose(2, 1, 0, 3)"),
+        }
     sidecar = os.path.splitext(path)[0] + ".json"
     with atomic_output(sidecar) as tmp:
         with open(tmp, "w") as f:
-            json.dump(metadata(volume, path), f, indent=2)
+            json.dump(meta, f, indent=2)
             f.write("\n")
-    return [path, sidecar]
+    return written + [sidecar]
 
 
 def read_raw(path) -> np.ndarray:
