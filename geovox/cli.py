@@ -82,6 +82,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="with --color: do not multiply by the material's Kd")
     c.add_argument("--ambient", action="store_true",
                    help="with --color: add the material's Ka")
+    c.add_argument("-j", "--jobs", type=int, default=None, metavar="N",
+                   help="threads to use (default: one per core); the result does not depend on it")
     c.add_argument("--format", dest="fmt", help="output format, overriding the extension")
     c.add_argument("-q", "--quiet", action="store_true", help="print nothing on success")
 
@@ -105,7 +107,8 @@ def _convert(args) -> int:
         warnings.simplefilter("always", GeovoxWarning)
         vol = voxelize(args.input, resolution=args.resolution, shape=args.shape,
                        voxel_size=args.voxel_size, bounds=args.bounds, backend=args.backend,
-                       color=args.color, diffuse=args.diffuse, ambient=args.ambient)
+                       color=args.color, diffuse=args.diffuse, ambient=args.ambient,
+                       jobs=args.jobs)
     for w in caught:
         if issubclass(w.category, GeovoxWarning):
             print(f"geovox: warning: {w.message}", file=sys.stderr)

@@ -34,12 +34,13 @@ import warnings
 import numpy as np
 
 from .errors import GeovoxWarning
+from .parallel import for_blocks, scan_along
 
 #: Voxels whose nearest axis crossing is closer than this many voxels get the
 #: exact closest point on that crossing's triangle.
 REFINE = 2.0
-#: Inside voxels processed per block.
-BLOCK = 1 << 22
+#: Inside voxels processed per block (small enough to stay in cache).
+BLOCK = 1 << 19
 #: Colour of faces without any material (and no vertex colours).
 DEFAULT_GREY = 0.8
 
@@ -190,16 +191,6 @@ def closest_on_triangles(p: np.ndarray, tris: np.ndarray) -> np.ndarray:
     return np.stack([u, v], axis=1)
 
 
-def _running_max(g: np.ndarray, axis: int) -> None:
-    """In-place running maximum along ``axis``, one slice at a time."""
-    prev = [slice(None)] * 3
-    cur = [slice(None)] * 3
-    for k in range(1, g.shape[axis]):
-        prev[axis] = k - 1
-        cur[axis] = k
-        np.maximum(g[tuple(cur)], g[tuple(prev)], out=g[tuple(cur)])
-
-
 def _unit_normals(mesh) -> np.ndarray:
     t = mesh.triangles
     n = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
@@ -208,7 +199,7 @@ def _unit_normals(mesh) -> np.ndarray:
         return np.where(length > 0, n / length, 0.0)
 
 
-def nearest_crossings(mesh, grid, occupancy, cast):
+def nearest_crossings(mesh, grid, occupancy, cast, jobs=1):
     """For every inside voxel, the nearest crossing among its six axis neighbours.
 
     Parameters
@@ -245,8 +236,7 @@ def nearest_crossings(mesh, grid, occupancy, cast):
     nx, ny, nz = grid.shape
     inside = np.flatnonzero(occupancy.reshape(-1, order="F"))
     # Voxel coordinates, computed once (int32 halves their memory).
-    coords = [(inside % nx).astype(np.int32), ((inside // nx) % ny).astype(np.int32),
-              (inside // (nx * ny)).astype(np.int32)]
+    coords = [c.astype(np.int32) for c in np.unravel_index(inside, grid.shape, order="F")]
     best_d = np.full(len(inside), np.inf, dtype=np.float32)
     best = np.zeros(len(inside), np.int64)
     scale = grid.spacing.min()
@@ -275,17 +265,22 @@ def nearest_crossings(mesh, grid, occupancy, cast):
         if len(lin):
             last = np.r_[lin[1:] != lin[:-1], True]
             g.reshape(-1, order="F")[lin[last]] = h[last]
-        _running_max(g, axis)
+        scan_along(np.maximum, g, axis, jobs)
         # Depth of the crossing after each one on the same ray (inf if none),
         # and a sentinel at index -1 for voxels before any crossing.
-        # float32 is plenty to choose the nearer crossing and halves traffic.
+        # Per crossing, one row gathered per voxel: its depth and facing, and
+        # the depth and facing of the next crossing on the same ray (inf if
+        # none); row -1 is a sentinel for voxels before any crossing. float32
+        # is plenty to choose the nearer crossing and halves the traffic.
         same = np.r_[hits.ray[1:] == hits.ray[:-1], False]
-        depth = np.r_[hits.depth, -np.inf].astype(np.float32)
-        next_depth = np.r_[np.where(same, np.r_[hits.depth[1:], 0.0], np.inf),
-                           np.inf].astype(np.float32)
         facing = np.maximum(np.abs(normals[hits.triangle, axis]), 1 / np.sqrt(3))
-        facing = np.r_[facing, 1.0].astype(np.float32)
-        next_facing = np.r_[facing[1:-1], 1.0, 1.0].astype(np.float32)
+        table = np.empty((len(hits) + 1, 4), dtype=np.float32)
+        table[:-1, 0] = hits.depth
+        table[:-1, 1] = facing
+        table[:-1, 2] = np.where(same, np.r_[hits.depth[1:], 0.0], np.inf)
+        table[:-1, 3] = np.r_[facing[1:], 1.0]
+        table[-1] = (-np.inf, 1.0, np.inf, 1.0)
+        first = first_hit = None
         if len(hits):
             first = np.full(cols.count, np.inf)
             starts = np.r_[True, ~same[:-1]]
@@ -293,32 +288,41 @@ def nearest_crossings(mesh, grid, occupancy, cast):
             first_hit = np.full(cols.count, -1, dtype=np.int64)
             first_hit[hits.ray[starts]] = np.flatnonzero(starts)
         gflat = g.reshape(-1, order="F")
-        for s in range(0, len(inside), BLOCK):
-            e = s + BLOCK
+        # Gathering whole 16-byte rows as one complex128 is several times
+        # faster than fancy-indexing rows of a (n, 4) float32 array.
+        rows = table.view(np.complex128).reshape(-1)
+        def block(s, e, axis=axis, cols=cols, hits=hits, rows=rows, table=table,
+                  gflat=gflat, centres32=centres32, offset=offset):
             prev = gflat[inside[s:e]]
             c = centres32[coords[axis][s:e]]
-            d_prev = (c - depth[prev]) * facing[prev]
-            d_next = (next_depth[prev] - c) * next_facing[prev]
-            pick = prev + 1
-            before = np.flatnonzero(prev < 0)
-            if len(before) and len(hits):
+            row = rows[prev].view(np.float32).reshape(-1, 4)
+            d_prev = (c - row[:, 0]) * row[:, 1]
+            d_next = (row[:, 2] - c) * row[:, 3]
+            pick = prev + np.int32(1)
+            if len(hits) and prev.min(initial=0) < 0:
                 # Inside yet before every crossing of its column: only
                 # possible with inside tests other than this axis's parity.
+                before = np.flatnonzero(prev < 0)
                 ray = (coords[cols.u_axis][s:e][before].astype(np.int64)
                        + cols.nu * coords[cols.v_axis][s:e][before])
                 pick[before] = first_hit[ray]
-                d_next[before] = (first[ray] - c[before]) * facing[pick[before]]
+                d_next[before] = (first[ray] - c[before]) * table[pick[before], 1]
             use_next = d_next < d_prev
-            d = np.where(use_next, d_next, d_prev) * np.float32(1.0 / scale)
+            d = np.where(use_next, d_next, d_prev)
+            d *= np.float32(1.0 / scale)
+            chosen = np.where(use_next, pick, prev)
             better = np.flatnonzero(d < best_d[s:e])
             best_d[s + better] = d[better]
-            best[s + better] = offset + np.where(use_next, pick, prev)[better]
+            best[s + better] = offset + chosen[better]
+
+        if len(hits):
+            for_blocks(block, len(inside), BLOCK, jobs)
         offset += len(hits)
         del g, gflat
     return inside, Hits.concatenate(parts), best, best_d
 
 
-def colour_volume(mesh, grid, occupancy, cast, *, diffuse=True, ambient=False) -> np.ndarray:
+def colour_volume(mesh, grid, occupancy, cast, *, diffuse=True, ambient=False, jobs=1) -> np.ndarray:
     """RGBA colours of the inside voxels; alpha 0 outside.
 
     Parameters
@@ -341,25 +345,28 @@ def colour_volume(mesh, grid, occupancy, cast, *, diffuse=True, ambient=False) -
     nx, ny, nz = grid.shape
     base = np.zeros((nz, ny, nx, 4), dtype=np.uint8)
     colors = base.transpose(2, 1, 0, 3)
-    inside, hits, best, dist = nearest_crossings(mesh, grid, occupancy, cast)
+    inside, hits, best, dist = nearest_crossings(mesh, grid, occupancy, cast, jobs=jobs)
     if len(inside) == 0:
         return colors
     # Every crossing is a surface point with a known triangle and
     # barycentrics: shade each once; deep voxels take their crossing's colour.
     hit_rgba = np.empty(len(hits), dtype=np.uint32)
-    for s in range(0, len(hits), BLOCK):
-        rgb = shade(mesh, hits.triangle[s:s + BLOCK], hits.bary[s:s + BLOCK],
-                    diffuse=diffuse, ambient=ambient)
-        hit_rgba[s:s + BLOCK] = _pack(rgb)
+
+    def shade_hits(s, e):
+        rgb = shade(mesh, hits.triangle[s:e], hits.bary[s:e], diffuse=diffuse, ambient=ambient)
+        hit_rgba[s:e] = _pack(rgb)
+
+    for_blocks(shade_hits, len(hits), BLOCK, jobs)
     # One uint32 per voxel: RGBA bytes in memory order, scattered in one go.
     flat = base.reshape(-1, 4).view(np.uint32).reshape(-1)  # index = F-order voxel index
     centres = [grid.centres(a) for a in range(3)]
-    for s in range(0, len(inside), BLOCK):
-        vox = inside[s:s + BLOCK]
-        h = best[s:s + BLOCK]
+
+    def colour_block(s, e):
+        vox = inside[s:e]
+        h = best[s:e]
         rgba = hit_rgba[h]
         # Near the surface, the exact closest point on the crossing's triangle.
-        near = np.flatnonzero(dist[s:s + BLOCK] < REFINE)
+        near = np.flatnonzero(dist[s:e] < REFINE)
         if len(near):
             v = vox[near]
             p = np.stack([centres[0][v % nx], centres[1][(v // nx) % ny],
@@ -368,6 +375,8 @@ def colour_volume(mesh, grid, occupancy, cast, *, diffuse=True, ambient=False) -
             b = closest_on_triangles(p, mesh.triangles[t])
             rgba[near] = _pack(shade(mesh, t, b, diffuse=diffuse, ambient=ambient))
         flat[vox] = rgba
+
+    for_blocks(colour_block, len(inside), BLOCK, jobs)
     return colors
 
 

@@ -18,6 +18,7 @@ import numpy as np
 
 from .backends.base import Hits
 from .grid import Columns, Grid
+from .parallel import scan_along
 
 
 def toggle_indices(hits: Hits, columns: Columns, grid: Grid) -> np.ndarray:
@@ -49,7 +50,8 @@ def toggle_indices(hits: Hits, columns: Columns, grid: Grid) -> np.ndarray:
     return lin[starts[counts % 2 == 1]]
 
 
-def fill(hits: Hits, columns: Columns, grid: Grid, out: np.ndarray | None = None) -> np.ndarray:
+def fill(hits: Hits, columns: Columns, grid: Grid, out: np.ndarray | None = None,
+         jobs: int = 1) -> np.ndarray:
     """Occupancy of ``grid`` from the crossings of its column rays.
 
     Parameters
@@ -61,6 +63,8 @@ def fill(hits: Hits, columns: Columns, grid: Grid, out: np.ndarray | None = None
     grid : Grid
     out : (nx, ny, nz) bool, Fortran order, optional
         Array to fill (zeroed first).
+    jobs : int
+        Threads for the running XOR.
 
     Returns
     -------
@@ -72,11 +76,5 @@ def fill(hits: Hits, columns: Columns, grid: Grid, out: np.ndarray | None = None
         out[...] = False
     flat = out.reshape(-1, order="F")  # a view: `out` is Fortran-ordered
     flat[toggle_indices(hits, columns, grid)] = True
-    axis = columns.axis
-    prev = [slice(None)] * 3
-    cur = [slice(None)] * 3
-    for k in range(1, grid.shape[axis]):
-        prev[axis] = k - 1
-        cur[axis] = k
-        np.logical_xor(out[tuple(cur)], out[tuple(prev)], out=out[tuple(cur)])
+    scan_along(np.logical_xor, out, columns.axis, jobs)
     return out

@@ -98,6 +98,7 @@ def voxelize(
     color=False,
     diffuse=True,
     ambient=False,
+    jobs=None,
 ) -> Volume:
     """Turn a closed triangle mesh into a solid voxel volume.
 
@@ -132,6 +133,9 @@ def voxelize(
         Multiply by the material's ``Kd`` (MTL semantics for ``map_Kd``).
     ambient : bool
         Add the material's ``Ka``.
+    jobs : int, optional
+        Threads for the array work (default: one per core). The result is
+        the same for any number of jobs.
 
     Returns
     -------
@@ -140,6 +144,9 @@ def voxelize(
     t0 = time.perf_counter()
     if axis not in (0, 1, 2):
         raise ParameterError(f"`axis` must be 0, 1 or 2, got {axis!r}")
+    from .parallel import resolve_jobs
+
+    jobs = resolve_jobs(jobs)
     engine = get_backend(backend)
     m = load_mesh(mesh)
     t_load = time.perf_counter()
@@ -157,7 +164,7 @@ def voxelize(
 
     hits, columns = cast(axis)
     t_rays = time.perf_counter()
-    occ = parity.fill(hits, columns, grid)
+    occ = parity.fill(hits, columns, grid, jobs=jobs)
     t_fill = time.perf_counter()
     timings = {"load": t_load - t0, "rays": t_rays - t_load, "fill": t_fill - t_rays}
     colors = None
@@ -165,10 +172,18 @@ def voxelize(
         from .colour import colour_volume
 
         crossings = {axis: (hits, columns)}
-        for other in range(3):
-            if other != axis:
-                crossings[other] = cast(other)
-        colors = colour_volume(m, grid, occ, crossings, diffuse=diffuse, ambient=ambient)
+        others = [a for a in range(3) if a != axis]
+        if jobs > 1:
+            from concurrent.futures import ThreadPoolExecutor
+
+            with ThreadPoolExecutor(max_workers=2) as pool:
+                for a, result in zip(others, pool.map(cast, others)):
+                    crossings[a] = result
+        else:
+            for a in others:
+                crossings[a] = cast(a)
+        colors = colour_volume(m, grid, occ, crossings, diffuse=diffuse, ambient=ambient,
+                               jobs=jobs)
         timings["colour"] = time.perf_counter() - t_fill
     timings["total"] = time.perf_counter() - t0
     return Volume(

@@ -202,3 +202,33 @@ def test_unwritable_folder(tmp_path, capsys):
     ro.chmod(0o500)
     assert main(["convert", SPOT, "-o", str(ro / "v.raw")]) == 2
     assert "not writable" in capsys.readouterr().err
+
+
+def test_convert_with_colour_writes_rgba_raw_and_hdf5(tmp_path):
+    vol = geovox.voxelize(SPOT, resolution=24, color=True, backend="numpy")
+    out = tmp_path / "c.raw"
+    assert main(["convert", SPOT, "-o", str(out), "-r", "24", "--color", "--backend", "numpy", "-q"]) == 0
+    meta = json.loads((tmp_path / "c.json").read_text())
+    assert meta["color"]["data_file"] == "c_rgba.raw" and meta["color"]["components"] == 4
+    rgba = np.fromfile(tmp_path / "c_rgba.raw", np.uint8).reshape(24, 24, 24, 4).transpose(2, 1, 0, 3)
+    np.testing.assert_array_equal(rgba, vol.colors)
+    h5 = tmp_path / "c.h5"
+    assert main(["convert", SPOT, "-o", str(h5), "-r", "24", "--color", "--backend", "numpy", "-q"]) == 0
+    with h5py.File(h5) as f:
+        np.testing.assert_array_equal(f["color"][...], vol.colors)
+        assert f["color"].attrs["components"] == "RGBA"
+
+
+def test_convert_colour_options_and_warnings(tmp_path, capsys):
+    obj = tmp_path / "m.obj"
+    obj.write_text("mtllib missing.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\n"
+                   "f 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n")
+    out = tmp_path / "m.h5"
+    assert main(["convert", str(obj), "-o", str(out), "-r", "8", "--color", "--no-diffuse",
+                 "--ambient", "-q"]) == 0
+    err = capsys.readouterr().err
+    assert err.startswith("geovox: warning: material file not found: 'missing.mtl'")
+    with h5py.File(out) as f:
+        c = f["color"][...]
+        occ = f["occupancy"][...] == 1
+    assert np.all(c[occ, :3] == 255)  # no Kd factor, no Ka: base colour 1

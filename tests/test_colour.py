@@ -257,3 +257,11 @@ def test_colour_layout_is_rgba_interleaved_x_fastest():
     flat = np.frombuffer(raw.tobytes(), np.uint8).reshape(-1, 4)
     x, y, z = 5, 7, 3
     np.testing.assert_array_equal(flat[x + 12 * (y + 12 * z)], vol.colors[x, y, z])
+
+
+@pytest.mark.parametrize("jobs", [2, 3])
+def test_result_does_not_depend_on_jobs(jobs, backend):
+    one = geovox.voxelize(SPOT, resolution=48, color=True, jobs=1, backend=backend)
+    many = geovox.voxelize(SPOT, resolution=48, color=True, jobs=jobs, backend=backend)
+    np.testing.assert_array_equal(one.occupancy, many.occupancy)
+    np.testing.assert_array_equal(one.colors, many.colors)

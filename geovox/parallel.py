@@ -1,0 +1,58 @@
+"""Splitting array work over threads.
+
+NumPy releases the GIL inside its loops, so blocks of a large array can be
+processed by several threads at once. Every block writes only its own slice
+of the output, so the result never depends on the number of jobs.
+"""
+
+from __future__ import annotations
+
+import os
+from concurrent.futures import ThreadPoolExecutor
+
+from .errors import ParameterError
+
+
+def resolve_jobs(jobs) -> int:
+    """Number of threads: ``None`` or 0 means one per CPU core."""
+    if jobs is None or jobs == 0:
+        return max(1, os.cpu_count() or 1)
+    if isinstance(jobs, bool) or not isinstance(jobs, int) or jobs < 0:
+        raise ParameterError(f"`jobs` must be a non-negative integer, got {jobs!r}")
+    return jobs
+
+
+def for_blocks(fn, n: int, block: int, jobs: int = 1) -> None:
+    """Call ``fn(start, stop)`` for consecutive blocks covering ``range(n)``."""
+    bounds = [(s, min(s + block, n)) for s in range(0, n, block)]
+    if jobs <= 1 or len(bounds) <= 1:
+        for s, e in bounds:
+            fn(s, e)
+        return
+    with ThreadPoolExecutor(max_workers=jobs) as pool:
+        for f in [pool.submit(fn, s, e) for s, e in bounds]:
+            f.result()
+
+
+def scan_along(op, array, axis: int, jobs: int = 1) -> None:
+    """In-place running ``op`` (e.g. ``np.logical_xor``, ``np.maximum``) along ``axis``.
+
+    One slice at a time, so no temporary larger than a slice; the other axes
+    are split into ``jobs`` parts scanned in parallel.
+    """
+    other = max((a for a in range(array.ndim) if a != axis), key=lambda a: array.shape[a])
+    n = array.shape[other]
+    parts = max(1, min(jobs, n))
+
+    def scan(s, e):
+        sub = [slice(None)] * array.ndim
+        sub[other] = slice(s, e)
+        view = array[tuple(sub)]
+        prev = [slice(None)] * array.ndim
+        cur = [slice(None)] * array.ndim
+        for k in range(1, array.shape[axis]):
+            prev[axis] = k - 1
+            cur[axis] = k
+            op(view[tuple(cur)], view[tuple(prev)], out=view[tuple(cur)])
+
+    for_blocks(scan, n, -(-n // parts), jobs)
