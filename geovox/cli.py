@@ -62,8 +62,34 @@ def build_parser() -> argparse.ArgumentParser:
 
     c = sub.add_parser("convert", help="voxelise a mesh and write the volume")
     c.add_argument("input", help="mesh file (OBJ, STL, PLY, GLB, ... anything trimesh reads)")
-    c.add_argument("-o", "--output", required=True,
-                   help="output file; the format comes from its extension (.raw, .h5, .hdf5)")
+    c.add_argument("-o", "--output", default=None,
+                   help="output file, format from its extension (see `geovox formats`); or a "
+                        "folder, or nothing for the current one, to get a name with the grid "
+                        "size and type such as spot_128x128x128_uint8.raw")
+    _grid_options(c)
+    c.add_argument("--format", dest="fmt", help="output format, overriding the extension")
+    c.add_argument("--shell", action="store_true",
+                   help=".vox: keep only the voxels with a face on the outside")
+    c.add_argument("--preview", metavar="PNG", help="also write a preview picture")
+    c.add_argument("-q", "--quiet", action="store_true", help="print nothing on success")
+
+    pv = sub.add_parser("preview", help="write a PNG picture of a volume (or of a mesh, voxelised)")
+    pv.add_argument("input", help="a volume written by geovox, or a mesh")
+    pv.add_argument("-o", "--output", required=True, help="PNG file to write")
+    _grid_options(pv)
+
+    vw = sub.add_parser("view", help="interactive 3D view of a volume (needs the 'view' extra)")
+    vw.add_argument("input", help="a volume written by geovox, or a mesh")
+    vw.add_argument("--mesh", help="show this mesh beside the volume")
+    vw.add_argument("--screenshot", metavar="PNG", help="render off-screen into PNG instead")
+    _grid_options(vw)
+
+    sub.add_parser("backends", help="list the ray-casting backends and whether each can run")
+    sub.add_parser("formats", help="list the output formats")
+    return p
+
+
+def _grid_options(c):
     res = c.add_mutually_exclusive_group()
     res.add_argument("-r", "--resolution", type=_positive_int, metavar="N",
                      help="N voxels on every axis (default 128)")
@@ -84,28 +110,18 @@ def build_parser() -> argparse.ArgumentParser:
                    help="with --color: add the material's Ka")
     c.add_argument("-j", "--jobs", type=int, default=None, metavar="N",
                    help="threads to use (default: one per core); the result does not depend on it")
-    c.add_argument("--format", dest="fmt", help="output format, overriding the extension")
-    c.add_argument("-q", "--quiet", action="store_true", help="print nothing on success")
-
-    sub.add_parser("backends", help="list the ray-casting backends and whether each can run")
-    sub.add_parser("formats", help="list the output formats")
-    return p
 
 
-def _convert(args) -> int:
-    from . import formats
-    from .pipeline import voxelize
-
-    formats.format_for(args.output, args.fmt)  # unknown extension: fail before work
-    formats.check_writable(args.output)
-    t0 = time.perf_counter()
+def _voxelize(args, path):
+    """voxelize() with the CLI's grid options, printing GeovoxWarnings as one line each."""
     import warnings
 
     from .errors import GeovoxWarning
+    from .pipeline import voxelize
 
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", GeovoxWarning)
-        vol = voxelize(args.input, resolution=args.resolution, shape=args.shape,
+        vol = voxelize(path, resolution=args.resolution, shape=args.shape,
                        voxel_size=args.voxel_size, bounds=args.bounds, backend=args.backend,
                        color=args.color, diffuse=args.diffuse, ambient=args.ambient,
                        jobs=args.jobs)
@@ -114,8 +130,64 @@ def _convert(args) -> int:
             print(f"geovox: warning: {w.message}", file=sys.stderr)
         else:
             warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    return vol
+
+
+def _volume_or_mesh(args, path):
+    """A volume file written by geovox is read; anything else is voxelised as a mesh."""
+    from . import formats
+
+    lower = path.lower()
+    if any(lower.endswith(e) for f in formats.formats() for e in f.extensions):
+        return formats.read(path)
+    return _voxelize(args, path)
+
+
+def _output_path(args, input_path, shape) -> str:
+    """The -o path, or a default name carrying the grid size inside a folder."""
+    from . import formats
+    from .formats.headers import default_name
+
+    out = args.output
+    if out is not None and not (os.path.isdir(out) or out.endswith(("/", os.sep))):
+        return out
+    folder = out or os.getcwd()
+    fmt = formats.format_for("x.raw", args.fmt)
+    stem = os.path.splitext(os.path.basename(input_path))[0]
+    return os.path.join(folder, default_name(stem, shape, "uint8", fmt.extensions[0]))
+
+
+def _planned_shape(args, path):
+    """The grid shape, known before loading only for --shape or --resolution."""
+    if args.shape:
+        return tuple(args.shape)
+    if args.resolution:
+        return (args.resolution,) * 3
+    return None
+
+
+def _convert(args) -> int:
+    from . import formats
+
+    t0 = time.perf_counter()
+    planned = _planned_shape(args, args.input)
+    default_out = args.output is None or os.path.isdir(args.output) or args.output.endswith(("/", os.sep))
+    if not default_out:
+        formats.format_for(args.output, args.fmt)  # unknown extension: fail before work
+        formats.check_writable(args.output)
+    elif args.output is not None and not os.path.isdir(args.output):
+        formats.check_writable(os.path.join(args.output, "x"))
+    if args.preview:
+        formats.check_writable(args.preview)
+    vol = _voxelize(args, args.input)
+    output = _output_path(args, args.input, vol.shape if planned is None else planned)
     t1 = time.perf_counter()
-    written = formats.write(vol, args.output, fmt=args.fmt)
+    options = {"shell": True} if args.shell and formats.format_for(output, args.fmt).name == "vox" else {}
+    written = formats.write(vol, output, fmt=args.fmt, **options)
+    if args.preview:
+        from .preview import write_preview
+
+        written.append(write_preview(vol, args.preview))
     t2 = time.perf_counter()
     if not args.quiet:
         nx, ny, nz = vol.shape
@@ -131,6 +203,29 @@ def _convert(args) -> int:
         print(f"time {t2 - t0:.2f} s (load {t['load']:.2f}, rays {t['rays']:.2f}, "
               f"fill {t['fill']:.2f}{colour}, write {t2 - t1:.2f})")
         print("wrote " + ", ".join(written))
+    return EXIT_OK
+
+
+def _preview(args) -> int:
+    from .preview import write_preview
+
+    from . import formats
+
+    formats.check_writable(args.output)
+    vol = _volume_or_mesh(args, args.input)
+    print(f"wrote {write_preview(vol, args.output)}")
+    return EXIT_OK
+
+
+def _view(args) -> int:
+    from .mesh import load_mesh
+    from .view import show
+
+    vol = _volume_or_mesh(args, args.input)
+    mesh = load_mesh(args.mesh) if args.mesh else None
+    out = show(vol, mesh=mesh, screenshot=args.screenshot)
+    if out:
+        print(f"wrote {out}")
     return EXIT_OK
 
 
@@ -162,7 +257,8 @@ def main(argv=None) -> int:
     if args.command is None:
         parser.print_help()
         return EXIT_USAGE
-    handler = {"convert": _convert, "backends": _backends, "formats": _formats}[args.command]
+    handler = {"convert": _convert, "preview": _preview, "view": _view, "backends": _backends,
+               "formats": _formats}[args.command]
     try:
         return handler(args)
     except GeovoxError as exc:

@@ -24,14 +24,15 @@ class Format:
     extensions: tuple
     writer: object
     description: str
+    reader: object = None
 
 
 _FORMATS: dict = {}
 
 
-def register_format(name, extensions, writer, description=""):
-    """Register ``writer`` for the given extensions (with leading dot)."""
-    _FORMATS[name] = Format(name, tuple(e.lower() for e in extensions), writer, description)
+def register_format(name, extensions, writer, description="", reader=None):
+    """Register ``writer`` (and optionally ``reader``) for the given extensions (with dot)."""
+    _FORMATS[name] = Format(name, tuple(e.lower() for e in extensions), writer, description, reader)
 
 
 def formats() -> list:
@@ -66,36 +67,73 @@ def check_writable(path) -> None:
         raise OutputError(f"output path is a folder: {os.fspath(path)}")
 
 
-@contextlib.contextmanager
-def atomic_output(path):
-    """Yield a temporary path beside ``path``; rename it over ``path`` on success.
+class _Group:
+    """Temporary files of one output, renamed into place together."""
 
-    Any exception (including KeyboardInterrupt) removes the temporary file
-    and leaves ``path`` as it was. OS errors become :class:`OutputError`.
-    """
-    path = os.fspath(path)
-    folder = os.path.dirname(os.path.abspath(path))
-    try:
-        fd, tmp = tempfile.mkstemp(prefix="." + os.path.basename(path) + ".", suffix=".tmp",
-                                   dir=folder)
-    except OSError as exc:
-        raise OutputError(f"cannot write in {folder}: {exc.strerror or exc}") from exc
-    os.close(fd)
-    try:
+    def __init__(self):
+        self.pending = []  # (temporary, target)
+
+    def add(self, path) -> str:
+        """A temporary path beside ``path`` to write instead of it."""
+        path = os.fspath(path)
+        folder = os.path.dirname(os.path.abspath(path))
+        try:
+            fd, tmp = tempfile.mkstemp(prefix="." + os.path.basename(path) + ".", suffix=".tmp",
+                                       dir=folder)
+        except OSError as exc:
+            raise OutputError(f"cannot write in {folder}: {exc.strerror or exc}") from exc
+        os.close(fd)
+        self.pending.append((tmp, path))
         # mkstemp creates 0600; give the file the permissions a plain open() would.
         umask = os.umask(0)
         os.umask(umask)
         os.chmod(tmp, 0o666 & ~umask)
-        yield tmp
-        os.replace(tmp, path)
+        return tmp
+
+
+@contextlib.contextmanager
+def atomic_outputs():
+    """Yield a group; files added to it are renamed into place only when all are complete.
+
+    Any exception (including KeyboardInterrupt) removes every temporary file
+    and leaves the targets as they were. OS errors become :class:`OutputError`.
+    """
+    group = _Group()
+    try:
+        yield group
+        for tmp, path in group.pending:
+            os.replace(tmp, path)
     except BaseException as exc:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
+        for tmp, _ in group.pending:
+            with contextlib.suppress(OSError):
+                os.unlink(tmp)
         if isinstance(exc, OSError) and not isinstance(exc, OutputError):
+            target = group.pending[-1][1] if group.pending else "output"
             if exc.errno == errno.ENOSPC:
-                raise OutputError(f"disk full while writing {path}; nothing was written") from exc
-            raise OutputError(f"cannot write {path}: {exc.strerror or exc}") from exc
+                raise OutputError(f"disk full while writing {target}; nothing was written") from exc
+            raise OutputError(f"cannot write {target}: {exc.strerror or exc}") from exc
         raise
+
+
+@contextlib.contextmanager
+def atomic_output(path):
+    """Yield a temporary path beside ``path``; rename it over ``path`` on success."""
+    with atomic_outputs() as group:
+        yield group.add(path)
+
+
+def read(path, fmt=None):
+    """Read a volume written by geovox back (occupancy, grid, colour when present)."""
+    from ..errors import InputNotFoundError, MeshError
+
+    path = os.fspath(path)
+    if not os.path.isfile(path):
+        raise InputNotFoundError(f"volume file not found: {path}")
+    f = format_for(path, fmt)
+    try:
+        return f.reader(path)
+    except (OSError, ValueError, KeyError) as exc:
+        raise MeshError(f"{path}: cannot be read as a geovox {f.name} volume ({exc})") from exc
 
 
 def write(volume, path, fmt=None, **options) -> list:
@@ -110,11 +148,26 @@ def write(volume, path, fmt=None, **options) -> list:
     return format_for(path, fmt).writer(volume, path, **options)
 
 
-from . import hdf5, raw  # noqa: E402  (registration)
+from . import hdf5, nrrd, numpy_files, raw, vox  # noqa: E402  (registration)
 
 register_format("raw", (".raw",), raw.write_raw,
-                "headerless uint8 (0/255), x fastest, with a .json sidecar")
+                "headerless uint8 (0/255), x fastest; .json sidecar, .mhd and .nhdr headers",
+                reader=raw.read_raw_volume)
 register_format("hdf5", (".h5", ".hdf5"), hdf5.write_hdf5,
-                "HDF5 dataset `occupancy` (uint8 0/1, gzip) with grid attributes")
+                "HDF5: `occupancy`/`color` [x, y, z] datasets plus a VTK-HDF ImageData group",
+                reader=hdf5.read_hdf5)
+register_format("nrrd", (".nrrd",), nrrd.write_nrrd,
+                "single-file NRRD (gzip), uint8 0/255; colour in NAME_rgba.nrrd",
+                reader=nrrd.read_nrrd)
+register_format("npy", (".npy",), numpy_files.write_npy, "NumPy array [x, y, z], uint8 0/1",
+                reader=numpy_files.read_npy)
+register_format("npz", (".npz",), numpy_files.write_npz,
+                "NumPy archive: occupancy, colors, spacing, bounds, origin",
+                reader=numpy_files.read_npz)
+register_format("vox", (".vox",), vox.write_vox,
+                "MagicaVoxel: 256³ models in a scene graph, 255 quantised colours",
+                reader=vox.read_vox)
 
-__all__ = ["register_format", "formats", "format_for", "write", "atomic_output", "check_writable"]
+__all__ = ["register_format", "formats", "format_for", "write", "read", "atomic_output",
+           "atomic_outputs",
+           "check_writable"]

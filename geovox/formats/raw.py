@@ -38,11 +38,30 @@ def colour_path(path: str) -> str:
     return f"{root}_rgba{ext}"
 
 
+def _write_text(group, path: str, text: str) -> None:
+    with open(group.add(path), "w") as f:
+        f.write(text)
+
+
+def _write_headers(group, volume, path: str, dtype: str, components: int = 1) -> list:
+    """.mhd and .nhdr headers beside a RAW file, pointing at it."""
+    from .headers import mhd_header, nhdr_header, origin_of
+
+    root = os.path.splitext(path)[0]
+    name = os.path.basename(path)
+    args = (volume.shape, volume.spacing, origin_of(volume), dtype, name, components)
+    _write_text(group, root + ".mhd", mhd_header(*args))
+    _write_text(group, root + ".nhdr", nhdr_header(*args))
+    return [root + ".mhd", root + ".nhdr"]
+
+
 def write_raw(volume, path) -> list:
     """Write occupancy as uint8 0/255, x fastest, and ``<path minus .raw>.json``.
 
     With colour, ``<name>_rgba.raw`` beside it holds uint8 RGBA interleaved
-    per voxel, x fastest (the sidecar names it and says so).
+    per voxel, x fastest (the sidecar names it and says so). Every RAW file
+    gets a MetaImage ``.mhd`` and a detached NRRD ``.nhdr`` header beside it,
+    so ParaView, 3D Slicer and ITK open it with no questions.
 
     Parameters
     ----------
@@ -55,43 +74,42 @@ def write_raw(volume, path) -> list:
     list of str
         The RAW file and its sidecar.
     """
-    from . import atomic_output
+    from . import atomic_outputs
 
     path = os.fspath(path)
     occ = volume.occupancy
     nx, ny, nz = occ.shape
-    per = max(1, SLAB_VOXELS // max(1, occ.shape[0] * occ.shape[1]))
-    with atomic_output(path) as tmp:
-        with open(tmp, "wb") as f:
+    per = max(1, SLAB_VOXELS // max(1, nx * ny))
+    # All files appear together or not at all.
+    with atomic_outputs() as group:
+        with open(group.add(path), "wb") as f:
             for z0 in range(0, nz, per):
                 slab = occ[:, :, z0:z0 + per]
                 # Transposed, the Fortran-ordered slab is C-contiguous in
                 # (z, y, x): its bytes are already x fastest.
                 f.write((slab.T.view(np.uint8) * np.uint8(255)).data)
-    written = [path]
-    meta = metadata(volume, path)
-    if volume.colors is not None:
-        cpath = colour_path(path)
-        # colors is a [x, y, z, c] view of a C-ordered (z, y, x, c) array:
-        # its transpose's bytes are RGBA interleaved with x fastest.
-        base = volume.colors.transpose(2, 1, 0, 3)
-        with atomic_output(cpath) as tmp:
-            with open(tmp, "wb") as f:
+        written = [path] + _write_headers(group, volume, path, "uint8")
+        meta = metadata(volume, path)
+        if volume.colors is not None:
+            cpath = colour_path(path)
+            # colors is a [x, y, z, c] view of a C-ordered (z, y, x, c) array:
+            # its transpose's bytes are RGBA interleaved with x fastest.
+            base = volume.colors.transpose(2, 1, 0, 3)
+            with open(group.add(cpath), "wb") as f:
                 for z0 in range(0, nz, per):
                     f.write(np.ascontiguousarray(base[z0:z0 + per]).data)
-        written.append(cpath)
-        meta["color"] = {
-            "data_file": os.path.basename(cpath),
-            "dtype": "uint8",
-            "components": 4,
-            "layout": "RGBA interleaved per voxel, x fastest, then y, then z",
-            "values": "alpha 255 inside, 0 outside",
-            "numpy": (f"np.fromfile({os.path.basename(cpath)!r}, dtype=np.uint8)"
-                      f".reshape(({nz}, {ny}, {nx}, 4)).transpose(2, 1, 0, 3)"),
-        }
-    sidecar = os.path.splitext(path)[0] + ".json"
-    with atomic_output(sidecar) as tmp:
-        with open(tmp, "w") as f:
+            written += [cpath] + _write_headers(group, volume, cpath, "uint8", components=4)
+            meta["color"] = {
+                "data_file": os.path.basename(cpath),
+                "dtype": "uint8",
+                "components": 4,
+                "layout": "RGBA interleaved per voxel, x fastest, then y, then z",
+                "values": "alpha 255 inside, 0 outside",
+                "numpy": (f"np.fromfile({os.path.basename(cpath)!r}, dtype=np.uint8)"
+                          f".reshape(({nz}, {ny}, {nx}, 4)).transpose(2, 1, 0, 3)"),
+            }
+        sidecar = os.path.splitext(path)[0] + ".json"
+        with open(group.add(sidecar), "w") as f:
             json.dump(meta, f, indent=2)
             f.write("\n")
     return written + [sidecar]
@@ -103,3 +121,24 @@ def read_raw(path) -> np.ndarray:
     with open(sidecar) as f:
         meta = json.load(f)
     return np.fromfile(path, dtype=meta["dtype"]).reshape(meta["shape"], order="F")
+
+
+def read_raw_volume(path):
+    """A Volume from a RAW file and its JSON sidecar (colour too when present)."""
+    from ..grid import Grid
+    from ..pipeline import Volume
+
+    path = os.fspath(path)
+    sidecar = os.path.splitext(path)[0] + ".json"
+    with open(sidecar) as f:
+        meta = json.load(f)
+    nx, ny, nz = meta["shape"]
+    occ = np.fromfile(path, dtype=np.uint8).reshape((nx, ny, nz), order="F") > 0
+    colors = None
+    if "color" in meta:
+        cfile = os.path.join(os.path.dirname(path), meta["color"]["data_file"])
+        colors = np.fromfile(cfile, dtype=np.uint8).reshape(nz, ny, nx, 4).transpose(2, 1, 0, 3)
+    lo, hi = (np.asarray(b, dtype=np.float64) for b in meta["bounds"])
+    return Volume(occupancy=np.asfortranarray(occ), grid=Grid(lo, hi, (nx, ny, nz)),
+                  backend=meta.get("backend", "?"), source=meta.get("source", path),
+                  colors=colors)

@@ -1,0 +1,89 @@
+"""Small pure functions that build the text headers pointing at RAW data.
+
+The origin written everywhere is the centre of voxel 0 (``lo + spacing/2``):
+MetaImage, NRRD and VTK image data place samples at points, and geovox
+classifies voxel centres.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+_MET_TYPES = {"uint8": "MET_UCHAR", "float32": "MET_FLOAT", "int16": "MET_SHORT",
+              "uint16": "MET_USHORT"}
+_NRRD_TYPES = {"uint8": "uint8", "float32": "float", "int16": "int16", "uint16": "uint16"}
+
+
+def _num(x) -> str:
+    return repr(float(x))
+
+
+def origin_of(volume) -> np.ndarray:
+    """(3,) float64: centre of voxel (0, 0, 0)."""
+    return np.asarray(volume.bounds[0]) + 0.5 * np.asarray(volume.spacing)
+
+
+def mhd_header(shape, spacing, origin, dtype: str, data_file: str, components: int = 1) -> str:
+    """MetaImage (.mhd) header for an x-fastest RAW file.
+
+    Parameters
+    ----------
+    shape : (3,) int
+        ``(nx, ny, nz)``.
+    spacing, origin : (3,) float
+    dtype : {"uint8", "float32", "int16", "uint16"}
+    data_file : str
+        RAW file name, relative to the header.
+    components : int
+        Values per voxel (4 for RGBA).
+    """
+    lines = [
+        "ObjectType = Image",
+        "NDims = 3",
+        "BinaryData = True",
+        "BinaryDataByteOrderMSB = False",
+        "CompressedData = False",
+        "TransformMatrix = 1 0 0 0 1 0 0 0 1",
+        "Offset = " + " ".join(_num(v) for v in origin),
+        "CenterOfRotation = 0 0 0",
+        "ElementSpacing = " + " ".join(_num(v) for v in spacing),
+        "DimSize = " + " ".join(str(int(n)) for n in shape),
+    ]
+    if components > 1:
+        lines.append(f"ElementNumberOfChannels = {components}")
+    lines += [f"ElementType = {_MET_TYPES[dtype]}", f"ElementDataFile = {data_file}"]
+    return "\n".join(lines) + "\n"
+
+
+def nhdr_header(shape, spacing, origin, dtype: str, data_file: str, components: int = 1) -> str:
+    """Detached NRRD (.nhdr) header for an x-fastest RAW file (same parameters as :func:`mhd_header`)."""
+    sx, sy, sz = (_num(v) for v in spacing)
+    dirs = f"({sx},0,0) (0,{sy},0) (0,0,{sz})"
+    sizes = " ".join(str(int(n)) for n in shape)
+    kinds = "domain domain domain"
+    dimension = 3
+    if components > 1:
+        dirs = "none " + dirs
+        sizes = f"{components} {sizes}"
+        kinds = ("RGBA-color " if components == 4 else "vector ") + kinds
+        dimension = 4
+    return (
+        "NRRD0004\n"
+        "# written by geovox\n"
+        f"type: {_NRRD_TYPES[dtype]}\n"
+        f"dimension: {dimension}\n"
+        "space dimension: 3\n"
+        f"sizes: {sizes}\n"
+        f"space directions: {dirs}\n"
+        f"kinds: {kinds}\n"
+        "endian: little\n"
+        "encoding: raw\n"
+        "space origin: (" + ",".join(_num(v) for v in origin) + ")\n"
+        f"data file: {data_file}\n"
+    )
+
+
+def default_name(stem: str, shape, dtype: str = "uint8", ext: str = ".raw") -> str:
+    """File name that carries the dimensions and type: ``spot_128x128x128_uint8.raw``."""
+    nx, ny, nz = (int(n) for n in shape)
+    return f"{stem}_{nx}x{ny}x{nz}_{dtype}{ext}"

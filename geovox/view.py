@@ -1,0 +1,91 @@
+"""Interactive 3D view of a volume (and its source mesh), through PyVista.
+
+PyVista (and VTK) is an optional extra: ``pip install -e '.[view]'``. With a
+screenshot path the view renders off-screen, which works without a display.
+"""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+
+from .errors import GeovoxError, OutputError
+
+#: Above this many inside voxels only the visible shell is drawn.
+SHELL_ABOVE = 200_000
+
+
+class ViewerUnavailableError(GeovoxError, ImportError):
+    """PyVista is not installed."""
+
+
+def _pyvista():
+    try:
+        import pyvista
+    except ImportError as exc:
+        raise ViewerUnavailableError(
+            "the 3D viewer needs PyVista: pip install -e '.[view]' (or pip install pyvista)"
+        ) from exc
+    return pyvista
+
+
+def voxel_cells(volume):
+    """The inside voxels as a PyVista UnstructuredGrid of hexahedra (shell only when large)."""
+    pv = _pyvista()
+    from .formats.vox import shell_mask
+
+    occ = volume.occupancy
+    keep = shell_mask(occ) if np.count_nonzero(occ) > SHELL_ABOVE else occ
+    grid = pv.ImageData(dimensions=np.asarray(volume.shape) + 1, spacing=volume.spacing,
+                        origin=volume.bounds[0])
+    # VTK orders cells x fastest: the Fortran order of the [x, y, z] arrays.
+    grid.cell_data["inside"] = keep.reshape(-1, order="F").view(np.uint8)
+    if volume.colors is not None:
+        grid.cell_data["rgba"] = volume.colors.transpose(2, 1, 0, 3).reshape(-1, 4)
+    return grid.threshold(0.5, scalars="inside")
+
+
+def show(volume, mesh=None, screenshot=None, window_size=(1200, 600)):
+    """Show the volume, and the mesh beside it when given.
+
+    Parameters
+    ----------
+    volume : Volume
+    mesh : geovox.mesh.Mesh, optional
+    screenshot : str, optional
+        Render off-screen into this PNG instead of opening a window.
+    """
+    pv = _pyvista()
+    if screenshot is None and os.name == "posix" and not os.environ.get("DISPLAY") \
+            and not os.environ.get("WAYLAND_DISPLAY") and os.uname().sysname == "Linux":
+        raise OutputError("no display to open a window on: use --screenshot PNG to render off-screen")
+    cells = voxel_cells(volume)
+    shape = (1, 2) if mesh is not None else (1, 1)
+    size = window_size if mesh is not None else (window_size[1], window_size[1])
+    plotter = pv.Plotter(shape=shape, off_screen=screenshot is not None, window_size=size)
+    plotter.subplot(0, 0)
+    plotter.add_text(f"voxels {volume.shape[0]} x {volume.shape[1]} x {volume.shape[2]}", font_size=10)
+    if cells.n_cells:
+        if volume.colors is not None:
+            plotter.add_mesh(cells, scalars="rgba", rgb=True, show_edges=False)
+        else:
+            plotter.add_mesh(cells, color="lightgrey", show_edges=False)
+    if mesh is not None:
+        plotter.subplot(0, 1)
+        plotter.add_text("mesh", font_size=10)
+        faces = np.hstack([np.full((len(mesh.faces), 1), 3), mesh.faces]).reshape(-1)
+        plotter.add_mesh(pv.PolyData(mesh.vertices, faces), color="tan")
+        plotter.link_views()
+    plotter.view_isometric()
+    if screenshot is not None:
+        from .formats import atomic_output, check_writable
+
+        check_writable(screenshot)
+        with atomic_output(screenshot) as tmp:
+            plotter.screenshot(tmp + ".png")
+            os.replace(tmp + ".png", tmp)
+        plotter.close()
+        return screenshot
+    plotter.show()
+    return None
