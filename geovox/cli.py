@@ -102,6 +102,9 @@ def _grid_options(c):
                    help="region of interest (default: the mesh's bounding box)")
     c.add_argument("--backend", default="auto", choices=["auto", "embree", "numpy"],
                    help="ray-casting backend (default: auto = embree if installed, else numpy)")
+    c.add_argument("--inside", default="auto", choices=["auto", "parity", "vote", "winding"],
+                   help="inside test (default: auto = parity for closed meshes, winding number "
+                        "otherwise)")
     c.add_argument("--color", "--colour", dest="color", action="store_true",
                    help="also colour the voxels from the model's materials and textures")
     c.add_argument("--no-diffuse", dest="diffuse", action="store_false",
@@ -124,7 +127,7 @@ def _voxelize(args, path):
         vol = voxelize(path, resolution=args.resolution, shape=args.shape,
                        voxel_size=args.voxel_size, bounds=args.bounds, backend=args.backend,
                        color=args.color, diffuse=args.diffuse, ambient=args.ambient,
-                       jobs=args.jobs)
+                       jobs=args.jobs, inside=args.inside)
     for w in caught:
         if issubclass(w.category, GeovoxWarning):
             print(f"geovox: warning: {w.message}", file=sys.stderr)
@@ -197,7 +200,8 @@ def _convert(args) -> int:
         t = vol.timings
         print(f"{os.path.basename(vol.source)}: grid {nx} x {ny} x {nz} "
               f"over ({lo[0]:.6g}, {lo[1]:.6g}, {lo[2]:.6g})..({hi[0]:.6g}, {hi[1]:.6g}, {hi[2]:.6g})")
-        print(f"voxel size {dx:.6g} x {dy:.6g} x {dz:.6g}, backend {vol.backend}")
+        print(f"voxel size {dx:.6g} x {dy:.6g} x {dz:.6g}, backend {vol.backend}, "
+              f"inside test {vol.inside}")
         print(f"inside {inside:,} of {nx * ny * nz:,} voxels ({100.0 * inside / (nx * ny * nz):.2f}%)")
         colour = f", colour {t['colour']:.2f}" if "colour" in t else ""
         print(f"time {t2 - t0:.2f} s (load {t['load']:.2f}, rays {t['rays']:.2f}, "

@@ -32,6 +32,8 @@ class Volume:
     source : str
     colors : (nx, ny, nz, 4) uint8 or None
         RGBA colour per voxel, when colour was asked for.
+    inside : str
+        The inside/outside method that ran (``auto`` resolved).
     timings : dict
         Seconds per stage.
     """
@@ -42,6 +44,7 @@ class Volume:
     source: str = "<mesh>"
     colors: np.ndarray | None = None
     timings: dict = field(default_factory=dict)
+    inside: str = "parity"
 
     @property
     def bounds(self) -> tuple:
@@ -99,6 +102,7 @@ def voxelize(
     diffuse=True,
     ambient=False,
     jobs=None,
+    inside="auto",
 ) -> Volume:
     """Turn a closed triangle mesh into a solid voxel volume.
 
@@ -136,6 +140,9 @@ def voxelize(
     jobs : int, optional
         Threads for the array work (default: one per core). The result is
         the same for any number of jobs.
+    inside : {"auto", "parity", "vote", "winding"}
+        Inside/outside test (see :mod:`geovox.inside`): ``auto`` is parity
+        for closed meshes and the winding number otherwise, with a warning.
 
     Returns
     -------
@@ -156,24 +163,56 @@ def voxelize(
     # working arrays while nearest crossings are found.
     check_memory(grid, 1.0 + (20.0 if color else 0.0))
 
-    def cast(ax):
-        # Rays start outside the whole mesh, not at the region's edge.
-        start = min(float(m.bounds[0, ax]), float(grid.lo[ax])) - 1e-3 * m.scale
-        columns = grid.columns(ax, start=start)
-        return engine.cast(m, columns), columns
+    from . import inside as inside_tests
 
-    hits, columns = cast(axis)
-    t_rays = time.perf_counter()
-    occ = parity.fill(hits, columns, grid, jobs=jobs)
+    method = inside_tests.choose(m, inside)
+
+    def cast_mesh(mesh, ax):
+        # Rays start outside the whole mesh, not at the region's edge.
+        start = min(float(mesh.bounds[0, ax]), float(grid.lo[ax])) - 1e-3 * mesh.scale
+        columns = grid.columns(ax, start=start)
+        return engine.cast(mesh, columns), columns
+
+    def cast(ax):
+        return cast_mesh(m, ax)
+
+    crossings = {}
+    if method == "parity":
+        crossings[axis] = cast(axis)
+        t_rays = time.perf_counter()
+        occ = parity.fill(*crossings[axis], grid, jobs=jobs)
+    elif method == "vote":
+        votes = None
+        for ax in (axis,) + tuple(a for a in range(3) if a != axis):
+            crossings[ax] = cast(ax)
+            one = parity.fill(*crossings[ax], grid, jobs=jobs).view(np.uint8)
+            votes = one if votes is None else np.add(votes, one, out=votes)
+        t_rays = time.perf_counter()
+        occ = np.asfortranarray(votes >= 2)
+        del votes
+    else:
+        occ, hits, columns = inside_tests.winding_occupancy(m, grid, cast_mesh, axis, jobs)
+        crossings[axis] = (hits, columns)
+        t_rays = time.perf_counter()
     t_fill = time.perf_counter()
     timings = {"load": t_load - t0, "rays": t_rays - t_load, "fill": t_fill - t_rays}
+    if not occ.any() and not _overlaps(m.bounds, grid):
+        import warnings
+
+        from .errors import GeovoxWarning
+
+        def fmt(v):
+            return "(" + ", ".join(f"{x:.6g}" for x in v) + ")"
+
+        warnings.warn(f"the region {fmt(grid.lo)}..{fmt(grid.hi)} misses the mesh "
+                      f"{fmt(m.bounds[0])}..{fmt(m.bounds[1])}; the volume is empty",
+                      GeovoxWarning, stacklevel=2)
     colors = None
     if color:
         from .colour import colour_volume
 
-        crossings = {axis: (hits, columns)}
-        others = [a for a in range(3) if a != axis]
-        if jobs > 1:
+        others = [a for a in range(3) if a not in crossings]
+        if jobs > 1 and len(others) > 1:
             from concurrent.futures import ThreadPoolExecutor
 
             with ThreadPoolExecutor(max_workers=2) as pool:
@@ -193,4 +232,9 @@ def voxelize(
         source=m.source,
         colors=colors,
         timings=timings,
+        inside=method,
     )
+
+
+def _overlaps(bounds, grid) -> bool:
+    return bool(np.all(bounds[0] <= grid.hi) and np.all(bounds[1] >= grid.lo))

@@ -62,6 +62,9 @@ def test_ray_axis_does_not_change_the_solid(axis, backend):
     assert np.count_nonzero(ref.occupancy != other.occupancy) <= 2
 
 
-def test_region_missing_the_mesh_is_empty(backend):
-    vol = geovox.voxelize(SPOT, resolution=8, bounds=(5, 5, 5, 6, 6, 6), backend=backend)
+def test_region_missing_the_mesh_is_empty_with_a_warning(backend):
+    from geovox.errors import GeovoxWarning
+
+    with pytest.warns(GeovoxWarning, match=r"misses the mesh"):
+        vol = geovox.voxelize(SPOT, resolution=8, bounds=(5, 5, 5, 6, 6, 6), backend=backend)
     assert vol.inside_count == 0
