@@ -84,6 +84,16 @@ def build_parser() -> argparse.ArgumentParser:
     vw.add_argument("--screenshot", metavar="PNG", help="render off-screen into PNG instead")
     _grid_options(vw)
 
+    info = sub.add_parser("info", help="what a mesh is like, and what a grid would cost")
+    info.add_argument("input", help="mesh file")
+    res = info.add_mutually_exclusive_group()
+    res.add_argument("-r", "--resolution", type=_positive_int, metavar="N",
+                     help="grid to cost (default 128)")
+    res.add_argument("--shape", type=_positive_int, nargs=3, metavar=("NX", "NY", "NZ"))
+    res.add_argument("--voxel-size", type=_positive_float, metavar="S")
+    info.add_argument("--bounds", type=_finite_float, nargs=6,
+                      metavar=("XMIN", "YMIN", "ZMIN", "XMAX", "YMAX", "ZMAX"))
+
     sub.add_parser("backends", help="list the ray-casting backends and whether each can run")
     sub.add_parser("formats", help="list the output formats")
     return p
@@ -233,6 +243,17 @@ def _view(args) -> int:
     return EXIT_OK
 
 
+def _info(args) -> int:
+    from .mesh import load_mesh
+    from .report import format_report, grid_cost, mesh_report
+
+    mesh = load_mesh(args.input)
+    cost = grid_cost(mesh, bounds=args.bounds, resolution=args.resolution, shape=args.shape,
+                     voxel_size=args.voxel_size)
+    print(format_report(mesh_report(mesh), cost))
+    return EXIT_OK
+
+
 def _backends(args) -> int:
     from .backends import PREFERENCE, REGISTRY, available_backends
 
@@ -261,8 +282,8 @@ def main(argv=None) -> int:
     if args.command is None:
         parser.print_help()
         return EXIT_USAGE
-    handler = {"convert": _convert, "preview": _preview, "view": _view, "backends": _backends,
-               "formats": _formats}[args.command]
+    handler = {"convert": _convert, "preview": _preview, "view": _view, "info": _info,
+               "backends": _backends, "formats": _formats}[args.command]
     try:
         return handler(args)
     except GeovoxError as exc:

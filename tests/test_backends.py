@@ -39,6 +39,14 @@ def _closed_synthetic():
     two = trimesh.util.concatenate([trimesh.creation.box((1, 1, 1)),
                                     trimesh.creation.box((1, 1, 1)).apply_translation((0.5, 0.5, 0.5))])
     yield "overlapping_boxes", from_tm(two, "overlapping_boxes")
+    # Parts whose faces overlap in the same planes: a restart past one hides
+    # the other from a naive multi-hit loop.
+    coplanar = trimesh.util.concatenate([trimesh.creation.box((1, 1, 1)),
+                                         trimesh.creation.box((1, 1, 1)).apply_translation((0.5, 0, 0))])
+    yield "coplanar_overlap", from_tm(coplanar, "coplanar_overlap")
+    dup = trimesh.creation.icosphere(subdivisions=2)
+    yield "duplicated_faces", geovox.Mesh(np.asarray(dup.vertices),
+                                          np.concatenate([dup.faces, dup.faces[:40]]), source="dup")
 
 
 SYNTHETIC = list(_closed_synthetic())

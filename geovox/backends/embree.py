@@ -14,14 +14,18 @@ each ray meets; every decision is settled by the exact shared predicate in
    wrong -- the exact test rejects it, or the ray passes within a hair of an
    edge -- every triangle sharing a vertex with the reported one is tested
    too, which recovers the neighbours a restart skipped.
-3. A ray with an odd number of exact crossings (impossible on a closed mesh
+3. Triangles that overlap another one in (nearly) the same plane -- duplicated
+   faces, coincident faces of touching parts -- would hide each other from a
+   restart that steps past the first: their crossings are found by the
+   exact rasteriser instead of by Embree.
+4. A ray with an odd number of exact crossings (impossible on a closed mesh
    when no crossing was lost), or one that ran out of restarts, is redone by
    the exact NumPy rasteriser.
 
 The result equals the NumPy backend's whenever step 1 meets each crossing or
-one of its vertex neighbours; the rare exception would need two crossings of
-unrelated triangles closer together than the restart step (1e-6 of the mesh
-size) on the same ray.
+one of its vertex neighbours; the remaining exception would need two
+crossings of unrelated, non-coplanar triangles closer together than the
+restart step (1e-6 of the mesh size) on the same ray, twice.
 """
 
 from __future__ import annotations
@@ -61,6 +65,62 @@ def _expand(ray, tri, geometric_faces, offsets, vfaces):
     start = np.repeat(offsets[verts], n)
     local = np.arange(int(n.sum()), dtype=np.int64) - np.repeat(np.cumsum(n) - n, n)
     return r, vfaces[start + local]
+
+
+def coplanar_overlaps(mesh) -> np.ndarray:
+    """(m,) bool: triangles that overlap another triangle lying in nearly the same plane.
+
+    Planes are compared as points ``(n, d / size)`` (unit normal with a
+    canonical sign, offset over the mesh size) in a k-d tree, so there are no
+    bucket boundaries to miss a pair; pairs whose boxes are apart, or that
+    share an edge with their third vertices on opposite sides of it (the two
+    halves of one flat face), do not count.
+    """
+    if "coplanar" in mesh._cache:
+        return mesh._cache["coplanar"]
+    from scipy.spatial import cKDTree
+
+    t = mesh.triangles
+    n = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
+    length = np.linalg.norm(n, axis=1)
+    ok = length > 0
+    n = n[ok] / length[ok, None]
+    # Canonical sign: the largest component positive.
+    big = np.argmax(np.abs(n), axis=1)
+    n *= np.sign(n[np.arange(len(n)), big])[:, None]
+    d = np.einsum("ij,ij->i", n, t[ok, 0]) / mesh.scale
+    ids = np.flatnonzero(ok)
+    flags = np.zeros(len(t), dtype=bool)
+    pairs = cKDTree(np.column_stack([n, d])).query_pairs(r=1e-6, output_type="ndarray")
+    if len(pairs):
+        a, b = ids[pairs[:, 0]], ids[pairs[:, 1]]
+        lo, hi = t.min(axis=1), t.max(axis=1)
+        tol = 1e-9 * mesh.scale
+        overlap = np.all((lo[a] <= hi[b] + tol) & (lo[b] <= hi[a] + tol), axis=1)
+        a, b = a[overlap], b[overlap]
+        # Two halves of one flat face: sharing an edge, third vertices apart.
+        g = mesh.geometric_faces
+        shared = (g[a][:, :, None] == g[b][:, None, :])
+        n_shared = shared.any(axis=2).sum(axis=1)
+        edge = n_shared == 2
+        if edge.any():
+            ae, be = a[edge], b[edge]
+            sa = shared[edge].any(axis=2)  # which vertices of a are shared
+            sb = shared[edge].any(axis=1)
+            pa = t[ae][~sa].reshape(-1, 3)
+            pb = t[be][~sb].reshape(-1, 3)
+            e0 = t[ae][sa].reshape(-1, 2, 3)
+            axis_e = e0[:, 1] - e0[:, 0]
+            nrm = np.cross(t[ae, 1] - t[ae, 0], t[ae, 2] - t[ae, 0])
+            side_a = np.einsum("ij,ij->i", np.cross(axis_e, pa - e0[:, 0]), nrm)
+            side_b = np.einsum("ij,ij->i", np.cross(axis_e, pb - e0[:, 0]), nrm)
+            apart = np.zeros(len(a), dtype=bool)
+            apart[np.flatnonzero(edge)] = side_a * side_b < 0
+            a, b = a[~apart], b[~apart]
+        flags[a] = True
+        flags[b] = True
+    mesh._cache["coplanar"] = flags
+    return flags
 
 
 class EmbreeBackend(Backend):
@@ -154,6 +214,12 @@ class EmbreeBackend(Backend):
         recheck = np.zeros(columns.count, dtype=bool)
         recheck[rays[behind]] = True
         hits = self._verify(mesh, proj, columns, ray, tri, recheck)
+
+        # Coplanar overlapping triangles: found exactly, by scanning.
+        flagged = coplanar_overlaps(mesh)
+        if flagged.any():
+            hits = hits.take(~flagged[hits.triangle])
+            hits = Hits.concatenate([hits, rasterise(proj, triangle_mask=flagged[proj.tri])])
 
         # Rays with odd parity (or stuck) are redone exactly.
         counts = np.bincount(hits.ray, minlength=columns.count)

@@ -19,7 +19,8 @@ from .base import Backend, Hits
 BLOCK = 1 << 20
 
 
-def rasterise(proj: Projection, column_mask: np.ndarray | None = None, block: int = BLOCK) -> Hits:
+def rasterise(proj: Projection, column_mask: np.ndarray | None = None, block: int = BLOCK,
+              triangle_mask: np.ndarray | None = None) -> Hits:
     """Every crossing of the projection's column rays, found by scanning.
 
     Parameters
@@ -29,11 +30,15 @@ def rasterise(proj: Projection, column_mask: np.ndarray | None = None, block: in
         Only report crossings of the rays where this is True.
     block : int
         Candidate pairs per block.
+    triangle_mask : (len(proj),) bool, optional
+        Only scan these active triangles.
     """
     nu = proj.columns.nu
     width = np.maximum(proj.imax - proj.imin + 1, 0)
     height = np.maximum(proj.jmax - proj.jmin + 1, 0)
     counts = width * height
+    if triangle_mask is not None:
+        counts = np.where(triangle_mask, counts, 0)
     ends = np.cumsum(counts)
     starts = ends - counts
     total = int(ends[-1]) if len(ends) else 0
