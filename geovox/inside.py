@@ -278,7 +278,8 @@ def choose(mesh: Mesh, method: str) -> str:
     n_open, n_nonmanifold = edge_counts(mesh)
     warnings.warn(
         f"{mesh.source}: the mesh is not closed ({n_open} open edges, {n_nonmanifold} "
-        f"non-manifold, after merging vertices by position); using the winding-number inside "
-        f"test, which bridges holes (pass inside='parity' or --inside parity to override)",
+        f"non-manifold, {len(edges)} without a partner edge running the other way, after "
+        f"merging vertices by position); using the winding-number inside test, which bridges "
+        f"holes (pass inside='parity' or --inside parity to override)",
         GeovoxWarning, stacklevel=3)
     return "winding"
