@@ -232,3 +232,73 @@ def test_convert_colour_options_and_warnings(tmp_path, capsys):
         c = f["color"][...]
         occ = f["occupancy"][...] == 1
     assert np.all(c[occ, :3] == 255)  # no Kd factor, no Ka: base colour 1
+
+
+def test_faces_indexing_missing_vertices(tmp_path, capsys):
+    obj = tmp_path / "bad.obj"
+    obj.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n")
+    assert main(["convert", str(obj), "-o", str(tmp_path / "o.raw")]) == 2
+    err = capsys.readouterr().err
+    assert "bad.obj" in err and "vertex 9" in err and "3 vertices" in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.obj"]
+
+
+def test_grid_too_large_is_refused_before_allocating(tmp_path, capsys, monkeypatch):
+    import geovox.pipeline as pipeline
+
+    monkeypatch.setattr(pipeline, "_available_memory", lambda: 64 * 2**20)
+    assert main(["convert", SPOT, "-o", str(tmp_path / "o.h5"), "-r", "1024"]) == 2
+    err = capsys.readouterr().err
+    assert "1024 x 1024 x 1024" in err and "GiB" in err and "smaller resolution" in err
+    assert list(tmp_path.iterdir()) == []
+    with pytest.raises(MemoryError):
+        geovox.voxelize(SPOT, resolution=1024)
+
+
+def test_output_folder_not_writable(tmp_path, capsys, monkeypatch):
+    import geovox.formats as formats
+
+    monkeypatch.setattr(formats.os, "access", lambda path, mode: False)
+    assert main(["convert", SPOT, "-o", str(tmp_path / "o.raw")]) == 2
+    assert "not writable" in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_region_missing_the_mesh_warns_and_writes_an_empty_volume(tmp_path, capsys):
+    out = tmp_path / "o.npy"
+    assert main(["convert", SPOT, "-o", str(out), "-r", "4", "--bounds", "5", "5", "5", "6", "6", "6",
+                 "-q"]) == 0
+    assert "misses the mesh" in capsys.readouterr().err
+    assert not np.load(out).any()
+
+
+def test_input_is_never_touched(tmp_path):
+    import shutil
+
+    src = tmp_path / "spot.obj"
+    shutil.copy(SPOT, src)
+    before = (src.read_bytes(), os.stat(src).st_mtime_ns)
+    main(["convert", str(src), "-o", str(tmp_path / "x.raw"), "-r", "8", "-q"])
+    main(["convert", str(src), "-o", str(tmp_path / "nope" / "x.raw"), "-r", "8"])
+    main(["convert", str(src), "-o", str(src), "-r", "8"])  # unknown output format: refused
+    assert (src.read_bytes(), os.stat(src).st_mtime_ns) == before
+
+
+@pytest.mark.parametrize("call,exc,builtin,needle", [
+    (lambda: geovox.voxelize("/nonexistent/x.obj"), geovox.InputNotFoundError, FileNotFoundError,
+     "/nonexistent/x.obj"),
+    (lambda: geovox.voxelize(SPOT, resolution=-3), geovox.ParameterError, ValueError,
+     "`resolution` must be a positive integer, got -3"),
+    (lambda: geovox.voxelize(SPOT, bounds=(1, 0, 0, 0, 1, 1)), geovox.ParameterError, ValueError,
+     "`bounds`"),
+    (lambda: geovox.voxelize(SPOT, backend="cuda"), geovox.ParameterError, ValueError, "'cuda'"),
+    (lambda: geovox.voxelize(SPOT, jobs=-1), geovox.ParameterError, ValueError, "`jobs`"),
+    (lambda: geovox.voxelize(12345), geovox.MeshError, ValueError, "int"),
+    (lambda: geovox.formats.write(geovox.voxelize(SPOT, resolution=2), "/nonexistent/dir/x.raw"),
+     geovox.OutputError, OSError, "/nonexistent/dir"),
+])
+def test_library_errors_are_one_hierarchy_and_builtins(call, exc, builtin, needle):
+    with pytest.raises(exc) as info:
+        call()
+    assert isinstance(info.value, geovox.GeovoxError) and isinstance(info.value, builtin)
+    assert needle in str(info.value)
