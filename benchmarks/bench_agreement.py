@@ -34,7 +34,7 @@ def trimesh_multihit(mesh, grid):
                         np.full(u.size, cols.start)], axis=1)
     dirs = np.tile([0.0, 0.0, 1.0], (len(origins), 1))
     loc, ray, tri = RayMeshIntersector(tm).intersects_location(origins, dirs, multiple_hits=True)
-    hits = Hits(ray.astype(np.int64), loc[:, 2], tri.astype(np.int64), np.zeros((len(ray), 2)))
+    hits = Hits(ray.astype(np.int64), loc[:, 2] - cols.w0, tri.astype(np.int64), np.zeros((len(ray), 2)))
     return parity.fill(hits, cols, grid)
 
 

@@ -249,7 +249,7 @@ def nearest_crossings(mesh, grid, occupancy, cast, jobs=1):
         hits = hits.sorted()
         parts.append(hits)
         n_axis = grid.shape[axis]
-        centres = grid.centres(axis)
+        centres = (np.arange(n_axis) + 0.5) * grid.spacing[axis]  # from the low face, like depths
         k = np.searchsorted(centres, hits.depth, side="left")
         centres32 = centres.astype(np.float32)
         idx = [None, None, None]

@@ -150,7 +150,8 @@ class Projection:
         self.tie = tie
         self.area = np.abs(area2[sel]).astype(np.float64)
         self.edge_len = edge_len
-        self.z = tris[self.tri, :, c]
+        # Depths are measured from the grid's low face (see Columns).
+        self.z = tris[self.tri, :, c] - columns.w0
         lu = np.minimum(np.minimum(qu[0], qu[1]), qu[2])[sel]
         hu = np.maximum(np.maximum(qu[0], qu[1]), qu[2])[sel]
         lv = np.minimum(np.minimum(qv[0], qv[1]), qv[2])[sel]
@@ -199,8 +200,8 @@ class Projection:
         hit : (n,) bool
             Whether ray ``(i, j)`` crosses triangle ``t``.
         depth : (n,) float64
-            Coordinate of the crossing along the ray axis (plane extrapolated
-            where ``hit`` is False).
+            Distance of the crossing from the plane ``axis = columns.w0``
+            (plane extrapolated where ``hit`` is False).
         bary : (n, 2) float64
             Weights ``(u, v)`` of vertices 1 and 2 (vertex 0 gets ``1-u-v``).
         w : (n, 3) int64

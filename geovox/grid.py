@@ -77,6 +77,7 @@ class Grid:
             nu=int(self.shape[u]),
             nv=int(self.shape[v]),
             start=float(self.lo[axis] if start is None else start),
+            w0=float(self.lo[axis]),
         )
 
 
@@ -86,7 +87,10 @@ class Columns:
 
     Ray ``r = i + nu * j`` passes through ``(u, v) = (u0 + (i + 0.5) * du,
     v0 + (j + 0.5) * dv)`` and travels along ``+axis`` from ``start``.
-    ``u_axis < v_axis`` are the two axes other than ``axis``.
+    ``u_axis < v_axis`` are the two axes other than ``axis``. Depths of
+    crossings are measured along the ray from the plane ``axis = w0`` (the
+    grid's low face), so that they, like the lattice, move with the grid:
+    translating mesh and grid together by whole voxels changes nothing.
     """
 
     axis: int
@@ -99,6 +103,7 @@ class Columns:
     nu: int
     nv: int
     start: float
+    w0: float = 0.0
 
     @property
     def count(self) -> int:

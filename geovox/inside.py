@@ -143,7 +143,7 @@ def signed_counts(mesh: Mesh, hits: Hits, columns, grid, jobs: int = 1) -> np.nd
     n_axis = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])[:, axis]
     sigma = np.sign(n_axis).astype(np.int64)
     total = np.bincount(hits.ray, weights=sigma, minlength=columns.count).astype(np.int64)
-    centres = grid.centres(axis)
+    centres = (np.arange(grid.shape[axis]) + 0.5) * grid.spacing[axis]  # from the low face
     k = np.searchsorted(centres, hits.depth, side="left")
     keep = k < len(centres)
     idx = [None, None, None]
@@ -167,6 +167,29 @@ def signed_counts(mesh: Mesh, hits: Hits, columns, grid, jobs: int = 1) -> np.nd
     return w
 
 
+def capped(mesh: Mesh):
+    """The mesh with every hole closed by a cap (see :func:`caps`).
+
+    Returns
+    -------
+    closed : Mesh
+        ``mesh`` itself when it has no boundary; else its faces followed by
+        the cap triangles.
+    cap_tris : (k, 3, 3) float64
+    piece : (k,) int64
+    """
+    if "capped" in mesh._cache:
+        return mesh._cache["capped"]
+    cap_tris, piece = caps(mesh, boundary_edges(mesh))
+    closed = mesh
+    if len(cap_tris):
+        verts = np.concatenate([mesh.vertices, cap_tris.reshape(-1, 3)])
+        cap_faces = len(mesh.vertices) + np.arange(3 * len(cap_tris)).reshape(-1, 3)
+        closed = Mesh(verts, np.concatenate([mesh.faces, cap_faces]), source=mesh.source)
+    mesh._cache["capped"] = (closed, cap_tris, piece)
+    return mesh._cache["capped"]
+
+
 def winding_occupancy(mesh: Mesh, grid, cast, axis: int, jobs: int = 1):
     """Occupancy by the generalised winding number (see the module notes).
 
@@ -177,15 +200,8 @@ def winding_occupancy(mesh: Mesh, grid, cast, axis: int, jobs: int = 1):
     occupancy : (nx, ny, nz) bool, Fortran order
     hits, columns : the crossings of the original mesh's triangles
     """
-    edges = boundary_edges(mesh)
-    cap_tris, piece = caps(mesh, edges)
+    closed, cap_tris, piece = capped(mesh)
     nf = len(mesh.faces)
-    if len(cap_tris):
-        verts = np.concatenate([mesh.vertices, cap_tris.reshape(-1, 3)])
-        cap_faces = len(mesh.vertices) + np.arange(3 * len(cap_tris)).reshape(-1, 3)
-        closed = Mesh(verts, np.concatenate([mesh.faces, cap_faces]), source=mesh.source)
-    else:
-        closed = mesh
     hits, columns = cast(closed, axis)
     w = signed_counts(closed, hits, columns, grid, jobs)
     occ = np.asfortranarray(w >= 1)

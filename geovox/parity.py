@@ -29,7 +29,8 @@ def toggle_indices(hits: Hits, columns: Columns, grid: Grid) -> np.ndarray:
     (k,) int64, sorted, unique.
     """
     axis = columns.axis
-    centres = grid.centres(axis)
+    # Centres measured from the grid's low face, like the depths.
+    centres = (np.arange(grid.shape[axis]) + 0.5) * grid.spacing[axis]
     # First voxel whose centre is at or past the crossing.
     k = np.searchsorted(centres, hits.depth, side="left")
     keep = k < len(centres)

@@ -34,6 +34,11 @@ class Volume:
         RGBA colour per voxel, when colour was asked for.
     inside : str
         The inside/outside method that ran (``auto`` resolved).
+    density : (nx, ny, nz) uint8 or float32, or None
+        Coverage: the fraction of each voxel inside the mesh (0-255 as uint8).
+    sdf : (nx, ny, nz) float32 or None
+        Signed distance from each voxel centre to the surface, negative inside,
+        exact within ``band`` voxels and clamped to ``+-band`` voxels beyond.
     timings : dict
         Seconds per stage.
     """
@@ -45,6 +50,8 @@ class Volume:
     colors: np.ndarray | None = None
     timings: dict = field(default_factory=dict)
     inside: str = "parity"
+    density: np.ndarray | None = None
+    sdf: np.ndarray | None = None
 
     @property
     def bounds(self) -> tuple:
@@ -103,6 +110,11 @@ def voxelize(
     ambient=False,
     jobs=None,
     inside="auto",
+    density=None,
+    supersample=4,
+    density_dtype="uint8",
+    sdf=False,
+    band=3.0,
 ) -> Volume:
     """Turn a closed triangle mesh into a solid voxel volume.
 
@@ -143,6 +155,18 @@ def voxelize(
     inside : {"auto", "parity", "vote", "winding"}
         Inside/outside test (see :mod:`geovox.inside`): ``auto`` is parity
         for closed meshes and the winding number otherwise, with a warning.
+    density : {None, "coverage"}
+        Also fill ``Volume.density`` with each voxel's inside fraction, from
+        ``supersample`` x ``supersample`` rays per column (see
+        :mod:`geovox.density`).
+    supersample : int
+        Rays per voxel column across the ray direction, per axis.
+    density_dtype : {"uint8", "float32"}
+        uint8 stores ``round(255 * fraction)``.
+    sdf : bool
+        Also fill ``Volume.sdf`` (float32, negative inside).
+    band : float
+        Half-width in voxels of the exact band of the signed distance.
 
     Returns
     -------
@@ -159,9 +183,26 @@ def voxelize(
     t_load = time.perf_counter()
     grid = make_grid(m.bounds, bounds=bounds, resolution=resolution, shape=shape,
                      voxel_size=voxel_size)
+    if density not in (None, "coverage"):
+        raise ParameterError(f"`density` must be None or 'coverage', got {density!r}")
+    if density_dtype not in ("uint8", "float32"):
+        raise ParameterError(f"`density_dtype` must be 'uint8' or 'float32', got {density_dtype!r}")
+    if density is not None:
+        from .grid import _check_positive_int
+
+        supersample = _check_positive_int("supersample", supersample)
+    if sdf:
+        try:
+            band = float(band)
+        except (TypeError, ValueError):
+            raise ParameterError(f"`band` must be a positive number of voxels, got {band!r}") from None
+        if not band > 0:
+            raise ParameterError(f"`band` must be a positive number of voxels, got {band!r}")
     # Occupancy is 1 byte a voxel; colour adds 4 for RGBA and about 16 of
-    # working arrays while nearest crossings are found.
-    check_memory(grid, 1.0 + (20.0 if color else 0.0))
+    # working arrays while nearest crossings are found; density and distance
+    # 4 each plus a float32 working copy.
+    check_memory(grid, 1.0 + (20.0 if color else 0.0) + (8.0 if density else 0.0)
+                 + (8.0 if sdf else 0.0))
 
     from . import inside as inside_tests
 
@@ -171,7 +212,7 @@ def voxelize(
         # Rays start outside the whole mesh, not at the region's edge.
         start = min(float(mesh.bounds[0, ax]), float(grid.lo[ax])) - 1e-3 * mesh.scale
         columns = grid.columns(ax, start=start)
-        return engine.cast(mesh, columns), columns
+        return engine.cast(mesh, columns, jobs=jobs), columns
 
     def cast(ax):
         return cast_mesh(m, ax)
@@ -224,6 +265,29 @@ def voxelize(
         colors = colour_volume(m, grid, occ, crossings, diffuse=diffuse, ambient=ambient,
                                jobs=jobs)
         timings["colour"] = time.perf_counter() - t_fill
+    dens = None
+    if density == "coverage":
+        from .density import coverage, sub_columns
+
+        t = time.perf_counter()
+        target = m
+        if method == "winding":
+            target = inside_tests.capped(m)[0]
+        start = min(float(target.bounds[0, axis]), float(grid.lo[axis])) - 1e-3 * target.scale
+        sub = sub_columns(grid.columns(axis, start=start), supersample)
+        frac = coverage(engine.cast(target, sub, jobs=jobs), sub, grid, supersample, jobs)
+        if density_dtype == "uint8":
+            dens = np.asfortranarray(np.rint(frac * np.float32(255.0)).astype(np.uint8))
+        else:
+            dens = frac
+        timings["density"] = time.perf_counter() - t
+    dist = None
+    if sdf:
+        from .density import signed_distance
+
+        t = time.perf_counter()
+        dist = signed_distance(m, grid, occ, band=band, jobs=jobs)
+        timings["sdf"] = time.perf_counter() - t
     timings["total"] = time.perf_counter() - t0
     return Volume(
         occupancy=occ,
@@ -233,6 +297,8 @@ def voxelize(
         colors=colors,
         timings=timings,
         inside=method,
+        density=dens,
+        sdf=dist,
     )
 
 

@@ -110,7 +110,7 @@ def test_hits_carry_triangle_and_barycentrics(backend):
     u, v = hits.bary[:, 0:1], hits.bary[:, 1:2]
     p = (1 - u - v) * tri[:, 0] + u * tri[:, 1] + v * tri[:, 2]
     assert np.all(hits.bary >= 0) and np.all(hits.bary.sum(axis=1) <= 1 + 1e-12)
-    np.testing.assert_allclose(p[:, 1], hits.depth, atol=1e-9)
+    np.testing.assert_allclose(p[:, 1], columns.w0 + hits.depth, atol=1e-9)
     np.testing.assert_allclose(p[:, 0], columns.centres_u()[hits.ray % columns.nu], atol=1e-6)
     np.testing.assert_allclose(p[:, 2], columns.centres_v()[hits.ray // columns.nu], atol=1e-6)
 

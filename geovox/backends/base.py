@@ -19,8 +19,9 @@ class Hits:
     ray : (m,) int64
         Ray index ``i + nu * j`` (see :class:`geovox.grid.Columns`).
     depth : (m,) float64
-        Coordinate of the crossing along the ray axis; the distance along the
-        ray is ``depth - columns.start``.
+        Distance of the crossing along the ray from the plane
+        ``axis = columns.w0`` (the grid's low face; the coordinate is
+        ``columns.w0 + depth``).
     triangle : (m,) int64
         Index of the crossed triangle in the mesh's face array.
     bary : (m, 2) float64
@@ -83,13 +84,15 @@ class Backend(abc.ABC):
     name: str = ""
 
     @abc.abstractmethod
-    def cast(self, mesh, columns: Columns) -> Hits:
+    def cast(self, mesh, columns: Columns, jobs: int = 1) -> Hits:
         """Return every crossing of the column rays with ``mesh``.
 
         Parameters
         ----------
         mesh : geovox.mesh.Mesh
         columns : Columns
+        jobs : int
+            Threads the backend may use; the hits must not depend on it.
 
         Returns
         -------

@@ -152,7 +152,7 @@ class EmbreeBackend(Backend):
                                centre, factor, v0, normal)
         return cache["embree"]
 
-    def cast(self, mesh, columns: Columns) -> Hits:
+    def cast(self, mesh, columns: Columns, jobs: int = 1) -> Hits:
         proj = Projection(mesh.triangles, columns)
         if len(proj) == 0:
             return Hits.empty()
@@ -175,6 +175,54 @@ class EmbreeBackend(Backend):
         direction[:, ax] = 1.0
         step = STEP * 100.0  # the scaled mesh has a diagonal of 100
 
+        # The restart loop runs on chunks of rays in threads (Embree releases
+        # the GIL while tracing); each ray's hits do not depend on the chunking.
+        chunks = [np.arange(a, min(a + -(-n // max(1, jobs)), n))
+                  for a in range(0, n, -(-n // max(1, jobs)))] if n else []
+
+        def trace(sel):
+            return self._trace(intersector, origin[sel], direction[sel], rays[sel], lo, step,
+                               v0, normal, ax, ua, va)
+
+        if jobs > 1 and len(chunks) > 1:
+            from concurrent.futures import ThreadPoolExecutor
+
+            with ThreadPoolExecutor(max_workers=jobs) as pool:
+                results = list(pool.map(trace, chunks))
+        else:
+            results = [trace(c) for c in chunks]
+        ray = np.concatenate([r[0] for r in results]) if results else np.zeros(0, np.int64)
+        tri = np.concatenate([r[1] for r in results]) if results else np.zeros(0, np.int64)
+        stuck = np.concatenate([r[2] for r in results]) if results else np.zeros(0, np.int64)
+        recheck = np.zeros(columns.count, dtype=bool)
+        for r in results:
+            recheck[r[3]] = True
+        hits = self._verify(mesh, proj, columns, ray, tri, recheck)
+        # Coplanar overlapping triangles: found exactly, by scanning.
+        flagged = coplanar_overlaps(mesh)
+        if flagged.any():
+            hits = hits.take(~flagged[hits.triangle])
+            hits = Hits.concatenate([hits, rasterise(proj, triangle_mask=flagged[proj.tri],
+                                                     jobs=jobs)])
+
+        # Rays with odd parity (or stuck) are redone exactly.
+        counts = np.bincount(hits.ray, minlength=columns.count)
+        redo = (counts % 2 == 1)
+        redo[stuck] = True
+        if redo.any():
+            keep = ~redo[hits.ray]
+            exact = rasterise(proj, column_mask=redo, jobs=jobs)
+            hits = Hits.concatenate([hits.take(keep), exact])
+        return hits
+
+    @staticmethod
+    def _trace(intersector, origin, direction, rays, lo, step, v0, normal, ax, ua, va):
+        """Multi-hit restart loop for a set of rays.
+
+        Returns the recorded (ray, triangle) pairs, the rays that ran out of
+        restarts, and the rays that met a hit behind their restart point.
+        """
+        n = len(rays)
         pos = np.full(n, lo)
         offset = np.full(n, step)
         last = np.full(n, -1, dtype=np.int64)
@@ -208,28 +256,9 @@ class EmbreeBackend(Backend):
             pos[live] = np.maximum(pos[live], d) + offset[live]
             last[live] = tri
         stuck = rays[live] if len(live) else np.zeros(0, np.int64)
-
         ray = np.concatenate(found_ray) if found_ray else np.zeros(0, np.int64)
         tri = np.concatenate(found_tri) if found_tri else np.zeros(0, np.int64)
-        recheck = np.zeros(columns.count, dtype=bool)
-        recheck[rays[behind]] = True
-        hits = self._verify(mesh, proj, columns, ray, tri, recheck)
-
-        # Coplanar overlapping triangles: found exactly, by scanning.
-        flagged = coplanar_overlaps(mesh)
-        if flagged.any():
-            hits = hits.take(~flagged[hits.triangle])
-            hits = Hits.concatenate([hits, rasterise(proj, triangle_mask=flagged[proj.tri])])
-
-        # Rays with odd parity (or stuck) are redone exactly.
-        counts = np.bincount(hits.ray, minlength=columns.count)
-        redo = (counts % 2 == 1)
-        redo[stuck] = True
-        if redo.any():
-            keep = ~redo[hits.ray]
-            exact = rasterise(proj, column_mask=redo)
-            hits = Hits.concatenate([hits.take(keep), exact])
-        return hits
+        return ray, tri, stuck, rays[behind]
 
     def _verify(self, mesh, proj, columns, ray, tri, recheck) -> Hits:
         """Exact crossings among Embree's pairs and, where unsure, their vertex neighbours.

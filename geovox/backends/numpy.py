@@ -13,6 +13,7 @@ import numpy as np
 
 from ..exact import Projection
 from ..grid import Columns
+from ..parallel import for_blocks
 from .base import Backend, Hits
 
 #: Candidate pairs tested per block (about 150 MB of temporaries).
@@ -20,7 +21,7 @@ BLOCK = 1 << 20
 
 
 def rasterise(proj: Projection, column_mask: np.ndarray | None = None, block: int = BLOCK,
-              triangle_mask: np.ndarray | None = None) -> Hits:
+              triangle_mask: np.ndarray | None = None, jobs: int = 1) -> Hits:
     """Every crossing of the projection's column rays, found by scanning.
 
     Parameters
@@ -32,6 +33,8 @@ def rasterise(proj: Projection, column_mask: np.ndarray | None = None, block: in
         Candidate pairs per block.
     triangle_mask : (len(proj),) bool, optional
         Only scan these active triangles.
+    jobs : int
+        Threads scanning blocks at once (the hits are the same for any value).
     """
     nu = proj.columns.nu
     width = np.maximum(proj.imax - proj.imin + 1, 0)
@@ -42,9 +45,9 @@ def rasterise(proj: Projection, column_mask: np.ndarray | None = None, block: in
     ends = np.cumsum(counts)
     starts = ends - counts
     total = int(ends[-1]) if len(ends) else 0
-    parts = []
-    for a in range(0, total, block):
-        b = min(a + block, total)
+    parts = [None] * (-(-total // block))
+
+    def scan(a, b):
         # Triangles whose candidate ranges overlap [a, b).
         t0 = int(np.searchsorted(ends, a, side="right"))
         t1 = int(np.searchsorted(ends, b - 1, side="right"))
@@ -60,14 +63,10 @@ def rasterise(proj: Projection, column_mask: np.ndarray | None = None, block: in
             keep = column_mask[i + nu * j]
             t, i, j = t[keep], i[keep], j[keep]
         hit, depth, bary, _ = proj.crossings(t, i, j)
-        parts.append(
-            Hits(
-                ray=(i + nu * j)[hit],
-                depth=depth[hit],
-                triangle=proj.tri[t[hit]],
-                bary=bary[hit],
-            )
-        )
+        parts[a // block] = Hits(ray=(i + nu * j)[hit], depth=depth[hit],
+                                 triangle=proj.tri[t[hit]], bary=bary[hit])
+
+    for_blocks(scan, total, block, jobs)
     return Hits.concatenate(parts)
 
 
@@ -76,5 +75,5 @@ class NumpyBackend(Backend):
 
     name = "numpy"
 
-    def cast(self, mesh, columns: Columns) -> Hits:
-        return rasterise(Projection(mesh.triangles, columns))
+    def cast(self, mesh, columns: Columns, jobs: int = 1) -> Hits:
+        return rasterise(Projection(mesh.triangles, columns), jobs=jobs)
