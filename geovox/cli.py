@@ -121,6 +121,16 @@ def _grid_options(c):
                    help="with --color: do not multiply by the material's Kd")
     c.add_argument("--ambient", action="store_true",
                    help="with --color: add the material's Ka")
+    c.add_argument("--density", choices=["coverage"], default=None,
+                   help="also compute each voxel's inside fraction (anti-aliased density)")
+    c.add_argument("--supersample", type=_positive_int, default=4, metavar="K",
+                   help="with --density: K x K rays per voxel column (default 4)")
+    c.add_argument("--density-float", action="store_true",
+                   help="with --density: store float32 0..1 instead of uint8 0..255")
+    c.add_argument("--sdf", action="store_true",
+                   help="also compute the signed distance (float32, negative inside)")
+    c.add_argument("--band", type=_positive_float, default=3.0, metavar="VOXELS",
+                   help="with --sdf: half-width of the exact band, in voxels (default 3)")
     c.add_argument("-j", "--jobs", type=int, default=None, metavar="N",
                    help="threads to use (default: one per core); the result does not depend on it")
 
@@ -137,7 +147,10 @@ def _voxelize(args, path):
         vol = voxelize(path, resolution=args.resolution, shape=args.shape,
                        voxel_size=args.voxel_size, bounds=args.bounds, backend=args.backend,
                        color=args.color, diffuse=args.diffuse, ambient=args.ambient,
-                       jobs=args.jobs, inside=args.inside)
+                       jobs=args.jobs, inside=args.inside, density=args.density,
+                       supersample=args.supersample,
+                       density_dtype="float32" if args.density_float else "uint8",
+                       sdf=args.sdf, band=args.band)
     for w in caught:
         if issubclass(w.category, GeovoxWarning):
             print(f"geovox: warning: {w.message}", file=sys.stderr)
@@ -213,9 +226,9 @@ def _convert(args) -> int:
         print(f"voxel size {dx:.6g} x {dy:.6g} x {dz:.6g}, backend {vol.backend}, "
               f"inside test {vol.inside}")
         print(f"inside {inside:,} of {nx * ny * nz:,} voxels ({100.0 * inside / (nx * ny * nz):.2f}%)")
-        colour = f", colour {t['colour']:.2f}" if "colour" in t else ""
+        extra = "".join(f", {k} {t[k]:.2f}" for k in ("colour", "density", "sdf") if k in t)
         print(f"time {t2 - t0:.2f} s (load {t['load']:.2f}, rays {t['rays']:.2f}, "
-              f"fill {t['fill']:.2f}{colour}, write {t2 - t1:.2f})")
+              f"fill {t['fill']:.2f}{extra}, write {t2 - t1:.2f})")
         print("wrote " + ", ".join(written))
     return EXIT_OK
 

@@ -1,8 +1,10 @@
 """Headless PNG previews made with NumPy and Pillow alone.
 
 Top row: the volume composited along x, y and z (front to back, each inside
-voxel partly opaque, shaded by depth; colour where the volume has colour).
-Bottom row: the middle slice across each axis. A footer gives the grid size,
+voxel partly opaque, shaded by depth; colour where the volume has colour;
+with a coverage density, the density is the opacity). Bottom row: the middle
+slice across each axis (the signed distance, blue inside and red outside,
+when the volume has one). A footer gives the grid size,
 the voxel dimensions and the inside count. Panels keep the physical aspect
 ratio of anisotropic voxels.
 """
@@ -37,9 +39,13 @@ def composite(volume, axis: int) -> np.ndarray:
     out = np.zeros((occ.shape[h], occ.shape[v], 3))
     trans = np.ones((occ.shape[h], occ.shape[v]))
     idx = [slice(None)] * 3
+    density = getattr(volume, "density", None)
     for depth, k in enumerate(order):
         idx[axis] = k
         o = occ[tuple(idx)]
+        if density is not None:
+            o = density[tuple(idx)].astype(np.float64)
+            o = o / 255.0 if density.dtype == np.uint8 else o
         if not o.any():
             continue
         if h > v:  # slices come out indexed (v, h) when h > v
@@ -64,6 +70,15 @@ def middle_slice(volume, axis: int) -> np.ndarray:
     idx = [slice(None)] * 3
     idx[axis] = volume.occupancy.shape[axis] // 2
     o = volume.occupancy[tuple(idx)]
+    sdf = getattr(volume, "sdf", None)
+    if sdf is not None:
+        s = sdf[tuple(idx)].astype(np.float64)
+        t = np.clip(np.abs(s) / max(float(np.abs(sdf).max()), 1e-30), 0.0, 1.0)[..., None]
+        inside_col, outside_col, zero = np.array([40, 90, 255.0]), np.array([255, 80, 40.0]), 255.0
+        c = np.where((s < 0)[..., None], zero * (1 - t) + inside_col * t, zero * (1 - t) + outside_col * t)
+        if h > v:
+            c = c.transpose(1, 0, 2)
+        return np.flipud(c.transpose(1, 0, 2))
     if volume.colors is not None:
         c = volume.colors[tuple(idx)][..., :3].astype(np.float64)
     else:
@@ -99,7 +114,9 @@ def render(volume, panel: int = PANEL):
     height = 2 * (panel + title) + 3 * pad + footer
     canvas = Image.new("RGB", (width, height), (12, 12, 14))
     draw = ImageDraw.Draw(canvas)
-    for row, (make, label) in enumerate(((composite, "composite along"), (middle_slice, "middle slice across"))):
+    slice_label = "signed distance across" if getattr(volume, "sdf", None) is not None else "middle slice across"
+    comp_label = "density along" if getattr(volume, "density", None) is not None else "composite along"
+    for row, (make, label) in enumerate(((composite, comp_label), (middle_slice, slice_label))):
         for col, axis in enumerate((0, 1, 2)):
             h, v, _ = VIEWS[axis]
             img = _fit(make(volume, axis), extent[h], extent[v], panel)

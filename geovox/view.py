@@ -66,7 +66,23 @@ def show(volume, mesh=None, screenshot=None, window_size=(1200, 600)):
     plotter = pv.Plotter(shape=shape, off_screen=screenshot is not None, window_size=size)
     plotter.subplot(0, 0)
     plotter.add_text(f"voxels {volume.shape[0]} x {volume.shape[1]} x {volume.shape[2]}", font_size=10)
-    if cells.n_cells:
+    density = getattr(volume, "density", None)
+    sdf = getattr(volume, "sdf", None)
+    if density is not None or sdf is not None:
+        # Point data at the voxel centres.
+        img = pv.ImageData(dimensions=volume.shape, spacing=volume.spacing,
+                           origin=np.asarray(volume.bounds[0]) + 0.5 * np.asarray(volume.spacing))
+        if density is not None:
+            d = density.astype(np.float32) / (255.0 if density.dtype == np.uint8 else 1.0)
+            img.point_data["density"] = d.reshape(-1, order="F")
+            plotter.add_volume(img, scalars="density", opacity="linear", cmap="bone",
+                               show_scalar_bar=False)
+        else:
+            img.point_data["sdf"] = sdf.reshape(-1, order="F")
+            surface = img.contour([0.0], scalars="sdf")
+            if surface.n_points:
+                plotter.add_mesh(surface, color="lightgrey", smooth_shading=True)
+    elif cells.n_cells:
         if volume.colors is not None:
             plotter.add_mesh(cells, scalars="rgba", rgb=True, show_edges=False)
         else:

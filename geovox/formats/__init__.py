@@ -136,6 +136,19 @@ def read(path, fmt=None):
         raise MeshError(f"{path}: cannot be read as a geovox {f.name} volume ({exc})") from exc
 
 
+def scalar_fields(volume) -> list:
+    """The extra scalar volumes to write: ``[(name, [x, y, z] array, dtype name, values)]``."""
+    out = []
+    if getattr(volume, "density", None) is not None:
+        d = volume.density
+        values = ("inside fraction x 255" if d.dtype == "uint8" else "inside fraction, 0 to 1")
+        out.append(("density", d, str(d.dtype), values))
+    if getattr(volume, "sdf", None) is not None:
+        out.append(("sdf", volume.sdf, "float32",
+                    "signed distance, negative inside, clamped beyond the exact band"))
+    return out
+
+
 def write(volume, path, fmt=None, **options) -> list:
     """Write ``volume`` to ``path`` in the format its extension (or ``fmt``) names.
 

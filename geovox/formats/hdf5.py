@@ -51,6 +51,15 @@ def write_hdf5(volume, path) -> list:
                     c[x0:x0 + per] = volume.colors[x0:x0 + per]
                 c.attrs["components"] = "RGBA"
                 c.attrs["axis_order"] = "xyzc"
+            from . import scalar_fields
+
+            for name, arr, dtype, values in scalar_fields(volume):
+                field = f.create_dataset(name, shape=occ.shape, dtype=dtype, chunks=chunks,
+                                         compression="gzip", compression_opts=4)
+                for x0 in range(0, nx, per):
+                    field[x0:x0 + per] = arr[x0:x0 + per]
+                field.attrs["values"] = values
+                field.attrs["axis_order"] = "xyz"
             _write_vtkhdf(f, volume, chunks)
             lo, hi = volume.bounds
             attrs = {
@@ -89,6 +98,10 @@ def _write_vtkhdf(f, volume, chunks) -> None:
     if volume.colors is not None:
         pd.create_dataset("color", data=volume.colors.transpose(2, 1, 0, 3), chunks=zyx + (4,),
                           compression="gzip", compression_opts=4)
+    from . import scalar_fields
+
+    for name, arr, dtype, _ in scalar_fields(volume):
+        pd.create_dataset(name, data=arr.T, chunks=zyx, compression="gzip", compression_opts=4)
 
 
 def read_hdf5(path):
@@ -107,6 +120,7 @@ def read_hdf5(path):
             base = np.zeros((occ.shape[2], occ.shape[1], occ.shape[0], 4), dtype=np.uint8)
             base[...] = f["color"][...].transpose(2, 1, 0, 3)
             colors = base.transpose(2, 1, 0, 3)
+        extra = {name: np.asfortranarray(f[name][...]) for name in ("density", "sdf") if name in f}
         return Volume(occupancy=occ, grid=Grid(bounds[0], bounds[1], occ.shape),
                       backend=str(d.attrs.get("backend", "?")),
-                      source=str(d.attrs.get("source", path)), colors=colors)
+                      source=str(d.attrs.get("source", path)), colors=colors, **extra)

@@ -42,6 +42,13 @@ def write_nrrd(volume, path) -> list:
             nrrd.write(group.add(cpath), np.moveaxis(volume.colors, 3, 0),
                        _header(volume, components=4))
             written.append(cpath)
+        from . import scalar_fields
+        from .raw import field_path
+
+        for name, arr, _, _ in scalar_fields(volume):
+            fpath = field_path(path, name)
+            nrrd.write(group.add(fpath), np.asfortranarray(arr), _header(volume))
+            written.append(fpath)
     return written
 
 
@@ -62,5 +69,12 @@ def read_nrrd(path):
     if os.path.exists(cpath):
         c, _ = nrrd.read(cpath)
         colors = np.ascontiguousarray(np.moveaxis(c, 0, 3).transpose(2, 1, 0, 3)).transpose(2, 1, 0, 3)
+    from .raw import field_path
+
+    extra = {}
+    for name in ("density", "sdf"):
+        fpath = field_path(os.fspath(path), name)
+        if os.path.exists(fpath):
+            extra[name] = np.asfortranarray(nrrd.read(fpath)[0])
     return Volume(occupancy=occ, grid=Grid(lo, lo + spacing * np.asarray(occ.shape), occ.shape),
-                  backend="?", source=os.fspath(path), colors=colors)
+                  backend="?", source=os.fspath(path), colors=colors, **extra)

@@ -32,6 +32,10 @@ def write_npz(volume, path) -> list:
     }
     if volume.colors is not None:
         arrays["colors"] = volume.colors
+    from . import scalar_fields
+
+    for name, arr, _, _ in scalar_fields(volume):
+        arrays[name] = arr
     with atomic_output(path) as tmp:
         with open(tmp, "wb") as f:
             np.savez_compressed(f, **arrays)
@@ -49,8 +53,9 @@ def read_npz(path):
         if "colors" in z:
             c = z["colors"]
             colors = np.ascontiguousarray(c.transpose(2, 1, 0, 3)).transpose(2, 1, 0, 3)
+        extra = {name: np.asfortranarray(z[name]) for name in ("density", "sdf") if name in z}
     return Volume(occupancy=occ, grid=Grid(bounds[0], bounds[1], occ.shape), backend="?",
-                  source=os.fspath(path), colors=colors)
+                  source=os.fspath(path), colors=colors, **extra)
 
 
 def read_npy(path):

@@ -34,8 +34,13 @@ def metadata(volume, data_file: str, dtype: str = "uint8", values: str = "0 outs
 
 def colour_path(path: str) -> str:
     """Where the RGBA file goes beside an occupancy RAW file."""
+    return field_path(path, "rgba")
+
+
+def field_path(path: str, name: str) -> str:
+    """Where the file of an extra field (``rgba``, ``density``, ``sdf``) goes."""
     root, ext = os.path.splitext(path)
-    return f"{root}_rgba{ext}"
+    return f"{root}_{name}{ext}"
 
 
 def _write_text(group, path: str, text: str) -> None:
@@ -108,6 +113,19 @@ def write_raw(volume, path) -> list:
                 "numpy": (f"np.fromfile({os.path.basename(cpath)!r}, dtype=np.uint8)"
                           f".reshape(({nz}, {ny}, {nx}, 4)).transpose(2, 1, 0, 3)"),
             }
+        from . import scalar_fields
+
+        for name, arr, dtype, values in scalar_fields(volume):
+            fpath = field_path(path, name)
+            with open(group.add(fpath), "wb") as f:
+                for z0 in range(0, nz, per):
+                    # Little-endian, x fastest (the transposed Fortran slab is C order).
+                    f.write(np.ascontiguousarray(arr[:, :, z0:z0 + per].T, dtype=f"<{np.dtype(dtype).str[1:]}").data)
+            written += [fpath] + _write_headers(group, volume, fpath, dtype)
+            meta[name] = {"data_file": os.path.basename(fpath), "dtype": dtype,
+                          "byte_order": "little", "values": values,
+                          "numpy": (f"np.fromfile({os.path.basename(fpath)!r}, dtype=np.{dtype})"
+                                    f".reshape(({nx}, {ny}, {nz}), order='F')")}
         sidecar = os.path.splitext(path)[0] + ".json"
         with open(group.add(sidecar), "w") as f:
             json.dump(meta, f, indent=2)
@@ -139,6 +157,11 @@ def read_raw_volume(path):
         cfile = os.path.join(os.path.dirname(path), meta["color"]["data_file"])
         colors = np.fromfile(cfile, dtype=np.uint8).reshape(nz, ny, nx, 4).transpose(2, 1, 0, 3)
     lo, hi = (np.asarray(b, dtype=np.float64) for b in meta["bounds"])
+    extra = {}
+    for name in ("density", "sdf"):
+        if name in meta:
+            fpath = os.path.join(os.path.dirname(path), meta[name]["data_file"])
+            extra[name] = np.fromfile(fpath, dtype=meta[name]["dtype"]).reshape((nx, ny, nz), order="F")
     return Volume(occupancy=np.asfortranarray(occ), grid=Grid(lo, hi, (nx, ny, nz)),
                   backend=meta.get("backend", "?"), source=meta.get("source", path),
-                  colors=colors)
+                  colors=colors, **extra)
