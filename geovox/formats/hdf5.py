@@ -15,11 +15,35 @@ import os
 
 import numpy as np
 
-#: Voxels converted per slab while writing.
-SLAB_VOXELS = 1 << 24
+#: gzip level of every dataset.
+LEVEL = 4
 
 
-def write_hdf5(volume, path) -> list:
+def _dataset(f, name, shape, dtype, chunks):
+    return f.create_dataset(name, shape=shape, dtype=dtype, chunks=chunks, compression="gzip",
+                            compression_opts=LEVEL, fillvalue=0)
+
+
+def _fill(dset, array, transpose=False, jobs=2):
+    """Write ``array`` ([x, y, z(, c)]) into ``dset`` chunk by chunk (see chunks.py).
+
+    With ``transpose`` the dataset is (z, y, x(, c)): VTK's order.
+    """
+    from .chunks import write_blocks
+
+    chunks = dset.chunks
+    if transpose:
+        src = array.transpose((2, 1, 0) + tuple(range(3, array.ndim)))
+    else:
+        src = array
+
+    def block(index):
+        return src[tuple(slice(i * c, (i + 1) * c) for i, c in zip(index, chunks))]
+
+    write_blocks(dset, block, level=LEVEL, jobs=jobs)
+
+
+def write_hdf5(volume, path, jobs: int = 2) -> list:
     """Write the volume to an HDF5 file.
 
     The dataset ``occupancy`` has shape ``(nx, ny, nz)`` and is indexed
@@ -29,38 +53,26 @@ def write_hdf5(volume, path) -> list:
     """
     import h5py
 
-    from . import atomic_output
+    from . import atomic_output, scalar_fields
 
     path = os.fspath(path)
-    occ = volume.occupancy
-    nx, ny, nz = occ.shape
+    occ = volume.occupancy.view(np.uint8)
     chunks = tuple(min(64, n) for n in occ.shape)
     with atomic_output(path) as tmp:
         with h5py.File(tmp, "w") as f:
-            d = f.create_dataset("occupancy", shape=occ.shape, dtype=np.uint8, chunks=chunks,
-                                 compression="gzip", compression_opts=4, shuffle=False)
-            per = max(1, SLAB_VOXELS // max(1, ny * nz))
-            per = max(chunks[0], per // chunks[0] * chunks[0])
-            for x0 in range(0, nx, per):
-                d[x0:x0 + per] = occ[x0:x0 + per].view(np.uint8)
+            d = _dataset(f, "occupancy", occ.shape, np.uint8, chunks)
+            _fill(d, occ, jobs=jobs)
             if volume.colors is not None:
-                c = f.create_dataset("color", shape=occ.shape + (4,), dtype=np.uint8,
-                                     chunks=chunks + (4,), compression="gzip",
-                                     compression_opts=4)
-                for x0 in range(0, nx, per):
-                    c[x0:x0 + per] = volume.colors[x0:x0 + per]
+                c = _dataset(f, "color", occ.shape + (4,), np.uint8, chunks + (4,))
+                _fill(c, volume.colors, jobs=jobs)
                 c.attrs["components"] = "RGBA"
                 c.attrs["axis_order"] = "xyzc"
-            from . import scalar_fields
-
             for name, arr, dtype, values in scalar_fields(volume):
-                field = f.create_dataset(name, shape=occ.shape, dtype=dtype, chunks=chunks,
-                                         compression="gzip", compression_opts=4)
-                for x0 in range(0, nx, per):
-                    field[x0:x0 + per] = arr[x0:x0 + per]
+                field = _dataset(f, name, occ.shape, dtype, chunks)
+                _fill(field, arr, jobs=jobs)
                 field.attrs["values"] = values
                 field.attrs["axis_order"] = "xyz"
-            _write_vtkhdf(f, volume, chunks)
+            _write_vtkhdf(f, volume, chunks, jobs)
             lo, hi = volume.bounds
             attrs = {
                 "spacing": np.asarray(volume.spacing, dtype=np.float64),
@@ -77,8 +89,9 @@ def write_hdf5(volume, path) -> list:
     return [path]
 
 
-def _write_vtkhdf(f, volume, chunks) -> None:
+def _write_vtkhdf(f, volume, chunks, jobs=2) -> None:
     """The VTK-HDF ImageData group (point data at voxel centres)."""
+    from . import scalar_fields
     from .headers import origin_of
 
     nx, ny, nz = volume.shape
@@ -92,16 +105,14 @@ def _write_vtkhdf(f, volume, chunks) -> None:
     g.attrs["Direction"] = np.eye(3).reshape(-1)
     pd = g.create_group("PointData")
     zyx = chunks[::-1]
-    # The [x, y, z] Fortran-ordered arrays are exactly (z, y, x) C-ordered.
-    occ = volume.occupancy.T.view(np.uint8)
-    pd.create_dataset("occupancy", data=occ, chunks=zyx, compression="gzip", compression_opts=4)
+    shape = (nz, ny, nx)
+    _fill(_dataset(pd, "occupancy", shape, np.uint8, zyx), volume.occupancy.view(np.uint8),
+          transpose=True, jobs=jobs)
     if volume.colors is not None:
-        pd.create_dataset("color", data=volume.colors.transpose(2, 1, 0, 3), chunks=zyx + (4,),
-                          compression="gzip", compression_opts=4)
-    from . import scalar_fields
-
+        _fill(_dataset(pd, "color", shape + (4,), np.uint8, zyx + (4,)), volume.colors,
+              transpose=True, jobs=jobs)
     for name, arr, dtype, _ in scalar_fields(volume):
-        pd.create_dataset(name, data=arr.T, chunks=zyx, compression="gzip", compression_opts=4)
+        _fill(_dataset(pd, name, shape, dtype, zyx), arr, transpose=True, jobs=jobs)
 
 
 def read_hdf5(path):
