@@ -61,7 +61,9 @@ def build_parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="command", parser_class=_Parser)
 
     c = sub.add_parser("convert", help="voxelise a mesh and write the volume")
-    c.add_argument("input", help="mesh file (OBJ, STL, PLY, GLB, ... anything trimesh reads)")
+    c.add_argument("input", nargs="+",
+                   help="mesh files (OBJ, STL, PLY, GLB, ... anything trimesh reads) or folders of "
+                        "them; several inputs, or a folder, convert each into the -o folder")
     c.add_argument("-o", "--output", default=None,
                    help="output file, format from its extension (see `geovox formats`); or a "
                         "folder, or nothing for the current one, to get a name with the grid "
@@ -71,6 +73,8 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--shell", action="store_true",
                    help=".vox: keep only the voxels with a face on the outside")
     c.add_argument("--preview", metavar="PNG", help="also write a preview picture")
+    c.add_argument("--overwrite", action="store_true",
+                   help="with several inputs: convert even where the output exists")
     c.add_argument("-q", "--quiet", action="store_true", help="print nothing on success")
 
     pv = sub.add_parser("preview", help="write a PNG picture of a volume (or of a mesh, voxelised)")
@@ -135,6 +139,29 @@ def _grid_options(c):
                    help="threads to use (default: one per core); the result does not depend on it")
 
 
+def _stage_bar(args):
+    """A progress bar over the conversion's stages, on a terminal only (tqdm)."""
+    if getattr(args, "quiet", False) or not sys.stderr.isatty():
+        return None, None
+    try:
+        from tqdm import tqdm
+    except ImportError:
+        return None, None
+    stages = ["load", "rays"] + [s for s, on in (("colour", args.color), ("density", args.density),
+                                                 ("sdf", args.sdf)) if on]
+    bar = tqdm(total=len(stages) + 1, file=sys.stderr, leave=False,
+               bar_format="{desc:<8} {bar} {n_fmt}/{total_fmt} stages {elapsed}")
+    started = []
+
+    def progress(stage):
+        if started:
+            bar.update(1)
+        started.append(stage)
+        bar.set_description_str(stage)
+
+    return bar, progress
+
+
 def _voxelize(args, path):
     """voxelize() with the CLI's grid options, printing GeovoxWarnings as one line each."""
     import warnings
@@ -142,6 +169,7 @@ def _voxelize(args, path):
     from .errors import GeovoxWarning
     from .pipeline import voxelize
 
+    bar, progress = _stage_bar(args)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", GeovoxWarning)
         vol = voxelize(path, resolution=args.resolution, shape=args.shape,
@@ -150,7 +178,11 @@ def _voxelize(args, path):
                        jobs=args.jobs, inside=args.inside, density=args.density,
                        supersample=args.supersample,
                        density_dtype="float32" if args.density_float else "uint8",
-                       sdf=args.sdf, band=args.band)
+                       sdf=args.sdf, band=args.band, progress=progress)
+    if bar is not None:
+        bar.update(bar.total - bar.n - 1)
+        bar.set_description_str("write")
+        bar.close()
     for w in caught:
         if issubclass(w.category, GeovoxWarning):
             print(f"geovox: warning: {w.message}", file=sys.stderr)
@@ -192,9 +224,49 @@ def _planned_shape(args, path):
     return None
 
 
+def _batch(args) -> int:
+    from . import formats
+    from .batch import convert_many, summary_table
+    from .parallel import resolve_jobs
+
+    if args.output is None or not (os.path.isdir(args.output) or args.output.endswith(("/", os.sep))
+                                   or not os.path.splitext(args.output)[1]):
+        from .errors import ParameterError
+
+        raise ParameterError(f"with several inputs, -o must be a folder; got {args.output!r}")
+    fmt = formats.format_for("x.raw", args.fmt)
+    options = dict(resolution=args.resolution, shape=args.shape, voxel_size=args.voxel_size,
+                   bounds=args.bounds, backend=args.backend, color=args.color, diffuse=args.diffuse,
+                   ambient=args.ambient, inside=args.inside, density=args.density,
+                   supersample=args.supersample,
+                   density_dtype="float32" if args.density_float else "uint8",
+                   sdf=args.sdf, band=args.band)
+    bar = None
+    if not args.quiet and sys.stderr.isatty():
+        from .batch import find_inputs
+
+        try:
+            from tqdm import tqdm
+
+            bar = tqdm(total=len(find_inputs(args.input)), unit="model", file=sys.stderr)
+        except ImportError:
+            bar = None
+    results = convert_many(args.input, args.output, options, ext=fmt.extensions[0],
+                           overwrite=args.overwrite, jobs=resolve_jobs(args.jobs),
+                           progress=(lambda r: bar.update(1)) if bar else None)
+    if bar:
+        bar.close()
+    if not args.quiet or any(r.status == "failed" for r in results):
+        print(summary_table(results))
+    return EXIT_ERROR if any(r.status == "failed" for r in results) else EXIT_OK
+
+
 def _convert(args) -> int:
     from . import formats
 
+    if len(args.input) > 1 or os.path.isdir(args.input[0]):
+        return _batch(args)
+    args.input = args.input[0]
     t0 = time.perf_counter()
     planned = _planned_shape(args, args.input)
     default_out = args.output is None or os.path.isdir(args.output) or args.output.endswith(("/", os.sep))

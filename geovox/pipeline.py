@@ -115,6 +115,7 @@ def voxelize(
     density_dtype="uint8",
     sdf=False,
     band=3.0,
+    progress=None,
 ) -> Volume:
     """Turn a closed triangle mesh into a solid voxel volume.
 
@@ -167,6 +168,9 @@ def voxelize(
         Also fill ``Volume.sdf`` (float32, negative inside).
     band : float
         Half-width in voxels of the exact band of the signed distance.
+    progress : callable, optional
+        Called with the name of each stage as it starts ("load", "rays",
+        "colour", "density", "sdf").
 
     Returns
     -------
@@ -178,6 +182,8 @@ def voxelize(
     from .parallel import resolve_jobs
 
     jobs = resolve_jobs(jobs)
+    step = progress or (lambda stage: None)
+    step("load")
     engine = get_backend(backend)
     m = load_mesh(mesh)
     t_load = time.perf_counter()
@@ -218,6 +224,7 @@ def voxelize(
         return cast_mesh(m, ax)
 
     crossings = {}
+    step("rays")
     if method == "parity":
         crossings[axis] = cast(axis)
         t_rays = time.perf_counter()
@@ -252,6 +259,7 @@ def voxelize(
     if color:
         from .colour import colour_volume
 
+        step("colour")
         others = [a for a in range(3) if a not in crossings]
         if jobs > 1 and len(others) > 1:
             from concurrent.futures import ThreadPoolExecutor
@@ -269,6 +277,7 @@ def voxelize(
     if density == "coverage":
         from .density import coverage, sub_columns
 
+        step("density")
         t = time.perf_counter()
         target = m
         if method == "winding":
@@ -285,6 +294,7 @@ def voxelize(
     if sdf:
         from .density import signed_distance
 
+        step("sdf")
         t = time.perf_counter()
         dist = signed_distance(m, grid, occ, band=band, jobs=jobs)
         timings["sdf"] = time.perf_counter() - t

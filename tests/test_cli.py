@@ -179,12 +179,13 @@ def test_interrupt_while_writing_leaves_nothing(tmp_path, monkeypatch):
     import geovox.formats.chunks as chunks
 
     calls = {"n": 0}
+    real = zlib.compress
 
     def interrupt_on_second_chunk(data, level=-1):
         calls["n"] += 1
         if calls["n"] == 2:
             raise KeyboardInterrupt
-        return zlib.compress(data, level)
+        return real(data, level)
 
     monkeypatch.setattr(chunks.zlib, "compress", interrupt_on_second_chunk)
     vol = geovox.voxelize(SPOT, resolution=70, backend="numpy")
@@ -302,3 +303,50 @@ def test_library_errors_are_one_hierarchy_and_builtins(call, exc, builtin, needl
         call()
     assert isinstance(info.value, geovox.GeovoxError) and isinstance(info.value, builtin)
     assert needle in str(info.value)
+
+
+def _batch_folder(root):
+    import shutil
+
+    models = root / "models"
+    (models / "sub").mkdir(parents=True)
+    for f in os.listdir(os.path.dirname(SPOT)):
+        shutil.copy(os.path.join(os.path.dirname(SPOT), f), models / f)
+    shutil.copy(SPOT, models / "sub" / "spot.obj")  # same name, other folder
+    (models / "broken.obj").write_bytes(b"\x00\x01 not a mesh")
+    (models / "sub" / "noface.obj").write_text("v 0 0 0\nv 1 0 0\n")
+    (models / "notes.txt").write_text("ignored: not a mesh extension")
+    return models
+
+
+def test_batch_converts_good_models_and_reports_bad_ones(tmp_path, capsys):
+    models = _batch_folder(tmp_path)
+    out = tmp_path / "out"
+    assert main(["convert", str(models), "-o", str(out), "-r", "12"]) == 2
+    text = capsys.readouterr().out
+    assert "broken.obj" in text and "noface.obj" in text and "failed" in text
+    assert "2 converted, 0 skipped, 2 failed" in text
+    names = sorted(p.name for p in out.iterdir() if p.suffix == ".raw")
+    assert names == ["spot_12x12x12_uint8.raw", "spot_2_12x12x12_uint8.raw"]
+    # Existing outputs are skipped unless --overwrite.
+    assert main(["convert", str(models), "-o", str(out), "-r", "12"]) == 2
+    assert "0 converted, 2 skipped, 2 failed" in capsys.readouterr().out
+    assert main(["convert", str(models / "spot.obj"), str(models / "sub"), "-o", str(out), "-r", "12",
+                 "--overwrite"]) == 2
+    assert "2 converted, 0 skipped, 1 failed" in capsys.readouterr().out
+
+
+def test_batch_results_do_not_depend_on_jobs(tmp_path, capsys):
+    models = _batch_folder(tmp_path)
+    (models / "broken.obj").unlink()
+    (models / "sub" / "noface.obj").unlink()
+    assert main(["convert", str(models), "-o", str(tmp_path / "a"), "-r", "10", "-j", "1", "-q"]) == 0
+    assert main(["convert", str(models), "-o", str(tmp_path / "b"), "-r", "10", "-j", "2", "-q"]) == 0
+    for name in sorted(os.listdir(tmp_path / "a")):
+        if name.endswith(".raw"):
+            assert (tmp_path / "a" / name).read_bytes() == (tmp_path / "b" / name).read_bytes()
+
+
+def test_batch_needs_a_folder_output(tmp_path, capsys):
+    assert main(["convert", SPOT, SPOT, "-o", str(tmp_path / "x.raw")]) == 2
+    assert "-o must be a folder" in capsys.readouterr().err
