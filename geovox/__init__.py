@@ -18,11 +18,13 @@ from .errors import (
 from .grid import Grid
 from .mesh import Mesh, load_mesh
 from .pipeline import Volume, voxelize
+from .stream import convert_to
 
 __version__ = "0.1.0"
 
 __all__ = [
     "voxelize",
+    "convert_to",
     "Volume",
     "Grid",
     "Mesh",

@@ -215,15 +215,6 @@ def _output_path(args, input_path, shape) -> str:
     return os.path.join(folder, default_name(stem, shape, "uint8", fmt.extensions[0]))
 
 
-def _planned_shape(args, path):
-    """The grid shape, known before loading only for --shape or --resolution."""
-    if args.shape:
-        return tuple(args.shape)
-    if args.resolution:
-        return (args.resolution,) * 3
-    return None
-
-
 def _batch(args) -> int:
     from . import formats
     from .batch import convert_many, summary_table
@@ -261,6 +252,64 @@ def _batch(args) -> int:
     return EXIT_ERROR if any(r.status == "failed" for r in results) else EXIT_OK
 
 
+def _convert_streaming(args, mesh, output, t0) -> int:
+    """A grid too big for one piece: slab by slab into .h5 or .raw."""
+    import warnings
+
+    from .errors import GeovoxWarning
+    from .stream import convert_to
+
+    bar = None
+    if not args.quiet and sys.stderr.isatty():
+        try:
+            from tqdm import tqdm
+
+            bar = tqdm(total=1, unit="slab", file=sys.stderr, leave=False)
+        except ImportError:
+            bar = None
+
+    def progress(done, total):
+        if bar is not None:
+            bar.total = total
+            bar.update(done - bar.n)
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", GeovoxWarning)
+        info = convert_to(mesh, output, args.fmt, backend=args.backend, bounds=args.bounds,
+                          resolution=args.resolution, shape=args.shape,
+                          voxel_size=args.voxel_size, inside=args.inside, color=args.color,
+                          diffuse=args.diffuse, ambient=args.ambient, density=args.density,
+                          supersample=args.supersample,
+                          density_dtype="float32" if args.density_float else "uint8",
+                          sdf=args.sdf, band=args.band, jobs=args.jobs, progress=progress)
+    if bar is not None:
+        bar.close()
+    for w in caught:
+        if issubclass(w.category, GeovoxWarning):
+            print(f"geovox: warning: {w.message}", file=sys.stderr)
+    written = info["files"]
+    if args.preview:
+        # The preview of a grid this size is drawn from a 256³ conversion of the same model.
+        from .preview import write_preview
+
+        small = _voxelize(argparse.Namespace(**{**vars(args), "resolution": 256, "shape": None,
+                                                 "voxel_size": None, "quiet": True}), mesh)
+        written.append(write_preview(small, args.preview))
+    if not args.quiet:
+        nx, ny, nz = info["shape"]
+        dx, dy, dz = info["spacing"]
+        t = info["timings"]
+        print(f"{os.path.basename(info['source'])}: grid {nx} x {ny} x {nz} in {info['slabs']} slabs")
+        print(f"voxel size {dx:.6g} x {dy:.6g} x {dz:.6g}, backend {info['backend']}, "
+              f"inside test {info['inside_test']}")
+        print(f"inside {info['inside']:,} of {nx * ny * nz:,} voxels "
+              f"({100.0 * info['inside'] / (nx * ny * nz):.2f}%)")
+        print(f"time {time.perf_counter() - t0:.2f} s (voxelise {t['voxelize']:.2f}, "
+              f"write {t['write']:.2f})")
+        print("wrote " + ", ".join(written))
+    return EXIT_OK
+
+
 def _convert(args) -> int:
     from . import formats
 
@@ -268,7 +317,6 @@ def _convert(args) -> int:
         return _batch(args)
     args.input = args.input[0]
     t0 = time.perf_counter()
-    planned = _planned_shape(args, args.input)
     default_out = args.output is None or os.path.isdir(args.output) or args.output.endswith(("/", os.sep))
     if not default_out:
         formats.format_for(args.output, args.fmt)  # unknown extension: fail before work
@@ -277,8 +325,23 @@ def _convert(args) -> int:
         formats.check_writable(os.path.join(args.output, "x"))
     if args.preview:
         formats.check_writable(args.preview)
-    vol = _voxelize(args, args.input)
-    output = _output_path(args, args.input, vol.shape if planned is None else planned)
+    from .grid import make_grid
+    from .mesh import load_mesh
+    from .stream import SLAB_BUDGET, STREAMABLE, bytes_per_voxel, slab_plan
+
+    mesh = load_mesh(args.input)
+    grid = make_grid(mesh.bounds, bounds=args.bounds, resolution=args.resolution,
+                     shape=args.shape, voxel_size=args.voxel_size)
+    output = _output_path(args, args.input, grid.shape)
+    fmt = formats.format_for(output, args.fmt)
+    per = bytes_per_voxel(args.color, args.density, args.sdf)
+    from .pipeline import _available_memory
+
+    avail = _available_memory()
+    budget = SLAB_BUDGET if avail is None else min(SLAB_BUDGET, 0.5 * avail)
+    if fmt.name in STREAMABLE and len(slab_plan(grid, per, budget)) > 1:
+        return _convert_streaming(args, mesh, output, t0)
+    vol = _voxelize(args, mesh)
     t1 = time.perf_counter()
     options = {"shell": True} if args.shell and formats.format_for(output, args.fmt).name == "vox" else {}
     written = formats.write(vol, output, fmt=args.fmt, **options)

@@ -92,7 +92,9 @@ def check_memory(grid: Grid, bytes_per_voxel: float = 1.0) -> None:
         nx, ny, nz = grid.shape
         raise GridTooLargeError(
             f"a {nx} x {ny} x {nz} grid needs {need / 2**30:.1f} GiB but only "
-            f"{avail / 2**30:.1f} GiB of memory is available; use a smaller resolution"
+            f"{avail / 2**30:.1f} GiB of memory is available; use a smaller resolution, or "
+            f"write it slab by slab to .h5 or .raw (geovox convert does; in Python, "
+            f"geovox.convert_to)"
         )
 
 

@@ -20,7 +20,7 @@ import numpy as np
 BATCH = 64
 
 
-def write_blocks(dset, block, level: int = 4, jobs: int = 2) -> None:
+def write_blocks(dset, block, level: int = 4, jobs: int = 2, ranges=None) -> None:
     """Fill a chunked, gzip-filtered dataset chunk by chunk.
 
     Parameters
@@ -54,7 +54,7 @@ def write_blocks(dset, block, level: int = 4, jobs: int = 2) -> None:
             data[tuple(slice(0, n) for n in part.shape)] = part
         return index, None, zlib.compress(data.tobytes(), level)
 
-    indices = list(product(*[range(n) for n in counts]))
+    indices = list(product(*(ranges or [range(n) for n in counts])))
     with ThreadPoolExecutor(max_workers=max(1, jobs)) as pool:
         for s in range(0, len(indices), BATCH):
             for index, key, payload in pool.map(prepare, indices[s:s + BATCH]):
