@@ -28,6 +28,12 @@ def load_model(name):
         m = trimesh.load(BUNNY, force="mesh", process=False)
         v, f = trimesh.remesh.subdivide(m.vertices, m.faces)
         return geovox.Mesh(v, f, source="bunny105k")
+    if name.startswith("ico"):
+        # icosphere with N subdivisions: 20 * 4**N triangles, closed.
+        import trimesh
+
+        m = trimesh.creation.icosphere(subdivisions=int(name[3:]))
+        return geovox.Mesh(m.vertices, m.faces, source=name)
     raise ValueError(name)
 
 

@@ -26,8 +26,8 @@ from .grid import Grid, make_grid
 from .mesh import load_mesh
 
 #: Memory a slab's arrays may take, by default: 2048³ occupancy goes in
-#: 128-voxel slabs and stays under 3 GiB; anything up to ~800³ is one slab.
-SLAB_BUDGET = 1 << 29
+#: 256-voxel slabs and stays under 3 GiB; occupancy up to 1024³ is one slab.
+SLAB_BUDGET = 1 << 30
 STREAMABLE = ("hdf5", "raw")
 
 
