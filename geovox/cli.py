@@ -304,8 +304,9 @@ def _convert_streaming(args, mesh, output, t0) -> int:
               f"inside test {info['inside_test']}")
         print(f"inside {info['inside']:,} of {nx * ny * nz:,} voxels "
               f"({100.0 * info['inside'] / (nx * ny * nz):.2f}%)")
-        print(f"time {time.perf_counter() - t0:.2f} s (voxelise {t['voxelize']:.2f}, "
-              f"write {t['write']:.2f})")
+        stages = ", ".join(f"{k} {t[k]:.2f}" for k in ("load", "rays", "fill", "colour", "density",
+                                                        "sdf", "write") if k in t)
+        print(f"time {time.perf_counter() - t0:.2f} s ({stages})")
         print("wrote " + ", ".join(written))
     return EXIT_OK
 

@@ -97,6 +97,7 @@ def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, *
     jobs = resolve_jobs(jobs)
     m = load_mesh(mesh)
     engine = get_backend(options.pop("backend", "auto"))
+    t_load = time.perf_counter()
     grid = make_grid(m.bounds, bounds=options.pop("bounds", None),
                      resolution=options.pop("resolution", None), shape=options.pop("shape", None),
                      voxel_size=options.pop("voxel_size", None))
@@ -126,7 +127,7 @@ def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, *
                    sdf=np.zeros(0, np.float32) if options.get("sdf") else None)
     writer = (_HDF5Writer if f.name == "hdf5" else _RawWriter)(path, meta, jobs)
     inside = 0
-    timings = {"voxelize": 0.0, "write": 0.0}
+    timings = {"load": 0.0, "rays": 0.0, "fill": 0.0, "write": 0.0}
     nx, ny, _ = grid.shape
     h = grid.spacing
     try:
@@ -144,7 +145,9 @@ def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, *
                                inside=method, jobs=jobs, axis=1, **options)
             tb = time.perf_counter()
             writer.write(z0, vol)
-            timings["voxelize"] += tb - ta
+            for key, value in vol.timings.items():
+                if key != "total":
+                    timings[key] = timings.get(key, 0.0) + value
             timings["write"] += time.perf_counter() - tb
             inside += vol.inside_count
             del vol
@@ -154,6 +157,7 @@ def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, *
     except BaseException:
         writer.abort()
         raise
+    timings["load"] += t_load - t0
     timings["total"] = time.perf_counter() - t0
     return {"shape": tuple(grid.shape), "spacing": tuple(float(x) for x in h),
             "bounds": meta.bounds, "inside": inside, "inside_test": method,
