@@ -8,7 +8,9 @@ import time
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 
-from .errors import GeovoxError, InputNotFoundError
+import numpy as np
+
+from .errors import GeovoxError, InputNotFoundError, OutputError
 
 #: File types searched for in folders.
 MESH_EXTENSIONS = (".obj", ".stl", ".ply", ".off", ".glb", ".gltf")
@@ -42,7 +44,7 @@ def find_inputs(paths) -> list:
 
 def _convert_one(task):
     """Run in a worker process: returns a Result (never raises for bad models)."""
-    path, stem, out_dir, options, ext, overwrite = task
+    path, stem, out_dir, options, ext, overwrite, write_options = task
     from .formats import write
     from .formats.headers import default_name
     from .grid import make_grid
@@ -50,11 +52,14 @@ def _convert_one(task):
     from .pipeline import voxelize
 
     t0 = time.perf_counter()
-    try:
-        import warnings
+    import warnings
 
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
+    from .errors import GeovoxWarning
+    from .stream import SLAB_BUDGET, STREAMABLE, bytes_per_voxel, convert_to, slab_plan
+
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", GeovoxWarning)
             mesh = load_mesh(path)
             grid = make_grid(mesh.bounds, bounds=options.get("bounds"),
                              resolution=options.get("resolution"), shape=options.get("shape"),
@@ -63,10 +68,21 @@ def _convert_one(task):
             if os.path.exists(out) and not overwrite:
                 return Result(path, out, "skipped", "output exists (use --overwrite)",
                               time.perf_counter() - t0)
-            vol = voxelize(mesh, **options)
-            write(vol, out)
-        return Result(path, out, "converted", f"{vol.inside_count:,} inside",
-                      time.perf_counter() - t0)
+            from .formats import format_for
+
+            per = bytes_per_voxel(options.get("color"), options.get("density"), options.get("sdf"))
+            if format_for(out).name in STREAMABLE and len(slab_plan(grid, per, SLAB_BUDGET)) > 1:
+                opts = {k: v for k, v in options.items() if k not in ("resolution", "shape",
+                                                                       "voxel_size", "bounds")}
+                info = convert_to(mesh, out, shape=grid.shape, bounds=np.r_[grid.lo, grid.hi], **opts)
+                inside = info["inside"]
+            else:
+                vol = voxelize(mesh, **options)
+                write(vol, out, **write_options)
+                inside = vol.inside_count
+        said = [str(w.message) for w in caught if issubclass(w.category, GeovoxWarning)]
+        note = f"{inside:,} inside" + (f"; warning: {'; '.join(said)}" if said else "")
+        return Result(path, out, "converted", note, time.perf_counter() - t0)
     except (GeovoxError, MemoryError) as exc:
         return Result(path, None, "failed", str(exc), time.perf_counter() - t0)
     except Exception as exc:  # a model must not stop the batch; say what happened
@@ -74,14 +90,17 @@ def _convert_one(task):
 
 
 def convert_many(paths, out_dir, options: dict, ext: str = ".raw", overwrite: bool = False,
-                 jobs: int = 1, progress=None) -> list:
+                 jobs: int = 1, progress=None, write_options=None) -> list:
     """Convert every model into ``out_dir``; returns one Result per model, in input order.
 
     Models run in ``jobs`` processes, each single-threaded, so the outputs are
     the same whatever ``jobs`` is.
     """
     inputs = find_inputs(paths)
-    os.makedirs(out_dir, exist_ok=True)
+    try:
+        os.makedirs(out_dir, exist_ok=True)
+    except OSError as exc:
+        raise OutputError(f"cannot create output folder {out_dir}: {exc.strerror or exc}") from None
     options = dict(options, jobs=1)
     # Models with the same file name get _2, _3, ... in input order.
     stems, seen = [], {}
@@ -89,7 +108,8 @@ def convert_many(paths, out_dir, options: dict, ext: str = ".raw", overwrite: bo
         stem = os.path.splitext(os.path.basename(p))[0]
         seen[stem] = seen.get(stem, 0) + 1
         stems.append(stem if seen[stem] == 1 else f"{stem}_{seen[stem]}")
-    tasks = [(p, s, out_dir, options, ext, overwrite) for p, s in zip(inputs, stems)]
+    tasks = [(p, s, out_dir, options, ext, overwrite, write_options or {})
+             for p, s in zip(inputs, stems)]
     results = []
     if jobs > 1 and len(tasks) > 1:
         with ProcessPoolExecutor(max_workers=jobs) as pool:

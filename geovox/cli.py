@@ -220,11 +220,15 @@ def _batch(args) -> int:
     from .batch import convert_many, summary_table
     from .parallel import resolve_jobs
 
-    if args.output is None or not (os.path.isdir(args.output) or args.output.endswith(("/", os.sep))
-                                   or not os.path.splitext(args.output)[1]):
-        from .errors import ParameterError
+    from .errors import ParameterError
 
+    if args.output is None:
+        args.output = os.getcwd()
+    if not (os.path.isdir(args.output) or args.output.endswith(("/", os.sep))
+            or not os.path.splitext(args.output)[1]):
         raise ParameterError(f"with several inputs, -o must be a folder; got {args.output!r}")
+    if args.preview:
+        raise ParameterError("--preview takes one input; run geovox preview on each output instead")
     fmt = formats.format_for("x.raw", args.fmt)
     options = dict(resolution=args.resolution, shape=args.shape, voxel_size=args.voxel_size,
                    bounds=args.bounds, backend=args.backend, color=args.color, diffuse=args.diffuse,
@@ -244,7 +248,8 @@ def _batch(args) -> int:
             bar = None
     results = convert_many(args.input, args.output, options, ext=fmt.extensions[0],
                            overwrite=args.overwrite, jobs=resolve_jobs(args.jobs),
-                           progress=(lambda r: bar.update(1)) if bar else None)
+                           progress=(lambda r: bar.update(1)) if bar else None,
+                           write_options={"shell": True} if args.shell and fmt.name == "vox" else {})
     if bar:
         bar.close()
     if not args.quiet or any(r.status == "failed" for r in results):
@@ -449,6 +454,12 @@ def main(argv=None) -> int:
         if args.debug:
             raise
         print("geovox: error: out of memory; use a smaller resolution", file=sys.stderr)
+        return EXIT_ERROR
+    except OSError as exc:  # last resort: a file problem no check foresaw
+        if args.debug:
+            raise
+        where = f" ({exc.filename})" if getattr(exc, "filename", None) else ""
+        print(f"geovox: error: {exc.strerror or exc}{where}", file=sys.stderr)
         return EXIT_ERROR
 
 

@@ -205,7 +205,11 @@ def make_grid(
         if not (math.isfinite(s) and s > 0):
             raise ParameterError(f"`voxel_size` must be a positive number, got {voxel_size!r}")
         extent = hi - lo
-        n = np.maximum(1, np.ceil(extent / s - 1e-9)).astype(np.int64)
+        counts = np.ceil(extent / s - 1e-9)
+        if not np.all(counts < 2**31):
+            raise ParameterError(f"`voxel_size` {voxel_size!r} gives a grid of "
+                                 f"{' x '.join(f'{c:.3g}' for c in counts)} voxels; use a larger voxel size")
+        n = np.maximum(1, counts).astype(np.int64)
         grow = (n * s - extent) / 2.0
         lo, hi = lo - grow, lo - grow + n * s
         return Grid(lo=lo, hi=hi, shape=tuple(int(x) for x in n))

@@ -256,7 +256,7 @@ def _correct_near_caps(occ, w, grid, cap_tris, piece) -> None:
         gap = np.maximum(0.0, np.maximum(lo[c] - b_hi, b_lo - hi[c]))
         d = np.sqrt((gap ** 2).sum(-1))
         near = d <= reach
-        with np.errstate(divide="ignore"):
+        with np.errstate(divide="ignore", invalid="ignore"):
             deviation += np.where(near, 0.0, rho * piece_area[c] / (np.pi * d ** 3))
         bricks = np.argwhere(near)
         if len(bricks) == 0:

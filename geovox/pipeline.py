@@ -106,7 +106,7 @@ def voxelize(
     *,
     shape=None,
     voxel_size=None,
-    axis=2,
+    axis=1,
     color=False,
     diffuse=True,
     ambient=False,
@@ -143,8 +143,10 @@ def voxelize(
         Cubic voxel edge (instead of ``resolution``); the region grows
         symmetrically to a whole number of voxels.
     axis : {0, 1, 2}
-        Direction of the rays. The result is the same up to ties on the
-        surface; it only changes the cost.
+        Direction of the column rays (default y, the one slab-by-slab
+        conversions use, so both give the same volume). Occupancy is the same
+        up to ties on the surface; coverage density, sampled across the rays,
+        differs by a step or so where the surface is steep.
     color : bool
         Also fill ``Volume.colors`` from the model's materials, textures or
         vertex colours (see :mod:`geovox.colour` for the exact rule).
@@ -209,8 +211,9 @@ def voxelize(
     # Occupancy is 1 byte a voxel; colour adds 4 for RGBA and about 16 of
     # working arrays while nearest crossings are found; density and distance
     # 4 each plus a float32 working copy.
-    check_memory(grid, 1.0 + (20.0 if color else 0.0) + (8.0 if density else 0.0)
-                 + (8.0 if sdf else 0.0))
+    from .stream import bytes_per_voxel
+
+    check_memory(grid, bytes_per_voxel(color, density, sdf))
 
     from . import inside as inside_tests
 
@@ -237,10 +240,11 @@ def voxelize(
             crossings[ax] = cast(ax)
             one = parity.fill(*crossings[ax], grid, jobs=jobs).view(np.uint8)
             votes = one if votes is None else np.add(votes, one, out=votes)
-        t_rays = time.perf_counter()
+        t_rays = time.perf_counter()  # the three fills are counted with the rays
         occ = np.asfortranarray(votes >= 2)
         del votes
     else:
+        # The winding fill is counted with the rays.
         occ, hits, columns = inside_tests.winding_occupancy(m, grid, cast_mesh, axis, jobs)
         crossings[axis] = (hits, columns)
         t_rays = time.perf_counter()

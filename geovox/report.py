@@ -44,6 +44,8 @@ def mesh_report(mesh: Mesh) -> dict:
     for m in mesh.materials:
         if m.texture_file:
             status = "texture found"
+        elif m.image is not None:
+            status = "texture embedded in the file"
         elif not m.defined:
             status = "not defined in any material file"
         else:

@@ -152,6 +152,9 @@ class _FullDisk:
             raise OSError(28, "No space left on device")
         return self.f.write(data)
 
+    def close(self):
+        self.f.close()
+
     def __enter__(self):
         return self
 

@@ -15,6 +15,8 @@ import os
 import tempfile
 from dataclasses import dataclass
 
+import numpy as np
+
 from ..errors import OutputError, ParameterError
 
 
@@ -132,20 +134,26 @@ def read(path, fmt=None):
     f = format_for(path, fmt)
     try:
         return f.reader(path)
-    except (OSError, ValueError, KeyError) as exc:
-        raise MeshError(f"{path}: cannot be read as a geovox {f.name} volume ({exc})") from exc
+    except Exception as exc:  # readers of several libraries raise their own types
+        raise MeshError(f"{path}: cannot be read as a geovox {f.name} volume "
+                        f"({type(exc).__name__}: {exc})") from exc
+
+
+#: What the values of each extra field mean, by its dtype.
+FIELD_VALUES = {
+    "density": lambda dtype: ("inside fraction x 255" if np.dtype(dtype) == np.uint8
+                              else "inside fraction, 0 to 1"),
+    "sdf": lambda dtype: "signed distance, negative inside, clamped beyond the exact band",
+}
 
 
 def scalar_fields(volume) -> list:
     """The extra scalar volumes to write: ``[(name, [x, y, z] array, dtype name, values)]``."""
     out = []
-    if getattr(volume, "density", None) is not None:
-        d = volume.density
-        values = ("inside fraction x 255" if d.dtype == "uint8" else "inside fraction, 0 to 1")
-        out.append(("density", d, str(d.dtype), values))
-    if getattr(volume, "sdf", None) is not None:
-        out.append(("sdf", volume.sdf, "float32",
-                    "signed distance, negative inside, clamped beyond the exact band"))
+    for name in ("density", "sdf"):
+        arr = getattr(volume, name, None)
+        if arr is not None:
+            out.append((name, arr, str(arr.dtype), FIELD_VALUES[name](arr.dtype)))
     return out
 
 

@@ -24,23 +24,115 @@ def _dataset(f, name, shape, dtype, chunks):
                             compression_opts=LEVEL, fillvalue=0)
 
 
-def _fill(dset, array, transpose=False, jobs=2):
-    """Write ``array`` ([x, y, z(, c)]) into ``dset`` chunk by chunk (see chunks.py).
+class HDF5Writer:
+    """Writes a volume into a new HDF5 file, whole or one z-slab at a time.
 
-    With ``transpose`` the dataset is (z, y, x(, c)): VTK's order.
+    ``meta`` is anything with ``shape``, ``spacing``, ``bounds``, ``backend``,
+    ``source`` and ``colors`` / ``density`` / ``sdf`` (None when absent; for
+    ``density`` and ``sdf`` an array whose dtype is the one to store).
+    Slabs must start on multiples of 64 voxels in z (the chunk size), and
+    the file appears only on :meth:`close`.
     """
-    from .chunks import write_blocks
 
-    chunks = dset.chunks
-    if transpose:
-        src = array.transpose((2, 1, 0) + tuple(range(3, array.ndim)))
-    else:
-        src = array
+    def __init__(self, path, meta, jobs: int = 2):
+        import h5py
 
-    def block(index):
-        return src[tuple(slice(i * c, (i + 1) * c) for i, c in zip(index, chunks))]
+        from . import atomic_outputs
+        from .headers import origin_of
 
-    write_blocks(dset, block, level=LEVEL, jobs=jobs)
+        self.path, self.meta, self.jobs = os.fspath(path), meta, jobs
+        self._ctx = atomic_outputs()
+        self.f = h5py.File(self._ctx.__enter__().add(self.path), "w")
+        nx, ny, nz = meta.shape
+        self.chunks = tuple(min(64, n) for n in meta.shape)
+        zyx = self.chunks[::-1]
+        f = self.f
+        self.sets = {"occupancy": _dataset(f, "occupancy", meta.shape, np.uint8, self.chunks)}
+        g = f.create_group("VTKHDF")
+        g.attrs["Version"] = np.array([2, 1], dtype=np.int64)
+        # VTK requires a fixed-length ASCII string here, not a variable-length one.
+        g.attrs.create("Type", np.bytes_("ImageData"))
+        g.attrs["WholeExtent"] = np.array([0, nx - 1, 0, ny - 1, 0, nz - 1], dtype=np.int64)
+        g.attrs["Origin"] = origin_of(meta).astype(np.float64)
+        g.attrs["Spacing"] = np.asarray(meta.spacing, dtype=np.float64)
+        g.attrs["Direction"] = np.eye(3).reshape(-1)
+        pd = g.create_group("PointData")
+        self.vtk = {"occupancy": _dataset(pd, "occupancy", (nz, ny, nx), np.uint8, zyx)}
+        if meta.colors is not None:
+            c = _dataset(f, "color", meta.shape + (4,), np.uint8, self.chunks + (4,))
+            c.attrs["components"] = "RGBA"
+            c.attrs["axis_order"] = "xyzc"
+            self.sets["color"] = c
+            self.vtk["color"] = _dataset(pd, "color", (nz, ny, nx, 4), np.uint8, zyx + (4,))
+        from . import FIELD_VALUES
+
+        for name in ("density", "sdf"):
+            arr = getattr(meta, name, None)
+            if arr is not None:
+                d = _dataset(f, name, meta.shape, arr.dtype, self.chunks)
+                d.attrs["values"] = FIELD_VALUES[name](arr.dtype)
+                d.attrs["axis_order"] = "xyz"
+                self.sets[name] = d
+                self.vtk[name] = _dataset(pd, name, (nz, ny, nx), arr.dtype, zyx)
+
+    def write(self, z0: int, vol) -> None:
+        """Write ``vol`` (a Volume covering z0 .. z0 + its depth) into place."""
+        from .chunks import write_blocks
+
+        arrays = {"occupancy": vol.occupancy.view(np.uint8), "color": vol.colors,
+                  "density": vol.density, "sdf": vol.sdf}
+        cx, cy, cz = self.chunks
+        k0 = z0 // cz
+        zr = range(k0, k0 + -(-vol.shape[2] // cz))
+        for name, dset in self.sets.items():
+            arr = arrays[name]
+            tail = [range(1)] if arr.ndim == 4 else []
+
+            def block(index, arr=arr):
+                return arr[index[0] * cx:(index[0] + 1) * cx, index[1] * cy:(index[1] + 1) * cy,
+                           (index[2] - k0) * cz:(index[2] - k0 + 1) * cz]
+
+            write_blocks(dset, block, level=LEVEL, jobs=self.jobs,
+                         ranges=[range(-(-dset.shape[0] // cx)), range(-(-dset.shape[1] // cy)), zr] + tail)
+            src = arr.transpose((2, 1, 0) + tuple(range(3, arr.ndim)))  # VTK's (z, y, x)
+
+            def vblock(index, src=src):
+                return src[(index[0] - k0) * cz:(index[0] - k0 + 1) * cz,
+                           index[1] * cy:(index[1] + 1) * cy, index[2] * cx:(index[2] + 1) * cx]
+
+            vdset = self.vtk[name]
+            write_blocks(vdset, vblock, level=LEVEL, jobs=self.jobs,
+                         ranges=[zr, range(-(-vdset.shape[1] // cy)), range(-(-vdset.shape[2] // cx))] + tail)
+
+    def close(self) -> list:
+        try:
+            return self._finish()
+        except BaseException:
+            self.abort()
+            raise
+
+    def _finish(self) -> list:
+        meta = self.meta
+        lo, hi = meta.bounds
+        attrs = {"spacing": np.asarray(meta.spacing, dtype=np.float64),
+                 "bounds": np.asarray([lo, hi], dtype=np.float64),
+                 "shape": np.asarray(meta.shape, dtype=np.int64), "axis_order": "xyz",
+                 "values": "0 outside, 1 inside", "backend": meta.backend, "source": str(meta.source)}
+        for key, value in attrs.items():
+            self.sets["occupancy"].attrs[key] = value
+            self.f.attrs[key] = value
+        self.f.close()
+        self._ctx.__exit__(None, None, None)
+        return [self.path]
+
+    def abort(self) -> None:
+        """Drop everything written (call from an ``except`` block)."""
+        import sys
+
+        try:
+            self.f.close()
+        finally:
+            self._ctx.__exit__(*sys.exc_info())
 
 
 def write_hdf5(volume, path, jobs: int = 2) -> list:
@@ -49,70 +141,16 @@ def write_hdf5(volume, path, jobs: int = 2) -> list:
     The dataset ``occupancy`` has shape ``(nx, ny, nz)`` and is indexed
     ``[x, y, z]`` as in the library (h5py reads it back unchanged), with
     attributes ``spacing``, ``bounds`` (2 x 3), ``shape``, ``axis_order``,
-    ``backend`` and ``source``.
+    ``backend`` and ``source``; ``color``, ``density`` and ``sdf`` likewise
+    when the volume has them, and the ``/VTKHDF`` group.
     """
-    import h5py
-
-    from . import atomic_output, scalar_fields
-
-    path = os.fspath(path)
-    occ = volume.occupancy.view(np.uint8)
-    chunks = tuple(min(64, n) for n in occ.shape)
-    with atomic_output(path) as tmp:
-        with h5py.File(tmp, "w") as f:
-            d = _dataset(f, "occupancy", occ.shape, np.uint8, chunks)
-            _fill(d, occ, jobs=jobs)
-            if volume.colors is not None:
-                c = _dataset(f, "color", occ.shape + (4,), np.uint8, chunks + (4,))
-                _fill(c, volume.colors, jobs=jobs)
-                c.attrs["components"] = "RGBA"
-                c.attrs["axis_order"] = "xyzc"
-            for name, arr, dtype, values in scalar_fields(volume):
-                field = _dataset(f, name, occ.shape, dtype, chunks)
-                _fill(field, arr, jobs=jobs)
-                field.attrs["values"] = values
-                field.attrs["axis_order"] = "xyz"
-            _write_vtkhdf(f, volume, chunks, jobs)
-            lo, hi = volume.bounds
-            attrs = {
-                "spacing": np.asarray(volume.spacing, dtype=np.float64),
-                "bounds": np.asarray([lo, hi], dtype=np.float64),
-                "shape": np.asarray(volume.shape, dtype=np.int64),
-                "axis_order": "xyz",
-                "values": "0 outside, 1 inside",
-                "backend": volume.backend,
-                "source": str(volume.source),
-            }
-            for key, value in attrs.items():
-                d.attrs[key] = value
-                f.attrs[key] = value
-    return [path]
-
-
-def _write_vtkhdf(f, volume, chunks, jobs=2) -> None:
-    """The VTK-HDF ImageData group (point data at voxel centres)."""
-    from . import scalar_fields
-    from .headers import origin_of
-
-    nx, ny, nz = volume.shape
-    g = f.create_group("VTKHDF")
-    g.attrs["Version"] = np.array([2, 1], dtype=np.int64)
-    # VTK requires a fixed-length ASCII string here, not a variable-length one.
-    g.attrs.create("Type", np.bytes_("ImageData"))
-    g.attrs["WholeExtent"] = np.array([0, nx - 1, 0, ny - 1, 0, nz - 1], dtype=np.int64)
-    g.attrs["Origin"] = origin_of(volume).astype(np.float64)
-    g.attrs["Spacing"] = np.asarray(volume.spacing, dtype=np.float64)
-    g.attrs["Direction"] = np.eye(3).reshape(-1)
-    pd = g.create_group("PointData")
-    zyx = chunks[::-1]
-    shape = (nz, ny, nx)
-    _fill(_dataset(pd, "occupancy", shape, np.uint8, zyx), volume.occupancy.view(np.uint8),
-          transpose=True, jobs=jobs)
-    if volume.colors is not None:
-        _fill(_dataset(pd, "color", shape + (4,), np.uint8, zyx + (4,)), volume.colors,
-              transpose=True, jobs=jobs)
-    for name, arr, dtype, _ in scalar_fields(volume):
-        _fill(_dataset(pd, name, shape, dtype, zyx), arr, transpose=True, jobs=jobs)
+    writer = HDF5Writer(path, volume, jobs)
+    try:
+        writer.write(0, volume)
+    except BaseException:
+        writer.abort()
+        raise
+    return writer.close()
 
 
 def read_hdf5(path):

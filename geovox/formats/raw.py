@@ -60,51 +60,67 @@ def _write_headers(group, volume, path: str, dtype: str, components: int = 1) ->
     return [root + ".mhd", root + ".nhdr"]
 
 
-def write_raw(volume, path) -> list:
-    """Write occupancy as uint8 0/255, x fastest, and ``<path minus .raw>.json``.
+class RawWriter:
+    """Writes a volume as RAW files, whole or one z-slab at a time (z slabs are
+    contiguous in x-fastest files, so each is appended). Headers and the
+    sidecar are written on :meth:`close`, when every file appears at once.
 
-    With colour, ``<name>_rgba.raw`` beside it holds uint8 RGBA interleaved
-    per voxel, x fastest (the sidecar names it and says so). Every RAW file
-    gets a MetaImage ``.mhd`` and a detached NRRD ``.nhdr`` header beside it,
-    so ParaView, 3D Slicer and ITK open it with no questions.
-
-    Parameters
-    ----------
-    volume : Volume
-    path : str
-        Target ``.raw`` file.
-
-    Returns
-    -------
-    list of str
-        The RAW file and its sidecar.
+    ``meta`` is as for :class:`geovox.formats.hdf5.HDF5Writer`.
     """
-    from . import atomic_outputs
 
-    path = os.fspath(path)
-    occ = volume.occupancy
-    nx, ny, nz = occ.shape
-    per = max(1, SLAB_VOXELS // max(1, nx * ny))
-    # All files appear together or not at all.
-    with atomic_outputs() as group:
-        with open(group.add(path), "wb") as f:
-            for z0 in range(0, nz, per):
-                slab = occ[:, :, z0:z0 + per]
-                # Transposed, the Fortran-ordered slab is C-contiguous in
-                # (z, y, x): its bytes are already x fastest.
-                f.write((slab.T.view(np.uint8) * np.uint8(255)).data)
-        written = [path] + _write_headers(group, volume, path, "uint8")
-        meta = metadata(volume, path)
-        if volume.colors is not None:
-            cpath = colour_path(path)
-            # colors is a [x, y, z, c] view of a C-ordered (z, y, x, c) array:
-            # its transpose's bytes are RGBA interleaved with x fastest.
-            base = volume.colors.transpose(2, 1, 0, 3)
-            with open(group.add(cpath), "wb") as f:
-                for z0 in range(0, nz, per):
-                    f.write(np.ascontiguousarray(base[z0:z0 + per]).data)
-            written += [cpath] + _write_headers(group, volume, cpath, "uint8", components=4)
-            meta["color"] = {
+    def __init__(self, path, meta, jobs: int = 1):
+        from . import atomic_outputs
+
+        self.path, self.meta = os.fspath(path), meta
+        self._ctx = atomic_outputs()
+        self.group = self._ctx.__enter__()
+        self.names = {"occupancy": self.path}
+        if meta.colors is not None:
+            self.names["color"] = colour_path(self.path)
+        for name in ("density", "sdf"):
+            if getattr(meta, name, None) is not None:
+                self.names[name] = field_path(self.path, name)
+        self.files = {k: open(self.group.add(p), "wb") for k, p in self.names.items()}
+
+    def write(self, z0: int, vol) -> None:
+        """Append ``vol`` (the next slab in z), a bounded number of voxels at a time."""
+        nx, ny, nz = vol.shape
+        per = max(1, SLAB_VOXELS // max(1, nx * ny))
+        for a in range(0, nz, per):
+            sl = slice(a, a + per)
+            # Transposed, a Fortran-ordered [x, y, z] slab is C-ordered (z, y, x):
+            # its bytes are x fastest.
+            occ = vol.occupancy[:, :, sl]
+            self.files["occupancy"].write((occ.T.view(np.uint8) * np.uint8(255)).data)
+            if "color" in self.files:
+                self.files["color"].write(
+                    np.ascontiguousarray(vol.colors[:, :, sl].transpose(2, 1, 0, 3)).data)
+            for name in ("density", "sdf"):
+                if name in self.files:
+                    arr = getattr(vol, name)[:, :, sl]
+                    self.files[name].write(
+                        np.ascontiguousarray(arr.T, dtype=arr.dtype.newbyteorder("<")).data)
+
+    def close(self) -> list:
+        try:
+            return self._finish()
+        except BaseException:
+            self.abort()
+            raise
+
+    def _finish(self) -> list:
+        from . import FIELD_VALUES
+
+        for fh in self.files.values():
+            fh.close()
+        meta = self.meta
+        nx, ny, nz = meta.shape
+        info = metadata(meta, self.path)
+        written = [self.path] + _write_headers(self.group, meta, self.path, "uint8")
+        if "color" in self.names:
+            cpath = self.names["color"]
+            written += [cpath] + _write_headers(self.group, meta, cpath, "uint8", components=4)
+            info["color"] = {
                 "data_file": os.path.basename(cpath),
                 "dtype": "uint8",
                 "components": 4,
@@ -113,24 +129,54 @@ def write_raw(volume, path) -> list:
                 "numpy": (f"np.fromfile({os.path.basename(cpath)!r}, dtype=np.uint8)"
                           f".reshape(({nz}, {ny}, {nx}, 4)).transpose(2, 1, 0, 3)"),
             }
-        from . import scalar_fields
+        for name in ("density", "sdf"):
+            if name in self.names:
+                dtype = str(getattr(meta, name).dtype)
+                fpath = self.names[name]
+                written += [fpath] + _write_headers(self.group, meta, fpath, dtype)
+                info[name] = {"data_file": os.path.basename(fpath), "dtype": dtype,
+                              "byte_order": "little", "values": FIELD_VALUES[name](dtype),
+                              "numpy": (f"np.fromfile({os.path.basename(fpath)!r}, dtype=np.{dtype})"
+                                        f".reshape(({nx}, {ny}, {nz}), order='F')")}
+        sidecar = os.path.splitext(self.path)[0] + ".json"
+        with open(self.group.add(sidecar), "w") as fh:
+            json.dump(info, fh, indent=2)
+            fh.write("\n")
+        self._ctx.__exit__(None, None, None)
+        return written + [sidecar]
 
-        for name, arr, dtype, values in scalar_fields(volume):
-            fpath = field_path(path, name)
-            with open(group.add(fpath), "wb") as f:
-                for z0 in range(0, nz, per):
-                    # Little-endian, x fastest (the transposed Fortran slab is C order).
-                    f.write(np.ascontiguousarray(arr[:, :, z0:z0 + per].T, dtype=f"<{np.dtype(dtype).str[1:]}").data)
-            written += [fpath] + _write_headers(group, volume, fpath, dtype)
-            meta[name] = {"data_file": os.path.basename(fpath), "dtype": dtype,
-                          "byte_order": "little", "values": values,
-                          "numpy": (f"np.fromfile({os.path.basename(fpath)!r}, dtype=np.{dtype})"
-                                    f".reshape(({nx}, {ny}, {nz}), order='F')")}
-        sidecar = os.path.splitext(path)[0] + ".json"
-        with open(group.add(sidecar), "w") as f:
-            json.dump(meta, f, indent=2)
-            f.write("\n")
-    return written + [sidecar]
+    def abort(self) -> None:
+        """Drop everything written (call from an ``except`` block)."""
+        import contextlib
+        import sys
+
+        for fh in self.files.values():
+            with contextlib.suppress(Exception):
+                fh.close()
+        self._ctx.__exit__(*sys.exc_info())
+
+
+def write_raw(volume, path) -> list:
+    """Write occupancy as uint8 0/255, x fastest, and ``<path minus .raw>.json``.
+
+    With colour, ``<name>_rgba.raw`` beside it holds uint8 RGBA interleaved
+    per voxel, x fastest (the sidecar names it and says so); density and
+    distance go to ``<name>_density.raw`` and ``<name>_sdf.raw``. Every RAW
+    file gets a MetaImage ``.mhd`` and a detached NRRD ``.nhdr`` header beside
+    it, so ParaView, 3D Slicer and ITK open it with no questions.
+
+    Returns
+    -------
+    list of str
+        Every file written.
+    """
+    writer = RawWriter(path, volume)
+    try:
+        writer.write(0, volume)
+    except BaseException:
+        writer.abort()
+        raise
+    return writer.close()
 
 
 def read_raw(path) -> np.ndarray:

@@ -204,6 +204,9 @@ def decode(data: bytes):
         pos = body + nc + nch
     transforms = {model: np.array([int(v) for v in trn.get(node, "0 0 0").split()])
                   for node, model in shp.items()}
+    if palette is None:
+        # Files may leave the palette out; show their voxels in neutral grey.
+        palette = np.tile(np.array([*DEFAULT_RGB, 255], np.uint8), (256, 1))
     return models, transforms, palette
 
 
