@@ -19,7 +19,8 @@ BACKGROUND = (24, 24, 28)
 GREY = np.array([225.0, 225.0, 225.0])
 PANEL = 300
 
-# view axis -> (horizontal axis, vertical axis, front is the high end of the view axis)
+# view axis -> (horizontal axis, vertical axis, front is the high end of the view axis);
+# horizontal < vertical always, so a slice indexed [h, v] needs one transpose.
 VIEWS = {0: (1, 2, True), 1: (0, 2, False), 2: (0, 1, True)}
 AXIS = "xyz"
 
@@ -48,13 +49,9 @@ def composite(volume, axis: int) -> np.ndarray:
             o = o / 255.0 if density.dtype == np.uint8 else o
         if not o.any():
             continue
-        if h > v:  # slices come out indexed (v, h) when h > v
-            o = o.T
         shade = 0.55 + 0.45 * (1.0 - depth / max(1, n - 1))
         if volume.colors is not None:
             c = volume.colors[tuple(idx)][..., :3].astype(np.float64)
-            if h > v:
-                c = c.transpose(1, 0, 2)
         else:
             c = GREY
         a = ALPHA * o
@@ -76,16 +73,12 @@ def middle_slice(volume, axis: int) -> np.ndarray:
         t = np.clip(np.abs(s) / max(float(np.abs(sdf).max()), 1e-30), 0.0, 1.0)[..., None]
         inside_col, outside_col, zero = np.array([40, 90, 255.0]), np.array([255, 80, 40.0]), 255.0
         c = np.where((s < 0)[..., None], zero * (1 - t) + inside_col * t, zero * (1 - t) + outside_col * t)
-        if h > v:
-            c = c.transpose(1, 0, 2)
         return np.flipud(c.transpose(1, 0, 2))
     if volume.colors is not None:
         c = volume.colors[tuple(idx)][..., :3].astype(np.float64)
     else:
         c = np.where(o[..., None], 255.0, 0.0) * np.ones(3)
     c = np.where(o[..., None], c, np.asarray(BACKGROUND, dtype=np.float64))
-    if h > v:
-        c = c.transpose(1, 0, 2)
     return np.flipud(c.transpose(1, 0, 2))
 
 

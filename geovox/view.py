@@ -77,7 +77,7 @@ def show(volume, mesh=None, screenshot=None, window_size=(1200, 600)):
             img.point_data["density"] = d.reshape(-1, order="F")
             plotter.add_volume(img, scalars="density", opacity="linear", cmap="bone",
                                show_scalar_bar=False)
-        else:
+        if sdf is not None:
             img.point_data["sdf"] = sdf.reshape(-1, order="F")
             surface = img.contour([0.0], scalars="sdf")
             if surface.n_points:
@@ -95,13 +95,20 @@ def show(volume, mesh=None, screenshot=None, window_size=(1200, 600)):
         plotter.link_views()
     plotter.view_isometric()
     if screenshot is not None:
-        from .formats import atomic_output, check_writable
+        from .formats import atomic_outputs, check_writable
 
         check_writable(screenshot)
-        with atomic_output(screenshot) as tmp:
-            plotter.screenshot(tmp + ".png")
-            os.replace(tmp + ".png", tmp)
-        plotter.close()
+        png = None
+        try:
+            with atomic_outputs() as group:
+                tmp = group.add(screenshot)
+                png = tmp + ".png"  # VTK picks the image format from the extension
+                plotter.screenshot(png)
+                os.replace(png, tmp)
+        finally:
+            plotter.close()
+            if png is not None and os.path.exists(png):
+                os.unlink(png)
         return screenshot
     plotter.show()
     return None

@@ -11,7 +11,7 @@ import pytest
 
 import geovox
 from geovox.cli import main
-from geovox.formats.raw import read_raw
+from geovox.formats.raw import read_raw_volume
 
 from conftest import SPOT
 
@@ -32,7 +32,7 @@ def test_convert_raw_reads_back(tmp_path, spot32, capsys):
     np.testing.assert_allclose(meta["spacing"], spot32.spacing)
     # x fastest: Fortran-order reshape gives [x, y, z].
     np.testing.assert_array_equal(raw.reshape(meta["shape"], order="F") == 255, spot32.occupancy)
-    np.testing.assert_array_equal(read_raw(out) == 255, spot32.occupancy)
+    np.testing.assert_array_equal(read_raw_volume(out).occupancy, spot32.occupancy)
     text = capsys.readouterr().out
     assert "32 x 32 x 32" in text and "voxel size" in text and "backend numpy" in text
     assert f"inside {spot32.inside_count:,}" in text
@@ -353,3 +353,49 @@ def test_batch_results_do_not_depend_on_jobs(tmp_path, capsys):
 def test_batch_needs_a_folder_output(tmp_path, capsys):
     assert main(["convert", SPOT, SPOT, "-o", str(tmp_path / "x.raw")]) == 2
     assert "-o must be a folder" in capsys.readouterr().err
+
+
+def test_review_regressions_give_one_line(tmp_path, capsys):
+    # A batch whose -o is an existing file.
+    target = tmp_path / "plainfile"
+    target.write_text("x")
+    assert main(["convert", SPOT, SPOT, "-o", str(target), "-r", "8"]) == 2
+    # A voxel size so small the grid count overflows.
+    assert main(["convert", SPOT, "-o", str(tmp_path / "v.raw"), "--voxel-size", "1e-300"]) == 2
+    # Files that are not what their extension says, given to preview.
+    (tmp_path / "junk.nrrd").write_bytes(b"not nrrd")
+    assert main(["preview", str(tmp_path / "junk.nrrd"), "-o", str(tmp_path / "p.png")]) == 2
+    (tmp_path / "cut.vox").write_bytes(b"VOX \x96\x00\x00\x00MAIN")
+    assert main(["preview", str(tmp_path / "cut.vox"), "-o", str(tmp_path / "p.png")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("geovox: error:") == 4 and "Traceback" not in err
+    assert "voxel_size" in err and "junk.nrrd" in err and "cut.vox" in err
+
+
+def test_vox_without_a_palette_reads_in_grey(tmp_path):
+    from geovox.formats import vox
+
+    occ = np.zeros((3, 3, 3), bool, order="F")
+    occ[1, 1, 1] = True
+    data = vox.encode(occ, None)
+    cut = data[:data.index(b"RGBA")]
+    # Fix the MAIN chunk's children size after dropping the palette.
+    import struct
+
+    cut = cut[:16] + struct.pack("<i", len(cut) - 20) + cut[20:]
+    (tmp_path / "np.vox").write_bytes(cut)
+    back = geovox.formats.read(tmp_path / "np.vox")
+    assert back.occupancy.sum() == 1 and tuple(back.colors[1, 1, 1, :3]) == (200, 200, 200)
+
+
+def test_streaming_reports_missing_textures_once(tmp_path):
+    import shutil
+
+    from geovox.errors import GeovoxWarning
+
+    for name in ("spot.obj", "spot.mtl"):
+        shutil.copy(os.path.join(os.path.dirname(SPOT), name), tmp_path / name)
+    with pytest.warns(GeovoxWarning, match="spot_texture.png") as record:
+        geovox.convert_to(str(tmp_path / "spot.obj"), tmp_path / "s.h5", shape=(8, 8, 140),
+                          color=True, budget=8 * 8 * 64 * 21)
+    assert sum("spot_texture.png" in str(w.message) for w in record) == 1

@@ -38,11 +38,20 @@ class HDF5Writer:
         import h5py
 
         from . import atomic_outputs
-        from .headers import origin_of
 
         self.path, self.meta, self.jobs = os.fspath(path), meta, jobs
         self._ctx = atomic_outputs()
-        self.f = h5py.File(self._ctx.__enter__().add(self.path), "w")
+        self.f = None
+        try:
+            self.f = h5py.File(self._ctx.__enter__().add(self.path), "w")
+            self._layout(meta)
+        except BaseException:
+            self.abort()
+            raise
+
+    def _layout(self, meta) -> None:
+        from .headers import origin_of
+
         nx, ny, nz = meta.shape
         self.chunks = tuple(min(64, n) for n in meta.shape)
         zyx = self.chunks[::-1]
@@ -130,7 +139,8 @@ class HDF5Writer:
         import sys
 
         try:
-            self.f.close()
+            if self.f is not None:
+                self.f.close()
         finally:
             self._ctx.__exit__(*sys.exc_info())
 

@@ -179,14 +179,6 @@ def write_raw(volume, path) -> list:
     return writer.close()
 
 
-def read_raw(path) -> np.ndarray:
-    """Read a RAW file written by :func:`write_raw` back as a [x, y, z] array."""
-    sidecar = os.path.splitext(os.fspath(path))[0] + ".json"
-    with open(sidecar) as f:
-        meta = json.load(f)
-    return np.fromfile(path, dtype=meta["dtype"]).reshape(meta["shape"], order="F")
-
-
 def read_raw_volume(path):
     """A Volume from a RAW file and its JSON sidecar (colour too when present)."""
     from ..grid import Grid
