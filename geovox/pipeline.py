@@ -106,7 +106,7 @@ def voxelize(
     *,
     shape=None,
     voxel_size=None,
-    axis=1,
+    axis=2,
     color=False,
     diffuse=True,
     ambient=False,
@@ -143,10 +143,10 @@ def voxelize(
         Cubic voxel edge (instead of ``resolution``); the region grows
         symmetrically to a whole number of voxels.
     axis : {0, 1, 2}
-        Direction of the column rays (default y, the one slab-by-slab
-        conversions use, so both give the same volume). Occupancy is the same
-        up to ties on the surface; coverage density, sampled across the rays,
-        differs by a step or so where the surface is steep.
+        Direction of the column rays (default z; slab-by-slab conversions
+        use y, see :mod:`geovox.stream`). Occupancy is the same up to ties on
+        the surface; coverage density, sampled across the rays, can differ
+        by a step or so where the surface is steep.
     color : bool
         Also fill ``Volume.colors`` from the model's materials, textures or
         vertex colours (see :mod:`geovox.colour` for the exact rule).

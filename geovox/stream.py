@@ -146,10 +146,12 @@ def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, *
             ta = time.perf_counter()
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", GeovoxWarning)  # said once, above
-                # Rays along y (voxelize's default): a slab's columns are its
-                # own (x, z) pairs, so no ray is cast twice across slabs.
+                # Several slabs: rays along y, so a slab's columns are its own
+                # (x, z) pairs and no ray is cast twice. One piece: voxelize's
+                # default axis, so the file equals the in-memory volume.
                 vol = voxelize(m, shape=(nx, ny, z1 - z0), bounds=np.r_[lo, hi], backend=engine.name,
-                               inside=method, jobs=jobs, **options)
+                               inside=method, jobs=jobs, axis=1 if len(plan) > 1 else 2,
+                               **options)
             tb = time.perf_counter()
             writer.write(z0, vol)
             for key, value in vol.timings.items():

@@ -23,7 +23,7 @@ def test_slab_plan_is_chunk_aligned():
 @pytest.mark.parametrize("ext", [".h5", ".raw"])
 def test_streamed_file_equals_in_memory_volume(tmp_path, ext, backend):
     opts = dict(shape=(16, 16, 150), color=True, density="coverage", supersample=2, sdf=True, band=1)
-    ref = geovox.voxelize(SPOT, backend=backend, axis=1, **opts)
+    ref = geovox.voxelize(SPOT, backend=backend, axis=1, **opts)  # several slabs cast along y
     info = convert_to(SPOT, tmp_path / f"s{ext}", budget=16 * 16 * 64 * 40, backend=backend, **opts)
     assert info["slabs"] == 3 and info["inside"] == ref.inside_count
     back = F.read(tmp_path / f"s{ext}")
