@@ -157,6 +157,16 @@ def scalar_fields(volume) -> list:
     return out
 
 
+def write_whole(writer, volume) -> list:
+    """Write a whole volume through a slab writer (HDF5Writer, RawWriter) as one slab."""
+    try:
+        writer.write(0, volume)
+    except BaseException:
+        writer.abort()
+        raise
+    return writer.close()
+
+
 def write(volume, path, fmt=None, **options) -> list:
     """Write ``volume`` to ``path`` in the format its extension (or ``fmt``) names.
 

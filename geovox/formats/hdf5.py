@@ -154,13 +154,9 @@ def write_hdf5(volume, path, jobs: int = 2) -> list:
     ``backend`` and ``source``; ``color``, ``density`` and ``sdf`` likewise
     when the volume has them, and the ``/VTKHDF`` group.
     """
-    writer = HDF5Writer(path, volume, jobs)
-    try:
-        writer.write(0, volume)
-    except BaseException:
-        writer.abort()
-        raise
-    return writer.close()
+    from . import write_whole
+
+    return write_whole(HDF5Writer(path, volume, jobs), volume)
 
 
 def read_hdf5(path):

@@ -170,13 +170,9 @@ def write_raw(volume, path) -> list:
     list of str
         Every file written.
     """
-    writer = RawWriter(path, volume)
-    try:
-        writer.write(0, volume)
-    except BaseException:
-        writer.abort()
-        raise
-    return writer.close()
+    from . import write_whole
+
+    return write_whole(RawWriter(path, volume), volume)
 
 
 def read_raw_volume(path):
