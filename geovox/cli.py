@@ -6,6 +6,7 @@ Only :func:`main` turns exceptions into one line on stderr and exit status 2.
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import sys
 import time
@@ -34,24 +35,24 @@ def _positive_int(text):
     return value
 
 
-def _positive_float(text):
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be a positive number, got {text!r}") from None
-    if not value > 0 or value == float("inf"):
-        raise argparse.ArgumentTypeError(f"must be a positive number, got {text!r}")
-    return value
+def _number(positive: bool):
+    """argparse type: a finite float, positive if asked."""
+    what = "a positive number" if positive else "a finite number"
+
+    def parse(text):
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"must be {what}, got {text!r}") from None
+        if not math.isfinite(value) or (positive and value <= 0):
+            raise argparse.ArgumentTypeError(f"must be {what}, got {text!r}")
+        return value
+
+    return parse
 
 
-def _finite_float(text):
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be a number, got {text!r}") from None
-    if value != value or value in (float("inf"), float("-inf")):
-        raise argparse.ArgumentTypeError(f"must be a finite number, got {text!r}")
-    return value
+_positive_float = _number(positive=True)
+_finite_float = _number(positive=False)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -162,6 +163,16 @@ def _stage_bar(args):
     return bar, progress
 
 
+def _options(args) -> dict:
+    """The keyword arguments of voxelize / convert_to that the CLI options set."""
+    return dict(resolution=args.resolution, shape=args.shape, voxel_size=args.voxel_size,
+                bounds=args.bounds, backend=args.backend, color=args.color, diffuse=args.diffuse,
+                ambient=args.ambient, inside=args.inside, density=args.density,
+                supersample=args.supersample,
+                density_dtype="float32" if args.density_float else "uint8",
+                sdf=args.sdf, band=args.band)
+
+
 def _voxelize(args, path):
     """voxelize() with the CLI's grid options, printing GeovoxWarnings as one line each."""
     import warnings
@@ -172,13 +183,7 @@ def _voxelize(args, path):
     bar, progress = _stage_bar(args)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", GeovoxWarning)
-        vol = voxelize(path, resolution=args.resolution, shape=args.shape,
-                       voxel_size=args.voxel_size, bounds=args.bounds, backend=args.backend,
-                       color=args.color, diffuse=args.diffuse, ambient=args.ambient,
-                       jobs=args.jobs, inside=args.inside, density=args.density,
-                       supersample=args.supersample,
-                       density_dtype="float32" if args.density_float else "uint8",
-                       sdf=args.sdf, band=args.band, progress=progress)
+        vol = voxelize(path, jobs=args.jobs, progress=progress, **_options(args))
     if bar is not None:
         bar.update(bar.total - bar.n - 1)
         bar.set_description_str("write")
@@ -230,12 +235,7 @@ def _batch(args) -> int:
     if args.preview:
         raise ParameterError("--preview takes one input; run geovox preview on each output instead")
     fmt = formats.format_for("x.raw", args.fmt)
-    options = dict(resolution=args.resolution, shape=args.shape, voxel_size=args.voxel_size,
-                   bounds=args.bounds, backend=args.backend, color=args.color, diffuse=args.diffuse,
-                   ambient=args.ambient, inside=args.inside, density=args.density,
-                   supersample=args.supersample,
-                   density_dtype="float32" if args.density_float else "uint8",
-                   sdf=args.sdf, band=args.band)
+    options = _options(args)
     bar = None
     if not args.quiet and sys.stderr.isatty():
         from .batch import find_inputs
@@ -280,13 +280,8 @@ def _convert_streaming(args, mesh, output, t0) -> int:
 
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", GeovoxWarning)
-        info = convert_to(mesh, output, args.fmt, backend=args.backend, bounds=args.bounds,
-                          resolution=args.resolution, shape=args.shape,
-                          voxel_size=args.voxel_size, inside=args.inside, color=args.color,
-                          diffuse=args.diffuse, ambient=args.ambient, density=args.density,
-                          supersample=args.supersample,
-                          density_dtype="float32" if args.density_float else "uint8",
-                          sdf=args.sdf, band=args.band, jobs=args.jobs, progress=progress)
+        info = convert_to(mesh, output, args.fmt, jobs=args.jobs, progress=progress,
+                          **_options(args))
     if bar is not None:
         bar.close()
     for w in caught:

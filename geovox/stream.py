@@ -42,23 +42,6 @@ def slab_plan(grid: Grid, per_voxel: float, budget: float = SLAB_BUDGET) -> list
     return [(z, min(z + thick, nz)) for z in range(0, nz, thick)]
 
 
-class _Volume:
-    """The facts of the whole grid that headers and attributes need."""
-
-    def __init__(self, grid, backend, source, colors, density, sdf):
-        from .pipeline import Volume
-
-        self.grid = grid
-        self.backend = backend
-        self.source = source
-        self.colors = colors
-        self.density = density
-        self.sdf = sdf
-        self.bounds = Volume.bounds.fget(self)
-        self.spacing = Volume.spacing.fget(self)
-        self.shape = tuple(grid.shape)
-
-
 def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, **options):
     """Voxelise ``mesh`` into ``path`` slab by slab (HDF5 or RAW).
 
@@ -85,7 +68,7 @@ def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, *
     from . import inside as inside_tests
     from .backends import get_backend
     from .parallel import resolve_jobs
-    from .pipeline import voxelize
+    from .pipeline import Volume, voxelize
 
     t0 = time.perf_counter()
     f = formats.format_for(path, fmt)
@@ -125,10 +108,12 @@ def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, *
             f"({z1 - z0}-voxel slabs need {nx * ny * (z1 - z0) * per / 2**30:.1f} GiB); "
             f"use a smaller resolution") from None
     dens_dtype = options.get("density_dtype", "uint8")
-    meta = _Volume(grid, engine.name, m.source,
-                   colors=True if options.get("color") else None,
-                   density=np.zeros(0, dens_dtype) if options.get("density") else None,
-                   sdf=np.zeros(0, np.float32) if options.get("sdf") else None)
+    # The whole grid's facts for headers and attributes; the arrays stand
+    # only for presence and dtype (the data comes slab by slab).
+    meta = Volume(occupancy=None, grid=grid, backend=engine.name, source=m.source,
+                  colors=np.zeros(0, np.uint8) if options.get("color") else None,
+                  density=np.zeros(0, dens_dtype) if options.get("density") else None,
+                  sdf=np.zeros(0, np.float32) if options.get("sdf") else None)
     from .formats.hdf5 import HDF5Writer
     from .formats.raw import RawWriter
 

@@ -157,14 +157,38 @@ def scalar_fields(volume) -> list:
     return out
 
 
-def write_whole(writer, volume) -> list:
-    """Write a whole volume through a slab writer (HDF5Writer, RawWriter) as one slab."""
-    try:
-        writer.write(0, volume)
-    except BaseException:
-        writer.abort()
-        raise
-    return writer.close()
+class SlabWriter:
+    """Base of the writers that take a volume whole or one z-slab at a time.
+
+    Subclasses open their files in an :func:`atomic_outputs` group kept in
+    ``self._ctx`` and define ``write(z0, vol)``, ``_finish() -> files`` and
+    ``_release()`` (close open handles). ``close`` renames everything into
+    place; any failure, there or before, leaves nothing behind.
+    """
+
+    def write_whole(self, volume) -> list:
+        try:
+            self.write(0, volume)
+        except BaseException:
+            self.abort()
+            raise
+        return self.close()
+
+    def close(self) -> list:
+        try:
+            return self._finish()
+        except BaseException:
+            self.abort()
+            raise
+
+    def abort(self) -> None:
+        """Drop everything written (call from an ``except`` block)."""
+        import sys
+
+        try:
+            self._release()
+        finally:
+            self._ctx.__exit__(*sys.exc_info())
 
 
 def write(volume, path, fmt=None, **options) -> list:

@@ -15,6 +15,8 @@ import os
 
 import numpy as np
 
+from . import SlabWriter
+
 #: gzip level of every dataset.
 LEVEL = 4
 
@@ -24,7 +26,7 @@ def _dataset(f, name, shape, dtype, chunks):
                             compression_opts=LEVEL, fillvalue=0)
 
 
-class HDF5Writer:
+class HDF5Writer(SlabWriter):
     """Writes a volume into a new HDF5 file, whole or one z-slab at a time.
 
     ``meta`` is anything with ``shape``, ``spacing``, ``bounds``, ``backend``,
@@ -113,13 +115,6 @@ class HDF5Writer:
             write_blocks(vdset, vblock, level=LEVEL, jobs=self.jobs,
                          ranges=[zr, range(-(-vdset.shape[1] // cy)), range(-(-vdset.shape[2] // cx))] + tail)
 
-    def close(self) -> list:
-        try:
-            return self._finish()
-        except BaseException:
-            self.abort()
-            raise
-
     def _finish(self) -> list:
         meta = self.meta
         lo, hi = meta.bounds
@@ -134,15 +129,9 @@ class HDF5Writer:
         self._ctx.__exit__(None, None, None)
         return [self.path]
 
-    def abort(self) -> None:
-        """Drop everything written (call from an ``except`` block)."""
-        import sys
-
-        try:
-            if self.f is not None:
-                self.f.close()
-        finally:
-            self._ctx.__exit__(*sys.exc_info())
+    def _release(self) -> None:
+        if self.f is not None:
+            self.f.close()
 
 
 def write_hdf5(volume, path, jobs: int = 2) -> list:
@@ -154,9 +143,7 @@ def write_hdf5(volume, path, jobs: int = 2) -> list:
     ``backend`` and ``source``; ``color``, ``density`` and ``sdf`` likewise
     when the volume has them, and the ``/VTKHDF`` group.
     """
-    from . import write_whole
-
-    return write_whole(HDF5Writer(path, volume, jobs), volume)
+    return HDF5Writer(path, volume, jobs).write_whole(volume)
 
 
 def read_hdf5(path):

@@ -7,6 +7,8 @@ import os
 
 import numpy as np
 
+from . import SlabWriter
+
 #: Voxels converted per slab, which bounds the extra memory of writing.
 SLAB_VOXELS = 1 << 24
 
@@ -60,7 +62,7 @@ def _write_headers(group, volume, path: str, dtype: str, components: int = 1) ->
     return [root + ".mhd", root + ".nhdr"]
 
 
-class RawWriter:
+class RawWriter(SlabWriter):
     """Writes a volume as RAW files, whole or one z-slab at a time (z slabs are
     contiguous in x-fastest files, so each is appended). Headers and the
     sidecar are written on :meth:`close`, when every file appears at once.
@@ -101,13 +103,6 @@ class RawWriter:
                     self.files[name].write(
                         np.ascontiguousarray(arr.T, dtype=arr.dtype.newbyteorder("<")).data)
 
-    def close(self) -> list:
-        try:
-            return self._finish()
-        except BaseException:
-            self.abort()
-            raise
-
     def _finish(self) -> list:
         from . import FIELD_VALUES
 
@@ -145,15 +140,12 @@ class RawWriter:
         self._ctx.__exit__(None, None, None)
         return written + [sidecar]
 
-    def abort(self) -> None:
-        """Drop everything written (call from an ``except`` block)."""
+    def _release(self) -> None:
         import contextlib
-        import sys
 
         for fh in self.files.values():
             with contextlib.suppress(Exception):
                 fh.close()
-        self._ctx.__exit__(*sys.exc_info())
 
 
 def write_raw(volume, path) -> list:
@@ -170,9 +162,7 @@ def write_raw(volume, path) -> list:
     list of str
         Every file written.
     """
-    from . import write_whole
-
-    return write_whole(RawWriter(path, volume), volume)
+    return RawWriter(path, volume).write_whole(volume)
 
 
 def read_raw_volume(path):
