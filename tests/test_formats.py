@@ -239,3 +239,39 @@ def test_multi_file_output_appears_together_or_not_at_all(tmp_path, vol, monkeyp
     with pytest.raises(OutputError, match="disk full"):
         F.write(vol, tmp_path / "v.raw")
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("tail", [(), (4,)])
+def test_chunk_writer_fills_both_layouts_exactly(tmp_path, tail):
+    # Chunks that are zero, uniform non-zero, mixed, and cut short by the
+    # edge, written as two slabs: both layouts must read back as the array.
+    from geovox.formats.chunks import write_both
+
+    rng = np.random.default_rng(3)
+    nz, ny, nx = 40, 21, 19
+    vol = np.zeros((nz, ny, nx) + tail, dtype=np.uint8)
+    vol[:16, :8, :8] = 7                              # one uniform full chunk
+    vol[16:32, 8:16] = rng.integers(0, 3, (16, 8, nx) + tail)  # mixed
+    vol[32:, 16:, 16:] = 5                            # uniform but cut short
+    with h5py.File(tmp_path / "c.h5", "w") as f:
+        kw = dict(dtype=np.uint8, compression="gzip", fillvalue=0)
+        v = f.create_dataset("v", shape=vol.shape, chunks=(16, 8, 8) + tail, **kw)
+        p = f.create_dataset("p", shape=(nx, ny, nz) + tail, chunks=(8, 8, 16) + tail, **kw)
+        write_both(vol[:16], v, p, z0=0, jobs=2)
+        write_both(vol[16:], v, p, z0=16, jobs=1)
+    with h5py.File(tmp_path / "c.h5") as f:
+        np.testing.assert_array_equal(f["v"][...], vol)
+        np.testing.assert_array_equal(f["p"][...], vol.transpose((2, 1, 0) + tuple(range(3, vol.ndim))))
+
+
+def test_chunk_writer_keeps_float_fields(tmp_path):
+    from geovox.formats.chunks import write_both
+
+    vol = np.linspace(-1, 1, 30 * 20 * 10, dtype=np.float32).reshape(30, 20, 10)
+    vol[:16] = 0.5
+    with h5py.File(tmp_path / "f.h5", "w") as f:
+        v = f.create_dataset("v", shape=vol.shape, dtype=np.float32, chunks=(16, 16, 10),
+                             compression="gzip", fillvalue=0)
+        write_both(vol, v, None)
+    with h5py.File(tmp_path / "f.h5") as f:
+        np.testing.assert_array_equal(f["v"][...], vol)

@@ -1,70 +1,148 @@
-"""Fast chunked, gzip-compressed HDF5 writing for voxel volumes.
+"""Fast chunked, deflate-compressed HDF5 writing for voxel volumes.
 
 h5py compresses chunk by chunk on one core, which made writing a 1024³
-volume take half a minute. Here chunks are compressed with zlib (the format
-HDF5's deflate filter stores) on all cores and handed to HDF5 as finished
-chunks (``write_direct_chunk``). Voxel volumes are mostly uniform: a chunk of
-zeros is not written at all (HDF5 reads the fill value back) and a chunk of
-one repeated value is compressed once and reused.
+volume take half a minute. Here each array is written by hand, chunk by
+chunk, with ``write_direct_chunk``, into the two layouts the HDF5 file holds
+(VTK's ``(z, y, x)`` and the plain ``[x, y, z]``):
+
+- Which chunks hold a single value is found first, for the whole array at
+  once, from per-chunk minima and maxima. Those reductions run along z over
+  contiguous memory (the arrays are stored x-fastest), which is several
+  times faster than asking each strided chunk view ``.any()``.
+- A chunk of zeros is not written at all (HDF5 reads the fill value back);
+  a chunk of one repeated value is compressed once and reused, in both
+  layouts (its bytes do not depend on the voxel order).
+- Every other chunk is read once, copied in memory order (contiguous runs)
+  and transposed in cache for the plain layout; both copies are compressed
+  on all cores.
+- Compression is deflate in the zlib container, which is what HDF5's gzip
+  filter stores. ISA-L (the ``isal`` package) makes it about 10x faster than
+  zlib at a similar ratio on voxel data; zlib is used where isal is missing.
 """
 
 from __future__ import annotations
 
-import zlib
 from concurrent.futures import ThreadPoolExecutor
-from itertools import product
 
 import numpy as np
+
+try:  # ISA-L deflate: same stream format as zlib, much faster.
+    from isal import isal_zlib as _deflate
+
+    #: Compression level (ISA-L levels 0-3; level 1 compresses voxel chunks
+    #: about as well as zlib at level 4).
+    LEVEL = 1
+except ImportError:  # pragma: no cover - isal has wheels for the common platforms
+    import zlib as _deflate
+
+    LEVEL = 1
 
 #: Chunks prepared per batch (bounds the memory held by finished chunks).
 BATCH = 64
 
 
-def write_blocks(dset, block, level: int = 4, jobs: int = 2, ranges=None) -> None:
-    """Fill a chunked, gzip-filtered dataset chunk by chunk.
+def compress(data: bytes) -> bytes:
+    """Deflate ``data`` in the zlib container (what HDF5's gzip filter reads)."""
+    return _deflate.compress(data, LEVEL)
+
+
+def chunk_extrema(src: np.ndarray, chunks, jobs: int = 2):
+    """Per-chunk minimum and maximum of a C-ordered ``(z, y, x[, c])`` array.
 
     Parameters
     ----------
-    dset : h5py.Dataset
-        Created with ``chunks`` and ``compression="gzip"`` (filter mask 0),
-        fill value 0.
-    block : callable
-        ``block(index)`` returns the part of the data in the chunk at chunk
-        index ``index`` (a tuple, one entry per axis): any view, smaller than
-        the chunk at the dataset's far edges.
+    src : (nz, ny, nx) or (nz, ny, nx, c) ndarray, C-contiguous
+    chunks : (cz, cy, cx)
+        Chunk shape over the first three axes.
+
+    Returns
+    -------
+    lo, hi : (kz, ky, kx) or (kz, ky, kx, c) ndarray
+        Extremes over each chunk (the last chunks along an axis may be short).
     """
-    shape, chunks = dset.shape, dset.chunks
-    counts = [-(-n // c) for n, c in zip(shape, chunks)]
-    uniform: dict = {}
+    cz, cy, cx = chunks
+    nz, ny, nx = src.shape[:3]
+
+    def along_z(k):
+        part = src[k * cz:(k + 1) * cz]
+        return part.min(axis=0), part.max(axis=0)
+
+    with ThreadPoolExecutor(max_workers=max(1, jobs)) as pool:
+        parts = list(pool.map(along_z, range(-(-nz // cz))))
+    lo = np.stack([p[0] for p in parts])
+    hi = np.stack([p[1] for p in parts])
+    for axis, (n, c) in ((1, (ny, cy)), (2, (nx, cx))):
+        idx = np.arange(0, n, c)
+        lo = np.minimum.reduceat(lo, idx, axis=axis)
+        hi = np.maximum.reduceat(hi, idx, axis=axis)
+    return lo, hi
+
+
+def write_both(src: np.ndarray, vtk, plain, z0: int = 0, jobs: int = 2) -> None:
+    """Write one z-slab of an array into its VTK-layout and plain-layout datasets.
+
+    Parameters
+    ----------
+    src : (sz, ny, nx) or (sz, ny, nx, c) ndarray
+        The slab in VTK order, x fastest (C order); copied once if not
+        C-contiguous.
+    vtk : h5py.Dataset
+        Shape ``(nz, ny, nx[, c])``, chunks ``(cz, cy, cx[, c])``, gzip
+        (filter mask 0), fill value 0.
+    plain : h5py.Dataset or None
+        Shape ``(nx, ny, nz[, c])``, chunks ``(cx, cy, cz[, c])``, likewise.
+    z0 : int
+        Where the slab starts in z; a multiple of ``cz``.
+    """
+    src = np.ascontiguousarray(src)
+    chunk = vtk.chunks
+    cz, cy, cx = chunk[:3]
+    tail = src.shape[3:]
+    lo, hi = chunk_extrema(src, (cz, cy, cx), jobs)
+    uniform = (lo == hi).reshape(lo.shape[:3] + (-1,)).all(axis=3)
+    zero = uniform & (hi.reshape(uniform.shape + (-1,)) == 0).all(axis=3)
+    nz, ny, nx = src.shape[:3]
+    full = np.zeros(uniform.shape, dtype=bool)
+    full[:nz // cz, :ny // cy, :nx // cx] = True
+    # A uniform chunk cut short by the array's edge is padded with zeros, so
+    # it is no longer uniform.
+    mixed = np.argwhere(~zero & ~(uniform & full))
+    repeated = np.argwhere(uniform & ~zero & full)
+    order = (2, 1, 0) + tuple(range(3, src.ndim))
+    k0 = z0 // cz
+
+    def offsets(index):
+        kz, ky, kx = (int(i) for i in index)
+        zero_tail = (0,) * len(tail)
+        return ((( kz + k0) * cz, ky * cy, kx * cx) + zero_tail,
+                (kx * cx, ky * cy, (kz + k0) * cz) + zero_tail)
+
+    cache: dict = {}
+    for index in repeated:
+        value = lo[tuple(index)]
+        key = np.asarray(value).tobytes()
+        if key not in cache:
+            cache[key] = compress(np.broadcast_to(value, chunk).tobytes())
+        at_vtk, at_plain = offsets(index)
+        vtk.id.write_direct_chunk(at_vtk, cache[key], filter_mask=0)
+        if plain is not None:
+            plain.id.write_direct_chunk(at_plain, cache[key], filter_mask=0)
 
     def prepare(index):
-        part = block(index)
-        # Decide on the view first: most chunks are all zero or all one, and
-        # need no copy at all.
-        if not part.any():
-            return index, None, None
-        full = part.shape == tuple(chunks)
-        if full:
-            first = part.reshape(-1)[0] if part.flags.c_contiguous else part[(0,) * part.ndim]
-            if (part == first).all():
-                return index, np.asarray(first, dtype=dset.dtype).tobytes(), None
+        kz, ky, kx = (int(i) for i in index)
+        part = src[kz * cz:(kz + 1) * cz, ky * cy:(ky + 1) * cy, kx * cx:(kx + 1) * cx]
+        if part.shape == chunk:
             data = np.ascontiguousarray(part)
         else:
-            data = np.zeros(chunks, dtype=dset.dtype)
+            data = np.zeros(chunk, dtype=src.dtype)
             data[tuple(slice(0, n) for n in part.shape)] = part
-        return index, None, zlib.compress(data.tobytes(), level)
+        other = compress(np.ascontiguousarray(data.transpose(order))) if plain is not None else None
+        return index, compress(data), other
 
-    indices = list(product(*(ranges or [range(n) for n in counts])))
     with ThreadPoolExecutor(max_workers=max(1, jobs)) as pool:
-        for s in range(0, len(indices), BATCH):
-            for index, key, payload in pool.map(prepare, indices[s:s + BATCH]):
-                if key is None and payload is None:
-                    continue  # all zero: the fill value
-                if key is not None:
-                    if key not in uniform:
-                        full = np.full(chunks, np.frombuffer(key, dset.dtype)[0], dtype=dset.dtype)
-                        uniform[key] = zlib.compress(full.tobytes(), level)
-                    payload = uniform[key]
-                offset = tuple(i * c for i, c in zip(index, chunks))
-                dset.id.write_direct_chunk(offset, payload, filter_mask=0)
-
+        for s in range(0, len(mixed), BATCH):
+            for index, a, b in pool.map(prepare, mixed[s:s + BATCH]):
+                at_vtk, at_plain = offsets(index)
+                vtk.id.write_direct_chunk(at_vtk, a, filter_mask=0)
+                if b is not None:
+                    plain.id.write_direct_chunk(at_plain, b, filter_mask=0)

@@ -17,11 +17,12 @@ import numpy as np
 
 from . import SlabWriter
 
-#: gzip level of every dataset.
-LEVEL = 4
-
 
 def _dataset(f, name, shape, dtype, chunks):
+    # Chunks arrive compressed (formats.chunks); the level given here only
+    # labels the filter, which readers ignore when decompressing.
+    from .chunks import LEVEL
+
     return f.create_dataset(name, shape=shape, dtype=dtype, chunks=chunks, compression="gzip",
                             compression_opts=LEVEL, fillvalue=0)
 
@@ -88,32 +89,15 @@ class HDF5Writer(SlabWriter):
 
     def write(self, z0: int, vol) -> None:
         """Write ``vol`` (a Volume covering z0 .. z0 + its depth) into place."""
-        from .chunks import write_blocks
+        from .chunks import write_both
 
         arrays = {"occupancy": vol.occupancy.view(np.uint8), "color": vol.colors,
                   "density": vol.density, "sdf": vol.sdf}
-        cx, cy, cz = self.chunks
-        k0 = z0 // cz
-        zr = range(k0, k0 + -(-vol.shape[2] // cz))
         for name, dset in self.sets.items():
             arr = arrays[name]
-            tail = [range(1)] if arr.ndim == 4 else []
-
-            def block(index, arr=arr):
-                return arr[index[0] * cx:(index[0] + 1) * cx, index[1] * cy:(index[1] + 1) * cy,
-                           (index[2] - k0) * cz:(index[2] - k0 + 1) * cz]
-
-            write_blocks(dset, block, level=LEVEL, jobs=self.jobs,
-                         ranges=[range(-(-dset.shape[0] // cx)), range(-(-dset.shape[1] // cy)), zr] + tail)
-            src = arr.transpose((2, 1, 0) + tuple(range(3, arr.ndim)))  # VTK's (z, y, x)
-
-            def vblock(index, src=src):
-                return src[(index[0] - k0) * cz:(index[0] - k0 + 1) * cz,
-                           index[1] * cy:(index[1] + 1) * cy, index[2] * cx:(index[2] + 1) * cx]
-
-            vdset = self.vtk[name]
-            write_blocks(vdset, vblock, level=LEVEL, jobs=self.jobs,
-                         ranges=[zr, range(-(-vdset.shape[1] // cy)), range(-(-vdset.shape[2] // cx))] + tail)
+            # VTK's (z, y, x) order is the arrays' memory order (x fastest).
+            src = arr.transpose((2, 1, 0) + tuple(range(3, arr.ndim)))
+            write_both(src, self.vtk[name], dset, z0=z0, jobs=self.jobs)
 
     def _finish(self) -> list:
         meta = self.meta
