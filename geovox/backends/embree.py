@@ -15,9 +15,11 @@ each ray meets; every decision is settled by the exact shared predicate in
    edge -- every triangle sharing a vertex with the reported one is tested
    too, which recovers the neighbours a restart skipped.
 3. Triangles that overlap another one in (nearly) the same plane -- duplicated
-   faces, coincident faces of touching parts -- would hide each other from a
-   restart that steps past the first: their crossings are found by the
-   exact rasteriser instead of by Embree.
+   faces, coincident faces of touching parts, folds -- or touch it without
+   sharing a vertex (T-junctions) would hide each other from a restart that
+   steps past the first: their crossings are found by the exact rasteriser
+   instead of by Embree. Pieces of a flat region that meet only at shared
+   vertices and edges are left to step 2.
 4. A ray with an odd number of exact crossings (impossible on a closed mesh
    when no crossing was lost), or one that ran out of restarts, is redone by
    the exact NumPy rasteriser.
@@ -67,58 +69,138 @@ def _expand(ray, tri, geometric_faces, offsets, vfaces):
     return r, vfaces[start + local]
 
 
-def coplanar_overlaps(mesh) -> np.ndarray:
-    """(m,) bool: triangles that overlap another triangle lying in nearly the same plane.
+def box_pairs(lo: np.ndarray, hi: np.ndarray, tol: float = 0.0) -> np.ndarray:
+    """(k, 2) index pairs ``a < b`` whose axis-aligned boxes overlap (within ``tol``).
 
-    Planes are compared as points ``(n, d / size)`` (unit normal with a
-    canonical sign, offset over the mesh size) in a k-d tree, so there are no
-    bucket boundaries to miss a pair; pairs whose boxes are apart, or that
-    share an edge with their third vertices on opposite sides of it (the two
-    halves of one flat face), do not count.
+    A uniform grid hash: each box is entered in the cells it covers and only
+    boxes sharing a cell are compared, so large flat regions made of many
+    triangles cost in proportion to their neighbourhoods, not to the square
+    of their size. The cell is about the median box size, grown while a few
+    huge boxes would fill too many cells.
+
+    Parameters
+    ----------
+    lo, hi : (n, 3) float ndarray
+        Box corners.
+    """
+    n = len(lo)
+    if n < 2:
+        return np.zeros((0, 2), dtype=np.int64)
+    lo = lo - tol
+    hi = hi + tol
+    base = lo.min(axis=0)
+    size = float(np.median((hi - lo).max(axis=1)))
+    cell = max(size, float((hi - lo).max()) * 1e-3, 1e-300)
+    while True:
+        c0 = np.floor((lo - base) / cell).astype(np.int64)
+        c1 = np.floor((hi - base) / cell).astype(np.int64)
+        ext = c1 - c0 + 1
+        count = ext.prod(axis=1)
+        if count.sum() <= 16 * n + 100_000:
+            break
+        cell *= 2.0
+    # (box, cell) entries: each box's covered cells, enumerated in x, y, z.
+    box = np.repeat(np.arange(n), count)
+    local = np.arange(int(count.sum())) - np.repeat(np.cumsum(count) - count, count)
+    ex, ey = ext[box, 0], ext[box, 1]
+    cx = c0[box, 0] + local % ex
+    cy = c0[box, 1] + (local // ex) % ey
+    cz = c0[box, 2] + local // (ex * ey)
+    dims = c1.max(axis=0) + 1
+    key = (cz * dims[1] + cy) * dims[0] + cx
+    order = np.argsort(key, kind="stable")
+    key, box = key[order], box[order]
+    # All pairs within each cell: entry p pairs with the later entries of its run.
+    start = np.r_[0, np.flatnonzero(np.diff(key)) + 1]
+    run_end = np.repeat(np.r_[start[1:], len(key)], np.diff(np.r_[start, len(key)]))
+    later = run_end - np.arange(len(key)) - 1
+    first = np.repeat(np.arange(len(key)), later)
+    second = first + 1 + (np.arange(int(later.sum())) - np.repeat(np.cumsum(later) - later, later))
+    a, b = box[first], box[second]
+    cell_key = key[first]
+    keep = np.all((lo[a] <= hi[b]) & (lo[b] <= hi[a]), axis=1)
+    a, b, cell_key = a[keep], b[keep], cell_key[keep]
+    # Each overlapping pair is kept once: in the cell holding the low corner
+    # of the boxes' intersection.
+    corner = np.floor((np.maximum(lo[a], lo[b]) - base) / cell).astype(np.int64)
+    own = (corner[:, 2] * dims[1] + corner[:, 1]) * dims[0] + corner[:, 0]
+    keep = own == cell_key
+    a, b = a[keep], b[keep]
+    pairs = np.minimum(a, b) * np.int64(n) + np.maximum(a, b)
+    pairs.sort()
+    return np.column_stack([pairs // n, pairs % n])
+
+
+def _separation(p: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Signed 2-D separation of triangle pairs (separating-axis theorem).
+
+    ``p``, ``q``: (k, 3, 2). Positive: the gap between them; negative: how
+    deep their interiors overlap; zero: touching.
+    """
+    px, py = [p[:, i, 0] for i in range(3)], [p[:, i, 1] for i in range(3)]
+    qx, qy = [q[:, i, 0] for i in range(3)], [q[:, i, 1] for i in range(3)]
+    sep = np.full(len(p), -np.inf)
+    for tx, ty in ((px, py), (qx, qy)):
+        for i in range(3):
+            ax, ay = ty[i] - ty[(i + 1) % 3], tx[(i + 1) % 3] - tx[i]  # edge normal
+            length = np.hypot(ax, ay)
+            good = length > 0
+            ax, ay = ax / np.where(good, length, 1.0), ay / np.where(good, length, 1.0)
+            sp = [px[v] * ax + py[v] * ay for v in range(3)]
+            sq = [qx[v] * ax + qy[v] * ay for v in range(3)]
+            gap = np.maximum(np.minimum(np.minimum(sq[0], sq[1]), sq[2])
+                             - np.maximum(np.maximum(sp[0], sp[1]), sp[2]),
+                             np.minimum(np.minimum(sp[0], sp[1]), sp[2])
+                             - np.maximum(np.maximum(sq[0], sq[1]), sq[2]))
+            np.maximum(sep, np.where(good, gap, -np.inf), out=sep)
+    return sep
+
+
+def coplanar_overlaps(mesh) -> np.ndarray:
+    """(m,) bool: triangles that a restart past another, coplanar one could hide.
+
+    Two triangles count when they lie in (nearly) the same plane -- every
+    vertex of each within ``STEP`` of the mesh size of the other's plane -- and
+    either their interiors overlap (duplicated faces, coincident faces of
+    touching parts, folds) or they touch without sharing a vertex (a
+    T-junction). Triangles that only meet at shared vertices or edges, as the
+    pieces of any flat region do, do not count: a ray through a shared point
+    has its hit's vertex neighbours tested anyway.
     """
     if "coplanar" in mesh._cache:
         return mesh._cache["coplanar"]
-    from scipy.spatial import cKDTree
-
     t = mesh.triangles
     n = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
     length = np.linalg.norm(n, axis=1)
-    ok = length > 0
-    n = n[ok] / length[ok, None]
-    # Canonical sign: the largest component positive.
-    big = np.argmax(np.abs(n), axis=1)
-    n *= np.sign(n[np.arange(len(n)), big])[:, None]
-    d = np.einsum("ij,ij->i", n, t[ok, 0]) / mesh.scale
-    ids = np.flatnonzero(ok)
+    ok = np.flatnonzero(length > 0)
     flags = np.zeros(len(t), dtype=bool)
-    pairs = cKDTree(np.column_stack([n, d])).query_pairs(r=1e-6, output_type="ndarray")
+    tol = 1e-9 * mesh.scale
+    pairs = box_pairs(t[ok].min(axis=1), t[ok].max(axis=1), tol)
     if len(pairs):
-        a, b = ids[pairs[:, 0]], ids[pairs[:, 1]]
-        lo, hi = t.min(axis=1), t.max(axis=1)
-        tol = 1e-9 * mesh.scale
-        overlap = np.all((lo[a] <= hi[b] + tol) & (lo[b] <= hi[a] + tol), axis=1)
-        a, b = a[overlap], b[overlap]
-        # Two halves of one flat face: sharing an edge, third vertices apart.
+        a, b = ok[pairs[:, 0]], ok[pairs[:, 1]]
+        unit = n / np.where(length > 0, length, 1.0)[:, None]
+        plane = 2 * STEP * mesh.scale
+
+        def near(x, y):  # every vertex of x within `plane` of y's plane
+            u, o = unit[y], t[y, 0]
+            return np.logical_and.reduce([np.abs(((t[x, v] - o) * u).sum(axis=1)) <= plane
+                                          for v in range(3)])
+
+        same = near(a, b)
+        same[same] = near(b[same], a[same])
+        a, b = a[same], b[same]
+        # In a's plane, dropping the coordinate a's normal is largest along.
+        drop = np.argmax(np.abs(unit[a]), axis=1)
+        keep = np.array([[1, 2], [0, 2], [0, 1]])[drop]
+        rows = np.arange(len(a))[:, None, None]
+        pa = t[a][rows, np.arange(3)[None, :, None], keep[:, None, :]]
+        pb = t[b][rows, np.arange(3)[None, :, None], keep[:, None, :]]
+        sep = _separation(pa, pb)
         g = mesh.geometric_faces
-        shared = (g[a][:, :, None] == g[b][:, None, :])
-        n_shared = shared.any(axis=2).sum(axis=1)
-        edge = n_shared == 2
-        if edge.any():
-            ae, be = a[edge], b[edge]
-            sa = shared[edge].any(axis=2)  # which vertices of a are shared
-            sb = shared[edge].any(axis=1)
-            pa = t[ae][~sa].reshape(-1, 3)
-            pb = t[be][~sb].reshape(-1, 3)
-            e0 = t[ae][sa].reshape(-1, 2, 3)
-            axis_e = e0[:, 1] - e0[:, 0]
-            nrm = np.cross(t[ae, 1] - t[ae, 0], t[ae, 2] - t[ae, 0])
-            side_a = np.einsum("ij,ij->i", np.cross(axis_e, pa - e0[:, 0]), nrm)
-            side_b = np.einsum("ij,ij->i", np.cross(axis_e, pb - e0[:, 0]), nrm)
-            apart = np.zeros(len(a), dtype=bool)
-            apart[np.flatnonzero(edge)] = side_a * side_b < 0
-            a, b = a[~apart], b[~apart]
-        flags[a] = True
-        flags[b] = True
+        shares = (g[a][:, :, None] == g[b][:, None, :]).any(axis=(1, 2))
+        hide = (sep < -tol) | ((sep <= tol) & ~shares)
+        flags[a[hide]] = True
+        flags[b[hide]] = True
     mesh._cache["coplanar"] = flags
     return flags
 
