@@ -199,6 +199,47 @@ def _unit_normals(mesh) -> np.ndarray:
         return np.where(length > 0, n / length, 0.0)
 
 
+def relevant_crossings(hits, k, n: int, rays: int):
+    """The crossings a grid of ``n`` voxels along the rays can need.
+
+    A voxel uses the deepest crossing at or before its centre and the one
+    after it, so of the crossings before the first centre (``k == 0``) only
+    the deepest on each ray matters, and of those past the last (``k == n``)
+    only the shallowest. Dropping the rest before sorting matters when the
+    grid is one slab of a long ray: most of its crossings lie outside.
+
+    Parameters
+    ----------
+    hits : Hits
+    k : (h,) int
+        Index of the first voxel centre at or past each crossing.
+    n : int
+        Voxels along the rays.
+    rays : int
+        Number of rays.
+    """
+    inner = (k > 0) & (k < n)
+    if inner.all():
+        return hits
+    keep = [np.flatnonzero(inner)]
+    for side, pick in ((0, np.maximum), (n, np.minimum)):
+        sub = np.flatnonzero(k == side)
+        if len(sub) == 0:
+            continue
+        ray, depth = hits.ray[sub], hits.depth[sub]
+        # The extreme depth per ray, then among equal depths the extreme
+        # triangle: the first or last of the ray in sorted (depth, triangle) order.
+        ext = np.full(rays, np.inf if pick is np.minimum else -np.inf)
+        pick.at(ext, ray, depth)
+        sub = sub[depth == ext[ray]]
+        tri = hits.triangle[sub]
+        ray = hits.ray[sub]
+        best = np.full(rays, np.iinfo(np.int64).max if pick is np.minimum else -1, dtype=np.int64)
+        pick.at(best, ray, tri)
+        keep.append(sub[tri == best[ray]])
+    return hits.take(np.sort(np.concatenate(keep)))
+
+
 def nearest_crossings(mesh, grid, occupancy, cast, jobs=1):
     """For every inside voxel, the nearest crossing among its six axis neighbours.
 
@@ -235,8 +276,11 @@ def nearest_crossings(mesh, grid, occupancy, cast, jobs=1):
 
     nx, ny, nz = grid.shape
     inside = np.flatnonzero(occupancy.reshape(-1, order="F"))
-    # Voxel coordinates, computed once (int32 halves their memory).
-    coords = [c.astype(np.int32) for c in np.unravel_index(inside, grid.shape, order="F")]
+    strides = (1, nx, nx * ny)
+
+    def coord(axis, vox):  # voxel coordinate along `axis` of F-order indices
+        c = vox // strides[axis] if axis else vox
+        return c % grid.shape[axis] if axis < 2 else c
     best_d = np.full(len(inside), np.inf, dtype=np.float32)
     best = np.zeros(len(inside), np.int64)
     scale = grid.spacing.min()
@@ -246,10 +290,11 @@ def nearest_crossings(mesh, grid, occupancy, cast, jobs=1):
         if axis not in cast:
             continue
         hits, cols = cast[axis]
-        hits = hits.sorted()
-        parts.append(hits)
         n_axis = grid.shape[axis]
         centres = (np.arange(n_axis) + 0.5) * grid.spacing[axis]  # from the low face, like depths
+        hits = relevant_crossings(hits, np.searchsorted(centres, hits.depth, side="left"),
+                                  n_axis, cols.count).sorted()
+        parts.append(hits)
         k = np.searchsorted(centres, hits.depth, side="left")
         centres32 = centres.astype(np.float32)
         idx = [None, None, None]
@@ -293,8 +338,9 @@ def nearest_crossings(mesh, grid, occupancy, cast, jobs=1):
         rows = table.view(np.complex128).reshape(-1)
         def block(s, e, axis=axis, cols=cols, hits=hits, rows=rows, table=table,
                   gflat=gflat, centres32=centres32, offset=offset):
-            prev = gflat[inside[s:e]]
-            c = centres32[coords[axis][s:e]]
+            vox = inside[s:e]
+            prev = gflat[vox]
+            c = centres32[coord(axis, vox)]
             row = rows[prev].view(np.float32).reshape(-1, 4)
             d_prev = (c - row[:, 0]) * row[:, 1]
             d_next = (row[:, 2] - c) * row[:, 3]
@@ -303,8 +349,8 @@ def nearest_crossings(mesh, grid, occupancy, cast, jobs=1):
                 # Inside yet before every crossing of its column: only
                 # possible with inside tests other than this axis's parity.
                 before = np.flatnonzero(prev < 0)
-                ray = (coords[cols.u_axis][s:e][before].astype(np.int64)
-                       + cols.nu * coords[cols.v_axis][s:e][before])
+                ray = (coord(cols.u_axis, vox[before])
+                       + cols.nu * coord(cols.v_axis, vox[before]))
                 pick[before] = first_hit[ray]
                 d_next[before] = (first[ray] - c[before]) * table[pick[before], 1]
             use_next = d_next < d_prev
