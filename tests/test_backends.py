@@ -207,6 +207,11 @@ def test_coplanar_overlaps_flags_only_what_a_restart_can_hide():
     # Duplicated faces and folded-over faces: both partners.
     dup = Mesh(np.asarray(box.vertices), np.concatenate([box.faces, box.faces[:2]]))
     assert coplanar_overlaps(dup).sum() == 4
+    # A fold: two triangles on one edge, both on the same side of it; and the
+    # two halves of a square (sides apart), which must not count.
+    v = np.array([[0, 0, 0], [1, 0, 0], [0.3, 1, 0], [0.6, 0.8, 0], [0.5, -1, 0.0]])
+    fold = Mesh(v, np.array([[0, 1, 2], [1, 0, 3], [0, 4, 1]]))
+    assert list(coplanar_overlaps(fold)) == [True, True, False]
     # T-junction: the fan's middle triangle and the big one touch, sharing no vertex.
     flags = coplanar_overlaps(t_junction_box())
     assert set(np.flatnonzero(flags)) == {0, 2, 4, 6}

@@ -116,15 +116,16 @@ def box_pairs(lo: np.ndarray, hi: np.ndarray, tol: float = 0.0) -> np.ndarray:
     later = run_end - np.arange(len(key)) - 1
     first = np.repeat(np.arange(len(key)), later)
     second = first + 1 + (np.arange(int(later.sum())) - np.repeat(np.cumsum(later) - later, later))
-    a, b = box[first], box[second]
-    cell_key = key[first]
-    keep = np.all((lo[a] <= hi[b]) & (lo[b] <= hi[a]), axis=1)
-    a, b, cell_key = a[keep], b[keep], cell_key[keep]
+    a, b, cell_key = box[first], box[second], key[first]
+    for axis in range(3):  # one axis at a time: 1-D gathers, fewer pairs each time
+        l, h = lo[:, axis], hi[:, axis]
+        keep = (l[a] <= h[b]) & (l[b] <= h[a])
+        a, b, cell_key = a[keep], b[keep], cell_key[keep]
     # Each overlapping pair is kept once: in the cell holding the low corner
-    # of the boxes' intersection.
-    corner = np.floor((np.maximum(lo[a], lo[b]) - base) / cell).astype(np.int64)
-    own = (corner[:, 2] * dims[1] + corner[:, 1]) * dims[0] + corner[:, 0]
-    keep = own == cell_key
+    # of the boxes' intersection (floor is monotonic, so that cell's
+    # coordinates are the larger of the two boxes' first cells).
+    corner = [np.maximum(c0[a, i], c0[b, i]) for i in range(3)]
+    keep = (corner[2] * dims[1] + corner[1]) * dims[0] + corner[0] == cell_key
     a, b = a[keep], b[keep]
     pairs = np.minimum(a, b) * np.int64(n) + np.maximum(a, b)
     pairs.sort()
@@ -189,16 +190,36 @@ def coplanar_overlaps(mesh) -> np.ndarray:
         same = near(a, b)
         same[same] = near(b[same], a[same])
         a, b = a[same], b[same]
-        # In a's plane, dropping the coordinate a's normal is largest along.
-        drop = np.argmax(np.abs(unit[a]), axis=1)
-        keep = np.array([[1, 2], [0, 2], [0, 1]])[drop]
-        rows = np.arange(len(a))[:, None, None]
-        pa = t[a][rows, np.arange(3)[None, :, None], keep[:, None, :]]
-        pb = t[b][rows, np.arange(3)[None, :, None], keep[:, None, :]]
-        sep = _separation(pa, pb)
         g = mesh.geometric_faces
-        shares = (g[a][:, :, None] == g[b][:, None, :]).any(axis=(1, 2))
-        hide = (sep < -tol) | ((sep <= tol) & ~shares)
+        match = g[a][:, :, None] == g[b][:, None, :]  # (k, 3, 3): vertex i of a is vertex j of b
+        in_b = match.any(axis=2)
+        n_shared = in_b.sum(axis=1)
+        hide = n_shared == 3  # the same triangle twice
+        # Sharing an edge: the interiors overlap exactly when the third
+        # vertices lie on the same side of it.
+        edge = np.flatnonzero(n_shared == 2)
+        if len(edge):
+            ta, tb = t[a[edge]], t[b[edge]]
+            e = ta[in_b[edge]].reshape(-1, 2, 3)
+            pa = ta[~in_b[edge]]
+            pb = tb[~match[edge].any(axis=1)]
+            axis_e = e[:, 1] - e[:, 0]
+            side_a = np.einsum("ij,ij->i", np.cross(axis_e, pa - e[:, 0]), unit[a[edge]])
+            side_b = np.einsum("ij,ij->i", np.cross(axis_e, pb - e[:, 0]), unit[a[edge]])
+            hide[edge] = side_a * side_b > 0
+        # Otherwise, in a's plane (dropping the coordinate a's normal is
+        # largest along): overlapping interiors, or touching with no vertex
+        # in common.
+        rest = np.flatnonzero(n_shared < 2)
+        if len(rest):
+            ar, br = a[rest], b[rest]
+            drop = np.argmax(np.abs(unit[ar]), axis=1)
+            keep = np.array([[1, 2], [0, 2], [0, 1]])[drop]
+            rows = np.arange(len(ar))[:, None, None]
+            pa = t[ar][rows, np.arange(3)[None, :, None], keep[:, None, :]]
+            pb = t[br][rows, np.arange(3)[None, :, None], keep[:, None, :]]
+            sep = _separation(pa, pb)
+            hide[rest] = (sep < -tol) | ((sep <= tol) & (n_shared[rest] == 0))
         flags[a[hide]] = True
         flags[b[hide]] = True
     mesh._cache["coplanar"] = flags
