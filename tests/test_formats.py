@@ -275,3 +275,20 @@ def test_chunk_writer_keeps_float_fields(tmp_path):
         write_both(vol, v, None)
     with h5py.File(tmp_path / "f.h5") as f:
         np.testing.assert_array_equal(f["v"][...], vol)
+
+
+def test_chunk_writer_falls_back_to_zlib(tmp_path, monkeypatch):
+    # Where isal is not installed, the standard library's zlib writes the chunks.
+    import zlib
+
+    import geovox.formats.chunks as chunks
+
+    monkeypatch.setattr(chunks, "_deflate", zlib)
+    vol = np.zeros((20, 20, 20), dtype=np.uint8)
+    vol[3:17, 5:9] = 1
+    with h5py.File(tmp_path / "z.h5", "w") as f:
+        v = f.create_dataset("v", shape=vol.shape, dtype=np.uint8, chunks=(8, 8, 8),
+                             compression="gzip", fillvalue=0)
+        chunks.write_both(vol, v, None)
+    with h5py.File(tmp_path / "z.h5") as f:
+        np.testing.assert_array_equal(f["v"][...], vol)
