@@ -356,10 +356,12 @@ def nearest_crossings(mesh, grid, occupancy, cast, jobs=1):
             use_next = d_next < d_prev
             d = np.where(use_next, d_next, d_prev)
             d *= np.float32(1.0 / scale)
-            chosen = np.where(use_next, pick, prev)
-            better = np.flatnonzero(d < best_d[s:e])
-            best_d[s + better] = d[better]
-            best[s + better] = offset + chosen[better]
+            chosen = np.where(use_next, pick, prev).astype(np.int64)
+            chosen += offset
+            # Masked copies: much cheaper than gathering and scattering the winners.
+            better = d < best_d[s:e]
+            np.copyto(best_d[s:e], d, where=better)
+            np.copyto(best[s:e], chosen, where=better)
 
         if len(hits):
             for_blocks(block, len(inside), BLOCK, jobs)
@@ -396,13 +398,19 @@ def colour_volume(mesh, grid, occupancy, cast, *, diffuse=True, ambient=False, j
         return colors
     # Every crossing is a surface point with a known triangle and
     # barycentrics: shade each once; deep voxels take their crossing's colour.
-    hit_rgba = np.empty(len(hits), dtype=np.uint32)
+    # Only the crossings some voxel chose: in a slab of a long grid, most
+    # crossings on the rays along z lie outside the slab and go unused.
+    hit_rgba = np.zeros(len(hits), dtype=np.uint32)
+    used = np.zeros(len(hits), dtype=bool)
+    used[best] = True
+    used = np.flatnonzero(used)
 
     def shade_hits(s, e):
-        rgb = shade(mesh, hits.triangle[s:e], hits.bary[s:e], diffuse=diffuse, ambient=ambient)
-        hit_rgba[s:e] = _pack(rgb)
+        h = used[s:e]
+        rgb = shade(mesh, hits.triangle[h], hits.bary[h], diffuse=diffuse, ambient=ambient)
+        hit_rgba[h] = _pack(rgb)
 
-    for_blocks(shade_hits, len(hits), BLOCK, jobs)
+    for_blocks(shade_hits, len(used), BLOCK, jobs)
     # One uint32 per voxel: RGBA bytes in memory order, scattered in one go.
     flat = base.reshape(-1, 4).view(np.uint32).reshape(-1)  # index = F-order voxel index
     centres = [grid.centres(a) for a in range(3)]
