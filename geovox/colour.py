@@ -397,9 +397,9 @@ def colour_volume(mesh, grid, occupancy, cast, *, diffuse=True, ambient=False, j
     if len(inside) == 0:
         return colors
     # Every crossing is a surface point with a known triangle and
-    # barycentrics: shade each once; deep voxels take their crossing's colour.
-    # Only the crossings some voxel chose: in a slab of a long grid, most
-    # crossings on the rays along z lie outside the slab and go unused.
+    # barycentrics: shade each chosen one once (in a slab of a long grid, many
+    # crossings on the rays along z go unused); deep voxels take their
+    # crossing's colour.
     hit_rgba = np.zeros(len(hits), dtype=np.uint32)
     used = np.zeros(len(hits), dtype=bool)
     used[best] = True
