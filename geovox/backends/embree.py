@@ -157,6 +157,39 @@ def _separation(p: np.ndarray, q: np.ndarray) -> np.ndarray:
     return sep
 
 
+def _plane_neighbours(t, unit, length, mesh, plane) -> np.ndarray:
+    """(n,) bool: triangles with some other triangle in nearly the same plane.
+
+    A cheap filter before pairing boxes, looser than the test that follows.
+    If every vertex of triangle x lies within ``plane`` of y's plane, the
+    edges of x rise by at most ``2 plane`` along y's normal, so the angle
+    between the normals has ``sin(theta) <= 2 plane / h`` (``h``: x's least
+    height, its narrowest width in any direction). The normals then differ
+    by at most ``theta`` and the planes' offsets from the mesh centre, over
+    the mesh size, by at most ``theta / 2`` plus ``plane``: within
+    ``1.12 theta`` in the 4-D points ``(normal, offset)``. Each triangle looks
+    for such a neighbour within its own radius (``1.5 theta``), for both signs
+    of the normal (a plane has two). Slivers and tiny triangles get a radius
+    that matches everything.
+    """
+    from scipy.spatial import cKDTree
+
+    if len(t) < 2:
+        return np.zeros(len(t), dtype=bool)
+    edge = np.linalg.norm(t - np.roll(t, 1, axis=1), axis=2).max(axis=1)
+    height = length / edge  # twice the area over the longest edge
+    ratio = 2.0 * plane / height
+    theta = np.arcsin(np.minimum(ratio, 1.0))
+    radius = np.where(ratio < 0.5, 1.5 * theta + 1e-5, 10.0)
+    offset = np.einsum("ij,ij->i", unit, t[:, 0] - mesh.bounds.mean(axis=0)) / mesh.scale
+    points = np.column_stack([unit, offset])
+    tree = cKDTree(points)
+    # The nearest other point, on each side (the first on this side is itself).
+    same_side = tree.query(points, k=[2], workers=-1)[0][:, 0]
+    other_side = tree.query(-points, k=1, workers=-1)[0]
+    return (same_side <= radius) | (other_side <= radius)
+
+
 def coplanar_overlaps(mesh) -> np.ndarray:
     """(m,) bool: triangles that a restart past another, coplanar one could hide.
 
@@ -173,14 +206,15 @@ def coplanar_overlaps(mesh) -> np.ndarray:
     t = mesh.triangles
     n = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
     length = np.linalg.norm(n, axis=1)
-    ok = np.flatnonzero(length > 0)
+    unit = n / np.where(length > 0, length, 1.0)[:, None]
     flags = np.zeros(len(t), dtype=bool)
     tol = 1e-9 * mesh.scale
+    plane = 2 * STEP * mesh.scale
+    ok = np.flatnonzero(length > 0)
+    ok = ok[_plane_neighbours(t[ok], unit[ok], length[ok], mesh, plane)]
     pairs = box_pairs(t[ok].min(axis=1), t[ok].max(axis=1), tol)
     if len(pairs):
         a, b = ok[pairs[:, 0]], ok[pairs[:, 1]]
-        unit = n / np.where(length > 0, length, 1.0)[:, None]
-        plane = 2 * STEP * mesh.scale
 
         def near(x, y):  # every vertex of x within `plane` of y's plane
             u, o = unit[y], t[y, 0]
