@@ -230,3 +230,44 @@ def test_backends_agree_through_t_junctions(inside):
         for bounds in [(0, 0, -0.5, 1, 1, 1.5), (-0.01, -0.01, -0.5, 1.01, 1.01, 1.5)]:
             a, b = _both(mesh, shape=(res, res, 4), bounds=bounds, inside=inside)
             np.testing.assert_array_equal(a.occupancy, b.occupancy, err_msg=f"{res} {bounds}")
+
+
+def test_plane_filter_never_drops_a_coplanar_pair():
+    # Pairs built at the edge of the coplanarity test (every vertex of each
+    # within `plane` of the other's plane, tilted as far as that allows,
+    # slivers included) must all pass the cheap k-d filter.
+    from geovox.backends.embree import STEP, _plane_neighbours
+    from geovox.mesh import Mesh
+
+    rng = np.random.default_rng(11)
+    tris = []
+    for _ in range(600):
+        normal = rng.normal(size=3)
+        normal /= np.linalg.norm(normal)
+        base = rng.normal(size=3)
+        u = np.cross(normal, base)
+        u /= np.linalg.norm(u)
+        w = np.cross(normal, u)
+        size = 10 ** rng.uniform(-4, 0)
+        flat = lambda: rng.uniform(-1, 1, (3, 2)) * size * np.array([1, 10 ** rng.uniform(-3, 0)])
+        centre = rng.uniform(-1, 1, 3)
+        for _ in range(2):
+            p = flat()
+            tris.append(centre + p[:, :1] * u + p[:, 1:] * w
+                        + rng.uniform(-1, 1, (3, 1)) * 0.4 * 2 * STEP * np.sqrt(12) * normal)
+    t = np.array(tris)
+    mesh = Mesh(t.reshape(-1, 3), np.arange(len(t) * 3).reshape(-1, 3))
+    mesh = Mesh(mesh.vertices, mesh.faces)  # scale is the bounding-box diagonal
+    plane = 2 * STEP * mesh.scale
+    n = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
+    length = np.linalg.norm(n, axis=1)
+    unit = n / length[:, None]
+
+    def near(x, y):
+        return all(abs(np.dot(t[x, v] - t[y, 0], unit[y])) <= plane for v in range(3))
+
+    pairs = [(2 * i, 2 * i + 1) for i in range(600)]
+    coplanar = [p for p in pairs if near(*p) and near(p[1], p[0])]
+    assert len(coplanar) > 150  # a third of the constructed pairs pass the test
+    found = _plane_neighbours(t, unit, length, mesh, plane)
+    assert all(found[a] and found[b] for a, b in coplanar)
