@@ -183,11 +183,15 @@ def _plane_neighbours(t, unit, length, mesh, plane) -> np.ndarray:
     radius = np.where(ratio < 0.5, 1.5 * theta + 1e-5, 10.0)
     offset = np.einsum("ij,ij->i", unit, t[:, 0] - mesh.bounds.mean(axis=0)) / mesh.scale
     points = np.column_stack([unit, offset])
+    wild = ratio >= 0.5
     tree = cKDTree(points)
-    # The nearest other point, on each side (the first on this side is itself).
-    same_side = tree.query(points, k=[2], workers=-1)[0][:, 0]
-    other_side = tree.query(-points, k=1, workers=-1)[0]
-    return (same_side <= radius) | (other_side <= radius)
+    # The nearest other point, on each side (the first on this side is
+    # itself), searched only as far as the largest radius: a search that
+    # may give up early is much faster, above all from the far side.
+    bound = float(radius[~wild].max()) if (~wild).any() else 0.0
+    same_side = tree.query(points, k=[2], distance_upper_bound=bound, workers=-1)[0][:, 0]
+    other_side = tree.query(-points, k=1, distance_upper_bound=bound, workers=-1)[0]
+    return wild | (same_side <= radius) | (other_side <= radius)
 
 
 def coplanar_overlaps(mesh) -> np.ndarray:
