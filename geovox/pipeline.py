@@ -118,6 +118,7 @@ def voxelize(
     sdf=False,
     band=3.0,
     progress=None,
+    _reuse=None,
 ) -> Volume:
     """Turn a closed triangle mesh into a solid voxel volume.
 
@@ -175,6 +176,10 @@ def voxelize(
     progress : callable, optional
         Called with the name of each stage as it starts ("load", "rays",
         "colour", "density", "sdf").
+    _reuse : dict, optional
+        Internal (slab streaming): ``axis -> f(grid)`` giving the colour
+        step's crossings along that axis, ``(Hits, Columns)``, cast once for
+        the whole grid instead of again for every slab.
 
     Returns
     -------
@@ -266,6 +271,8 @@ def voxelize(
         from .colour import colour_volume
 
         step("colour")
+        for a, crossings_of in (_reuse or {}).items():
+            crossings.setdefault(a, crossings_of(grid))
         others = [a for a in range(3) if a not in crossings]
         if jobs > 1 and len(others) > 1:
             from concurrent.futures import ThreadPoolExecutor

@@ -122,7 +122,26 @@ def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, *
     timings = {"load": 0.0, "rays": 0.0, "fill": 0.0, "write": 0.0}
     nx, ny, _ = grid.shape
     h = grid.spacing
+    reuse = None
     try:
+        if options.get("color") and len(plan) > 1:
+            # Colour wants the crossings along z as well; those rays run
+            # through every slab, so they are cast once, for the whole grid,
+            # and each slab takes them with depths measured from its own
+            # low face (the slab's rays along x and y are its own).
+            tz = time.perf_counter()
+            z_start = min(float(m.bounds[0, 2]), float(grid.lo[2])) - 1e-3 * m.scale
+            z_hits = engine.cast(m, grid.columns(2, start=z_start), jobs=jobs)
+            timings["colour"] = time.perf_counter() - tz
+
+            def along_z(g):
+                from .backends.base import Hits
+
+                cols = g.columns(2, start=z_start)
+                shift = cols.w0 - float(grid.lo[2])
+                return Hits(z_hits.ray, z_hits.depth - shift, z_hits.triangle, z_hits.bary), cols
+
+            reuse = {2: along_z}
         for n, (z0, z1) in enumerate(plan):
             lo = grid.lo.copy()
             lo[2] = grid.lo[2] + z0 * h[2]
@@ -136,7 +155,7 @@ def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, *
                 # default axis, so the file equals the in-memory volume.
                 vol = voxelize(m, shape=(nx, ny, z1 - z0), bounds=np.r_[lo, hi], backend=engine.name,
                                inside=method, jobs=jobs, axis=1 if len(plan) > 1 else 2,
-                               **options)
+                               _reuse=reuse, **options)
             tb = time.perf_counter()
             writer.write(z0, vol)
             for key, value in vol.timings.items():
