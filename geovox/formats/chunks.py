@@ -114,7 +114,7 @@ def write_both(src: np.ndarray, vtk, plain, z0: int = 0, jobs: int = 2) -> None:
     def offsets(index):
         kz, ky, kx = (int(i) for i in index)
         zero_tail = (0,) * len(tail)
-        return ((( kz + k0) * cz, ky * cy, kx * cx) + zero_tail,
+        return (((kz + k0) * cz, ky * cy, kx * cx) + zero_tail,
                 (kx * cx, ky * cy, (kz + k0) * cz) + zero_tail)
 
     cache: dict = {}
