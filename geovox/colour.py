@@ -221,6 +221,17 @@ def relevant_crossings(hits, k, n: int, rays: int):
     inner = (k > 0) & (k < n)
     if inner.all():
         return hits
+    if hits.ordered:
+        # In ray-then-depth order the ones to keep are where k changes side.
+        same_next = np.r_[hits.ray[1:] == hits.ray[:-1], False]
+        same_prev = np.r_[False, same_next[:-1]]
+        k_next = np.r_[k[1:], n + 1]
+        k_prev = np.r_[-1, k[:-1]]
+        keep = (inner | ((k == 0) & ~(same_next & (k_next == 0)))
+                | ((k == n) & ~(same_prev & (k_prev == n))))
+        out = hits.take(keep)
+        out.ordered = True
+        return out
     keep = [np.flatnonzero(inner)]
     for side, pick in ((0, np.maximum), (n, np.minimum)):
         sub = np.flatnonzero(k == side)

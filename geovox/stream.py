@@ -131,7 +131,8 @@ def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, *
             # low face (the slab's rays along x and y are its own).
             tz = time.perf_counter()
             z_start = min(float(m.bounds[0, 2]), float(grid.lo[2])) - 1e-3 * m.scale
-            z_hits = engine.cast(m, grid.columns(2, start=z_start), jobs=jobs)
+            # Sorted once here, so each slab only picks its part.
+            z_hits = engine.cast(m, grid.columns(2, start=z_start), jobs=jobs).sorted()
             timings["colour"] = time.perf_counter() - tz
 
             def along_z(g):
@@ -139,7 +140,9 @@ def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, *
 
                 cols = g.columns(2, start=z_start)
                 shift = cols.w0 - float(grid.lo[2])
-                return Hits(z_hits.ray, z_hits.depth - shift, z_hits.triangle, z_hits.bary), cols
+                # A constant shift keeps the order.
+                return Hits(z_hits.ray, z_hits.depth - shift, z_hits.triangle, z_hits.bary,
+                            ordered=True), cols
 
             reuse = {2: along_z}
         for n, (z0, z1) in enumerate(plan):

@@ -278,6 +278,11 @@ def test_relevant_crossings_keeps_what_a_voxel_can_use():
     n = 10
     k = np.clip(hits.depth, 0, n).astype(int)  # centres at 0.5 .. 9.5 -> k = ceil-ish
     got = relevant_crossings(hits, k, n, 50).sorted()
+    # Already in order, the fast path keeps the same crossings.
+    s0 = hits.sorted()
+    fast = relevant_crossings(s0, np.clip(s0.depth, 0, n).astype(int), n, 50)
+    assert fast.ordered
+    np.testing.assert_array_equal(fast.triangle, got.triangle)
     # Reference: sort everything, then per ray keep the in-range crossings,
     # the last one before the first centre and the first one past the last.
     s = hits.sorted()

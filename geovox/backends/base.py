@@ -27,6 +27,8 @@ class Hits:
     bary : (m, 2) float64
         Barycentric weights ``(u, v)`` of the triangle's vertices 1 and 2 at
         the crossing (vertex 0 has ``1 - u - v``).
+    ordered : bool
+        Known to be in ray-then-depth order already (see :meth:`sorted`).
 
     Hits come in no particular order (sorting a million hits costs more
     than the parity fill, which does not need it); call :meth:`sorted` for
@@ -37,6 +39,7 @@ class Hits:
     depth: np.ndarray
     triangle: np.ndarray
     bary: np.ndarray
+    ordered: bool = False
 
     def __len__(self) -> int:
         return len(self.ray)
@@ -67,8 +70,12 @@ class Hits:
         )
 
     def sorted(self) -> "Hits":
-        # Ties in depth are ordered by triangle so the order is deterministic.
-        return self.take(np.lexsort((self.triangle, self.depth, self.ray)))
+        """The hits ordered by ray, then depth, then triangle (deterministic on ties)."""
+        if self.ordered:
+            return self
+        out = self.take(np.lexsort((self.triangle, self.depth, self.ray)))
+        out.ordered = True
+        return out
 
 
 class Backend(abc.ABC):
