@@ -297,6 +297,7 @@ def nearest_crossings(mesh, grid, occupancy, cast, jobs=1):
     scale = grid.spacing.min()
     normals = _unit_normals(mesh)
     parts, offset = [], 0
+    g = None  # one int32 volume, refilled for each axis (its pages are touched once)
     for axis in (2, 1, 0):  # ties go to z, then y, then x
         if axis not in cast:
             continue
@@ -314,7 +315,10 @@ def nearest_crossings(mesh, grid, occupancy, cast, jobs=1):
         idx[axis] = k
         # The deepest crossing at or before each voxel: a running maximum of
         # hit numbers (sorted by ray, then depth, so deeper means larger).
-        g = np.full(grid.shape, -1, dtype=np.int32, order="F")
+        if g is None:
+            g = np.full(grid.shape, -1, dtype=np.int32, order="F")
+        else:
+            g.fill(-1)
         keep = k < n_axis
         lin = (idx[0] + nx * (idx[1] + ny * idx[2]))[keep]
         h = np.flatnonzero(keep).astype(np.int32)
@@ -377,7 +381,7 @@ def nearest_crossings(mesh, grid, occupancy, cast, jobs=1):
         if len(hits):
             for_blocks(block, len(inside), BLOCK, jobs)
         offset += len(hits)
-        del g, gflat
+        del gflat
     return inside, Hits.concatenate(parts), best, best_d
 
 
