@@ -87,3 +87,25 @@ def test_volume_reports_grid_facts():
     lo, hi = vol.bounds
     np.testing.assert_allclose(np.subtract(hi, lo) / (10, 20, 30), vol.spacing)
     assert vol.backend == "numpy"
+
+
+@pytest.mark.parametrize("axis", [1, 2])
+def test_word_wise_parity_fill_equals_voxel_by_voxel(axis):
+    # With x a multiple of 8 the fill XORs eight voxels at a time; the
+    # running XOR voxel by voxel must give the same volume.
+    from geovox.backends.base import Hits
+    from geovox.parallel import scan_along
+    from geovox.parity import fill, toggle_indices
+
+    rng = np.random.default_rng(axis)
+    grid = make_grid(np.array([[0, 0, 0], [1, 1, 1.0]]), shape=(24, 9, 13))
+    columns = grid.columns(axis)
+    n = 3000
+    hits = Hits(ray=rng.integers(0, columns.count, n), depth=rng.random(n) * 1.2 - 0.1,
+                triangle=np.zeros(n, np.int64), bary=np.zeros((n, 2)))
+    got = fill(hits, columns, grid, jobs=2)
+    want = np.zeros(grid.shape, dtype=bool, order="F")
+    want.reshape(-1, order="F")[toggle_indices(hits, columns, grid)] = True
+    scan_along(np.logical_xor, want, axis, 1)
+    assert want.any() and not want.all()
+    np.testing.assert_array_equal(got, want)
