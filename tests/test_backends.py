@@ -271,3 +271,29 @@ def test_plane_filter_never_drops_a_coplanar_pair():
     assert len(coplanar) > 150  # a third of the constructed pairs pass the test
     found = _plane_neighbours(t, unit, length, mesh, plane)
     assert all(found[a] and found[b] for a, b in coplanar)
+
+
+@needs_two
+def test_backends_agree_on_parts_stacked_with_a_hairline_gap():
+    # Faces 3e-8 of the mesh size apart pass the coplanarity test but their
+    # bounding boxes do not touch: the pairing must pad boxes by as much as
+    # the test allows, or Embree loses both crossings of every ray.
+    parts = [trimesh.creation.box((1, 1, 1)).apply_translation((0.5, 0.5, 0.5 + k * (1 + 1e-7)))
+             for k in range(3)]
+    mesh = from_tm(trimesh.util.concatenate(parts), "stacked")
+    a, b = _both(mesh, shape=(8, 8, 24), inside="parity")
+    assert a.inside_count == 1536
+    np.testing.assert_array_equal(a.occupancy, b.occupancy)
+
+
+@needs_two
+def test_backends_agree_on_big_fans():
+    # Caps of a 1,500-sided cylinder: every cap triangle meets every other at
+    # the hub, so they are flagged wholesale instead of paired (and found by
+    # the exact rasteriser).
+    from geovox.backends.embree import coplanar_overlaps
+
+    mesh = from_tm(trimesh.creation.cylinder(radius=1, height=2, sections=1500), "fan")
+    assert coplanar_overlaps(mesh).sum() >= 3000
+    a, b = _both(mesh, resolution=40, inside="parity")
+    np.testing.assert_array_equal(a.occupancy, b.occupancy)

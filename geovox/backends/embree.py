@@ -69,23 +69,40 @@ def _expand(ray, tri, geometric_faces, offsets, vfaces):
     return r, vfaces[start + local]
 
 
-def box_pairs(lo: np.ndarray, hi: np.ndarray, tol: float = 0.0) -> np.ndarray:
-    """(k, 2) index pairs ``a < b`` whose axis-aligned boxes overlap (within ``tol``).
+#: Candidate pairs generated and tested at a time (bounds the memory of the
+#: coplanar check; a flat fan of N triangles all meeting at its hub has
+#: about N^2 / 2 of them).
+PAIR_CHUNK = 1 << 21
+
+
+#: Boxes in one hash cell beyond which the cell's boxes are reported as
+#: crowded instead of paired (see :func:`box_pair_chunks`).
+MAX_RUN = 1024
+
+
+def box_pair_chunks(lo: np.ndarray, hi: np.ndarray, tol: float = 0.0, chunk: int = PAIR_CHUNK,
+                    crowded: list | None = None):
+    """Yield ``(k, 2)`` arrays of index pairs ``a < b`` whose axis-aligned boxes overlap.
 
     A uniform grid hash: each box is entered in the cells it covers and only
     boxes sharing a cell are compared, so large flat regions made of many
     triangles cost in proportion to their neighbourhoods, not to the square
     of their size. The cell is about the median box size, grown while a few
-    huge boxes would fill too many cells.
+    huge boxes would fill too many cells. Pairs are generated at most
+    ``chunk`` at a time; each overlapping pair appears exactly once.
 
     Parameters
     ----------
     lo, hi : (n, 3) float ndarray
-        Box corners.
+        Box corners; boxes within ``tol`` of each other count as overlapping.
+    crowded : list, optional
+        If given, a cell holding more than ``MAX_RUN`` boxes (the hub of a
+        big flat fan, where every box meets every other) is not paired: the
+        indices of its boxes are appended to this list instead, as one array.
     """
     n = len(lo)
     if n < 2:
-        return np.zeros((0, 2), dtype=np.int64)
+        return
     lo = lo - tol
     hi = hi + tol
     base = lo.min(axis=0)
@@ -112,24 +129,45 @@ def box_pairs(lo: np.ndarray, hi: np.ndarray, tol: float = 0.0) -> np.ndarray:
     key, box = key[order], box[order]
     # All pairs within each cell: entry p pairs with the later entries of its run.
     start = np.r_[0, np.flatnonzero(np.diff(key)) + 1]
-    run_end = np.repeat(np.r_[start[1:], len(key)], np.diff(np.r_[start, len(key)]))
+    run = np.diff(np.r_[start, len(key)])
+    run_end = np.repeat(np.r_[start[1:], len(key)], run)
     later = run_end - np.arange(len(key)) - 1
-    first = np.repeat(np.arange(len(key)), later)
-    second = first + 1 + (np.arange(int(later.sum())) - np.repeat(np.cumsum(later) - later, later))
-    a, b, cell_key = box[first], box[second], key[first]
-    for axis in range(3):  # one axis at a time: 1-D gathers, fewer pairs each time
-        l, h = lo[:, axis], hi[:, axis]
-        keep = (l[a] <= h[b]) & (l[b] <= h[a])
-        a, b, cell_key = a[keep], b[keep], cell_key[keep]
-    # Each overlapping pair is kept once: in the cell holding the low corner
-    # of the boxes' intersection (floor is monotonic, so that cell's
-    # coordinates are the larger of the two boxes' first cells).
-    corner = [np.maximum(c0[a, i], c0[b, i]) for i in range(3)]
-    keep = (corner[2] * dims[1] + corner[1]) * dims[0] + corner[0] == cell_key
-    a, b = a[keep], b[keep]
-    pairs = np.minimum(a, b) * np.int64(n) + np.maximum(a, b)
-    pairs.sort()
-    return np.column_stack([pairs // n, pairs % n])
+    if crowded is not None:
+        full = np.repeat(run > MAX_RUN, run)
+        if full.any():
+            crowded.append(np.unique(box[full]))
+            later[full] = 0
+    ends = np.cumsum(later)
+    e0 = 0
+    while e0 < len(key):
+        # Entries e0 .. e1 give at most `chunk` pairs (or one entry's worth).
+        e1 = max(e0 + 1, int(np.searchsorted(ends, (ends[e0 - 1] if e0 else 0) + chunk, "right")))
+        lat = later[e0:e1]
+        first = np.repeat(np.arange(e0, e1), lat)
+        second = first + 1 + (np.arange(int(lat.sum())) - np.repeat(np.cumsum(lat) - lat, lat))
+        e0 = e1
+        a, b, cell_key = box[first], box[second], key[first]
+        for axis in range(3):  # one axis at a time: 1-D gathers, fewer pairs each time
+            l, h = lo[:, axis], hi[:, axis]
+            keep = (l[a] <= h[b]) & (l[b] <= h[a])
+            a, b, cell_key = a[keep], b[keep], cell_key[keep]
+        # Each overlapping pair is kept once: in the cell holding the low
+        # corner of the boxes' intersection (floor is monotonic, so that
+        # cell's coordinates are the larger of the two boxes' first cells).
+        corner = [np.maximum(c0[a, i], c0[b, i]) for i in range(3)]
+        keep = (corner[2] * dims[1] + corner[1]) * dims[0] + corner[0] == cell_key
+        a, b = a[keep], b[keep]
+        if len(a):
+            yield np.column_stack([np.minimum(a, b), np.maximum(a, b)])
+
+
+def box_pairs(lo: np.ndarray, hi: np.ndarray, tol: float = 0.0) -> np.ndarray:
+    """(k, 2) index pairs ``a < b`` whose boxes overlap, sorted (see :func:`box_pair_chunks`)."""
+    parts = list(box_pair_chunks(lo, hi, tol))
+    if not parts:
+        return np.zeros((0, 2), dtype=np.int64)
+    pairs = np.concatenate(parts)
+    return pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))]
 
 
 def _separation(p: np.ndarray, q: np.ndarray) -> np.ndarray:
@@ -216,19 +254,24 @@ def coplanar_overlaps(mesh) -> np.ndarray:
     plane = 2 * STEP * mesh.scale
     ok = np.flatnonzero(length > 0)
     ok = ok[_plane_neighbours(t[ok], unit[ok], length[ok], mesh, plane)]
-    pairs = box_pairs(t[ok].min(axis=1), t[ok].max(axis=1), tol)
-    if len(pairs):
+    g = mesh.geometric_faces
+
+    def near(x, y):  # every vertex of x within `plane` of y's plane
+        u, o = unit[y], t[y, 0]
+        return np.logical_and.reduce([np.abs(((t[x, v] - o) * u).sum(axis=1)) <= plane
+                                      for v in range(3)])
+
+    # Boxes padded by `plane`: two faces that pass `near` may lie up to that
+    # far apart across their planes (stacked parts with a hairline gap).
+    # Triangles crowding one cell (the hub of a fan of thousands) are flagged
+    # without pairing them: the exact rasteriser then finds their crossings,
+    # which is always right and cheaper than settling millions of pairs.
+    crowded: list = []
+    for pairs in box_pair_chunks(t[ok].min(axis=1), t[ok].max(axis=1), plane, crowded=crowded):
         a, b = ok[pairs[:, 0]], ok[pairs[:, 1]]
-
-        def near(x, y):  # every vertex of x within `plane` of y's plane
-            u, o = unit[y], t[y, 0]
-            return np.logical_and.reduce([np.abs(((t[x, v] - o) * u).sum(axis=1)) <= plane
-                                          for v in range(3)])
-
         same = near(a, b)
         same[same] = near(b[same], a[same])
         a, b = a[same], b[same]
-        g = mesh.geometric_faces
         match = g[a][:, :, None] == g[b][:, None, :]  # (k, 3, 3): vertex i of a is vertex j of b
         in_b = match.any(axis=2)
         n_shared = in_b.sum(axis=1)
@@ -254,12 +297,13 @@ def coplanar_overlaps(mesh) -> np.ndarray:
             drop = np.argmax(np.abs(unit[ar]), axis=1)
             keep = np.array([[1, 2], [0, 2], [0, 1]])[drop]
             rows = np.arange(len(ar))[:, None, None]
-            pa = t[ar][rows, np.arange(3)[None, :, None], keep[:, None, :]]
-            pb = t[br][rows, np.arange(3)[None, :, None], keep[:, None, :]]
-            sep = _separation(pa, pb)
+            cols = np.arange(3)[None, :, None]
+            sep = _separation(t[ar][rows, cols, keep[:, None, :]], t[br][rows, cols, keep[:, None, :]])
             hide[rest] = (sep < -tol) | ((sep <= tol) & (n_shared[rest] == 0))
         flags[a[hide]] = True
         flags[b[hide]] = True
+    for boxes in crowded:
+        flags[ok[boxes]] = True
     mesh._cache["coplanar"] = flags
     return flags
 
