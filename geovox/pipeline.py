@@ -272,7 +272,8 @@ def voxelize(
 
         step("colour")
         for a, crossings_of in (_reuse or {}).items():
-            crossings.setdefault(a, crossings_of(grid))
+            if a not in crossings:
+                crossings[a] = crossings_of(grid)
         others = [a for a in range(3) if a not in crossings]
         if jobs > 1 and len(others) > 1:
             from concurrent.futures import ThreadPoolExecutor
