@@ -72,7 +72,7 @@ def _expand(ray, tri, geometric_faces, offsets, vfaces):
 #: Candidate pairs generated and tested at a time (bounds the memory of the
 #: coplanar check; a flat fan of N triangles all meeting at its hub has
 #: about N^2 / 2 of them).
-PAIR_CHUNK = 1 << 21
+PAIR_CHUNK = 1 << 19
 
 
 #: Boxes in one hash cell beyond which the cell's boxes are reported as
