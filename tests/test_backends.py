@@ -180,8 +180,9 @@ def test_unknown_backend_is_a_parameter_error():
         geovox.voxelize(SPOT, resolution=8, backend="optix")
 
 
-def test_box_pairs_matches_brute_force():
-    from geovox.backends.embree import box_pairs
+@pytest.mark.parametrize("chunk", [7, 1 << 19])
+def test_box_pairs_match_brute_force(chunk):
+    from geovox.backends.embree import box_pair_chunks
 
     rng = np.random.default_rng(5)
     lo = rng.random((400, 3))
@@ -190,10 +191,22 @@ def test_box_pairs_matches_brute_force():
     hi = lo + size
     lo[10:20] = lo[0]  # and some identical boxes
     hi[10:20] = hi[0]
-    got = {tuple(p) for p in box_pairs(lo, hi)}
+    got = [tuple(p) for part in box_pair_chunks(lo, hi, chunk=chunk) for p in part]
+    assert len(got) == len(set(got))  # each pair once, across chunks
     over = np.all((lo[:, None] <= hi[None]) & (lo[None] <= hi[:, None]), axis=2)
     want = {(i, j) for i, j in zip(*np.nonzero(np.triu(over, 1)))}
-    assert got == want
+    assert set(got) == want
+
+
+def test_crowded_cells_are_reported_not_paired(monkeypatch):
+    import geovox.backends.embree as E
+
+    monkeypatch.setattr(E, "MAX_RUN", 5)
+    lo = np.zeros((8, 3))
+    hi = np.ones((8, 3))  # eight boxes in one cell
+    crowded = []
+    assert list(E.box_pair_chunks(lo, hi, crowded=crowded)) == []
+    np.testing.assert_array_equal(np.concatenate(crowded), np.arange(8))
 
 
 def test_coplanar_overlaps_flags_only_what_a_restart_can_hide():

@@ -161,15 +161,6 @@ def box_pair_chunks(lo: np.ndarray, hi: np.ndarray, tol: float = 0.0, chunk: int
             yield np.column_stack([np.minimum(a, b), np.maximum(a, b)])
 
 
-def box_pairs(lo: np.ndarray, hi: np.ndarray, tol: float = 0.0) -> np.ndarray:
-    """(k, 2) index pairs ``a < b`` whose boxes overlap, sorted (see :func:`box_pair_chunks`)."""
-    parts = list(box_pair_chunks(lo, hi, tol))
-    if not parts:
-        return np.zeros((0, 2), dtype=np.int64)
-    pairs = np.concatenate(parts)
-    return pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))]
-
-
 def _separation(p: np.ndarray, q: np.ndarray) -> np.ndarray:
     """Signed 2-D separation of triangle pairs (separating-axis theorem).
 
