@@ -135,9 +135,9 @@ def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, *
             z_hits = engine.cast(m, grid.columns(2, start=z_start), jobs=jobs).sorted()
             timings["colour"] = time.perf_counter() - tz
 
-            def along_z(g):
-                from .backends.base import Hits
+            from .backends.base import Hits
 
+            def along_z(g):
                 cols = g.columns(2, start=z_start)
                 shift = cols.w0 - float(grid.lo[2])
                 # A constant shift keeps the order.

@@ -198,8 +198,8 @@ def _plane_neighbours(t, unit, length, mesh, plane) -> np.ndarray:
     the mesh size, by at most ``theta / 2`` plus ``plane``: within
     ``1.12 theta`` in the 4-D points ``(normal, offset)``. Each triangle looks
     for such a neighbour within its own radius (``1.5 theta``), for both signs
-    of the normal (a plane has two). Slivers and tiny triangles get a radius
-    that matches everything.
+    of the normal (a plane has two). Slivers and tiny triangles, whose normal
+    says little (``2 plane / h >= 0.5``), always pass.
     """
     from scipy.spatial import cKDTree
 
@@ -208,11 +208,10 @@ def _plane_neighbours(t, unit, length, mesh, plane) -> np.ndarray:
     edge = np.linalg.norm(t - np.roll(t, 1, axis=1), axis=2).max(axis=1)
     height = length / edge  # twice the area over the longest edge
     ratio = 2.0 * plane / height
-    theta = np.arcsin(np.minimum(ratio, 1.0))
-    radius = np.where(ratio < 0.5, 1.5 * theta + 1e-5, 10.0)
+    wild = ratio >= 0.5
+    radius = 1.5 * np.arcsin(np.minimum(ratio, 1.0)) + 1e-5
     offset = np.einsum("ij,ij->i", unit, t[:, 0] - mesh.bounds.mean(axis=0)) / mesh.scale
     points = np.column_stack([unit, offset])
-    wild = ratio >= 0.5
     tree = cKDTree(points)
     # The nearest other point, on each side (the first on this side is
     # itself), searched only as far as the largest radius: a search that
@@ -227,7 +226,7 @@ def coplanar_overlaps(mesh) -> np.ndarray:
     """(m,) bool: triangles that a restart past another, coplanar one could hide.
 
     Two triangles count when they lie in (nearly) the same plane -- every
-    vertex of each within ``STEP`` of the mesh size of the other's plane -- and
+    vertex of each within ``2 STEP`` of the mesh size of the other's plane -- and
     either their interiors overlap (duplicated faces, coincident faces of
     touching parts, folds) or they touch without sharing a vertex (a
     T-junction). Triangles that only meet at shared vertices or edges, as the

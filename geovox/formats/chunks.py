@@ -16,8 +16,10 @@ chunk, with ``write_direct_chunk``, into the two layouts the HDF5 file holds
   and transposed in cache for the plain layout; both copies are compressed
   on all cores.
 - Compression is deflate in the zlib container, which is what HDF5's gzip
-  filter stores. ISA-L (the ``isal`` package) makes it about 10x faster than
-  zlib at a similar ratio on voxel data; zlib is used where isal is missing.
+  filter stores. ISA-L (the ``isal`` package) did the 956 mixed chunks of a
+  1024³ volume in 0.11 s, against zlib's 0.57 s at level 1 and 1.6 s at
+  level 4, for 4.2 MiB against zlib level 4's 3.7 MiB; zlib is used where
+  isal is missing.
 """
 
 from __future__ import annotations
@@ -28,14 +30,11 @@ import numpy as np
 
 try:  # ISA-L deflate: same stream format as zlib, much faster.
     from isal import isal_zlib as _deflate
-
-    #: Compression level (ISA-L levels 0-3; level 1 compresses voxel chunks
-    #: about as well as zlib at level 4).
-    LEVEL = 1
 except ImportError:  # pragma: no cover - isal has wheels for the common platforms
     import zlib as _deflate
 
-    LEVEL = 1
+#: Compression level: the fastest both libraries have (ISA-L's 1 of 0-3, zlib's 1 of 1-9).
+LEVEL = 1
 
 #: Chunks prepared per batch (bounds the memory held by finished chunks).
 BATCH = 64
