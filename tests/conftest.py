@@ -14,7 +14,9 @@ from geovox.mesh import Mesh
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(HERE)
-CORPUS = os.path.join(ROOT, "..", "shared", "corpus")
+#: Real public models the tests use, copied from the shared corpus with their
+#: licences (see data/README.md); spot is the bundled model in ../data.
+DATA = os.path.join(HERE, "data")
 SPOT = os.path.join(ROOT, "data", "spot", "spot.obj")
 
 
@@ -25,10 +27,12 @@ def backend(request):
 
 
 def corpus(*parts):
-    """Path into ../shared/corpus, skipping the test when it is absent."""
-    path = os.path.join(CORPUS, *parts)
+    """Path of a real model in tests/data (spot: the bundled data/spot)."""
+    rel = os.path.join(*parts)
+    base = os.path.join(ROOT, "data") if rel.split("/")[0] == "spot" else DATA
+    path = os.path.join(base, rel)
     if not os.path.exists(path):
-        pytest.skip(f"corpus file not present: {path}")
+        raise FileNotFoundError(f"test model missing from the repository: {path}")
     return path
 
 
