@@ -203,7 +203,7 @@ def write(volume, path, fmt=None, **options) -> list:
     return format_for(path, fmt).writer(volume, path, **options)
 
 
-from . import hdf5, nrrd, numpy_files, raw, vox  # noqa: E402  (registration)
+from . import hdf5, nrrd, numpy_files, raw, vox, vtkhdf  # noqa: E402  (registration)
 
 register_format("raw", (".raw",), raw.write_raw,
                 "headerless uint8 (0/255), x fastest; .json sidecar, .mhd and .nhdr headers",
@@ -211,6 +211,9 @@ register_format("raw", (".raw",), raw.write_raw,
 register_format("hdf5", (".h5", ".hdf5"), hdf5.write_hdf5,
                 "HDF5: `occupancy`/`color` [x, y, z] datasets plus a VTK-HDF ImageData group",
                 reader=hdf5.read_hdf5)
+register_format("vtkhdf", (".vtkhdf", ".hdf"), vtkhdf.write_vtkhdf,
+                "VTK-HDF 1.0 ImageData for ParaView (opens by name): occupancy, color, density, sdf",
+                reader=vtkhdf.read_vtkhdf)
 register_format("nrrd", (".nrrd",), nrrd.write_nrrd,
                 "single-file NRRD (gzip), uint8 0/255; colour in NAME_rgba.nrrd",
                 reader=nrrd.read_nrrd)

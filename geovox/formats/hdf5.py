@@ -61,7 +61,7 @@ class HDF5Writer(SlabWriter):
         f = self.f
         self.sets = {"occupancy": _dataset(f, "occupancy", meta.shape, np.uint8, self.chunks)}
         g = f.create_group("VTKHDF")
-        g.attrs["Version"] = np.array([2, 1], dtype=np.int64)
+        g.attrs["Version"] = np.array([1, 0], dtype=np.int64)  # what ParaView 5.10+ reads silently
         # VTK requires a fixed-length ASCII string here, not a variable-length one.
         g.attrs.create("Type", np.bytes_("ImageData"))
         g.attrs["WholeExtent"] = np.array([0, nx - 1, 0, ny - 1, 0, nz - 1], dtype=np.int64)

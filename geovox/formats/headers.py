@@ -55,8 +55,19 @@ def mhd_header(shape, spacing, origin, dtype: str, data_file: str, components: i
     return "\n".join(lines) + "\n"
 
 
-def nhdr_header(shape, spacing, origin, dtype: str, data_file: str, components: int = 1) -> str:
-    """Detached NRRD (.nhdr) header for an x-fastest RAW file (same parameters as :func:`mhd_header`)."""
+def nhdr_header(shape, spacing, origin, dtype: str, data_file, components: int = 1,
+                encoding: str = "raw") -> str:
+    """NRRD header for x-fastest data (same parameters as :func:`mhd_header`).
+
+    With ``data_file=None`` the header is that of a single-file NRRD (the
+    data follows it); ``encoding`` is ``"raw"`` or ``"gzip"``.
+
+    ``sizes`` comes before ``space dimension``: VTK's NRRD reader (through
+    9.7 at least) sizes its axis list by the last ``dimension`` or ``space
+    dimension`` it has read, so a 4-D colour file whose ``sizes`` follow
+    ``space dimension: 3`` loses its z axis there (it opens as one slice).
+    NRRD itself allows the fields in any order after ``dimension``.
+    """
     sx, sy, sz = (_num(v) for v in spacing)
     dirs = f"({sx},0,0) (0,{sy},0) (0,0,{sz})"
     sizes = " ".join(str(int(n)) for n in shape)
@@ -72,14 +83,14 @@ def nhdr_header(shape, spacing, origin, dtype: str, data_file: str, components: 
         "# written by geovox\n"
         f"type: {_NRRD_TYPES[dtype]}\n"
         f"dimension: {dimension}\n"
-        "space dimension: 3\n"
         f"sizes: {sizes}\n"
+        "space dimension: 3\n"
         f"space directions: {dirs}\n"
         f"kinds: {kinds}\n"
         "endian: little\n"
-        "encoding: raw\n"
+        f"encoding: {encoding}\n"
         "space origin: (" + ",".join(_num(v) for v in origin) + ")\n"
-        f"data file: {data_file}\n"
+        + (f"data file: {data_file}\n" if data_file is not None else "\n")
     )
 
 

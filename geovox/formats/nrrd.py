@@ -1,53 +1,64 @@
-"""Single-file NRRD through pynrrd: occupancy as uint8 0/255, colour beside it."""
+"""Single-file NRRD, gzip-encoded: occupancy as uint8 0/255, colour and fields beside it.
+
+The header comes from :func:`geovox.formats.headers.nhdr_header` (the same
+one the detached ``.nhdr`` files use), in the field order VTK's reader
+needs for the 4-D colour file; pynrrd reads them back.
+"""
 
 from __future__ import annotations
 
 import os
+import zlib
 
 import numpy as np
 
+#: Voxels compressed per step, which bounds the extra memory of writing.
+SLAB_VOXELS = 1 << 24
 
-def _header(volume, components: int = 1) -> dict:
-    from .headers import origin_of
 
-    directions = np.diag(np.asarray(volume.spacing, dtype=np.float64))
-    header = {
-        "space dimension": 3,
-        "space directions": directions,
-        "space origin": origin_of(volume),
-        "kinds": ["domain", "domain", "domain"],
-        "encoding": "gzip",
-    }
-    if components > 1:
-        header["space directions"] = np.vstack([np.full((1, 3), np.nan), directions])
-        header["kinds"] = ["RGBA-color"] + header["kinds"]
-    return header
+def _write_one(path, arr, volume, components: int = 1) -> None:
+    """One attached NRRD: header, then the gzip stream of ``arr`` x fastest.
+
+    ``arr`` is ``(nx, ny, nz)`` or ``(nx, ny, nz, components)``, indexed
+    ``[x, y, z]``; its dtype is what is stored.
+    """
+    from .headers import nhdr_header, origin_of
+
+    header = nhdr_header(volume.shape, volume.spacing, origin_of(volume), str(arr.dtype), None,
+                         components=components, encoding="gzip")
+    nx, ny, nz = volume.shape
+    per = max(1, SLAB_VOXELS // max(1, nx * ny))
+    # wbits 31: the gzip container, which NRRD's "gzip" encoding names; level 1
+    # because binary volumes compress nearly as well at 1 as at 9, many times faster.
+    z = zlib.compressobj(1, zlib.DEFLATED, 31)
+    with open(path, "wb") as f:
+        f.write(header.encode("ascii"))
+        for a in range(0, nz, per):
+            part = arr[:, :, a:a + per]
+            # x fastest (then components first): the C order of the (z, y, x[, c]) transpose.
+            zyx = np.ascontiguousarray(part.transpose((2, 1, 0) + tuple(range(3, arr.ndim))),
+                                       dtype=arr.dtype.newbyteorder("<"))
+            f.write(z.compress(zyx.data))
+        f.write(z.flush())
 
 
 def write_nrrd(volume, path) -> list:
-    """``NAME.nrrd`` (uint8 0/255, x fastest) and, with colour, ``NAME_rgba.nrrd`` (RGBA)."""
-    import nrrd
-
-    from . import atomic_outputs
-    from .raw import colour_path
+    """``NAME.nrrd`` (uint8 0/255, x fastest) and, with colour, ``NAME_rgba.nrrd`` (RGBA);
+    density and distance in ``NAME_density.nrrd`` and ``NAME_sdf.nrrd``."""
+    from . import atomic_outputs, scalar_fields
+    from .raw import colour_path, field_path
 
     path = os.fspath(path)
     written = [path]
     with atomic_outputs() as group:
-        # pynrrd's default index order 'F' takes an [x, y, z] array.
-        nrrd.write(group.add(path), volume.occupancy.view(np.uint8) * np.uint8(255),
-                   _header(volume))
+        _write_one(group.add(path), volume.occupancy.view(np.uint8) * np.uint8(255), volume)
         if volume.colors is not None:
             cpath = colour_path(path)
-            nrrd.write(group.add(cpath), np.moveaxis(volume.colors, 3, 0),
-                       _header(volume, components=4))
+            _write_one(group.add(cpath), volume.colors, volume, components=4)
             written.append(cpath)
-        from . import scalar_fields
-        from .raw import field_path
-
         for name, arr, _, _ in scalar_fields(volume):
             fpath = field_path(path, name)
-            nrrd.write(group.add(fpath), np.asfortranarray(arr), _header(volume))
+            _write_one(group.add(fpath), arr, volume)
             written.append(fpath)
     return written
 
