@@ -73,6 +73,8 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--format", dest="fmt", help="output format, overriding the extension")
     c.add_argument("--shell", action="store_true",
                    help=".vox: keep only the voxels with a face on the outside")
+    c.add_argument("--pack-bits", action="store_true",
+                   help=".npz: store occupancy as np.packbits bits (occupancy_bits, shape)")
     c.add_argument("--preview", metavar="PNG", help="also write a preview picture")
     c.add_argument("--overwrite", action="store_true",
                    help="with several inputs: convert even where the output exists")
@@ -220,6 +222,16 @@ def _output_path(args, input_path, shape) -> str:
     return os.path.join(folder, default_name(stem, shape, "uint8", fmt.extensions[0]))
 
 
+def _write_options(args, fmt) -> dict:
+    """The writer's keyword options the CLI sets (``--shell`` for .vox, ``--pack-bits`` for .npz)."""
+    from .errors import ParameterError
+
+    if args.pack_bits and fmt.name != "npz":
+        raise ParameterError(f"--pack-bits is for .npz output, not {fmt.name}")
+    return {**({"shell": True} if args.shell and fmt.name == "vox" else {}),
+            **({"pack_bits": True} if args.pack_bits else {})}
+
+
 def _batch(args) -> int:
     from . import formats
     from .batch import convert_many, summary_table
@@ -249,7 +261,7 @@ def _batch(args) -> int:
     results = convert_many(args.input, args.output, options, ext=fmt.extensions[0],
                            overwrite=args.overwrite, jobs=resolve_jobs(args.jobs),
                            progress=(lambda r: bar.update(1)) if bar else None,
-                           write_options={"shell": True} if args.shell and fmt.name == "vox" else {})
+                           write_options=_write_options(args, fmt))
     if bar:
         bar.close()
     if not args.quiet or any(r.status == "failed" for r in results):
@@ -335,6 +347,7 @@ def _convert(args) -> int:
                      shape=args.shape, voxel_size=args.voxel_size)
     output = _output_path(args, args.input, grid.shape)
     fmt = formats.format_for(output, args.fmt)
+    write_options = _write_options(args, fmt)  # a bad combination fails before any work
     per = bytes_per_voxel(args.color, args.density, args.sdf)
     from .pipeline import _available_memory
 
@@ -344,8 +357,18 @@ def _convert(args) -> int:
         return _convert_streaming(args, mesh, output, t0)
     vol = _voxelize(args, mesh)
     t1 = time.perf_counter()
-    options = {"shell": True} if args.shell and formats.format_for(output, args.fmt).name == "vox" else {}
-    written = formats.write(vol, output, fmt=args.fmt, **options)
+    import warnings
+
+    from .errors import GeovoxWarning
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", GeovoxWarning)
+        written = formats.write(vol, output, fmt=args.fmt, **write_options)
+    for w in caught:  # e.g. binvox padding a grid to a cube
+        if issubclass(w.category, GeovoxWarning):
+            print(f"geovox: warning: {w.message}", file=sys.stderr)
+        else:
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
     if args.preview:
         from .preview import write_preview
 

@@ -18,18 +18,31 @@ def write_npy(volume, path) -> list:
     return [path]
 
 
-def write_npz(volume, path) -> list:
-    """Compressed arrays ``occupancy``, ``colors`` (if any), ``spacing``, ``bounds``, ``origin``."""
+def write_npz(volume, path, pack_bits: bool = False) -> list:
+    """Compressed arrays ``occupancy``, ``colors`` (if any), ``spacing``, ``bounds``, ``origin``.
+
+    With ``pack_bits``, ``occupancy_bits`` and ``shape`` replace ``occupancy``:
+    ``np.packbits`` of the ``[x, y, z]`` array raveled in C order (z fastest),
+    as Occupancy Networks' data sets store it, so
+    ``np.unpackbits(d["occupancy_bits"])[:np.prod(d["shape"])].reshape(d["shape"])``
+    is the volume again; one bit per voxel instead of a byte.
+    """
     from . import atomic_output
     from .headers import origin_of
 
     path = os.fspath(path)
-    arrays = {
-        "occupancy": volume.occupancy.view(np.uint8),
+    arrays = {}
+    if pack_bits:
+        # ravel(order="C") of the Fortran-ordered array copies once, as the idiom needs.
+        arrays["occupancy_bits"] = np.packbits(volume.occupancy.ravel(order="C"))
+        arrays["shape"] = np.asarray(volume.shape, dtype=np.int64)
+    else:
+        arrays["occupancy"] = volume.occupancy.view(np.uint8)
+    arrays.update({
         "spacing": np.asarray(volume.spacing),
         "bounds": np.asarray(volume.bounds),
         "origin": origin_of(volume),
-    }
+    })
     if volume.colors is not None:
         arrays["colors"] = volume.colors
     from . import scalar_fields
@@ -47,7 +60,12 @@ def read_npz(path):
     from ..pipeline import Volume
 
     with np.load(path) as z:
-        occ = np.asfortranarray(z["occupancy"] > 0)
+        if "occupancy_bits" in z:
+            shape = tuple(int(n) for n in z["shape"])
+            bits = np.unpackbits(z["occupancy_bits"], count=int(np.prod(shape)))
+            occ = np.asfortranarray(bits.reshape(shape) > 0)
+        else:
+            occ = np.asfortranarray(z["occupancy"] > 0)
         bounds = z["bounds"]
         colors = None
         if "colors" in z:
