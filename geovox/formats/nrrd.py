@@ -1,4 +1,4 @@
-"""Single-file NRRD, gzip-encoded: occupancy as uint8 0/255, colour and fields beside it.
+"""Single-file NRRD: occupancy as uint8 0/255 (gzip), colour (raw) and fields (gzip) beside it.
 
 The header comes from :func:`geovox.formats.headers.nhdr_header` (the same
 one the detached ``.nhdr`` files use), in the field order VTK's reader
@@ -17,20 +17,25 @@ SLAB_VOXELS = 1 << 24
 
 
 def _write_one(path, arr, volume, components: int = 1) -> None:
-    """One attached NRRD: header, then the gzip stream of ``arr`` x fastest.
+    """One attached NRRD: header, then ``arr`` x fastest.
 
     ``arr`` is ``(nx, ny, nz)`` or ``(nx, ny, nz, components)``, indexed
-    ``[x, y, z]``; its dtype is what is stored.
+    ``[x, y, z]``; its dtype is what is stored. Single values are gzip-encoded;
+    several components per voxel are stored raw, because VTK's NRRD reader
+    (ParaView's; through VTK 9.7 at least) inflates only one value per voxel
+    of a gzip-encoded file, so a gzip RGBA file opens with three quarters of
+    its voxels black.
     """
     from .headers import nhdr_header, origin_of
 
+    encoding = "gzip" if components == 1 else "raw"
     header = nhdr_header(volume.shape, volume.spacing, origin_of(volume), str(arr.dtype), None,
-                         components=components, encoding="gzip")
+                         components=components, encoding=encoding)
     nx, ny, nz = volume.shape
     per = max(1, SLAB_VOXELS // max(1, nx * ny))
     # wbits 31: the gzip container, which NRRD's "gzip" encoding names; level 1
     # because binary volumes compress nearly as well at 1 as at 9, many times faster.
-    z = zlib.compressobj(1, zlib.DEFLATED, 31)
+    z = zlib.compressobj(1, zlib.DEFLATED, 31) if encoding == "gzip" else None
     with open(path, "wb") as f:
         f.write(header.encode("ascii"))
         for a in range(0, nz, per):
@@ -38,8 +43,9 @@ def _write_one(path, arr, volume, components: int = 1) -> None:
             # x fastest (then components first): the C order of the (z, y, x[, c]) transpose.
             zyx = np.ascontiguousarray(part.transpose((2, 1, 0) + tuple(range(3, arr.ndim))),
                                        dtype=arr.dtype.newbyteorder("<"))
-            f.write(z.compress(zyx.data))
-        f.write(z.flush())
+            f.write(z.compress(zyx.data) if z is not None else zyx.data)
+        if z is not None:
+            f.write(z.flush())
 
 
 def write_nrrd(volume, path) -> list:
