@@ -11,7 +11,7 @@ import pytest
 
 import geovox
 import geovox.formats as F
-from geovox.errors import OutputError
+from geovox.errors import GeovoxWarning, OutputError
 from geovox.formats import headers, vox
 
 from conftest import SPOT
@@ -33,7 +33,7 @@ def origin(v):
     return np.asarray(v.bounds[0]) + 0.5 * np.asarray(v.spacing)
 
 
-@pytest.mark.parametrize("ext", [".raw", ".h5", ".nrrd", ".npz", ".vox"])
+@pytest.mark.parametrize("ext", [".raw", ".h5", ".vtkhdf", ".hdf", ".nrrd", ".npz", ".vox"])
 def test_round_trip_through_geovox_readers(tmp_path, vol, ext):
     written = F.write(vol, tmp_path / f"v{ext}")
     assert all(os.path.exists(p) for p in written)
@@ -208,7 +208,7 @@ def test_vox_quantises_to_255_colours():
     np.testing.assert_array_equal(p[i], few)
 
 
-@pytest.mark.parametrize("ext", [".raw", ".h5", ".nrrd", ".npy", ".npz", ".vox"])
+@pytest.mark.parametrize("ext", [".raw", ".h5", ".vtkhdf", ".nrrd", ".npy", ".npz", ".vox"])
 def test_failed_write_leaves_nothing(tmp_path, vol, ext, monkeypatch):
     def fail(src, dst):
         raise OSError(28, "No space left on device")
@@ -224,8 +224,10 @@ def test_formats_command_lists_everything(capsys):
 
     assert main(["formats"]) == 0
     out = capsys.readouterr().out
-    for name in ("raw", "hdf5", "nrrd", "npy", "npz", "vox"):
+    for name in ("raw", "hdf5", "vtkhdf", "nrrd", "npy", "npz", "binvox", "vox"):
         assert name in out
+    for ext in (".vtkhdf .hdf", ".binvox"):
+        assert ext in out
 
 
 def test_multi_file_output_appears_together_or_not_at_all(tmp_path, vol, monkeypatch):
@@ -292,3 +294,343 @@ def test_chunk_writer_falls_back_to_zlib(tmp_path, monkeypatch):
         chunks.write_both(vol, v, None)
     with h5py.File(tmp_path / "z.h5") as f:
         np.testing.assert_array_equal(f["v"][...], vol)
+
+
+# --- VTK-HDF for ParaView, opened by name --------------------------------------------------
+
+@pytest.fixture(scope="module")
+def fields():
+    """Colour, coverage density and signed distance: every array a format can carry."""
+    return geovox.voxelize(SPOT, shape=SHAPE, color=True, density="coverage", sdf=True,
+                           backend="numpy")
+
+
+def _vtk_messages(reader):
+    """Collect the warnings and errors a VTK reader raises (ParaView prints them)."""
+    from vtkmodules.vtkCommonCore import vtkCommand
+
+    said = []
+    for event in (vtkCommand.WarningEvent, vtkCommand.ErrorEvent):
+        reader.AddObserver(event, lambda obj, ev: said.append(ev))
+    return said
+
+
+@pytest.mark.parametrize("ext", [".vtkhdf", ".hdf"])
+def test_vtkhdf_file_is_read_by_vtk_silently(tmp_path, fields, ext):
+    hdf = pytest.importorskip("vtkmodules.vtkIOHDF")
+    from vtkmodules.util.numpy_support import vtk_to_numpy
+
+    path = tmp_path / f"v{ext}"
+    assert F.write(fields, path) == [str(path)]
+    with h5py.File(path) as f:
+        np.testing.assert_array_equal(f["VTKHDF"].attrs["Version"], [1, 0])
+    r = hdf.vtkHDFReader()
+    said = _vtk_messages(r)
+    r.SetFileName(str(path))
+    r.Update()
+    assert said == []
+    img = r.GetOutput()
+    assert img.GetExtent() == (0, SHAPE[0] - 1, 0, SHAPE[1] - 1, 0, SHAPE[2] - 1)
+    np.testing.assert_allclose(img.GetSpacing(), fields.spacing)
+    np.testing.assert_allclose(img.GetOrigin(), origin(fields))
+    pd = img.GetPointData()
+
+    def xyz(name, tail=()):
+        return vtk_to_numpy(pd.GetArray(name)).reshape(SHAPE[::-1] + tail).transpose(2, 1, 0, *range(3, 3 + len(tail)))
+
+    np.testing.assert_array_equal(xyz("occupancy") == 1, fields.occupancy)
+    assert pd.GetArray("color").GetNumberOfComponents() == 4
+    np.testing.assert_array_equal(xyz("color", (4,)), fields.colors)
+    np.testing.assert_array_equal(xyz("density"), fields.density)
+    np.testing.assert_array_equal(xyz("sdf"), fields.sdf)
+    back = F.read(path)
+    np.testing.assert_array_equal(back.sdf, fields.sdf)
+    np.testing.assert_array_equal(back.density, fields.density)
+
+
+def test_vtkhdf_header_function():
+    from geovox.formats.vtkhdf import image_attributes
+
+    a = image_attributes((4, 5, 6), (0.5, 1, 2), (1, 2, 3))
+    assert a["Type"] == b"ImageData" and list(a["Version"]) == [1, 0]
+    assert list(a["WholeExtent"]) == [0, 3, 0, 4, 0, 5]
+    assert list(a["Spacing"]) == [0.5, 1, 2] and list(a["Origin"]) == [1, 2, 3]
+
+
+def test_colour_nrrd_is_read_whole_by_vtk(tmp_path, fields):
+    # VTK's reader (ParaView's) used to open the RGBA NRRD as one z-slice, and
+    # inflates only one value per voxel of a gzip-encoded file.
+    io = pytest.importorskip("vtkmodules.vtkIOImage")
+    from vtkmodules.util.numpy_support import vtk_to_numpy
+
+    F.write(fields, tmp_path / "w.nrrd")
+    F.write(fields, tmp_path / "v.raw")
+    for name, want, comps in [("w_rgba.nrrd", fields.colors, 4), ("v_rgba.nhdr", fields.colors, 4),
+                              ("w_sdf.nrrd", fields.sdf, 1), ("w_density.nrrd", fields.density, 1)]:
+        r = io.vtkNrrdReader()
+        r.SetFileName(str(tmp_path / name))
+        r.Update()
+        img = r.GetOutput()
+        assert img.GetDimensions() == SHAPE, name
+        np.testing.assert_allclose(img.GetOrigin(), origin(fields))
+        a = vtk_to_numpy(img.GetPointData().GetArray(0))
+        tail = (comps,) if comps > 1 else ()
+        got = a.reshape(SHAPE[::-1] + tail).transpose(2, 1, 0, *range(3, 3 + len(tail)))
+        np.testing.assert_array_equal(got, want, err_msg=name)
+
+
+# --- binvox ----------------------------------------------------------------------------
+
+def _binvox_by_definition(data: bytes):
+    """binvox as its definition reads: header lines, then (value, count) pairs, y fastest, then z, then x."""
+    lines, pos = [], 0
+    while True:
+        end = data.index(b"\n", pos)
+        lines.append(data[pos:end].decode())
+        pos = end + 1
+        if lines[-1] == "data":
+            break
+    assert lines[0] == "#binvox 1"
+    head = {line.split()[0]: line.split()[1:] for line in lines[1:-1]}
+    d, e, f = (int(v) for v in head["dim"])
+    assert d == e == f
+    values, counts = data[pos::2], data[pos + 1::2]
+    assert len(values) == len(counts) and min(counts) >= 1
+    occ = np.zeros((d, d, d), dtype=bool)
+    index = 0
+    for value, count in zip(values, counts):
+        for n in range(index, index + count):
+            x, rest = divmod(n, d * d)
+            z, y = divmod(rest, d)
+            occ[x, y, z] = value == 1
+        index += count
+    assert index == d ** 3
+    return occ, np.array([float(v) for v in head["translate"]]), float(head["scale"][0])
+
+
+@pytest.fixture(scope="module")
+def cubic():
+    """spot in cubic voxels: 19 x 34 x 35, so binvox pads x and y."""
+    return geovox.voxelize(SPOT, voxel_size=0.05, backend="numpy")
+
+
+def test_binvox_follows_the_definition(tmp_path, cubic):
+    with pytest.warns(GeovoxWarning, match="padded with empty voxels to 35³"):
+        F.write(cubic, tmp_path / "s.binvox")
+    occ, translate, scale = _binvox_by_definition((tmp_path / "s.binvox").read_bytes())
+    d = 35
+    assert occ.shape == (d, d, d)
+    nx, ny, nz = cubic.shape
+    np.testing.assert_array_equal(occ[:nx, :ny, :nz], cubic.occupancy)
+    assert occ.sum() == cubic.inside_count  # the padding is empty
+    np.testing.assert_allclose(translate, cubic.bounds[0])
+    np.testing.assert_allclose(scale, 0.05 * d)
+    # voxel centre = translate + scale * (i + 0.5) / dim, the grid's own centres
+    i = np.arange(nx)
+    np.testing.assert_allclose(translate[0] + scale * (i + 0.5) / d,
+                               cubic.bounds[0][0] + (i + 0.5) * cubic.spacing[0], atol=1e-12)
+    back = F.read(tmp_path / "s.binvox")
+    np.testing.assert_array_equal(back.occupancy, occ)
+    np.testing.assert_allclose(back.spacing, cubic.spacing)
+    np.testing.assert_allclose(back.bounds[0], cubic.bounds[0])
+
+
+def test_binvox_box_is_exact(tmp_path):
+    from conftest import box_mesh
+
+    # A box of 6 x 3 x 4 voxels of edge 0.25, offset inside a 10³ region.
+    box = box_mesh((0.5, 1.0, 0.25), (2.0, 1.75, 1.25))
+    vol = geovox.voxelize(box, bounds=(0, 0, 0, 2.5, 2.5, 2.5), voxel_size=0.25, backend="numpy")
+    assert vol.shape == (10, 10, 10) and vol.inside_count == 6 * 3 * 4
+    F.write(vol, tmp_path / "b.binvox")
+    occ, translate, scale = _binvox_by_definition((tmp_path / "b.binvox").read_bytes())
+    idx = np.argwhere(occ)
+    centres = translate + scale * (idx + 0.5) / 10
+    assert centres.min(axis=0).tolist() == pytest.approx([0.625, 1.125, 0.375])
+    assert centres.max(axis=0).tolist() == pytest.approx([1.875, 1.625, 1.125])
+    assert len(idx) == 72
+
+
+def test_binvox_through_trimesh(tmp_path, cubic):
+    from trimesh.exchange.binvox import load_binvox
+
+    with pytest.warns(GeovoxWarning):
+        F.write(cubic, tmp_path / "s.binvox")
+    with open(tmp_path / "s.binvox", "rb") as f:
+        grid = load_binvox(f)
+    d = 35
+    nx, ny, nz = cubic.shape
+    m = np.asarray(grid.matrix)
+    assert m.shape == (d, d, d)
+    np.testing.assert_array_equal(m[:nx, :ny, :nz], cubic.occupancy)
+    assert m.sum() == cubic.inside_count
+    # trimesh reads translate as voxel 0's centre and scale as pitch * (dim - 1):
+    # the difference the README states.
+    np.testing.assert_allclose(grid.transform[:3, 3], cubic.bounds[0])
+    np.testing.assert_allclose(np.diag(grid.transform)[:3], 0.05 * d / (d - 1))
+
+
+def test_binvox_needs_cubic_voxels(tmp_path, plain):
+    from geovox.errors import ParameterError
+
+    with pytest.raises(ParameterError, match="cubic voxels.*--voxel-size"):
+        F.write(plain, tmp_path / "s.binvox")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_binvox_empty_and_full(tmp_path):
+    for value in (False, True):
+        occ = np.full((300, 300, 3), value, order="F")  # runs far longer than 255
+        v = geovox.Volume(occupancy=occ, grid=geovox.Grid(np.zeros(3), np.array([3.0, 3, 0.03]), occ.shape),
+                          backend="test")
+        with pytest.warns(GeovoxWarning):
+            F.write(v, tmp_path / "e.binvox")
+        back = F.read(tmp_path / "e.binvox").occupancy
+        assert back.shape == (300, 300, 300)
+        assert back[:, :, :3].all() == value and not back[:, :, 3:].any()
+
+
+def test_run_lengths_property():
+    from hypothesis import given, settings
+    from hypothesis import strategies as st
+
+    from geovox.formats.binvox import run_lengths
+
+    @settings(max_examples=60, deadline=None)
+    @given(st.lists(st.tuples(st.integers(0, 1), st.integers(1, 700)), max_size=12))
+    def check(runs):
+        flat = np.concatenate([np.full(n, v, np.uint8) for v, n in runs] or [np.zeros(0, np.uint8)])
+        pairs = run_lengths(flat)
+        values, counts = pairs[0::2], pairs[1::2]
+        assert counts.min(initial=1) >= 1 and counts.max(initial=1) <= 255
+        np.testing.assert_array_equal(np.repeat(values, counts), flat)
+
+    check()
+
+
+# --- packed bits in .npz ------------------------------------------------------------------
+
+def test_npz_pack_bits_follows_the_onet_idiom(tmp_path, vol):
+    F.write(vol, tmp_path / "p.npz", pack_bits=True)
+    F.write(vol, tmp_path / "u.npz")
+    with np.load(tmp_path / "p.npz") as d:
+        assert "occupancy" not in d and d["occupancy_bits"].dtype == np.uint8
+        got = np.unpackbits(d["occupancy_bits"])[:np.prod(d["shape"])].reshape(d["shape"])
+        np.testing.assert_array_equal(got == 1, vol.occupancy)
+        np.testing.assert_allclose(d["spacing"], vol.spacing)
+        np.testing.assert_allclose(d["origin"], origin(vol))
+        np.testing.assert_array_equal(d["colors"], vol.colors)
+    back = F.read(tmp_path / "p.npz")
+    np.testing.assert_array_equal(back.occupancy, vol.occupancy)
+    assert back.occupancy.flags.f_contiguous
+
+
+def test_cli_pack_bits(tmp_path, capsys):
+    from geovox.cli import main
+
+    out = tmp_path / "p.npz"
+    assert main(["convert", SPOT, "-o", str(out), "-r", "16", "--pack-bits", "-q",
+                 "--backend", "numpy"]) == 0
+    with np.load(out) as d:
+        assert d["occupancy_bits"].size == 16 ** 3 // 8
+    assert main(["convert", SPOT, "-o", str(tmp_path / "p.h5"), "-r", "16", "--pack-bits"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--pack-bits is for .npz" in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["p.npz"]
+
+
+# --- bad input for the new writers: full disk, interrupt, unwritable folder ---------------------
+
+class _FailingFile:
+    """A file whose second write raises ``exc`` (ENOSPC as on a full disk, or an interrupt)."""
+
+    def __init__(self, f, exc):
+        self.f, self.exc, self.writes = f, exc, 0
+
+    def write(self, data):
+        self.writes += 1
+        if self.writes > 1:
+            raise self.exc
+        return self.f.write(data)
+
+    def __getattr__(self, name):
+        return getattr(self.f, name)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.f.close()
+
+
+def _break_writes(monkeypatch, ext, exc):
+    """Make the writer of ``ext`` fail part-way through its file."""
+    import builtins
+
+    import geovox.formats.binvox as binvox_module
+    import geovox.formats.chunks as chunks
+    import geovox.formats.nrrd as nrrd_module
+    import geovox.formats.numpy_files as numpy_files
+
+    if ext in (".vtkhdf", ".hdf"):
+        # The file is open and laid out when the first array is written.
+        def write_both(*args, **kw):
+            raise exc
+
+        monkeypatch.setattr(chunks, "write_both", write_both)
+        return
+    module = {".binvox": binvox_module, ".nrrd": nrrd_module, ".npz": numpy_files}.get(ext)
+    if module is None:
+        import geovox.formats.vdb as module
+    monkeypatch.setattr(module, "open", lambda p, mode="r": _FailingFile(builtins.open(p, mode), exc),
+                        raising=False)
+
+
+NEW = [".vtkhdf", ".nrrd", ".npz", ".binvox"]
+
+
+@pytest.mark.parametrize("ext", NEW)
+def test_new_writers_full_disk_keeps_the_old_file(tmp_path, cubic, monkeypatch, ext):
+    import warnings
+
+    out = tmp_path / f"v{ext}"
+    out.write_bytes(b"previous")
+    _break_writes(monkeypatch, ext, OSError(28, "No space left on device"))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", GeovoxWarning)
+        with pytest.raises(OutputError, match="disk full"):
+            F.write(cubic, out, **({"pack_bits": True} if ext == ".npz" else {}))
+    assert out.read_bytes() == b"previous"
+    assert [p.name for p in tmp_path.iterdir()] == [out.name]
+
+
+@pytest.mark.parametrize("ext", NEW)
+def test_new_writers_interrupted_leave_nothing(tmp_path, cubic, monkeypatch, ext):
+    import warnings
+
+    _break_writes(monkeypatch, ext, KeyboardInterrupt())
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", GeovoxWarning)
+        with pytest.raises(KeyboardInterrupt):
+            F.write(cubic, tmp_path / f"v{ext}")
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("ext", NEW)
+def test_new_writers_cli_one_line_for_bad_output(tmp_path, monkeypatch, capsys, ext):
+    from geovox.cli import main
+
+    grid = ["--voxel-size", "0.1"]
+    assert main(["convert", SPOT, "-o", str(tmp_path / "missing" / f"v{ext}"), *grid]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "output folder does not exist" in err
+    monkeypatch.setattr(F.os, "access", lambda path, mode: False)
+    assert main(["convert", SPOT, "-o", str(tmp_path / f"v{ext}"), *grid]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "not writable" in err
+    monkeypatch.undo()
+    _break_writes(monkeypatch, ext, OSError(28, "No space left on device"))
+    assert main(["convert", SPOT, "-o", str(tmp_path / f"v{ext}"), *grid, "-q"]) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert err[-1].startswith("geovox: error: disk full") and len(err) <= 2  # binvox's padding warning
+    assert list(tmp_path.iterdir()) == []
