@@ -203,7 +203,7 @@ def write(volume, path, fmt=None, **options) -> list:
     return format_for(path, fmt).writer(volume, path, **options)
 
 
-from . import binvox, hdf5, nrrd, numpy_files, raw, vox, vtkhdf  # noqa: E402  (registration)
+from . import binvox, hdf5, nrrd, numpy_files, raw, vdb, vox, vtkhdf  # noqa: E402  (registration)
 
 register_format("raw", (".raw",), raw.write_raw,
                 "headerless uint8 (0/255), x fastest; .json sidecar, .mhd and .nhdr headers",
@@ -225,6 +225,9 @@ register_format("npz", (".npz",), numpy_files.write_npz,
 register_format("binvox", (".binvox",), binvox.write_binvox,
                 "binvox (ShapeNet, 3D-R2N2, ONet): run-length cube; cubic voxels, padded to a cube",
                 reader=binvox.read_binvox)
+register_format("vdb", (".vdb",), vdb.write_vdb,
+                "OpenVDB for Blender/Houdini: density (fog), color (vec3s), sdf (level set) grids",
+                reader=vdb.read_vdb)
 register_format("vox", (".vox",), vox.write_vox,
                 "MagicaVoxel: 256³ models in a scene graph, 255 quantised colours",
                 reader=vox.read_vox)
