@@ -485,9 +485,10 @@ def _read_grid(r: _Reader, shape, vector: bool):
     background = np.frombuffer(r.take(4 * width), "<f4").copy()
     background = background if vector else background.reshape(())
     tail = (3,) if vector else ()
-    dense = np.empty(tuple(shape) + tail, np.float32)
+    # x fastest, as geovox's arrays are (colour: components fastest, then x).
+    dense = np.empty(tuple(shape[::-1]) + tail, np.float32).transpose((2, 1, 0) + tuple(range(3, 3 + len(tail))))
     dense[...] = background
-    active = np.zeros(shape, bool)
+    active = np.zeros(shape, bool, order="F")
 
     def put(origin, size, value, on):
         sl = tuple(slice(max(o, 0), max(min(o + size, n), 0)) for o, n in zip(origin, shape))
@@ -505,18 +506,32 @@ def _read_grid(r: _Reader, shape, vector: bool):
     def node(origin, log2, child_log2):
         child_mask, value_mask = r.mask(log2), r.mask(log2)
         vals = r.values(1 << 3 * log2, value_mask, compression, background, log2)
-        size = 1 << child_log2
-        slots = np.arange(1 << 3 * log2)
-        coords = np.stack([slots >> 2 * log2, (slots >> log2) & ((1 << log2) - 1),
-                           slots & ((1 << log2) - 1)], axis=1) * size + np.asarray(origin)
-        for n in np.flatnonzero(~child_mask & (value_mask | np.any(
-                (vals != background).reshape(len(slots), -1), axis=1))):
-            put(tuple(coords[n]), size, vals[n], value_mask[n])
-        for n in np.flatnonzero(child_mask):
+        size, n = 1 << child_log2, 1 << log2
+        slots = np.arange(n ** 3)
+        coords = np.stack([slots >> 2 * log2, (slots >> log2) & (n - 1), slots & (n - 1)],
+                          axis=1) * size + np.asarray(origin)
+        tile = ~child_mask & (value_mask | np.any((vals != background).reshape(len(slots), -1), axis=1))
+        if log2 == N16 and tile.any():
+            # Leaf-sized tiles: expand the node's 16³ slots to its 128³ voxels at once.
+            sl = tuple(slice(o, min(o + n * size, m)) for o, m in zip(origin, shape))
+            cut = tuple(slice(0, q.stop - q.start) for q in sl)
+            if all(q.stop > q.start for q in sl):
+                def expand(a):
+                    a = a.reshape((n, n, n) + a.shape[1:])
+                    for axis in range(3):
+                        a = np.repeat(a, size, axis=axis)
+                    return a[cut]
+                where = expand(tile)
+                np.copyto(dense[sl], expand(vals), where=where[(...,) + (None,) * (vals.ndim - 1)])
+                np.copyto(active[sl], expand(value_mask), where=where)
+        else:
+            for k in np.flatnonzero(tile):
+                put(tuple(coords[k]), size, vals[k], value_mask[k])
+        for k in np.flatnonzero(child_mask):
             if log2 == N32:
-                node(tuple(coords[n]), N16, LEAF)
+                node(tuple(coords[k]), N16, LEAF)
             else:
-                leaves.append((tuple(coords[n]), r.mask(LEAF)))
+                leaves.append((tuple(coords[k]), r.mask(LEAF)))
 
     for _ in range(nchildren):
         node(r.unpack("3i"), N32, N16 + LEAF)
