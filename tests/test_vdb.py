@@ -190,7 +190,7 @@ def test_large_solid_takes_little_space(tmp_path):
     # only the face leaves are stored (a 1024³ one takes about 11 MB).
     v = _box_volume((192, 192, 192), (37, 5, 100), (190, 181, 171))
     F.write(v, tmp_path / "big.vdb")
-    assert os.path.getsize(tmp_path / "big.vdb") < 300_000  # 7 MiB as dense float32
+    assert os.path.getsize(tmp_path / "big.vdb") < 512_000  # 28 MiB as dense float32
     back = F.read(tmp_path / "big.vdb")
     np.testing.assert_array_equal(back.occupancy, v.occupancy)
 
