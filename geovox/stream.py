@@ -26,7 +26,7 @@ from .mesh import load_mesh
 #: Memory a slab's arrays may take, by default: 2048³ occupancy goes in
 #: 256-voxel slabs and stays under 3 GiB; occupancy up to 1024³ is one slab.
 SLAB_BUDGET = 1 << 30
-STREAMABLE = ("hdf5", "raw")
+STREAMABLE = ("hdf5", "raw", "vtkhdf")
 
 
 def bytes_per_voxel(color=False, density=None, sdf=False) -> float:
@@ -73,7 +73,7 @@ def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, *
     t0 = time.perf_counter()
     f = formats.format_for(path, fmt)
     if f.name not in STREAMABLE:
-        raise ParameterError(f"slab-by-slab output needs .h5 or .raw, not {f.name}")
+        raise ParameterError(f"slab-by-slab output needs .h5, .vtkhdf/.hdf or .raw, not {f.name}")
     formats.check_writable(path)
     jobs = resolve_jobs(jobs)
     m = load_mesh(mesh)
@@ -117,7 +117,9 @@ def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, *
     from .formats.hdf5 import HDF5Writer
     from .formats.raw import RawWriter
 
-    writer = (HDF5Writer if f.name == "hdf5" else RawWriter)(path, meta, jobs)
+    from .formats.vtkhdf import VTKHDFWriter
+
+    writer = {"hdf5": HDF5Writer, "raw": RawWriter, "vtkhdf": VTKHDFWriter}[f.name](path, meta, jobs)
     inside = 0
     timings = {"load": 0.0, "rays": 0.0, "fill": 0.0, "write": 0.0}
     nx, ny, _ = grid.shape

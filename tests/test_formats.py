@@ -634,3 +634,16 @@ def test_new_writers_cli_one_line_for_bad_output(tmp_path, monkeypatch, capsys, 
     err = capsys.readouterr().err.splitlines()
     assert err[-1].startswith("geovox: error: disk full") and len(err) <= 2  # binvox's padding warning
     assert list(tmp_path.iterdir()) == []
+
+
+def test_vtkhdf_streams_slab_by_slab(tmp_path):
+    from geovox.stream import convert_to
+
+    opts = dict(shape=(16, 16, 150), color=True, backend="numpy")
+    info = convert_to(SPOT, tmp_path / "s.vtkhdf", budget=16 * 16 * 64 * 25, **opts)
+    assert info["slabs"] == 3
+    ref = geovox.voxelize(SPOT, axis=1, **opts)
+    back = F.read(tmp_path / "s.vtkhdf")
+    np.testing.assert_array_equal(back.occupancy, ref.occupancy)
+    np.testing.assert_array_equal(back.colors, ref.colors)
+    np.testing.assert_allclose(back.bounds, ref.bounds)
