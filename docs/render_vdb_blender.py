@@ -20,7 +20,9 @@ scene = bpy.context.scene
 
 bpy.ops.object.volume_import(filepath=vdb_path)
 vol = bpy.context.active_object
-vol.data.display.density = 1.0
+# OBJ models (spot among them) are y-up; Blender is z-up.
+vol.rotation_euler = (math.pi / 2, 0.0, 0.0)
+bpy.context.view_layer.update()
 
 # Principled Volume: density from the `density` grid, colour from `color`.
 mat = bpy.data.materials.new("geovox")
@@ -44,8 +46,8 @@ radius = max((c - centre).length for c in corners)
 cam_data = bpy.data.cameras.new("camera")
 cam = bpy.data.objects.new("camera", cam_data)
 scene.collection.objects.link(cam)
-direction = Vector((1.0, -1.6, 0.9)).normalized()
-cam.location = centre + direction * radius * 3.2
+direction = Vector((1.3, -1.6, 0.7)).normalized()
+cam.location = centre + direction * radius * 2.8
 cam.rotation_euler = (centre - cam.location).to_track_quat("-Z", "Y").to_euler()
 scene.camera = cam
 
@@ -61,7 +63,7 @@ scene.world = world
 
 scene.render.engine = "CYCLES"
 scene.cycles.device = "CPU"
-scene.cycles.samples = 48
+scene.cycles.samples = 32
 scene.cycles.use_denoising = False  # Debian's build has no OpenImageDenoise
 scene.cycles.volume_step_rate = 1.0
 scene.render.resolution_x, scene.render.resolution_y = 640, 480

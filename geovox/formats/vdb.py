@@ -1,8 +1,9 @@
 """OpenVDB (``.vdb``) for Blender, Houdini, Unreal and ParaView, written with NumPy.
 
 No maintained Python package writes VDB, so this module writes the file
-format itself (file version 224, as OpenVDB 3 to 10 write it), from the
-layout of OpenVDB's ``io::Archive`` and tree nodes:
+format itself (file version 224, the version OpenVDB 10 writes; a reader
+takes every version up to its own), from the layout of OpenVDB's
+``io::Archive`` and tree nodes:
 
 * header: int64 magic ``0x56444220``, uint32 file version, uint32 library
   major and minor, uint8 "has grid offsets", the 36-character UUID; the
@@ -24,7 +25,8 @@ layout of OpenVDB's ``io::Archive`` and tree nodes:
 
 Only leaves that are not uniform are stored; a uniform 8³ block is a tile of
 its 16³ node and a uniform 128³ block a tile of the 32³ node, so a solid
-1024³ box takes kilobytes. ``density`` (fog volume: the coverage density, or
+takes space for its surface only (a box filling most of a 1024³ grid, its
+faces cutting the leaves: 10.8 MB). ``density`` (fog volume: the coverage density, or
 occupancy 0/1), ``color`` (RGB 0..1, vec3s, active where inside) and ``sdf``
 (level set, background = the clamped distance, narrow band active) are the
 grids; Blender's volume objects read ``density`` and ``color`` by name.
@@ -46,7 +48,7 @@ LIBRARY_VERSION = (10, 0)
 COMPRESS_ZIP, COMPRESS_ACTIVE_MASK = 0x1, 0x2
 #: What the reader is told to expect per node: zlib, and inactive values left out.
 COMPRESSION = COMPRESS_ZIP | COMPRESS_ACTIVE_MASK
-#: zlib level: the leaves are small; 6 (zlib's default, OpenVDB's) costs little more than 1.
+#: zlib level: zlib's default, which OpenVDB's own zipToStream uses.
 ZIP_LEVEL = 6
 #: Leaves gathered per batch (bounds the memory of the values being encoded).
 BATCH = 8192
