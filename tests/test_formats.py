@@ -647,3 +647,11 @@ def test_vtkhdf_streams_slab_by_slab(tmp_path):
     np.testing.assert_array_equal(back.occupancy, ref.occupancy)
     np.testing.assert_array_equal(back.colors, ref.colors)
     np.testing.assert_allclose(back.bounds, ref.bounds)
+
+
+@pytest.mark.parametrize("shape", [(1, 1, 1), (3, 5, 7), (40, 9, 33), (64, 2, 8)])
+def test_packbits_in_pieces_equals_the_idiom(shape):
+    from geovox.formats.numpy_files import packbits_c
+
+    occ = np.asfortranarray(np.random.default_rng(sum(shape)).random(shape) < 0.4)
+    np.testing.assert_array_equal(packbits_c(occ), np.packbits(occ.ravel(order="C")))

@@ -16,11 +16,13 @@ import numpy as np
 SLAB_VOXELS = 1 << 24
 
 
-def _write_one(path, arr, volume, components: int = 1) -> None:
+def _write_one(path, arr, volume, components: int = 1, times: int = 1) -> None:
     """One attached NRRD: header, then ``arr`` x fastest.
 
     ``arr`` is ``(nx, ny, nz)`` or ``(nx, ny, nz, components)``, indexed
-    ``[x, y, z]``; its dtype is what is stored. Single values are gzip-encoded;
+    ``[x, y, z]``; its dtype is what is stored, each value multiplied by
+    ``times`` slab by slab (occupancy 0/1 is stored 0/255 without a whole
+    copy). Single values are gzip-encoded;
     several components per voxel are stored raw, because VTK's NRRD reader
     (ParaView's; through VTK 9.7 at least) inflates only one value per voxel
     of a gzip-encoded file, so a gzip RGBA file opens with three quarters of
@@ -40,6 +42,8 @@ def _write_one(path, arr, volume, components: int = 1) -> None:
         f.write(header.encode("ascii"))
         for a in range(0, nz, per):
             part = arr[:, :, a:a + per]
+            if times != 1:
+                part = part * arr.dtype.type(times)
             # x fastest (then components first): the C order of the (z, y, x[, c]) transpose.
             zyx = np.ascontiguousarray(part.transpose((2, 1, 0) + tuple(range(3, arr.ndim))),
                                        dtype=arr.dtype.newbyteorder("<"))
@@ -57,7 +61,7 @@ def write_nrrd(volume, path) -> list:
     path = os.fspath(path)
     written = [path]
     with atomic_outputs() as group:
-        _write_one(group.add(path), volume.occupancy.view(np.uint8) * np.uint8(255), volume)
+        _write_one(group.add(path), volume.occupancy.view(np.uint8), volume, times=255)
         if volume.colors is not None:
             cpath = colour_path(path)
             _write_one(group.add(cpath), volume.colors, volume, components=4)

@@ -18,6 +18,35 @@ def write_npy(volume, path) -> list:
     return [path]
 
 
+def packbits_c(occupancy: np.ndarray) -> np.ndarray:
+    """``np.packbits(occupancy.ravel(order="C"))``, a few x-planes at a time.
+
+    Parameters
+    ----------
+    occupancy : (nx, ny, nz) bool, any memory order (geovox's is Fortran)
+
+    Returns
+    -------
+    (ceil(nx * ny * nz / 8),) uint8
+
+    The C order of a Fortran-ordered array is its transpose; copied whole
+    that took twice as long as copying 32 x-planes at a time in tiles of 8
+    y-rows that stay in cache (measured at 512³). 32 planes hold a whole
+    number of bytes of bits, so the pieces concatenate to the same bytes.
+    """
+    nx, ny, nz = occupancy.shape
+    planes, rows = 32, 8
+    buf = np.empty((planes, ny, nz), dtype=np.uint8)
+    out = []
+    for x0 in range(0, nx, planes):
+        part = occupancy[x0:x0 + planes].view(np.uint8)
+        b = buf[:part.shape[0]]
+        for y0 in range(0, ny, rows):
+            b[:, y0:y0 + rows] = part[:, y0:y0 + rows]
+        out.append(np.packbits(b.reshape(-1)))
+    return np.concatenate(out) if out else np.zeros(0, np.uint8)
+
+
 def write_npz(volume, path, pack_bits: bool = False) -> list:
     """Compressed arrays ``occupancy``, ``colors`` (if any), ``spacing``, ``bounds``, ``origin``.
 
@@ -33,8 +62,7 @@ def write_npz(volume, path, pack_bits: bool = False) -> list:
     path = os.fspath(path)
     arrays = {}
     if pack_bits:
-        # ravel(order="C") of the Fortran-ordered array copies once, as the idiom needs.
-        arrays["occupancy_bits"] = np.packbits(volume.occupancy.ravel(order="C"))
+        arrays["occupancy_bits"] = packbits_c(volume.occupancy)
         arrays["shape"] = np.asarray(volume.shape, dtype=np.int64)
     else:
         arrays["occupancy"] = volume.occupancy.view(np.uint8)
