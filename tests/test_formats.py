@@ -655,3 +655,40 @@ def test_packbits_in_pieces_equals_the_idiom(shape):
 
     occ = np.asfortranarray(np.random.default_rng(sum(shape)).random(shape) < 0.4)
     np.testing.assert_array_equal(packbits_c(occ), np.packbits(occ.ravel(order="C")))
+
+
+def test_paraview_opens_the_files_by_name(tmp_path):
+    # ParaView picks a reader by extension only; 5.10-5.11 read VTK-HDF as .hdf,
+    # 5.12+ as .vtkhdf too. Runs where ParaView's pvpython is installed.
+    import json
+    import shutil
+    import subprocess
+
+    pvpython = shutil.which("pvpython")
+    if pvpython is None:
+        pytest.skip("ParaView's pvpython is not installed (Debian: apt install paraview python3-paraview)")
+    v = geovox.voxelize(SPOT, shape=(11, 13, 9), color=True, sdf=True, backend="numpy")
+    for name in ("v.vtkhdf", "v.hdf", "w.nrrd"):
+        F.write(v, tmp_path / name)
+    names = [str(tmp_path / n) for n in ("v.vtkhdf", "v.hdf", "w.nrrd", "w_rgba.nrrd", "w_sdf.nrrd")]
+    run = subprocess.run([pvpython, os.path.join(os.path.dirname(__file__), "paraview_open.py"), *names],
+                         capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr
+    # ParaView logs "WARN| ... File version: 2.1 is higher than this reader supports 1.0".
+    assert not any(word in run.stderr for word in ("WARN", "ERR", "Warning", "Error")), run.stderr
+    report = json.loads(run.stdout.strip().splitlines()[-1])
+    files = report["files"]
+    extent = [0, 10, 0, 12, 0, 8]
+    if tuple(report["version"]) < (5, 12):
+        assert "No reader" in files[names[0]]["error"]
+        names = names[1:]
+    lo = origin(v)
+    for path in names:
+        f = files[path]
+        assert f["extent"] == extent, path
+        np.testing.assert_allclose(f["bounds"][::2], lo)
+    hdf = files[str(tmp_path / "v.hdf")]["arrays"]
+    np.testing.assert_array_equal(np.asarray(hdf["color"]), v.colors.transpose(2, 1, 0, 3).reshape(-1, 4))
+    np.testing.assert_array_equal(np.asarray(hdf["sdf"], np.float32), v.sdf.reshape(-1, order="F"))
+    rgba = next(iter(files[str(tmp_path / "w_rgba.nrrd")]["arrays"].values()))
+    np.testing.assert_array_equal(np.asarray(rgba), v.colors.transpose(2, 1, 0, 3).reshape(-1, 4))
