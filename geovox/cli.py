@@ -348,6 +348,8 @@ def _convert(args) -> int:
     output = _output_path(args, args.input, grid.shape)
     fmt = formats.format_for(output, args.fmt)
     write_options = _write_options(args, fmt)  # a bad combination fails before any work
+    if fmt.check is not None:
+        fmt.check(grid)  # e.g. binvox needs cubic voxels
     per = bytes_per_voxel(args.color, args.density, args.sdf)
     from .pipeline import _available_memory
 

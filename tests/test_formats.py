@@ -692,3 +692,17 @@ def test_paraview_opens_the_files_by_name(tmp_path):
     np.testing.assert_array_equal(np.asarray(hdf["sdf"], np.float32), v.sdf.reshape(-1, order="F"))
     rgba = next(iter(files[str(tmp_path / "w_rgba.nrrd")]["arrays"].values()))
     np.testing.assert_array_equal(np.asarray(rgba), v.colors.transpose(2, 1, 0, 3).reshape(-1, 4))
+
+
+def test_cli_refuses_binvox_with_unequal_voxels_before_work(tmp_path, capsys, monkeypatch):
+    from geovox.cli import main
+    import geovox.pipeline as pipeline
+
+    def never(*a, **k):
+        raise AssertionError("voxelised before the grid was checked")
+
+    monkeypatch.setattr(pipeline, "voxelize", never)
+    assert main(["convert", SPOT, "-o", str(tmp_path / "s.binvox"), "-r", "16"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "binvox needs cubic voxels" in err and "--voxel-size" in err
+    assert list(tmp_path.iterdir()) == []

@@ -27,14 +27,17 @@ class Format:
     writer: object
     description: str
     reader: object = None
+    #: ``check(grid)``: raises ParameterError for a grid the format cannot hold, before any work.
+    check: object = None
 
 
 _FORMATS: dict = {}
 
 
-def register_format(name, extensions, writer, description="", reader=None):
-    """Register ``writer`` (and optionally ``reader``) for the given extensions (with dot)."""
-    _FORMATS[name] = Format(name, tuple(e.lower() for e in extensions), writer, description, reader)
+def register_format(name, extensions, writer, description="", reader=None, check=None):
+    """Register ``writer`` (and optionally ``reader`` and a grid ``check``) for the given extensions (with dot)."""
+    _FORMATS[name] = Format(name, tuple(e.lower() for e in extensions), writer, description, reader,
+                            check)
 
 
 def formats() -> list:
@@ -224,7 +227,7 @@ register_format("npz", (".npz",), numpy_files.write_npz,
                 reader=numpy_files.read_npz)
 register_format("binvox", (".binvox",), binvox.write_binvox,
                 "binvox (ShapeNet, 3D-R2N2, ONet): run-length cube; cubic voxels, padded to a cube",
-                reader=binvox.read_binvox)
+                reader=binvox.read_binvox, check=binvox.check_grid)
 register_format("vdb", (".vdb",), vdb.write_vdb,
                 "OpenVDB for Blender/Houdini: density (fog), color (vec3s), sdf (level set) grids",
                 reader=vdb.read_vdb)

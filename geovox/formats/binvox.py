@@ -65,22 +65,29 @@ def run_lengths(flat: np.ndarray) -> np.ndarray:
     return out.reshape(-1)
 
 
-def cube_of(volume):
-    """``(dim, translate, scale)`` of the binvox cube holding ``volume``.
+def check_grid(grid) -> None:
+    """Refuse, before any work, a grid whose voxels are not cubic (binvox has one scale).
+
+    ``grid`` is anything with ``spacing`` (a Grid or a Volume).
 
     Raises
     ------
     ParameterError
-        If the voxels are not cubic (binvox has one scale for all axes).
     """
     from ..errors import ParameterError
 
-    spacing = np.asarray(volume.spacing, dtype=np.float64)
+    spacing = np.asarray(grid.spacing, dtype=np.float64)
     if not np.allclose(spacing, spacing[0], rtol=1e-6, atol=0.0):
         dx, dy, dz = spacing
         raise ParameterError(
             f"binvox needs cubic voxels, got {dx:.6g} x {dy:.6g} x {dz:.6g}: "
             f"use --voxel-size (voxel_size=) instead of --resolution or --shape")
+
+
+def cube_of(volume):
+    """``(dim, translate, scale)`` of the binvox cube holding ``volume`` (cubic voxels: see :func:`check_grid`)."""
+    check_grid(volume)
+    spacing = np.asarray(volume.spacing, dtype=np.float64)
     dim = int(max(volume.shape))
     return dim, np.asarray(volume.bounds[0], dtype=np.float64), float(spacing[0]) * dim
 
