@@ -35,7 +35,8 @@ _FORMATS: dict = {}
 
 
 def register_format(name, extensions, writer, description="", reader=None, check=None):
-    """Register ``writer`` (and optionally ``reader`` and a grid ``check``) for the given extensions (with dot)."""
+    """Register ``writer`` for the given extensions (with dot), with an optional ``reader``
+    and grid ``check``."""
     _FORMATS[name] = Format(name, tuple(e.lower() for e in extensions), writer, description, reader,
                             check)
 

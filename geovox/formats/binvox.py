@@ -35,7 +35,8 @@ SLAB_VOXELS = 1 << 24
 def header(dim: int, translate, scale: float) -> bytes:
     """The text header, up to and including the ``data`` line."""
     tx, ty, tz = (repr(float(v)) for v in translate)
-    return f"#binvox 1\ndim {dim} {dim} {dim}\ntranslate {tx} {ty} {tz}\nscale {float(scale)!r}\ndata\n".encode()
+    return (f"#binvox 1\ndim {dim} {dim} {dim}\ntranslate {tx} {ty} {tz}\n"
+            f"scale {float(scale)!r}\ndata\n").encode()
 
 
 def run_lengths(flat: np.ndarray) -> np.ndarray:
@@ -85,7 +86,10 @@ def check_grid(grid) -> None:
 
 
 def cube_of(volume):
-    """``(dim, translate, scale)`` of the binvox cube holding ``volume`` (cubic voxels: see :func:`check_grid`)."""
+    """``(dim, translate, scale)`` of the binvox cube holding ``volume``.
+
+    The voxels must be cubic (see :func:`check_grid`).
+    """
     check_grid(volume)
     spacing = np.asarray(volume.spacing, dtype=np.float64)
     dim = int(max(volume.shape))

@@ -488,7 +488,8 @@ def _read_grid(r: _Reader, shape, vector: bool):
     background = background if vector else background.reshape(())
     tail = (3,) if vector else ()
     # x fastest, as geovox's arrays are (colour: components fastest, then x).
-    dense = np.empty(tuple(shape[::-1]) + tail, np.float32).transpose((2, 1, 0) + tuple(range(3, 3 + len(tail))))
+    dense = np.empty(tuple(shape[::-1]) + tail, np.float32)
+    dense = dense.transpose((2, 1, 0) + tuple(range(3, 3 + len(tail))))
     dense[...] = background
     active = np.zeros(shape, bool, order="F")
 
