@@ -299,3 +299,16 @@ def test_vdb_writer_bad_output(tmp_path, spot, monkeypatch, capsys):
     assert main(["convert", SPOT, "-o", str(tmp_path / "no" / "x.vdb"), "-r", "8"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "output folder does not exist" in err
+
+
+@needs_openvdb
+def test_float_density_is_stored_as_is(tmp_path):
+    v = geovox.voxelize(SPOT, shape=(20, 24, 28), density="coverage", density_dtype="float32",
+                        backend="numpy")
+    F.write(v, tmp_path / "f.vdb")
+    g = openvdb_read(tmp_path / "f.vdb", v.shape)["density"]
+    np.testing.assert_array_equal(g["values"], v.density)
+    np.testing.assert_array_equal(g["active"], v.density > 0)
+    back = F.read(tmp_path / "f.vdb")
+    assert back.density.dtype == np.float32
+    np.testing.assert_array_equal(back.density, v.density)
