@@ -128,24 +128,41 @@ def _pad_to(a: np.ndarray, multiple: int, value) -> np.ndarray:
     return out
 
 
-def _block_extrema(raw: np.ndarray, size: int):
-    """Per ``size³`` block minimum and maximum of ``raw`` (``[x, y, z, ...]``, sides multiples of ``size``).
+def _block_extrema(raw: np.ndarray, size: int, pad):
+    """Per ``size³`` block minimum and maximum of ``raw`` (``[x, y, z, ...]``).
 
-    Reduced one axis at a time, slowest first: each step runs over contiguous
+    The grid is padded on the high side with ``pad`` to whole blocks, one
+    slab of z-planes at a time (never a copy of the whole array). Each slab is
+    reduced one axis at a time, slowest first: each step runs over contiguous
     memory and shrinks the data by ``size`` (several times faster than one
     reduction over three strided axes).
+
+    Returns
+    -------
+    lo, hi : (bx, by, bz[, c]) arrays of ``raw``'s dtype
     """
     nx, ny, nz = raw.shape[:3]
     tail = raw.shape[3:]
+    bx, by = -(-nx // size), -(-ny // size)
     # The z, y, x transpose of an x-fastest array is C-contiguous: no copy.
     zyx = np.ascontiguousarray(raw.transpose((2, 1, 0) + tuple(range(3, raw.ndim))))
-    out = []
-    for reduce in (np.min, np.max):
-        a = reduce(zyx.reshape((nz // size, size, ny, nx) + tail), axis=1)
-        a = reduce(a.reshape((nz // size, ny // size, size, nx) + tail), axis=2)
-        a = reduce(a.reshape((nz // size, ny // size, nx // size, size) + tail), axis=3)
-        out.append(a.transpose((2, 1, 0) + tuple(range(3, a.ndim))))
-    return out[0], out[1]
+    step = size * max(1, (1 << 24) // max(1, nx * ny * size))  # ~16 M voxels a slab
+    parts = ([], [])
+    for z0 in range(0, nz, step):
+        slab = zyx[z0:z0 + step]
+        bz = -(-slab.shape[0] // size)
+        if slab.shape[:3] != (bz * size, by * size, bx * size):
+            padded = np.empty((bz * size, by * size, bx * size) + tail, dtype=raw.dtype)
+            padded[...] = pad
+            padded[:slab.shape[0], :ny, :nx] = slab
+            slab = padded
+        for reduce, out in zip((np.min, np.max), parts):
+            a = reduce(slab.reshape((bz, size, by * size, bx * size) + tail), axis=1)
+            a = reduce(a.reshape((bz, by, size, bx * size) + tail), axis=2)
+            a = reduce(a.reshape((bz, by, bx, size) + tail), axis=3)
+            out.append(a)
+    back = (2, 1, 0) + tuple(range(3, 3 + len(tail)))
+    return tuple(np.concatenate(p).transpose(back) for p in parts)
 
 
 def _coarser(uniform, lo, hi, factor: int, pad):
@@ -240,8 +257,8 @@ def _tree(g: _Grid):
     leaves, then 16³ of those, then 32³ of those; a uniform block is a tile
     of its parent, and a uniform background block is left out.
     """
-    raw = _pad_to(g.raw, 1 << LEAF, g.pad)
-    lo, hi = _block_extrema(raw, 1 << LEAF)
+    raw = g.raw
+    lo, hi = _block_extrema(raw, 1 << LEAF, g.pad)
 
     def same(a, b):
         eq = a == b
@@ -294,8 +311,14 @@ def _tree(g: _Grid):
     for s in range(0, len(index), BATCH):
         idx = index[s:s + BATCH]
         xs, ys, zs = (idx[:, a, None] * (1 << LEAF) + off for a in range(3))
-        # (leaves, x, y, z[, c]) raw blocks, raveled z fastest as OpenVDB numbers voxels.
-        block = raw[xs[:, :, None, None], ys[:, None, :, None], zs[:, None, None, :]]
+        # (leaves, x, y, z[, c]) raw blocks, raveled z fastest as OpenVDB numbers voxels;
+        # a leaf at the grid's high edge reads its last voxel and gets the pad beyond.
+        nx, ny, nz = raw.shape[:3]
+        xi, yi, zi = xs[:, :, None, None], ys[:, None, :, None], zs[:, None, None, :]
+        block = raw[np.minimum(xi, nx - 1), np.minimum(yi, ny - 1), np.minimum(zi, nz - 1)]
+        beyond = (xi >= nx) | (yi >= ny) | (zi >= nz)
+        if beyond.any():
+            block[beyond] = g.pad
         flat = block.reshape((len(idx), 1 << 3 * LEAF) + raw.shape[3:])
         vals, act = g.value(flat), g.active(flat)
         stats.leaves(idx, act.reshape((len(idx),) + (1 << LEAF,) * 3))
