@@ -268,9 +268,13 @@ def adapter():
 def describe() -> str:
     """One line for ``geovox backends``: the adapter, or what is missing."""
     try:
+        import wgpu  # noqa: F401
+    except ImportError:
+        return "missing (pip install 'geovox[gpu]')"
+    try:
         info = adapter().info
-    except BackendUnavailableError as exc:
-        return f"missing: {exc}"
+    except BackendUnavailableError:
+        return f"missing: no GPU adapter; needs {DRIVER_HINT}"
     return (f"available: {info.get('device') or info.get('vendor')} "
             f"({info.get('adapter_type')}, {info.get('backend_type')})")
 
