@@ -180,6 +180,22 @@ def test_hits_equal_the_numpy_backend_bit_for_bit(gpu, axis):
     _same_hits(gpu.cast(mesh, cols, jobs=2), get_backend("numpy").cast(mesh, cols))
 
 
+@pytest.mark.parametrize("spread", [1.0, 3e4])
+def test_triangle_soup_on_column_centres(gpu, spread):
+    # Vertices exactly on column centres (so edges run through centres and
+    # ties are everywhere), and with spread=3e4 triangles reaching far past
+    # the lattice, whose edge values fill the high halves and carry often.
+    rng = np.random.default_rng(int(spread))
+    n = 48
+    grid = Grid(np.zeros(3), np.array([n, n, 1.0]), (n, n, 1))
+    cols = grid.columns(2, start=-1e6)
+    c = rng.integers(0, n, (300, 3, 2)) + 0.5
+    c[::3] = (c[::3] - n / 2) * spread + n / 2  # every third triangle huge
+    tris = np.concatenate([c, rng.random((300, 3, 1))], axis=2)
+    mesh = Mesh(tris.reshape(-1, 3), np.arange(900).reshape(-1, 3))
+    _same_hits(gpu.cast(mesh, cols), get_backend("numpy").cast(mesh, cols))
+
+
 # --- volumes against the NumPy backend ---------------------------------------
 
 def _both(mesh, **kw):
