@@ -27,7 +27,7 @@ Traps this module works around (wgpu 0.32.0, Mesa 22.3.6):
   error: the tiles are dispatched in chunks whose summed tile areas, an upper
   bound on their crossings, fit the output binding.
 * ``queue.on_submitted_work_done_sync()`` raises TypeError in wgpu 0.32.0;
-  the blocking ``queue.read_buffer`` of the hit counter is the sync point.
+  the blocking ``queue.read_buffer`` of the tile counts is the sync point.
 * Mesa prints ``XDG_RUNTIME_DIR is invalid or not set`` on every adapter
   request when that variable is unset (harmless; silenced here).
 * With both a Vulkan and an OpenGL driver the same device appears twice;
@@ -80,108 +80,136 @@ fn positive(a: vec2<u32>) -> bool {
 }
 """
 
-# One invocation per tile. Tile record (22 u32): edge values at the tile's
-# first column c0, c1, c2, steps per column ki0..2 and per row kj0..2 (each a
-# (low, high) pair), then the active triangle, i0, j0 and width | height << 16.
-# Each tile counts its crossings, reserves them with one atomic add, and
-# writes them as (ray, triangle, w0, w1, w2), 8 u32, so that the host reads
-# four little-endian int64 per crossing.
+# One invocation per tile, in two passes over the same tiles. Tile record
+# (22 u32): edge values at the tile's first column c0, c1, c2, steps per
+# column ki0..2 and per row kj0..2 (each a (low, high) pair), then the active
+# triangle, i0, j0 and width | height << 16. `count` writes each tile's number
+# of crossings; the host turns them into offsets (an exclusive prefix sum);
+# `emit` writes each tile's crossings from its offset, as (ray, triangle, w0,
+# w1, w2), 8 u32 read by the host as four little-endian int64. The output is
+# thus in tile order (triangle, then tile, then row, then column), the same
+# on every run, with no atomics.
 WGSL_SEARCH = WGSL_INT64 + """
 struct Params {
     ntiles: u32,
     nu: u32,
-    pad0: u32,
-    pad1: u32,
+    total: u32,
+    pad: u32,
 }
 
 @group(0) @binding(0) var<storage, read> tiles: array<u32>;
 @group(0) @binding(1) var<storage, read_write> hits: array<u32>;
-@group(0) @binding(2) var<storage, read_write> counter: atomic<u32>;
+@group(0) @binding(2) var<storage, read_write> counts: array<u32>;
 @group(0) @binding(3) var<uniform> params: Params;
+
+struct Tile {
+    c0: vec2<u32>, c1: vec2<u32>, c2: vec2<u32>,
+    ki0: vec2<u32>, ki1: vec2<u32>, ki2: vec2<u32>,
+    kj0: vec2<u32>, kj1: vec2<u32>, kj2: vec2<u32>,
+    t: u32, i0: u32, j0: u32, width: u32, height: u32,
+}
 
 fn pair(base: u32) -> vec2<u32> {
     return vec2<u32>(tiles[base], tiles[base + 1u]);
 }
 
+fn load(k: u32) -> Tile {
+    let b = k * 22u;
+    return Tile(pair(b), pair(b + 2u), pair(b + 4u),
+                pair(b + 6u), pair(b + 8u), pair(b + 10u),
+                pair(b + 12u), pair(b + 14u), pair(b + 16u),
+                tiles[b + 18u], tiles[b + 19u], tiles[b + 20u],
+                tiles[b + 21u] & 0xffffu, tiles[b + 21u] >> 16u);
+}
+
+fn index(gid: vec3<u32>, groups: vec3<u32>) -> u32 {
+    return gid.x + gid.y * groups.x * 64u;
+}
+
 @compute @workgroup_size(64)
-fn search(@builtin(global_invocation_id) gid: vec3<u32>,
-          @builtin(num_workgroups) groups: vec3<u32>) {
-    let k = gid.x + gid.y * groups.x * 64u;
+fn count(@builtin(global_invocation_id) gid: vec3<u32>,
+         @builtin(num_workgroups) groups: vec3<u32>) {
+    let k = index(gid, groups);
     if (k >= params.ntiles) {
         return;
     }
-    let b = k * 22u;
-    let c0 = pair(b);
-    let c1 = pair(b + 2u);
-    let c2 = pair(b + 4u);
-    let ki0 = pair(b + 6u);
-    let ki1 = pair(b + 8u);
-    let ki2 = pair(b + 10u);
-    let kj0 = pair(b + 12u);
-    let kj1 = pair(b + 14u);
-    let kj2 = pair(b + 16u);
-    let t = tiles[b + 18u];
-    let i0 = tiles[b + 19u];
-    let j0 = tiles[b + 20u];
-    let width = tiles[b + 21u] & 0xffffu;
-    let height = tiles[b + 21u] >> 16u;
-
+    let p = load(k);
     var n = 0u;
-    var r0 = c0;
-    var r1 = c1;
-    var r2 = c2;
-    for (var dj = 0u; dj < height; dj++) {
+    var r0 = p.c0;
+    var r1 = p.c1;
+    var r2 = p.c2;
+    for (var dj = 0u; dj < p.height; dj++) {
         var e0 = r0;
         var e1 = r1;
         var e2 = r2;
-        for (var di = 0u; di < width; di++) {
+        for (var di = 0u; di < p.width; di++) {
             if (positive(e0) && positive(e1) && positive(e2)) {
                 n += 1u;
             }
-            e0 = add64(e0, ki0);
-            e1 = add64(e1, ki1);
-            e2 = add64(e2, ki2);
+            e0 = add64(e0, p.ki0);
+            e1 = add64(e1, p.ki1);
+            e2 = add64(e2, p.ki2);
         }
-        r0 = add64(r0, kj0);
-        r1 = add64(r1, kj1);
-        r2 = add64(r2, kj2);
+        r0 = add64(r0, p.kj0);
+        r1 = add64(r1, p.kj1);
+        r2 = add64(r2, p.kj2);
     }
-    if (n == 0u) {
+    counts[k] = n;
+}
+
+@compute @workgroup_size(64)
+fn emit(@builtin(global_invocation_id) gid: vec3<u32>,
+        @builtin(num_workgroups) groups: vec3<u32>) {
+    let k = index(gid, groups);
+    if (k >= params.ntiles) {
         return;
     }
-    var o = atomicAdd(&counter, n) * 8u;
-    r0 = c0;
-    r1 = c1;
-    r2 = c2;
-    for (var dj = 0u; dj < height; dj++) {
+    // counts now holds each tile's offset.
+    var o = counts[k];
+    var stop = params.total;
+    if (k + 1u < params.ntiles) {
+        stop = counts[k + 1u];
+    }
+    if (o == stop) {
+        return;
+    }
+    let p = load(k);
+    var r0 = p.c0;
+    var r1 = p.c1;
+    var r2 = p.c2;
+    for (var dj = 0u; dj < p.height; dj++) {
         var e0 = r0;
         var e1 = r1;
         var e2 = r2;
-        let row = (j0 + dj) * params.nu + i0;
-        for (var di = 0u; di < width; di++) {
+        let row = (p.j0 + dj) * params.nu + p.i0;
+        for (var di = 0u; di < p.width; di++) {
             if (positive(e0) && positive(e1) && positive(e2)) {
-                hits[o] = row + di;
-                hits[o + 1u] = t;
-                hits[o + 2u] = e0.x;
-                hits[o + 3u] = e0.y;
-                hits[o + 4u] = e1.x;
-                hits[o + 5u] = e1.y;
-                hits[o + 6u] = e2.x;
-                hits[o + 7u] = e2.y;
-                o += 8u;
+                let h = o * 8u;
+                hits[h] = row + di;
+                hits[h + 1u] = p.t;
+                hits[h + 2u] = e0.x;
+                hits[h + 3u] = e0.y;
+                hits[h + 4u] = e1.x;
+                hits[h + 5u] = e1.y;
+                hits[h + 6u] = e2.x;
+                hits[h + 7u] = e2.y;
+                o += 1u;
             }
-            e0 = add64(e0, ki0);
-            e1 = add64(e1, ki1);
-            e2 = add64(e2, ki2);
+            e0 = add64(e0, p.ki0);
+            e1 = add64(e1, p.ki1);
+            e2 = add64(e2, p.ki2);
         }
-        r0 = add64(r0, kj0);
-        r1 = add64(r1, kj1);
-        r2 = add64(r2, kj2);
+        r0 = add64(r0, p.kj0);
+        r1 = add64(r1, p.kj1);
+        r2 = add64(r2, p.kj2);
     }
 }
 """
 
 _lock = threading.Lock()
+# The device buffers are shared: one search at a time (colour casts the
+# three axes from two threads).
+_busy = threading.Lock()
 _state: dict = {}
 
 
@@ -280,7 +308,7 @@ def describe() -> str:
 
 
 def _device():
-    """(device, pipeline), created once per process."""
+    """(device, {entry point: pipeline}), created once per process."""
     a = adapter()
     with _lock:
         if "device" not in _state:
@@ -288,13 +316,14 @@ def _device():
             with _quiet_native_stderr():
                 device = a.request_device_sync()
             module = device.create_shader_module(code=WGSL_SEARCH)
-            pipeline = device.create_compute_pipeline(
-                layout="auto", compute={"module": module, "entry_point": "search"})
+            _state["pipelines"] = {
+                name: device.create_compute_pipeline(
+                    layout="auto", compute={"module": module, "entry_point": name})
+                for name in ("count", "emit")}
             _state["device"] = device
-            _state["pipeline"] = pipeline
             _state["wgpu"] = wgpu
             _state["buffers"] = {}
-        return _state["device"], _state["pipeline"]
+        return _state["device"], _state["pipelines"]
 
 
 def make_tiles(proj: Projection):
@@ -386,7 +415,8 @@ def search(proj: Projection, max_hits: int | None = None) -> np.ndarray:
     (m, 4) int64
         Per crossing: ``ray | triangle << 32`` (``triangle`` indexes the active
         triangles of ``proj``), then the tie-resolved edge values ``w0, w1,
-        w2`` equal to ``proj.edge_values``. Rows come in no particular order.
+        w2`` equal to ``proj.edge_values``. Rows are in tile order (active
+        triangle, then tile, then row, then column), the same on every run.
     """
     if sys.byteorder != "little":  # the records are read as little-endian int64
         raise BackendUnavailableError("backend 'webgpu' needs a little-endian host")
@@ -395,8 +425,7 @@ def search(proj: Projection, max_hits: int | None = None) -> np.ndarray:
         raise BackendUnavailableError(
             "backend 'webgpu' indexes rays and triangles with 32 bits; this lattice "
             f"({columns.nu} x {columns.nv}) or mesh is larger: use --backend numpy")
-    device, pipeline = _device()
-    wgpu = _state["wgpu"]
+    device, _ = _device()
     limits = device.limits
     _state["max_binding"] = int(limits["max-storage-buffer-binding-size"])
     cap_hits = _state["max_binding"] // (4 * HIT_WORDS)
@@ -406,43 +435,65 @@ def search(proj: Projection, max_hits: int | None = None) -> np.ndarray:
     cap_tiles = min(_state["max_binding"] // (4 * TILE_WORDS), max_groups * WORKGROUP)
 
     tiles, area = make_tiles(proj)
-    usage = wgpu.BufferUsage
+    with _busy:
+        parts = _dispatch(tiles, area, columns.nu, cap_hits, cap_tiles)
+    if not parts:
+        return np.zeros((0, 4), np.int64)
+    return parts[0] if len(parts) == 1 else np.concatenate(parts)
+
+
+def _dispatch(tiles, area, nu, cap_hits, cap_tiles) -> list:
+    """Run the two passes over chunks of tiles; the crossing records of each."""
+    device, pipelines = _state["device"], _state["pipelines"]
+    max_groups = int(device.limits["max-compute-workgroups-per-dimension"])
+    usage = _state["wgpu"].BufferUsage
     parts = []
     for start, stop, bound in _chunks(area, cap_hits, cap_tiles):
         ntiles = stop - start
         tile_buf = _buffer("tiles", ntiles * TILE_WORDS * 4, usage.STORAGE | usage.COPY_DST)
         hit_buf = _buffer("hits", bound * HIT_WORDS * 4, usage.STORAGE | usage.COPY_SRC)
-        counter = _buffer("counter", 4, usage.STORAGE | usage.COPY_DST | usage.COPY_SRC)
+        count_buf = _buffer("counts", ntiles * 4,
+                            usage.STORAGE | usage.COPY_DST | usage.COPY_SRC)
         params = _buffer("params", 16, usage.UNIFORM | usage.COPY_DST)
         device.queue.write_buffer(tile_buf, 0, np.ascontiguousarray(tiles[start:stop]))
-        device.queue.write_buffer(counter, 0, np.zeros(1, np.uint32))
-        device.queue.write_buffer(params, 0, np.array([ntiles, columns.nu, 0, 0], np.uint32))
-        bind = device.create_bind_group(layout=pipeline.get_bind_group_layout(0), entries=[
-            {"binding": 0, "resource": {"buffer": tile_buf, "offset": 0, "size": ntiles * TILE_WORDS * 4}},
-            {"binding": 1, "resource": {"buffer": hit_buf, "offset": 0, "size": hit_buf.size}},
-            {"binding": 2, "resource": {"buffer": counter, "offset": 0, "size": 4}},
-            {"binding": 3, "resource": {"buffer": params, "offset": 0, "size": 16}},
-        ])
+        device.queue.write_buffer(params, 0, np.array([ntiles, nu, 0, 0], np.uint32))
         groups = -(-ntiles // WORKGROUP)
         gx = min(groups, max_groups)
-        encoder = device.create_command_encoder()
-        cpass = encoder.begin_compute_pass()
-        cpass.set_pipeline(pipeline)
-        cpass.set_bind_group(0, bind)
-        cpass.dispatch_workgroups(gx, -(-groups // gx), 1)
-        cpass.end()
-        device.queue.submit([encoder.finish()])
+
+        def run(entry):
+            pipeline = pipelines[entry]
+            bind = device.create_bind_group(layout=pipeline.get_bind_group_layout(0), entries=[
+                {"binding": b, "resource": {"buffer": buf, "offset": 0, "size": size}}
+                for b, buf, size in ((0, tile_buf, ntiles * TILE_WORDS * 4),
+                                     (1, hit_buf, hit_buf.size),
+                                     (2, count_buf, ntiles * 4),
+                                     (3, params, 16))
+                # layout="auto" keeps only the bindings the entry point uses.
+                if entry == "emit" or b != 1])
+            encoder = device.create_command_encoder()
+            cpass = encoder.begin_compute_pass()
+            cpass.set_pipeline(pipeline)
+            cpass.set_bind_group(0, bind)
+            cpass.dispatch_workgroups(gx, -(-groups // gx), 1)
+            cpass.end()
+            device.queue.submit([encoder.finish()])
+
+        run("count")
         # The blocking read is the sync point (on_submitted_work_done_sync
         # raises TypeError in wgpu 0.32.0).
-        found = int(np.frombuffer(device.queue.read_buffer(counter, 0, 4), np.uint32)[0])
+        counts = np.frombuffer(device.queue.read_buffer(count_buf, 0, ntiles * 4), np.uint32)
+        ends = np.cumsum(counts, dtype=np.int64)
+        found = int(ends[-1])
         if found > bound:  # cannot happen: a tile has at most `area` crossings
             raise RuntimeError(f"webgpu search overflowed its output ({found} > {bound})")
-        if found:
-            data = device.queue.read_buffer(hit_buf, 0, found * HIT_WORDS * 4)
-            parts.append(np.frombuffer(data, np.int64).reshape(found, 4))
-    if not parts:
-        return np.zeros((0, 4), np.int64)
-    return parts[0] if len(parts) == 1 else np.concatenate(parts)
+        if not found:
+            continue
+        device.queue.write_buffer(count_buf, 0, (ends - counts).astype(np.uint32))
+        device.queue.write_buffer(params, 0, np.array([ntiles, nu, found, 0], np.uint32))
+        run("emit")
+        data = device.queue.read_buffer(hit_buf, 0, found * HIT_WORDS * 4)
+        parts.append(np.frombuffer(data, np.int64).reshape(found, 4))
+    return parts
 
 
 def to_hits(proj: Projection, records: np.ndarray, jobs: int = 1) -> Hits:
