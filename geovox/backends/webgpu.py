@@ -313,8 +313,7 @@ def _device():
     with _lock:
         if "device" not in _state:
             wgpu = _import_wgpu()
-            with _quiet_native_stderr():
-                device = a.request_device_sync()
+            device = a.request_device_sync()
             module = device.create_shader_module(code=WGSL_SEARCH)
             _state["pipelines"] = {
                 name: device.create_compute_pipeline(
