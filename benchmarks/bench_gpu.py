@@ -17,9 +17,9 @@ median of the rounds:
 
 Also reports the cold start (import of wgpu, adapter, device, pipeline, first
 dispatch) once, checks that the two backends' volumes are equal, and times the
-user's path with the default adapter: paired fresh processes of
-``geovox convert MODEL.obj -o v.h5 -r N
--q --backend B`` (the model written to an OBJ first), wall clock.
+user's path with the default adapter: paired fresh processes of ``geovox
+convert MODEL.obj -o v.h5 -r N -q --backend B`` (the model written to an OBJ
+first), wall clock.
 
 Usage: python benchmarks/bench_gpu.py [--model bunny105k] [--sizes 256 512 1024] [--rounds 3]
        [--cli-sizes 512 1024]
