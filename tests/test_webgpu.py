@@ -328,6 +328,20 @@ def test_no_adapter_is_one_line_naming_the_driver(monkeypatch, capsys, tmp_path)
     assert "missing" in W.describe() and "mesa-vulkan-drivers" in W.describe()
 
 
+def test_device_failure_is_one_line(gpu, monkeypatch, capsys, tmp_path):
+    import wgpu
+
+    def fail(*args):
+        raise wgpu.GPUOutOfMemoryError("Out of memory\n  more detail")
+
+    monkeypatch.setattr(W, "_dispatch", fail)
+    assert main(["convert", SPOT, "-o", str(tmp_path / "x.raw"), "-r", "8",
+                 "--backend", "webgpu"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["geovox: error: backend 'webgpu' failed on the device (GPUOutOfMemoryError: "
+                   "Out of memory); use --backend numpy"]
+
+
 def test_no_wgpu_is_one_line_naming_the_package(monkeypatch, capsys, tmp_path):
     from geovox import backends
 

@@ -435,7 +435,13 @@ def search(proj: Projection, max_hits: int | None = None) -> np.ndarray:
 
     tiles, area = make_tiles(proj)
     with _busy:
-        parts = _dispatch(tiles, area, columns.nu, cap_hits, cap_tiles)
+        try:
+            parts = _dispatch(tiles, area, columns.nu, cap_hits, cap_tiles)
+        except _state["wgpu"].GPUError as exc:  # out of device memory, device lost, ...
+            raise BackendUnavailableError(
+                f"backend 'webgpu' failed on the device ({type(exc).__name__}: "
+                f"{str(exc).strip().splitlines()[0] if str(exc).strip() else 'no message'}); "
+                "use --backend numpy") from exc
     if not parts:
         return np.zeros((0, 4), np.int64)
     return parts[0] if len(parts) == 1 else np.concatenate(parts)
