@@ -21,8 +21,8 @@ is why it is cheaper than the NumPy backend's own.
 Traps this module works around (wgpu 0.32.0, Mesa 22.3.6):
 
 * llvmpipe silently stops an invocation after 65,535 loop iterations in
-  total, with no error: one invocation handles one tile, at most
-  ``2 * (TILE * TILE + TILE)`` iterations.
+  total, with no error: one invocation handles one tile in each of the two
+  passes (count, then emit), at most ``TILE * TILE + TILE`` iterations.
 * A storage binding over 128 MiB (the default limit) is a validation
   error: the tiles are dispatched in chunks whose summed tile areas, an upper
   bound on their crossings, fit the output binding.
@@ -313,7 +313,12 @@ def _device():
     with _lock:
         if "device" not in _state:
             wgpu = _import_wgpu()
-            device = a.request_device_sync()
+            try:
+                device = a.request_device_sync()
+            except Exception as exc:  # the native library's failures are plain exceptions
+                raise BackendUnavailableError(
+                    f"backend 'webgpu' could not open the adapter {a.summary!r} ({exc}); "
+                    "use --backend numpy") from exc
             module = device.create_shader_module(code=WGSL_SEARCH)
             _state["pipelines"] = {
                 name: device.create_compute_pipeline(
@@ -506,6 +511,20 @@ def to_hits(proj: Projection, records: np.ndarray, jobs: int = 1) -> Hits:
 
     ``Projection.interpolate`` in float64, as in every backend, so the depths
     are bit for bit those of the NumPy backend.
+
+    Parameters
+    ----------
+    proj : Projection
+        The projection the records were searched in.
+    records : (m, 4) int64
+        From :func:`search`.
+    jobs : int
+        Threads for the interpolation (the result does not depend on it).
+
+    Returns
+    -------
+    Hits
+        In the records' order.
     """
     m = len(records)
     ray = records[:, 0] & np.int64(0xFFFFFFFF)
