@@ -220,6 +220,35 @@ def test_triangle_soup_on_column_centres(gpu, spread):
     _same_hits(gpu.cast(mesh, cols), get_backend("numpy").cast(mesh, cols))
 
 
+def test_random_meshes_and_lattices_give_the_numpy_hits(gpu):
+    # Property test: triangles with coordinates on a coarse set of values
+    # (many on column centres and edges, many shared), random lattices and
+    # axes; the crossings must equal the NumPy backend's bit for bit.
+    hypothesis = pytest.importorskip("hypothesis")
+    from hypothesis import given, settings
+    from hypothesis import strategies as st
+
+    coord = st.integers(-4, 12).map(lambda k: k / 4)
+    tri = st.tuples(*[st.tuples(coord, coord, st.floats(-2, 2))] * 3)
+
+    @settings(max_examples=25, deadline=None, derandomize=True)
+    @given(st.lists(tri, min_size=1, max_size=30), st.integers(1, 13), st.integers(1, 13),
+           st.integers(0, 2))
+    def check(tris, nu, nv, axis):
+        t = np.array(tris, float)[:, :, [2, 0, 1]] if axis == 0 else np.array(tris, float)
+        if axis == 1:
+            t = t[:, :, [0, 2, 1]]
+        mesh = Mesh(t.reshape(-1, 3), np.arange(3 * len(t)).reshape(-1, 3))
+        shape = [4, 4, 4]
+        shape[[a for a in range(3) if a != axis][0]] = nu
+        shape[[a for a in range(3) if a != axis][1]] = nv
+        grid = Grid(np.zeros(3), np.full(3, 2.0), tuple(shape))
+        cols = grid.columns(axis, start=-10.0)
+        _same_hits(gpu.cast(mesh, cols), get_backend("numpy").cast(mesh, cols))
+
+    check()
+
+
 # --- volumes against the NumPy backend ---------------------------------------
 
 def _both(mesh, **kw):
