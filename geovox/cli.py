@@ -117,7 +117,7 @@ def _grid_options(c):
     c.add_argument("--bounds", type=_finite_float, nargs=6,
                    metavar=("XMIN", "YMIN", "ZMIN", "XMAX", "YMAX", "ZMAX"),
                    help="region of interest (default: the mesh's bounding box)")
-    c.add_argument("--backend", default="auto", choices=["auto", "embree", "numpy"],
+    c.add_argument("--backend", default="auto", choices=["auto", "embree", "numpy", "webgpu"],
                    help="ray-casting backend (default: auto = embree if installed, else numpy)")
     c.add_argument("--inside", default="auto", choices=["auto", "parity", "vote", "winding"],
                    help="inside test (default: auto = parity for closed meshes, winding number "
@@ -435,6 +435,10 @@ def _backends(args) -> int:
     for name in PREFERENCE:
         status = "available" if name in have else f"missing (pip install {REGISTRY[name][1]})"
         print(f"{name:8s} {status}")
+    # Not in PREFERENCE (`auto` never picks it): shown with its adapter.
+    from .backends.webgpu import describe
+
+    print(f"{'webgpu':8s} {describe()}")
     return EXIT_OK
 
 

@@ -18,6 +18,8 @@ from .base import Backend, Hits
 REGISTRY = {
     "embree": ("embreex", "embreex", "geovox.backends.embree:EmbreeBackend"),
     "numpy": ("numpy", "numpy", "geovox.backends.numpy:NumpyBackend"),
+    # Not in PREFERENCE: `auto` never picks it (see README, "WebGPU backend").
+    "webgpu": ("wgpu", "wgpu", "geovox.backends.webgpu:WebgpuBackend"),
 }
 #: Order tried by ``backend="auto"``.
 PREFERENCE = ("embree", "numpy")
