@@ -225,8 +225,10 @@ def _batch(args) -> int:
     from .batch import convert_many, summary_table
     from .parallel import resolve_jobs
 
+    from .batch import find_inputs
     from .errors import ParameterError
 
+    find_inputs(args.input)  # a missing input or an empty folder says so before anything else
     if args.output is None:
         args.output = os.getcwd()
     if not (os.path.isdir(args.output) or args.output.endswith(("/", os.sep))
