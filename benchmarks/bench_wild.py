@@ -24,7 +24,10 @@ process each with a time-out:
   double-sided face) and ``trimesh.repair.fix_normals(multibody=True)``
   (faces wound consistently across each body, each body turned outward). The
   repaired mesh is a *solid* when trimesh calls it a volume (watertight and
-  consistently wound). Meshes whose triangles x voxels exceed ``--budget`` are
+  consistently wound). A voxel centre on the surface (in the plane of a triangle
+  and inside it or on its edge) counts as agreeing either way: geovox decides
+  those by its tie rule, and the solid angle jumps there.
+  Meshes whose triangles x voxels exceed ``--budget`` are
   compared on a random sample of voxels, half inside and half outside geovox's
   volume, each half weighted by its share (the table gives the sample size).
 
@@ -100,11 +103,16 @@ def solid_angle_sum(triangles, points, chunk=1 << 20):
 
     Returns
     -------
-    (p,) float64 : the sum of the triangles' signed solid angles / (4 pi)
+    winding : (p,) float64
+        The sum of the triangles' signed solid angles / (4 pi).
+    on_surface : (p,) bool
+        The point lies on a triangle (in its plane, inside it or on its edge),
+        where the solid angle jumps by 4 pi and the sum means nothing.
     """
     out = np.zeros(len(points))
+    tie = np.zeros(len(points), dtype=bool)
     if len(triangles) == 0:
-        return out
+        return out, tie
     # One coordinate per array, (points, triangles): plain element-wise passes.
     v = [[np.ascontiguousarray(triangles[:, k, d]) for d in range(3)] for k in range(3)]
     step = max(1, chunk // len(triangles))
@@ -119,7 +127,9 @@ def solid_angle_sum(triangles, points, chunk=1 << 20):
         den = (la * lb * lc + (ax * bx + ay * by + az * bz) * lc
                + (bx * cx + by * cy + bz * cz) * la + (cx * ax + cy * ay + cz * az) * lb)
         out[s:s + step] = np.arctan2(det, den).sum(axis=1)
-    return out / (2.0 * np.pi)
+        scale = la * lb * lc
+        tie[s:s + step] = ((np.abs(det) <= 1e-9 * scale) & (den <= 1e-9 * scale)).any(axis=1)
+    return out / (2.0 * np.pi), tie
 
 
 def repaired(path):
@@ -172,7 +182,10 @@ def iou(path, npz, budget, seed=0):
         take = cells if occ.size <= n else rng.choice(cells, min(len(cells), n // 2), replace=False)
         weight = len(cells) / len(take)
         idx = np.stack(np.unravel_index(take, occ.shape), axis=1)
-        ref = solid_angle_sum(tri, lo + (idx + 0.5) * spacing) > 0.5
+        w, on_surface = solid_angle_sum(tri, lo + (idx + 0.5) * spacing)
+        # A centre on the surface is inside or out by a tie rule, not by the
+        # shape: it counts as agreeing.
+        ref = np.where(on_surface | (np.abs(w - 0.5) < 1e-6), k == 0, w > 0.5)
         compared += len(take)
         if k == 0:  # geovox inside: in the union; in the intersection where ref agrees
             inter += weight * np.count_nonzero(ref)
