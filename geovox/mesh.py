@@ -344,12 +344,19 @@ def _trimesh_load(path: str) -> Mesh:
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # NumPy noise from trimesh's parsers
-            loaded = trimesh.load(path, process=False)
-            mesh = from_trimesh(loaded, source=path)
-    except MeshError:
-        raise
-    except Exception as exc:  # trimesh raises many types for unreadable files
-        raise MeshError(_load_failure(path, exc)) from exc
+            try:
+                loaded = trimesh.load(path, process=False)
+            except Exception as exc:  # trimesh raises many types for unreadable files
+                raise MeshError(_load_failure(path, exc)) from exc
+            try:
+                mesh = from_trimesh(loaded, source=path)
+            except MeshError:
+                raise
+            except Exception as exc:  # odd visuals or arrays trimesh accepted
+                text = str(exc).strip().splitlines()[0][:120] if str(exc).strip() else ""
+                raise MeshError(
+                    f"{path}: trimesh read the file, but its geometry or materials could not be "
+                    f"taken over ({type(exc).__name__}{': ' + text if text else ''})") from exc
     finally:
         logger.removeHandler(collect)
     lost = [m for m in collect.messages if _LOST_GEOMETRY.search(m)]
