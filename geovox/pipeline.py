@@ -342,24 +342,37 @@ def empty_reason(m, grid: Grid, method: str) -> str:
     if flat:
         return (f"{m.source}: the volume is empty: the mesh is flat (no thickness along "
                 f"{' and '.join(flat)}), so it encloses no volume")
-    f = np.sort(m.geometric_faces, axis=1)
-    edges = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [0, 2]]])
-    edges = edges[edges[:, 0] != edges[:, 1]]
+    f = m.geometric_faces
+    directed = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+    directed = directed[directed[:, 0] != directed[:, 1]]
+    edges = np.sort(directed, axis=1)
     _, counts = np.unique(edges, axis=0, return_counts=True)
     n_open = int(np.count_nonzero(counts == 1))
+    n_dup = len(f) - len(np.unique(np.sort(f, axis=1), axis=0))
+    # Edges two faces run the same way: faces wound against their neighbours.
+    _, same = np.unique(directed, axis=0, return_counts=True)
+    n_same = int(np.count_nonzero(same > 1))
     region = ("" if np.all(grid.lo <= m.bounds[0]) and np.all(grid.hi >= m.bounds[1])
               else " of the region")
     thin = [ax for ax, e, h in zip("xyz", extent, grid.spacing) if e < h]
     if n_open and method != "parity":
         why = (f"the mesh is an open surface ({n_open:,} open edges) that encloses no volume "
                f"at any voxel centre{region}")
+    elif n_dup:
+        why = (f"no voxel centre{region} lies inside the mesh: {n_dup:,} of its {len(f):,} faces "
+               f"repeat another face (a double-sided model), so each crossing counts twice and "
+               f"cancels")
+    elif n_same and method != "parity":
+        why = (f"no voxel centre{region} lies inside the mesh by its winding number: its faces "
+               f"are wound against each other ({n_same:,} edges run the same way in two faces), "
+               f"so their solid angles cancel; try --inside parity")
     elif thin:
         why = (f"no voxel centre{region} lies inside the mesh, which is thinner than a voxel "
                f"along {' and '.join(thin)}; try a finer grid")
     else:
         why = (f"no voxel centre{region} lies inside the mesh with the {method} inside test "
                f"({'closed' if not n_open else f'{n_open:,} open edges'}); its solid parts may be "
-               f"thinner than a voxel, or its faces doubled")
+               f"thinner than a voxel")
     return f"{m.source}: the volume is empty: {why}"
 
 

@@ -245,8 +245,8 @@ def test_empty_result_of_a_closed_mesh_says_why():
     with pytest.warns(GeovoxWarning) as record:
         vol = geovox.voxelize(doubled, resolution=8, backend="numpy", inside="parity")
     assert vol.inside_count == 0
-    assert any("volume is empty" in str(w.message) and "doubled" in str(w.message)
-               for w in record)
+    assert any("volume is empty" in str(w.message) and "12 of its 24 faces repeat another face"
+               in str(w.message) for w in record)
 
 
 def test_streamed_empty_volume_warns_too(tmp_path):
@@ -281,3 +281,20 @@ def test_folders_are_searched_for_3mf_and_collada(tmp_path):
         (tmp_path / name).write_bytes(b"x")
     found = [os.path.basename(p) for p in find_inputs([str(tmp_path)])]
     assert found == ["a.3MF", "b.dae", "c.zae", "d.glb"]
+
+
+def test_empty_reason_names_faces_wound_against_each_other():
+    # multibody.stl (trimesh's) is closed with faces wound against their
+    # neighbours; the winding number then cancels. The reason, asked directly
+    # (whether a repair later fills such a mesh is the inside test's business).
+    from geovox.grid import make_grid
+    from geovox.pipeline import empty_reason
+
+    box = _box()
+    faces = box.faces.copy()
+    faces[::2] = faces[::2, ::-1]
+    mesh = geovox.Mesh(box.vertices, faces, source="flipped")
+    grid = make_grid(mesh.bounds, resolution=8)
+    why = empty_reason(mesh, grid, "winding")
+    assert why.startswith("flipped: the volume is empty") and "wound against each other" in why
+    assert "edges run the same way" in why
