@@ -203,10 +203,13 @@ PIP_NAMES = {"collada": "pycollada", "cascadio": "cascadio",
 # trimesh logs (and carries on) when it drops geometry it could not read; these
 # messages mean the mesh it returns is missing parts, so geovox refuses it
 # rather than voxelise placeholder zeros or half a model.
+# Some are debug messages: a glTF triangle fan skipped, a broken file inside a
+# zip left out of the scene, a glTF mesh dropped.
 _LOST_GEOMETRY = re.compile(
     r"didn't decode, values are placeholder zeros|failed to process extension "
     r"KHR_draco_mesh_compression|PLY failed to populate|unable to load Rep|"
-    r"unsupported format|included but not defined|unable to get faces")
+    r"unsupported format|included but not defined|unable to get faces|"
+    r"skipping primitive with mode 6|failed to load file in zip|failed to load mesh")
 
 
 def _kind(path: str) -> str:
@@ -315,17 +318,17 @@ def from_trimesh(obj, source: str = "<trimesh>") -> Mesh:
 
 
 class _Collect(logging.Handler):
-    """Keeps trimesh's log records (warnings and up) while a file loads."""
+    """Keeps trimesh's log records while a file loads: ``(level, message)``."""
 
     def __init__(self):
-        super().__init__(logging.WARNING)
-        self.messages = []
+        super().__init__(logging.DEBUG)
+        self.records = []
 
     def emit(self, record):
         try:
-            self.messages.append(record.getMessage())
+            self.records.append((record.levelno, record.getMessage()))
         except Exception:  # a malformed record must not break loading
-            self.messages.append(str(record.msg))
+            self.records.append((record.levelno, str(record.msg)))
 
 
 def _trimesh_load(path: str) -> Mesh:
@@ -335,31 +338,26 @@ def _trimesh_load(path: str) -> Mesh:
     ext = os.path.splitext(path)[1].lower()
     if ext in NOT_A_MESH:
         raise MeshError(f"{path}: this is {NOT_A_MESH[ext]}")
-    # trimesh reports what it skipped through `logging`; without a handler
-    # Python prints those records on stderr, so they are collected instead
-    # and judged below.
+    # trimesh reports what it skipped through `logging` (some of it only at
+    # debug level); without a handler Python prints its warnings on stderr.
+    # While the file loads every record comes here instead, to be judged below.
     collect = _Collect()
     logger = logging.getLogger("trimesh")
+    saved = logger.level, logger.propagate
     logger.addHandler(collect)
+    logger.setLevel(logging.DEBUG)
+    logger.propagate = False
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # NumPy noise from trimesh's parsers
-            try:
-                loaded = trimesh.load(path, process=False)
-            except Exception as exc:  # trimesh raises many types for unreadable files
-                raise MeshError(_load_failure(path, exc)) from exc
-            try:
-                mesh = from_trimesh(loaded, source=path)
-            except MeshError:
-                raise
-            except Exception as exc:  # odd visuals or arrays trimesh accepted
-                text = str(exc).strip().splitlines()[0][:120] if str(exc).strip() else ""
-                raise MeshError(
-                    f"{path}: trimesh read the file, but its geometry or materials could not be "
-                    f"taken over ({type(exc).__name__}{': ' + text if text else ''})") from exc
+            loaded = trimesh.load(path, process=False)
+    except Exception as exc:  # trimesh raises many types for unreadable files
+        raise MeshError(_load_failure(path, exc)) from exc
     finally:
         logger.removeHandler(collect)
-    lost = [m for m in collect.messages if _LOST_GEOMETRY.search(m)]
+        logger.setLevel(saved[0])
+        logger.propagate = saved[1]
+    lost = [m for _, m in collect.records if _LOST_GEOMETRY.search(m)]
     if any("draco" in m.lower() for m in lost):
         why = ("the DracoPy package is not installed (pip install DracoPy)"
                if any("No module named" in m or "import of DracoPy" in m for m in lost)
@@ -369,7 +367,17 @@ def _trimesh_load(path: str) -> Mesh:
     if lost:
         raise MeshError(f"{path}: part of the geometry could not be read, so the volume would "
                         f"be incomplete (trimesh: {'; '.join(dict.fromkeys(lost))})")
-    mesh.problems.extend(f"{path}: {m}" for m in dict.fromkeys(collect.messages))
+    try:
+        mesh = from_trimesh(loaded, source=path)
+    except MeshError:
+        raise
+    except Exception as exc:  # odd visuals or arrays trimesh accepted
+        text = str(exc).strip().splitlines()[0][:120] if str(exc).strip() else ""
+        raise MeshError(
+            f"{path}: trimesh read the file, but its geometry or materials could not be "
+            f"taken over ({type(exc).__name__}{': ' + text if text else ''})") from exc
+    said = [m for level, m in collect.records if level >= logging.WARNING]
+    mesh.problems.extend(f"{path}: {m}" for m in dict.fromkeys(said))
     return mesh
 
 

@@ -298,3 +298,28 @@ def test_empty_reason_names_faces_wound_against_each_other():
     why = empty_reason(mesh, grid, "winding")
     assert why.startswith("flipped: the volume is empty") and "wound against each other" in why
     assert "edges run the same way" in why
+
+
+def test_gltf_triangle_fan_trimesh_skips_is_an_error(tmp_path):
+    # trimesh skips glTF primitives in TRIANGLE_FAN mode (6) with a debug
+    # message only: the volume would silently lack them.
+    data = trimesh.Scene(_box()).export(file_type="glb")
+    assert data.count(b'"mode":4') == 1
+    path = tmp_path / "fan.glb"
+    path.write_bytes(data.replace(b'"mode":4', b'"mode":6'))
+    with pytest.raises(MeshError, match=r"fan\.glb: (part of the geometry could not be read|"
+                                        r"has no faces)"):
+        geovox.load_mesh(str(path))
+
+
+def test_broken_file_inside_a_zip_is_an_error_not_a_partial_volume(tmp_path):
+    path = tmp_path / "two.zip"
+    with zipfile.ZipFile(path, "w") as z:
+        z.writestr("good.stl", _box().export(file_type="stl"))
+        z.writestr("bad.glb", b"glTF" + bytes(range(40)))
+    with pytest.raises(MeshError, match=r"two\.zip: part of the geometry could not be read.*"
+                                        r"failed to load file in zip"):
+        geovox.load_mesh(str(path))
+    # The logger is left as it was.
+    assert logging.getLogger("trimesh").propagate and \
+        logging.getLogger("trimesh").level == logging.NOTSET
