@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import logging
 import os
 import re
 import warnings
@@ -317,23 +316,24 @@ def from_trimesh(obj, source: str = "<trimesh>") -> Mesh:
     )
 
 
-class _Collect(logging.Handler):
-    """Keeps trimesh's log records while a file loads: ``(level, message)``."""
-
-    def __init__(self):
-        super().__init__(logging.DEBUG)
-        self.records = []
-
-    def emit(self, record):
-        try:
-            self.records.append((record.levelno, record.getMessage()))
-        except Exception:  # a malformed record must not break loading
-            self.records.append((record.levelno, str(record.msg)))
-
-
 def _trimesh_load(path: str) -> Mesh:
     """Read any non-OBJ file with trimesh; every failure becomes one MeshError line."""
+    import logging
+
     import trimesh
+
+    class _Collect(logging.Handler):
+        """Keeps trimesh's log records while a file loads: ``(level, message)``."""
+
+        def __init__(self):
+            super().__init__(logging.DEBUG)
+            self.records = []
+
+        def emit(self, record):
+            try:
+                self.records.append((record.levelno, record.getMessage()))
+            except Exception:  # a malformed record must not break loading
+                self.records.append((record.levelno, str(record.msg)))
 
     ext = os.path.splitext(path)[1].lower()
     if ext in NOT_A_MESH:
