@@ -262,8 +262,9 @@ def main(argv=None):
     p.add_argument("folder", nargs="?", default=DEFAULT,
                    help="trimesh's models/ folder (git clone https://github.com/mikedh/trimesh)")
     p.add_argument("--timeout", type=float, default=120.0, help="seconds per command")
-    p.add_argument("--only", default=None, help="only files whose name contains this")
-    p.add_argument("--budget", type=float, default=4e7,
+    p.add_argument("--only", default=None,
+                   help="only files whose name contains one of these (comma-separated)")
+    p.add_argument("--budget", type=float, default=1e7,
                    help="triangle-voxel pairs summed per file; beyond it voxels are sampled "
                         "(1e12: the whole grid)")
     args = p.parse_args(argv)
@@ -272,7 +273,7 @@ def main(argv=None):
                  f"its models/ folder")
     files = sorted(f for f in os.listdir(args.folder)
                    if os.path.isfile(os.path.join(args.folder, f))
-                   and (args.only is None or args.only in f))
+                   and (args.only is None or any(o in f for o in args.only.split(","))))
     work = tempfile.mkdtemp(prefix="bench_wild_")
     print(f"# bench_wild {datetime.date.today()}: {len(files)} files of {args.folder}, "
           f"`geovox convert FILE -r 64 --color` and `geovox info FILE`, time-out {args.timeout:g} s")
