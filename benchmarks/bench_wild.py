@@ -32,14 +32,16 @@ process each with a time-out:
   volume, each half weighted by its share (the table gives the sample size).
 
 Usage: python benchmarks/bench_wild.py [FOLDER] [--timeout 120] [--only SUBSTRING]
-       [--budget 4e8] [--markdown]
+       [--budget 1e7] [--json ROWS.json]
 """
 
 from __future__ import annotations
 
 import argparse
 import datetime
+import json
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -240,18 +242,28 @@ def one(path, args, work):
         score = iou(path, out, args.budget)
     shutil.rmtree(tmp, ignore_errors=True)
     errline = next((ln for ln in se.splitlines() if ln.startswith("geovox: error:")), "")
-    return dict(name=name, conv=conv, secs=secs, info=info, secs_info=secs_info, faces=faces,
+    return dict(name=name, path=path, conv=conv, secs=secs, info=info, secs_info=secs_info, faces=faces,
                 inside=inside, warn=warn, error=errline[len("geovox: error: "):],
                 iou=score[0], compared=score[1], solid=score[2])
 
 
-def fmt_row(r, width=200):
+def _short(text, path):
+    """A message without the file's path, the open-mesh warning cut to its numbers."""
+    text = text.replace(path + ": ", "").replace(path, "FILE")
+    m = re.match(r"the mesh is not closed \((\d+) open edges, (\d+) non-manifold", text)
+    if m:
+        return f"not closed ({m.group(1)} open, {m.group(2)} non-manifold edges)"
+    return text if len(text) <= 160 else text[:157] + "..."
+
+
+def fmt_row(r):
     iou_s = "" if r["iou"] is None else f"{r['iou']:.1f}"
     if r["iou"] is not None and r["compared"] < 64 ** 3:
         iou_s += f" ({r['compared']:,})"
     status = r["conv"] if r["conv"] != "ok" else f"converted, {r['inside']:,} inside"
-    note = r["error"] if r["conv"] == "error" else "; ".join(r["warn"])
-    note = note.replace("|", "/")[:width]
+    note = (_short(r["error"], r["path"]) if r["conv"] == "error"
+            else "; ".join(_short(w, r["path"]) for w in r["warn"]))
+    note = note.replace("|", "/")
     return (f"| {r['name']} | {r['faces']:,} | {status} | {r['secs']:.1f} | "
             f"{'ok' if r['info'] == 'ok' else r['info']} | {iou_s} | "
             f"{'yes' if r['solid'] else ('no' if r['iou'] is not None else '')} | {note} |")
@@ -267,6 +279,7 @@ def main(argv=None):
     p.add_argument("--budget", type=float, default=1e7,
                    help="triangle-voxel pairs summed per file; beyond it voxels are sampled "
                         "(1e12: the whole grid)")
+    p.add_argument("--json", default=None, help="also write every row to this JSON file")
     args = p.parse_args(argv)
     if not os.path.isdir(args.folder):
         sys.exit(f"no folder {args.folder}: clone https://github.com/mikedh/trimesh and pass "
@@ -288,6 +301,9 @@ def main(argv=None):
             print(fmt_row(r), flush=True)
     finally:
         shutil.rmtree(work, ignore_errors=True)
+        if args.json:
+            with open(args.json, "w") as f:
+                json.dump(rows, f, indent=1)
     bad = [r for r in rows if r["conv"] not in ("ok", "error") or r["info"] not in ("ok", "error")]
     missed = [r for r in rows if r["faces"] > 0 and r["conv"] != "ok"]
     low = [r for r in rows if r["solid"] and r["iou"] is not None and r["iou"] < 99.0]
