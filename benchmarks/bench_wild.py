@@ -23,8 +23,10 @@ process each with a time-out:
   ``update_faces(unique_faces())`` (which also collapses the two sides of a
   double-sided face) and ``trimesh.repair.fix_normals(multibody=True)``
   (faces wound consistently across each body, each body turned outward). The
-  repaired mesh is a *solid* when trimesh calls it a volume (watertight and
-  consistently wound). A voxel centre on the surface (in the plane of a triangle
+  repaired mesh is a *solid* when every connected piece of it is watertight
+  and consistently wound (``mesh.split(only_watertight=False)``): closed
+  parts may touch or overlap, as in CAD assemblies, and their union is the
+  solid (the winding number counts an overlap as 2, inside). A voxel centre on the surface (in the plane of a triangle
   and inside it or on its edge) counts as agreeing either way: geovox decides
   those by its tie rule, and the solid angle jumps there.
   Meshes whose triangles x voxels exceed ``--budget`` are
@@ -195,7 +197,13 @@ def iou(path, npz, budget, seed=0):
         else:
             union += weight * np.count_nonzero(ref)
     value = 100.0 if union == 0 else 100.0 * inter / union
-    return value, compared, bool(ref_mesh.is_volume)
+    return value, compared, is_solid(ref_mesh)
+
+
+def is_solid(mesh):
+    """Every connected piece closed and consistently wound (pieces may overlap or touch)."""
+    pieces = mesh.split(only_watertight=False)
+    return bool(len(pieces)) and all(p.is_watertight and p.is_winding_consistent for p in pieces)
 
 
 def trimesh_faces(path):
