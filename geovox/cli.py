@@ -222,10 +222,9 @@ def _output_path(args, input_path, shape) -> str:
 
 def _batch(args) -> int:
     from . import formats
-    from .batch import convert_many, summary_table
+    from .batch import convert_many, find_inputs, summary_table
     from .parallel import resolve_jobs
 
-    from .batch import find_inputs
     from .errors import ParameterError
 
     find_inputs(args.input)  # a missing input or an empty folder says so before anything else

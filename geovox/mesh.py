@@ -174,7 +174,7 @@ def _visual_parts(g, nfaces, materials):
     return fm, uv, vc
 
 
-#: What a file type is, for messages ("cannot be read as a glTF binary file").
+#: What a file type is, for messages ("cannot be read as glTF binary (.glb)").
 FORMAT_NAMES = {
     ".glb": "glTF binary", ".gltf": "glTF", ".stl": "STL", ".ply": "PLY", ".off": "OFF",
     ".3mf": "3MF", ".dae": "COLLADA", ".zae": "COLLADA archive", ".3dxml": "3DXML",
@@ -419,6 +419,8 @@ def load_mesh(source) -> Mesh:
     try:
         return from_trimesh(source, source=f"<{type(source).__name__}>")
     except MeshError:
+        if type(source).__module__.startswith("trimesh"):
+            raise  # a trimesh point cloud, lines or empty scene: the message says which
         raise MeshError(
             f"`mesh` must be a file path, a trimesh.Trimesh or a trimesh.Scene, "
             f"got {type(source).__name__}"

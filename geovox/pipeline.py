@@ -365,7 +365,7 @@ def empty_reason(m, grid: Grid, method: str) -> str:
     elif n_same and method != "parity":
         why = (f"no voxel centre{region} lies inside the mesh by its winding number: its faces "
                f"are wound against each other ({n_same:,} edges run the same way in two faces), "
-               f"so their solid angles cancel; try --inside parity")
+               f"so their solid angles cancel; try inside='parity' (--inside parity)")
     elif thin:
         why = (f"no voxel centre{region} lies inside the mesh, which is thinner than a voxel "
                f"along {' and '.join(thin)}; try a finer grid")

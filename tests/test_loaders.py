@@ -323,3 +323,9 @@ def test_broken_file_inside_a_zip_is_an_error_not_a_partial_volume(tmp_path):
     # The logger is left as it was.
     assert logging.getLogger("trimesh").propagate and \
         logging.getLogger("trimesh").level == logging.NOTSET
+
+
+def test_trimesh_point_cloud_object_says_it_has_no_faces():
+    cloud = trimesh.PointCloud(np.zeros((3, 3)))
+    with pytest.raises(MeshError, match=r"has no faces, only a point cloud \(3 points\)"):
+        geovox.voxelize(cloud, resolution=4)
