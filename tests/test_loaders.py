@@ -329,3 +329,20 @@ def test_trimesh_point_cloud_object_says_it_has_no_faces():
     cloud = trimesh.PointCloud(np.zeros((3, 3)))
     with pytest.raises(MeshError, match=r"has no faces, only a point cloud \(3 points\)"):
         geovox.voxelize(cloud, resolution=4)
+
+
+def test_bare_exception_from_a_reader_is_put_in_words(tmp_path, capsys, monkeypatch):
+    # A reader that fails with a bare `assert` once gave "(AssertionError)".
+    from trimesh.exchange import load
+
+    path = tmp_path / "box.glb"
+    path.write_bytes(trimesh.Scene(_box()).export(file_type="glb"))
+
+    def broken(*args, **kwargs):
+        raise AssertionError()
+
+    monkeypatch.setitem(load.mesh_loaders, "glb", broken)
+    err = _one_line_error(["info", str(path)], capsys, "box.glb",
+                          "cannot be read as glTF binary (.glb); the file is damaged or not what "
+                          "its extension says", "AssertionError")
+    assert not err.rstrip().endswith("(AssertionError)")
