@@ -12,8 +12,10 @@ import numpy as np
 
 from .errors import GeovoxError, InputNotFoundError, OutputError
 
-#: File types searched for in folders.
-MESH_EXTENSIONS = (".obj", ".stl", ".ply", ".off", ".glb", ".gltf")
+#: File types searched for in folders. Archives (.zip, .tar.gz) are read when
+#: named, but not searched for: a downloaded zip often holds several models or
+#: none, and would be voxelised as one scene.
+MESH_EXTENSIONS = (".obj", ".stl", ".ply", ".off", ".glb", ".gltf", ".3mf", ".dae", ".zae")
 
 
 @dataclass
@@ -26,15 +28,25 @@ class Result:
 
 
 def find_inputs(paths) -> list:
-    """Mesh files named directly or found (recursively, sorted) in the folders given."""
+    """Mesh files named directly or found (recursively, sorted) in the folders given.
+
+    Raises
+    ------
+    InputNotFoundError
+        A path does not exist, or a folder holds no file with a mesh extension.
+    """
     found = []
     for p in paths:
         if os.path.isdir(p):
+            before = len(found)
             for root, dirs, files in os.walk(p):
                 dirs.sort()
                 for name in sorted(files):
                     if name.lower().endswith(MESH_EXTENSIONS):
                         found.append(os.path.join(root, name))
+            if len(found) == before:
+                raise InputNotFoundError(f"no meshes found in {p} (looked for "
+                                         f"{' '.join(MESH_EXTENSIONS)}, in every subfolder)")
         elif os.path.exists(p):
             found.append(p)
         else:

@@ -234,11 +234,12 @@ def _write_options(args, fmt) -> dict:
 
 def _batch(args) -> int:
     from . import formats
-    from .batch import convert_many, summary_table
+    from .batch import convert_many, find_inputs, summary_table
     from .parallel import resolve_jobs
 
     from .errors import ParameterError
 
+    find_inputs(args.input)  # a missing input or an empty folder says so before anything else
     if args.output is None:
         args.output = os.getcwd()
     if not (os.path.isdir(args.output) or args.output.endswith(("/", os.sep))

@@ -255,17 +255,12 @@ def voxelize(
         t_rays = time.perf_counter()
     t_fill = time.perf_counter()
     timings = {"load": t_load - t0, "rays": t_rays - t_load, "fill": t_fill - t_rays}
-    if not occ.any() and not _overlaps(m.bounds, grid):
+    if not occ.any():
         import warnings
 
         from .errors import GeovoxWarning
 
-        def fmt(v):
-            return "(" + ", ".join(f"{x:.6g}" for x in v) + ")"
-
-        warnings.warn(f"the region {fmt(grid.lo)}..{fmt(grid.hi)} misses the mesh "
-                      f"{fmt(m.bounds[0])}..{fmt(m.bounds[1])}; the volume is empty",
-                      GeovoxWarning, stacklevel=2)
+        warnings.warn(empty_reason(m, grid, method), GeovoxWarning, stacklevel=2)
     colors = None
     if color:
         from .colour import colour_volume
@@ -324,6 +319,61 @@ def voxelize(
         density=dens,
         sdf=dist,
     )
+
+
+def empty_reason(m, grid: Grid, method: str) -> str:
+    """Why no voxel came out inside, for the warning that an empty volume always carries.
+
+    Parameters
+    ----------
+    m : geovox.mesh.Mesh
+    grid : Grid
+    method : str
+        The inside test that ran.
+    """
+    def fmt(v):
+        return "(" + ", ".join(f"{x:.6g}" for x in v) + ")"
+
+    if not _overlaps(m.bounds, grid):
+        return (f"the region {fmt(grid.lo)}..{fmt(grid.hi)} misses the mesh "
+                f"{fmt(m.bounds[0])}..{fmt(m.bounds[1])}; the volume is empty")
+    extent = m.bounds[1] - m.bounds[0]
+    flat = [ax for ax, e in zip("xyz", extent) if e <= 1e-9 * m.scale]
+    if flat:
+        return (f"{m.source}: the volume is empty: the mesh is flat (no thickness along "
+                f"{' and '.join(flat)}), so it encloses no volume")
+    f = m.geometric_faces
+    directed = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+    directed = directed[directed[:, 0] != directed[:, 1]]
+    edges = np.sort(directed, axis=1)
+    _, counts = np.unique(edges, axis=0, return_counts=True)
+    n_open = int(np.count_nonzero(counts == 1))
+    n_dup = len(f) - len(np.unique(np.sort(f, axis=1), axis=0))
+    # Edges two faces run the same way: faces wound against their neighbours.
+    _, same = np.unique(directed, axis=0, return_counts=True)
+    n_same = int(np.count_nonzero(same > 1))
+    region = ("" if np.all(grid.lo <= m.bounds[0]) and np.all(grid.hi >= m.bounds[1])
+              else " of the region")
+    thin = [ax for ax, e, h in zip("xyz", extent, grid.spacing) if e < h]
+    if n_open and method != "parity":
+        why = (f"the mesh is an open surface ({n_open:,} open edges) that encloses no volume "
+               f"at any voxel centre{region}")
+    elif n_dup:
+        why = (f"no voxel centre{region} lies inside the mesh: {n_dup:,} of its {len(f):,} faces "
+               f"repeat another face (a double-sided model), so each crossing counts twice and "
+               f"cancels")
+    elif n_same and method != "parity":
+        why = (f"no voxel centre{region} lies inside the mesh by its winding number: its faces "
+               f"are wound against each other ({n_same:,} edges run the same way in two faces), "
+               f"so their solid angles cancel; try inside='parity' (--inside parity)")
+    elif thin:
+        why = (f"no voxel centre{region} lies inside the mesh, which is thinner than a voxel "
+               f"along {' and '.join(thin)}; try a finer grid")
+    else:
+        why = (f"no voxel centre{region} lies inside the mesh with the {method} inside test "
+               f"({'closed' if not n_open else f'{n_open:,} open edges'}); its solid parts may be "
+               f"thinner than a voxel")
+    return f"{m.source}: the volume is empty: {why}"
 
 
 def _overlaps(bounds, grid) -> bool:

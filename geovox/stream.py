@@ -172,6 +172,10 @@ def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, *
             if progress:
                 progress(n + 1, len(plan))
         files = writer.close()
+        if inside == 0 and np.all(m.bounds[0] <= grid.hi) and np.all(m.bounds[1] >= grid.lo):
+            from .pipeline import empty_reason
+
+            warnings.warn(empty_reason(m, grid, method), GeovoxWarning, stacklevel=2)
     except BaseException:
         writer.abort()
         raise

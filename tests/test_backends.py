@@ -98,6 +98,8 @@ def test_backends_agree_on_corpus(name, rel, res):
 @pytest.mark.parametrize("name,mesh", SYNTHETIC, ids=[s[0] for s in SYNTHETIC])
 @pytest.mark.parametrize("res", [1, 2, 31, 96])
 @pytest.mark.parametrize("axis", [0, 2])
+# At 1 voxel the centre can miss a torus or a pair of boxes: an empty volume, with its warning.
+@pytest.mark.filterwarnings("ignore:.*the volume is empty:geovox.errors.GeovoxWarning")
 def test_backends_agree_on_synthetic(name, mesh, res, axis):
     a, b = _both(mesh, resolution=res, axis=axis, inside="parity")
     np.testing.assert_array_equal(a.occupancy, b.occupancy)
