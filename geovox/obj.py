@@ -15,7 +15,6 @@ from __future__ import annotations
 import os
 
 import numpy as np
-from numpy.lib.stride_tricks import sliding_window_view
 
 from .errors import MeshError
 from .mesh import Material, Mesh
@@ -272,6 +271,12 @@ def _statement(line: str) -> tuple:
     return _IGN, None
 
 
+def _distinct(a) -> np.ndarray:
+    """Sorted distinct int64 values (np.unique's first call imports numpy.ma, 60 ms)."""
+    a = np.sort(np.asarray(a, dtype=np.int64))
+    return a[np.r_[True, a[1:] != a[:-1]]] if len(a) else a
+
+
 def _words(s: np.ndarray) -> np.ndarray:
     """(N - 7,) uint64 view: element j is bytes ``s[j:j+8]`` read little-endian."""
     return np.ndarray(shape=(max(len(s) - 7, 0),), dtype="<u8", buffer=s, strides=(1,))
@@ -452,14 +457,15 @@ def _tokens(s: np.ndarray, bad: np.ndarray):
     after = np.r_[-1, line_ends[:-1]]
     bad_lines = _EMPTY
     if bad.any():
-        bad_lines = np.unique(np.searchsorted(line_ends, np.flatnonzero(bad)))
+        bad_lines = _distinct(np.searchsorted(line_ends, np.flatnonzero(bad)))
         for i in bad_lines.tolist():  # left to the plain reading: no tokens here
             s[after[i] + 1:line_ends[i]] = ord(" ")
     space = s <= ord(" ")  # other control bytes are in `bad`
     edges = np.flatnonzero(space[1:] != space[:-1]) + 1  # starts and ends alternate
     ts, te = edges[0::2], edges[1::2]
     k = len(ts) // n_lines if n_lines else 0
-    if k and len(ts) == k * n_lines and np.all(ts[::k] > after) and np.all(te[k - 1::k] < line_ends):
+    if (k and len(ts) == k * n_lines and np.all(ts[::k] > after)
+            and np.all(te[k - 1::k] < line_ends)):
         # The usual case: k tokens on every line.
         count = np.full(n_lines, k, dtype=np.int64)
     else:
@@ -498,7 +504,7 @@ def _number_lines(buf, starts, ends, lines, need):
                 failed.append(line_of[k])
         slow.append(np.asarray(failed, dtype=np.int64))
     slow.append(np.flatnonzero(count < need))
-    slow = np.unique(np.concatenate(slow)).astype(np.int64)
+    slow = _distinct(np.concatenate(slow))
     first = np.cumsum(count) - count
     count[slow] = 0
     return values, first, count, slow
@@ -566,7 +572,7 @@ def _corner_lines(buf, starts, ends, lines):
         t[has_t] = np.where(neg, -x, x)
     if ok.all():
         return line_of, v, t, bad_lines
-    slow = np.unique(np.concatenate([bad_lines, line_of[~ok]]))
+    slow = _distinct(np.concatenate([bad_lines, line_of[~ok]]))
     drop = np.zeros(len(count), dtype=bool)
     drop[slow] = True
     keep = ~drop[line_of]
@@ -671,7 +677,7 @@ def _parse(text: bytes):
     corner_line = ff[line_of]
     redo_f = ff[slow]
 
-    plain(np.unique(np.concatenate([redo_v, redo_vt, redo_f])))
+    plain(_distinct(np.concatenate([redo_v, redo_vt, redo_f])))
     # Merge what the plain reading found.
     extra_line, extra_v, extra_t = [], [], []
     usemtl, libs = [], []
@@ -843,15 +849,17 @@ def read_obj(path: str) -> Mesh:
         missing = has_t & ((tex < 0) | (tex >= nt))
         if missing.any():
             rows = np.flatnonzero(missing.any(axis=1))
-            statements = np.unique(tri_line[rows])
-            has_t[np.isin(tri_line, statements)] = False
+            statements = _distinct(tri_line[rows])
+            dropped = np.zeros(len(p["kind"]), dtype=bool)
+            dropped[statements] = True
+            has_t[dropped[tri_line]] = False
             k = int(traw[rows[0]][missing[rows[0]]][0])
             problems.append(_uv_problem(path, len(statements), line_no(statements[0]), k, nt))
         if has_t.any():
             corner_uv = np.full(tri.shape + (2,), np.nan)
             corner_uv[has_t] = uvs[tex[has_t]]
     elif has_t.any():
-        statements = np.unique(tri_line[has_t.any(axis=1)])
+        statements = _distinct(tri_line[has_t.any(axis=1)])
         k = int(traw[has_t][0])
         problems.append(_uv_problem(path, len(statements), line_no(statements[0]), k, nt))
 

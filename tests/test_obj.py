@@ -344,7 +344,7 @@ def _number(draw):
     elif style == "int":
         s = str(int(x)) if abs(x) < 1e18 else repr(x)
     elif style == "sign":
-        s = repr(x) if x < 0 else "+" + repr(x)
+        s = repr(x) if repr(x).startswith("-") else "+" + repr(x)
     elif style == "dot":
         s = f"{x:.5f}".replace("0.", ".", 1) if abs(x) < 1 else f"{x:.0f}."
     else:
