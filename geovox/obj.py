@@ -579,6 +579,44 @@ def _corner_lines(buf, starts, ends, lines):
     return line_of[keep], v[keep], t[keep], slow
 
 
+def _pieces(starts, ends, lines, size=1 << 18):
+    """``lines`` cut into runs of about ``size`` bytes.
+
+    Reading a section a piece at a time keeps its arrays in the processor's
+    cache: on the 4 MB bunny105k this halves the time of the number reading.
+    """
+    if len(lines) == 0:
+        return [lines]
+    total = np.cumsum(ends[lines] - starts[lines] + 1)
+    cuts = np.searchsorted(total, np.arange(size, int(total[-1]), size))
+    return np.split(lines, _distinct(cuts[(cuts > 0) & (cuts < len(lines))]))
+
+
+def _read_numbers(buf, starts, ends, lines, need):
+    """:func:`_number_lines` over pieces of the section."""
+    values, first, count, slow, n_values, n_lines = [], [], [], [], 0, 0
+    for piece in _pieces(starts, ends, lines):
+        v, f, c, s = _number_lines(buf, starts, ends, piece, need)
+        values.append(v)
+        first.append(f + n_values)
+        count.append(c)
+        slow.append(s + n_lines)
+        n_values += len(v)
+        n_lines += len(piece)
+    return (np.concatenate(values), np.concatenate(first), np.concatenate(count),
+            np.concatenate(slow))
+
+
+def _read_corners(buf, starts, ends, lines):
+    """:func:`_corner_lines` over pieces of the section."""
+    parts, n_lines = [], 0
+    for piece in _pieces(starts, ends, lines):
+        line_of, v, t, slow = _corner_lines(buf, starts, ends, piece)
+        parts.append((line_of + n_lines, v, t, slow + n_lines))
+        n_lines += len(piece)
+    return tuple(np.concatenate(x) for x in zip(*parts))
+
+
 def _fan(first: np.ndarray, count: np.ndarray) -> np.ndarray:
     """(m, 3) int64: corner indices of the fan triangles of polygons.
 
@@ -646,7 +684,7 @@ def _parse(text: bytes):
     buf[starts[fv]] = buf[starts[fvt]] = buf[starts[fvt] + 1] = buf[starts[ff]] = ord(" ")
 
     # Vertices (and colours) by their order in the file.
-    vals, first, count, slow = _number_lines(buf, starts, ends, fv, 3)
+    vals, first, count, slow = _read_numbers(buf, starts, ends, fv, 3)
     order = np.searchsorted(v_lines, fv) if len(fv) != len(v_lines) else None
     if order is None and len(slow) == 0 and np.all(count == 3):
         vertices = vals.reshape(-1, 3)
@@ -664,7 +702,7 @@ def _parse(text: bytes):
             colours[crow] = vals[first[coloured, None] + np.arange(3, 6)]
     redo_v = fv[slow]
 
-    vals, first, count, slow = _number_lines(buf, starts, ends, fvt, 1)
+    vals, first, count, slow = _read_numbers(buf, starts, ends, fvt, 1)
     uvs = np.zeros((len(vt_lines), 2))
     read = np.flatnonzero(count >= 1)
     rows = np.searchsorted(vt_lines, fvt[read])
@@ -673,7 +711,7 @@ def _parse(text: bytes):
     uvs[rows[two], 1] = vals[first[read[two]] + 1]
     redo_vt = fvt[slow]
 
-    line_of, cv, ct, slow = _corner_lines(buf, starts, ends, ff)
+    line_of, cv, ct, slow = _read_corners(buf, starts, ends, ff)
     corner_line = ff[line_of]
     redo_f = ff[slow]
 
