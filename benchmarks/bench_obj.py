@@ -217,8 +217,9 @@ def main():
     files += sorted(glob.glob(os.path.join(CORPUS, "**", "*.obj"), recursive=True))
     for e in args.extra:
         files += sorted(glob.glob(os.path.join(e, "*.obj"))) if os.path.isdir(e) else [e]
-    print(f"python {sys.version.split()[0]}, {os.cpu_count()} cores, {args.runs} fresh "
-          f"processes per cell, medians; wall s (MB/s); 'x' = the 'before' wall time over this one")
+    print(f"python {sys.version.split()[0]}, {os.cpu_count()} cores, load average "
+          f"{os.getloadavg()[0]:.1f}; {args.runs} fresh processes per cell, medians: wall time, "
+          f"MB/s over wall (and over CPU time); 'x' = the 'before' wall time over this one")
     print()
     head = "| file | MB | triangles | " + " | ".join(args.readers) + " |"
     print(head)
@@ -233,12 +234,13 @@ def main():
                 cells.append(f"error ({err[:60]})")
                 continue
             wall = statistics.median(r["wall"] for r in res)
+            cpu = statistics.median(r["cpu"] for r in res)
             if reader == "before":
                 base = wall
             if reader in ("geovox", "before") and res[0]["faces"] is not None:
                 tris = f"{res[0]['faces']:,}"
-            ratio = f", {base / wall:.0f}x" if base and reader != "before" else ""
-            cells.append(f"{wall:.4f} ({size / wall:.0f}{ratio})")
+            ratio = f", {base / wall:.1f}x" if base and reader != "before" else ""
+            cells.append(f"{wall:.3f} s, {size / wall:.1f} MB/s (CPU {size / max(cpu, 1e-9):.0f}){ratio}")
         name = os.path.relpath(path, CORPUS) if path.startswith(CORPUS) else os.path.basename(path)
         print(f"| {name} | {size:.2f} | {tris} | " + " | ".join(cells) + " |", flush=True)
     if args.convert is not None:

@@ -575,3 +575,20 @@ def test_load_mesh_checks_what_read_obj_gives(tmp_path):
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         geovox.voxelize(mesh, resolution=8, backend="numpy")
+
+
+def test_reading_in_small_pieces_changes_nothing(tmp_path, monkeypatch):
+    """Sections are read in pieces of 256 KB; pieces of a few lines give the same."""
+    import geovox.obj as obj
+
+    _write(tmp_path, "a.mtl", MTL_A)
+    _write(tmp_path, "b.mtl", MTL_B)
+    paths = [_write(tmp_path, "features.obj", _features_text()), SPOT,
+             corpus("cornell_box", "cornell_box.obj")]
+    whole = [read_obj(p) for p in paths]
+    pieces = obj._pieces
+    monkeypatch.setattr(obj, "_pieces", lambda starts, ends, lines: pieces(starts, ends, lines, 64))
+    assert len(obj._pieces(*[np.arange(0, 1000, 10), np.arange(9, 1000, 10),
+                             np.arange(100)])) > 10
+    for p, w in zip(paths, whole):
+        assert_same(read_obj(p), w)
