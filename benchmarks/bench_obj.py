@@ -9,7 +9,8 @@ Readers:
   textures, which the others leave to the colour stage).
 
 Each (file, reader) pair runs ``--runs`` times, every run in a new interpreter that imports the
-reader first and then times one read (wall clock and CPU time); the table gives medians. MB/s is
+reader's modules first and then times one read, its first (wall clock and CPU time); the table
+gives medians. MB/s is
 the file's size over the wall time. With ``--convert TREE ...`` it also times ``geovox convert`` of
 the 100k-triangle OBJ at 256³ with ``--backend numpy`` as a whole process, once per source tree
 (for before/after, check the older commit out in a second worktree).
@@ -140,6 +141,9 @@ def before_read_obj(path):
 def worker(reader, path):
     """Import the reader, then time one read of ``path``; print a JSON line."""
     import numpy as np  # noqa: F401  (imported before timing, as the CLI would)
+
+    if reader != "trimesh":
+        import geovox.obj  # noqa: F401  (load_mesh imports it lazily; not part of a read)
 
     if reader == "trimesh":
         import trimesh

@@ -8,6 +8,28 @@ colours are kept, polygons are fan-triangulated, negative (relative) indices
 work, and MTL/texture paths written with backslashes or in other folders are
 found. Missing or unreadable material files and textures are recorded (and
 reported as warnings when colour is asked for), never fatal.
+
+The file is read on whole arrays, not one Python step per line (about 15x
+faster; see benchmarks/README.md): its lines are split once, each is
+classified by its first bytes, and the numbers of all plain ``v``/``vt``
+lines and the indices of all ``f`` lines are read at once. Lines the fast
+path is not certain about go through the plain reading of one statement
+(:func:`_statement`), which gives the same results and words the errors.
+Text may be UTF-8 (with or without a byte order mark) or UTF-16/32, with
+LF, CRLF or CR line ends and trailing-backslash continuations.
+
+Decisions on input other readers refuse or pass on silently:
+
+* a face naming a texture coordinate the file does not have keeps its
+  geometry and loses its UVs (it takes its material's colour), with a problem
+  recorded;
+* a vertex colour with a NaN or infinite channel counts as no colour (white,
+  as for a vertex without one in a file where others have one), with a
+  problem recorded;
+* a file with vertices but no faces (a point cloud, or ``l`` polylines only)
+  is an error that says so;
+* a statement that cannot be read, or a face naming a vertex that does not
+  exist, is an error naming the file and the line.
 """
 
 from __future__ import annotations
