@@ -225,7 +225,8 @@ def main():
           f"{os.getloadavg()[0]:.1f}; {args.runs} fresh processes per cell, medians: wall time, "
           f"MB/s over wall (and over CPU time); 'x' = the 'before' wall time over this one")
     print()
-    head = "| file | MB | triangles | " + " | ".join(args.readers) + " |"
+    names = {"geovox": "read_obj", "load": "load_mesh"}
+    head = "| file | MB | triangles | " + " | ".join(names.get(r, r) for r in args.readers) + " |"
     print(head)
     print("|" + "---|" * (3 + len(args.readers)))
     for path in files:
