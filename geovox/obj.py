@@ -487,7 +487,7 @@ def _tokens(s: np.ndarray, bad: np.ndarray):
     ts, te = edges[0::2], edges[1::2]
     k = len(ts) // n_lines if n_lines else 0
     if (k and len(ts) == k * n_lines and np.all(ts[::k] > after)
-            and np.all(te[k - 1::k] < line_ends)):
+            and np.all(te[k - 1::k] <= line_ends)):
         # The usual case: k tokens on every line.
         count = np.full(n_lines, k, dtype=np.int64)
     else:
@@ -767,8 +767,7 @@ def _parse(text: bytes):
         ct = np.concatenate([ct, np.asarray(extra_t, dtype=np.int64)])
         by_line = np.argsort(corner_line, kind="stable")
         corner_line, cv, ct = corner_line[by_line], cv[by_line], ct[by_line]
-    return dict(buf_len=n, starts=starts, kind=kind, v_lines=v_lines, vt_lines=vt_lines,
-                vertices=vertices, colours=colours, uvs=uvs, corner_line=corner_line,
+    return dict(starts=starts, kind=kind, vertices=vertices, colours=colours, uvs=uvs, corner_line=corner_line,
                 cv=cv, ct=ct, usemtl=usemtl, libs=libs, errors=errors,
                 n_polylines=n_polylines)
 
