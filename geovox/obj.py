@@ -176,6 +176,8 @@ _KEEP = np.array([0] + [(2 ** 64 - 1) << (8 * (8 - k)) & (2 ** 64 - 1) for k in 
                  dtype=np.uint64)
 _FILL = ~_KEEP & np.uint64(0x3030303030303030)
 _EMPTY = np.zeros(0, dtype=np.int64)
+# The texture index of a corner that names none (0 is an index, if not a valid one).
+_NO_UV = -(2 ** 62)
 
 
 class _BadLine(Exception):
@@ -279,7 +281,7 @@ def _statement(line: str) -> tuple:
             s = token.split("/")
             try:
                 # Normals (a third part) are not used and not read.
-                corners.append((_index(s[0]), _index(s[1]) if len(s) > 1 and s[1] else 0))
+                corners.append((_index(s[0]), _index(s[1]) if len(s) > 1 and s[1] else _NO_UV))
             except ValueError:
                 raise _BadLine(f"{token!r} is not a face corner (v, v/vt, v//vn or v/vt/vn "
                                f"with whole numbers)") from None
@@ -540,8 +542,8 @@ def _corner_lines(buf, starts, ends, lines):
     line_of : (k,) int64
         Index into ``lines`` of each corner read, in order.
     v, t : (k,) int64
-        The vertex and texture indices as written; ``t`` is 0 where a corner
-        names none (0 is not a valid OBJ index).
+        The vertex and texture indices as written; ``t`` is _NO_UV where a
+        corner names none.
     slow : (j,) int64
         Indices into ``lines`` to read the plain way.
     """
@@ -582,7 +584,7 @@ def _corner_lines(buf, starts, ends, lines):
     ok &= (slash1 - v_lo >= 1) & (slash1 - v_lo <= 16)
     v = _digits(words, v_lo, slash1).astype(np.int64)
     np.negative(v, out=v, where=head == ord("-"))
-    t = np.zeros(n, dtype=np.int64)
+    t = np.full(n, _NO_UV, dtype=np.int64)
     has_t = np.flatnonzero(slash2 > slash1 + 1)
     if len(has_t):
         lo = slash1[has_t] + 1
@@ -767,8 +769,8 @@ def _parse(text: bytes):
         ct = np.concatenate([ct, np.asarray(extra_t, dtype=np.int64)])
         by_line = np.argsort(corner_line, kind="stable")
         corner_line, cv, ct = corner_line[by_line], cv[by_line], ct[by_line]
-    return dict(starts=starts, kind=kind, vertices=vertices, colours=colours, uvs=uvs, corner_line=corner_line,
-                cv=cv, ct=ct, usemtl=usemtl, libs=libs, errors=errors,
+    return dict(starts=starts, kind=kind, vertices=vertices, colours=colours, uvs=uvs,
+                corner_line=corner_line, cv=cv, ct=ct, usemtl=usemtl, libs=libs, errors=errors,
                 n_polylines=n_polylines)
 
 
@@ -898,14 +900,14 @@ def read_obj(path: str) -> Mesh:
 
     corner_uv = None
     traw = ct[tri]
-    has_t = traw != 0
+    has_t = traw != _NO_UV
     if nt and has_t.any():
-        if traw.min() > 0:
+        if traw[has_t].min() > 0:
             tex = traw - 1
         else:
             before = np.cumsum(p["kind"] == _VT)[tri_line][:, None]
             tex = np.where(traw > 0, traw - 1, before + traw)
-        missing = has_t & ((tex < 0) | (tex >= nt))
+        missing = has_t & ((tex < 0) | (tex >= nt) | (traw == 0))
         if missing.any():
             rows = np.flatnonzero(missing.any(axis=1))
             statements = _distinct(tri_line[rows])

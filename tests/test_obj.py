@@ -499,11 +499,11 @@ def reference_read_obj_geometry(path):
 
 
 def test_missing_texture_coordinates_only_on_some_faces(tmp_path):
-    text = PLAIN + "f 1/9 2/1 4/2\nf 2/-9 3/1 4/1\n"
+    text = PLAIN + "f 1/9 2/1 4/2\nf 2/-9 3/1 4/1\nf 1/0 2/1 3/2\n"
     mesh = read_obj(_write(tmp_path, "some.obj", text))
-    assert len(mesh.faces) == 6 and mesh.corner_uv is not None
+    assert len(mesh.faces) == 7 and mesh.corner_uv is not None
     assert np.isnan(mesh.corner_uv[4:]).all() and not np.isnan(mesh.corner_uv[:2]).any()
-    assert "2 faces" in mesh.problems[0] and "line 12" in mesh.problems[0]
+    assert "3 faces" in mesh.problems[0] and "line 12" in mesh.problems[0]
 
 
 def test_nan_vertex_colours_count_as_none():
