@@ -784,13 +784,17 @@ def _materials(libs, names, folder, path, problems) -> list:
     library: dict = {}
     missing_lib = False
     for lib in libs:
-        found = resolve_path(lib, folder)
-        if found is None:
-            problems.append(f"material file not found: {lib!r} (named in {path}); "
-                            f"using default colours")
-            missing_lib = True
-            continue
-        library.update(read_mtl(found, problems))
+        # One statement may name several files ("mtllib a.mtl b.mtl", as the
+        # format allows); a name with spaces in it is tried whole first.
+        names_in = [lib] if resolve_path(lib, folder) or len(lib.split()) < 2 else lib.split()
+        for name in names_in:
+            found = resolve_path(name, folder)
+            if found is None:
+                problems.append(f"material file not found: {name!r} (named in {path}); "
+                                f"using default colours")
+                missing_lib = True
+                continue
+            library.update(read_mtl(found, problems))
     materials = []
     for name in names:
         if name in library:

@@ -592,3 +592,16 @@ def test_reading_in_small_pieces_changes_nothing(tmp_path, monkeypatch):
                              np.arange(100)])) > 10
     for p, w in zip(paths, whole):
         assert_same(read_obj(p), w)
+
+
+def test_one_mtllib_statement_naming_several_files(tmp_path):
+    _write(tmp_path, "a.mtl", MTL_A)
+    _write(tmp_path, "b.mtl", MTL_B)
+    _write(tmp_path, "c d.mtl", "newmtl spaced\nKd 0 1 0\n")
+    (tmp_path / "tex.png").write_bytes(b"")
+    text = "mtllib a.mtl b.mtl\nmtllib c d.mtl\nmtllib b.mtl gone.mtl\n" + PLAIN.replace(
+        "f 1 4 2", "usemtl red\nf 1 4 2\nusemtl blue\nf 1 4 2\nusemtl spaced")
+    mesh = read_obj(_write(tmp_path, "libs.obj", text))
+    assert [m.name for m in mesh.materials] == ["red", "blue", "spaced"]
+    assert all(m.defined for m in mesh.materials)
+    assert [p.split(" (")[0] for p in mesh.problems] == ["material file not found: 'gone.mtl'"]
