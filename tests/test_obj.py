@@ -605,3 +605,29 @@ def test_one_mtllib_statement_naming_several_files(tmp_path):
     assert [m.name for m in mesh.materials] == ["red", "blue", "spaced"]
     assert all(m.defined for m in mesh.materials)
     assert [p.split(" (")[0] for p in mesh.problems] == ["material file not found: 'gone.mtl'"]
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.tuples(st.integers(0, 10 ** 6), st.sampled_from(["set", "insert", "delete"]),
+                          st.sampled_from(list(b"0123456789 \t\n\r/-+.eEvtfn#\\\x00\xa0\xc2\xff"))),
+                min_size=1, max_size=6))
+def test_damaged_files_read_or_fail_in_one_line(edits):
+    """Bytes changed, added or removed anywhere: a Mesh or one MeshError line, nothing else."""
+    data = bytearray(b"mtllib none.mtl\nv 0 0 0\nv 1 0 0 1 0 0\nv 0 1 0\nv 0 0 1\nvt 0 0\n"
+                     b"vt 1 0\nusemtl a\nf 1/1 2/2 3/1\nf -4//1 -2//1 -1//1\nf 2 4 3 1\n")
+    for where, op, byte in edits:
+        at = where % (len(data) + 1)
+        if op == "set" and at < len(data):
+            data[at] = byte
+        elif op == "insert":
+            data.insert(at, byte)
+        elif op == "delete" and at < len(data):
+            del data[at]
+    with tempfile.TemporaryDirectory() as folder:
+        path = os.path.join(folder, "damaged.obj")
+        with open(path, "wb") as f:
+            f.write(bytes(data))
+        try:
+            read_obj(path)
+        except MeshError as exc:
+            assert "\n" not in str(exc) and str(exc).startswith(path)
