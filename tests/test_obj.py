@@ -242,17 +242,21 @@ def _features_text() -> str:
 
 
 @pytest.mark.parametrize("newline", ["\n", "\r\n"])
-def test_every_feature_reads_as_before(tmp_path, newline):
+@pytest.mark.parametrize("missing_lib", [True, False])
+def test_every_feature_reads_as_before(tmp_path, newline, missing_lib):
     _write(tmp_path, "a.mtl", MTL_A)
     _write(tmp_path, "b.mtl", MTL_B)
     (tmp_path / "tex.png").write_bytes(b"")
-    path = _write(tmp_path, "features.obj", _features_text(), newline=newline)
+    text = _features_text() if missing_lib else _features_text().replace("mtllib missing.mtl\n", "")
+    path = _write(tmp_path, "features.obj", text, newline=newline)
     new, ref = read_obj(path), reference_read_obj(path)
     assert_same(new, ref)
     assert len(new.faces) == 1 + 1 + 1 + 1 + 2 + 4 + 1 + 3 + 2 + 2
     assert new.vertex_colors is not None and new.corner_uv is not None
     assert [m.name for m in new.materials] == ["red", "blue", "undefined here", "textured"]
-    assert any("missing.mtl" in p for p in new.problems)
+    # With a material file missing, an unknown name may be in it: no "not defined" then.
+    assert any("missing.mtl" in p for p in new.problems) == missing_lib
+    assert any("'undefined here' is not defined" in p for p in new.problems) != missing_lib
 
 
 def test_line_ends_lone_cr_read_as_before(tmp_path):
