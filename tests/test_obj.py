@@ -450,7 +450,7 @@ PLAIN = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nvt 0 0\nvt 1 0\nvt 0 1\n" \
 
 @pytest.mark.parametrize("encoding, bom", [
     ("utf-8", b"\xef\xbb\xbf"), ("utf-16-le", b"\xff\xfe"), ("utf-16-be", b"\xfe\xff"),
-    ("utf-16-le", b""), ("utf-32-le", b"\xff\xfe\x00\x00")])
+    ("utf-16-le", b""), ("utf-16-be", b""), ("utf-32-le", b"\xff\xfe\x00\x00")])
 @pytest.mark.parametrize("newline", ["\n", "\r\n", "\r"])
 def test_encodings_and_line_ends(tmp_path, encoding, bom, newline):
     plain = read_obj(_write(tmp_path, "plain.obj", PLAIN))
