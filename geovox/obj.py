@@ -618,6 +618,8 @@ def _pieces(starts, ends, lines, size=1 << 18):
 
 def _read_numbers(buf, starts, ends, lines, need):
     """:func:`_number_lines` over pieces of the section."""
+    if len(lines) == 0:
+        return np.zeros(0), _EMPTY, _EMPTY, _EMPTY
     values, first, count, slow, n_values, n_lines = [], [], [], [], 0, 0
     for piece in _pieces(starts, ends, lines):
         v, f, c, s = _number_lines(buf, starts, ends, piece, need)
@@ -633,6 +635,8 @@ def _read_numbers(buf, starts, ends, lines, need):
 
 def _read_corners(buf, starts, ends, lines):
     """:func:`_corner_lines` over pieces of the section."""
+    if len(lines) == 0:
+        return _EMPTY, _EMPTY, _EMPTY, _EMPTY
     parts, n_lines = [], 0
     for piece in _pieces(starts, ends, lines):
         line_of, v, t, slow = _corner_lines(buf, starts, ends, piece)
