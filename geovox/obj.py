@@ -778,6 +778,10 @@ def _parse(text: bytes):
                 n_polylines=n_polylines)
 
 
+def _count(n: int, one: str, many: str = "") -> str:
+    return f"{n} {one if n == 1 else many or one + 's'}"
+
+
 def _shorten(line: str) -> str:
     line = line.strip()
     return repr(line if len(line) <= 60 else line[:57] + "...")
@@ -861,14 +865,15 @@ def read_obj(path: str) -> Mesh:
     if len(tri) == 0:
         what = []
         if p["n_polylines"]:
-            what.append(f"{p['n_polylines']} polylines (l)")
+            what.append(f"{_count(p['n_polylines'], 'polyline')} (l)")
         if len(polygon):
-            what.append(f"{len(polygon)} face statements with fewer than 3 corners")
+            what.append(f"{_count(len(polygon), 'face statement')} with fewer than 3 corners")
         also = f" and {' and '.join(what)}" if what else ""
-        raise MeshError(f"{path}: has {nv} vertices{also} but no faces (a point cloud or "
-                        f"lines only); nothing to voxelise")
-    tri_line = corner_line[tri[:, 0]]
+        raise MeshError(f"{path}: has {_count(nv, 'vertex', 'vertices')}{also} but no faces "
+                        f"(a point cloud or lines only); nothing to voxelise")
+    tri_line = corner_line[tri[:, 0]]  # the statement of each triangle
 
+    # Vertex indices: 1-based, or negative counting back from the statement.
     raw = cv[tri]
     if raw.min() > 0:
         faces = raw - 1
@@ -936,8 +941,9 @@ def read_obj(path: str) -> Mesh:
         broken = ~np.isfinite(colours).all(axis=1)
         if broken.any():
             colours[broken] = 1.0
-            problems.append(f"{int(broken.sum())} vertex colours in {path} are NaN or infinite; "
-                            f"those vertices count as having no colour (white)")
+            problems.append(f"{path}: NaN or infinite colour on "
+                            f"{_count(int(broken.sum()), 'vertex', 'vertices')}; they count as "
+                            f"having no colour (white)")
     return Mesh(
         vertices=vertices,
         faces=faces,
@@ -951,6 +957,6 @@ def read_obj(path: str) -> Mesh:
 
 
 def _uv_problem(path, n_faces, line, k, nt) -> str:
-    return (f"{n_faces} faces in {path} name texture coordinates that do not exist (line "
-            f"{line} names {k}; the file has {nt}); their UVs are dropped, so they take "
+    return (f"{_count(n_faces, 'face')} in {path} name texture coordinates that do not exist "
+            f"(line {line} names {k}; the file has {nt}); their UVs are dropped, so they take "
             f"their material's colour")

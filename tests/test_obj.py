@@ -527,7 +527,7 @@ def test_nan_vertex_colours_count_as_none():
 @pytest.mark.parametrize("text, needle", [
     ("v 0 0 0\nv 1 0 0\nv 0 1 0\n", "has 3 vertices but no faces"),
     ("v 0 0 0\nv 1 0 0\nv 0 1 0\nl 1 2 3\nl 3 1\n", "has 3 vertices and 2 polylines (l) but no faces"),
-    ("v 0 0 0\nv 1 0 0\nf 1 2\n", "1 face statements with fewer than 3 corners"),
+    ("v 0 0 0\nv 1 0 0\nf 1 2\n", "has 2 vertices and 1 face statement with fewer than 3 corners"),
 ])
 def test_point_clouds_and_lines_say_there_are_no_faces(tmp_path, text, needle):
     path = _write(tmp_path, "points.obj", text)
