@@ -170,12 +170,20 @@ _BREAKS_N = (b"\xc2\x85", b"\xe2\x80\xa8", b"\xe2\x80\xa9")
 _P10_INT = np.array([10 ** k for k in range(20)], dtype=np.uint64)
 _P10_FLOAT = np.array([10.0 ** k for k in range(23)])
 _TWO_53 = np.uint64(2 ** 53)
+# Where NumPy's longdouble is x87 extended precision (a 64-bit significand:
+# x86), numbers of 17-19 digits are read through it (see _floats); 10**k is
+# exact in it up to k = 27 (5**27 < 2**64).
+_EXTENDED = np.finfo(np.longdouble).nmant == 63
+_P10_LONG = (np.array([5 ** k for k in range(28)], dtype=np.uint64).astype(np.longdouble)
+             * np.ldexp(np.longdouble(1), np.arange(28)))
 # Per number of digits k (0-8) in the high bytes of a little-endian word:
 # the bytes to keep, and '0' in the others.
 _KEEP = np.array([0] + [(2 ** 64 - 1) << (8 * (8 - k)) & (2 ** 64 - 1) for k in range(1, 9)],
                  dtype=np.uint64)
 _FILL = ~_KEEP & np.uint64(0x3030303030303030)
 _EMPTY = np.zeros(0, dtype=np.int64)
+# Spaces in front of a section: _digits reads up to 24 bytes before a number's end.
+_PAD = 24
 # The texture index of a corner that names none (0 is an index, if not a valid one).
 _NO_UV = -(2 ** 62)
 
@@ -318,25 +326,29 @@ def _eight(v: np.ndarray, n: np.ndarray) -> np.ndarray:
 
 
 def _digits(words: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-    """Values of the decimal digit strings ``s[lo:hi]`` (0 to 16 digits each).
+    """Values of the decimal digit strings ``s[lo:hi]`` (0 to 19 digits each).
 
     Parameters
     ----------
     words : (N - 7,) uint64
-        :func:`_words` of a text with at least 16 bytes before any ``lo``.
+        :func:`_words` of a text with at least 24 bytes before any ``lo``.
     lo, hi : (n,) int64
 
     Returns
     -------
     (n,) uint64
-        Nonsense where a range holds something other than 0-16 digits.
+        Nonsense where a range holds something other than 0-19 digits.
     """
-    length = np.clip(hi - lo, 0, 16)
-    if len(length) == 0 or length.max() <= 8:
+    length = np.clip(hi - lo, 0, 24)
+    longest = length.max() if len(length) else 0
+    if longest <= 8:
         return _eight(words[hi - 8], length)
     low = np.minimum(length, 8)
-    return (_eight(words[hi - 16], length - low) * np.uint64(100000000)
-            + _eight(words[hi - 8], low))
+    mid = np.minimum(length - low, 8)
+    value = (_eight(words[hi - 16], mid) * np.uint64(10 ** 8) + _eight(words[hi - 8], low))
+    if longest <= 16:
+        return value
+    return _eight(words[hi - 24], length - low - mid) * np.uint64(10 ** 16) + value
 
 
 def _owner(starts: np.ndarray, positions: np.ndarray) -> np.ndarray:
@@ -352,17 +364,24 @@ def _one_each(at: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> bool:
 def _floats(s: np.ndarray, ts: np.ndarray, te: np.ndarray) -> tuple:
     """Read the tokens ``s[ts:te]`` as float64, exactly as ``float()`` would.
 
-    Only tokens of the form ``[+-]digits[.digits][(e|E)[+-]digits]`` with at
-    most 16 significant digits and a decimal exponent within ±22 are read
-    here: their digits form an integer m <= 2**53 and the value is m times or
-    divided by an exact power of ten, one correctly rounded operation
-    (Clinger's fast path), hence bit for bit what float() gives. The others
-    are flagged for float().
+    Only tokens of the form ``[+-]digits[.digits][(e|E)[+-]digits]`` are read
+    here, in two ways that give bit for bit what float() gives:
+
+    * at most 16 digits forming an integer m <= 2**53 and a decimal exponent
+      within ±22: m times or divided by an exact power of ten is one
+      correctly rounded operation (Clinger's fast path);
+    * 17-19 digits (Python's repr writes 17) and an exponent within ±27, with
+      x87 extended precision: m and the power of ten are exact in it, the
+      operation rounds once to 64 bits and the conversion to float64 once
+      more; the two roundings give float()'s result unless the first one
+      lands exactly halfway between two float64 values, which is checked.
+
+    The others are flagged for float().
 
     Parameters
     ----------
     s : (N,) uint8
-        Section text: 16 spaces in front, only ``0-9 . + - e E``, spaces,
+        Section text: _PAD spaces in front, only ``0-9 . + - e E``, spaces,
         tabs and newlines in the tokens.
     ts, te : (n,) int64
         Token starts and ends.
@@ -406,16 +425,14 @@ def _floats(s: np.ndarray, ts: np.ndarray, te: np.ndarray) -> tuple:
     n_int = dot - int_lo
     n_frac = man_end - frac_lo
     n_dig = n_int + n_frac
-    ok &= (n_int >= 0) & (n_dig >= 1) & (n_dig <= 16)
+    ok &= (n_int >= 0) & (n_dig >= 1)  # the form; from here on, the way to read it
     m = (_digits(words, int_lo, dot) * _P10_INT[np.clip(n_frac, 0, 19)]
          + _digits(words, frac_lo, man_end))
-    ok &= m <= _TWO_53
     mf = m.astype(np.float64)
+    e10 = -n_frac
     if man_end is te:
-        ok &= n_frac <= 22
         values = mf / _P10_FLOAT[np.clip(n_frac, 0, 22)]
     else:
-        e10 = -n_frac
         has_exp = np.flatnonzero(man_end < te)
         lo = man_end[has_exp] + 1
         hi = te[has_exp]
@@ -424,17 +441,27 @@ def _floats(s: np.ndarray, ts: np.ndarray, te: np.ndarray) -> tuple:
         ok[has_exp] &= (hi - lo >= 1) & (hi - lo <= 4)
         x = _digits(words, lo, hi).astype(np.int64)
         e10[has_exp] += np.where(neg, -x, x)
-        ok &= np.abs(e10) <= 22
         values = np.where(e10 >= 0, mf * _P10_FLOAT[np.clip(e10, 0, 22)],
                           mf / _P10_FLOAT[np.clip(-e10, 0, 22)])
+    fast = ok & (n_dig <= 16) & (m <= _TWO_53) & (np.abs(e10) <= 22)
+    if _EXTENDED and not fast.all():
+        wide = np.flatnonzero(ok & ~fast & (n_dig <= 19) & (np.abs(e10) <= 27))
+        if len(wide):
+            ml, e = m[wide].astype(np.longdouble), e10[wide]
+            q = np.where(e >= 0, ml * _P10_LONG[np.clip(e, 0, 27)],
+                         ml / _P10_LONG[np.clip(-e, 0, 27)])
+            # The 11 significand bits float64 drops: 0x400 is exactly halfway.
+            halfway = (q.view(np.uint64)[0::2] & np.uint64(0x7FF)) == np.uint64(0x400)
+            values[wide] = q.astype(np.float64)
+            fast[wide[~halfway]] = True
     np.negative(values, out=values, where=head == ord("-"))
-    return values, ok
+    return values, fast
 
 
 def _section(buf: np.ndarray, starts: np.ndarray, ends: np.ndarray, lines: np.ndarray):
-    """The given lines (sorted) copied after 16 spaces, each ending in ``\\n``."""
+    """The given lines (sorted) copied after _PAD spaces, each ending in ``\\n``."""
     if len(lines) == 0:
-        return np.full(16, ord(" "), dtype=np.uint8)
+        return np.full(_PAD, ord(" "), dtype=np.uint8)
     cut = np.flatnonzero(np.diff(lines) != 1) + 1
     lo = starts[lines[np.r_[0, cut]]]
     hi = ends[lines[np.r_[cut - 1, len(lines) - 1]]] + 1
@@ -444,11 +471,11 @@ def _section(buf: np.ndarray, starts: np.ndarray, ends: np.ndarray, lines: np.nd
         keep = np.zeros(len(starts), dtype=bool)
         keep[lines] = True
         mask = np.repeat(keep, ends - starts + 1)
-        return np.concatenate([np.full(16, ord(" "), dtype=np.uint8),
+        return np.concatenate([np.full(_PAD, ord(" "), dtype=np.uint8),
                                buf[:len(mask)][mask]])
-    out = np.empty(16 + int((hi - lo).sum()), dtype=np.uint8)
-    out[:16] = ord(" ")
-    pos = 16
+    out = np.empty(_PAD + int((hi - lo).sum()), dtype=np.uint8)
+    out[:_PAD] = ord(" ")
+    pos = _PAD
     for a, b in zip(lo.tolist(), hi.tolist()):
         out[pos:pos + b - a] = buf[a:b]
         pos += b - a
@@ -520,13 +547,21 @@ def _number_lines(buf, starts, ends, lines, need):
     values, ok = _floats(s, ts, te)
     slow = [bad_lines]
     if not ok.all():
-        failed = []
-        for k in np.flatnonzero(~ok).tolist():
-            try:
-                values[k] = float(s[ts[k]:te[k]].tobytes())
-            except ValueError:
-                failed.append(line_of[k])
-        slow.append(np.asarray(failed, dtype=np.int64))
+        # float() for the rest (17 significant digits, as Python's repr writes,
+        # are common): slicing one bytes object is the cheap way to get them.
+        redo = np.flatnonzero(~ok)
+        text = s.tobytes()
+        spans = list(zip(ts[redo].tolist(), te[redo].tolist()))
+        try:
+            values[redo] = [float(text[a:b]) for a, b in spans]
+        except ValueError:
+            failed = []
+            for k, (a, b) in zip(redo.tolist(), spans):
+                try:
+                    values[k] = float(text[a:b])
+                except ValueError:
+                    failed.append(line_of[k])
+            slow.append(np.asarray(failed, dtype=np.int64))
     slow.append(np.flatnonzero(count < need))
     slow = _distinct(np.concatenate(slow))
     first = np.cumsum(count) - count

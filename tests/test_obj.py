@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import glob
 import os
+from decimal import Decimal
 import tempfile
 import warnings
 
@@ -313,6 +314,11 @@ def test_numbers_are_read_exactly_as_float_reads_them(tmp_path):
                              rng.normal(size=100) * 1e6, rng.random(50) * 1e-25,
                              rng.random(50) * 1e25, [0.0, -0.0, 1.0, 0.1, 2 ** 53, 2 ** 53 + 2]])
     tokens = [s for x in values for s in _spellings(float(x), rng)]
+    # Decimal midpoints between neighbouring doubles, cut to 17-19 digits: where
+    # rounding twice (through x87 extended precision) could go wrong.
+    for x in np.abs(rng.normal(size=300)) * 10.0 ** rng.integers(-8, 8, 300):
+        mid = (Decimal(float(x)) + Decimal(float(np.nextafter(x, np.inf)))) / 2
+        tokens += [format(mid, f".{digits - 1}e") for digits in (17, 18, 19)]
     tokens += ["1e+2", "2.e+1", "-.5", "+3", "1.", ".5", "-0", "+0.0", "1E5", "1e-0",
                "0000123.4500", "9007199254740993", "1.7976931348623157e308", "5e-324",
                "nan", "-inf", "Infinity", "1_000.5"]
