@@ -16,10 +16,12 @@ the 100k-triangle OBJ at 256³ with ``--backend numpy`` as a whole process, once
 (for before/after, check the older commit out in a second worktree).
 
 Files: ``bunny105k.obj`` (the benchmarks' bunny105k written out by trimesh into a temporary
-folder, about 4 MB), spot, every OBJ of the shared corpus, and any files or folders given.
+folder, about 4 MB), ``bunny105k_repr.obj`` (the same written with Python's repr, 17 significant
+digits), spot, every OBJ of the shared corpus (not with ``--no-corpus``), and any files or folders
+given.
 
 Usage: python benchmarks/bench_obj.py [--runs 3] [--readers before geovox load trimesh]
-                                      [--convert TREE ...] [EXTRA_OBJ_OR_FOLDER ...]
+                                      [--no-corpus] [--convert TREE ...] [EXTRA_OBJ_OR_FOLDER ...]
 """
 
 from __future__ import annotations
@@ -178,7 +180,8 @@ def run_worker(reader, path):
 
 
 def write_bunny105k(folder):
-    """bunny105k (see common.py) written as OBJ by trimesh."""
+    """bunny105k (see common.py) written as OBJ by trimesh, and as a Python
+    script would write it (repr: up to 17 significant digits)."""
     import trimesh
 
     m = trimesh.load(BUNNY, force="mesh", process=False)
@@ -186,7 +189,11 @@ def write_bunny105k(folder):
     path = os.path.join(folder, "bunny105k.obj")
     with open(path, "w") as fh:
         fh.write(trimesh.exchange.obj.export_obj(trimesh.Trimesh(v, f, process=False)))
-    return path
+    path_repr = os.path.join(folder, "bunny105k_repr.obj")
+    with open(path_repr, "w") as fh:
+        fh.writelines(f"v {float(a)!r} {float(b)!r} {float(c)!r}\n" for a, b, c in v)
+        fh.writelines(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in f)
+    return [path, path_repr]
 
 
 def time_convert(tree, obj, runs):
@@ -211,14 +218,16 @@ def main():
     ap.add_argument("--runs", type=int, default=3)
     ap.add_argument("--readers", nargs="+", default=["before", "geovox", "load", "trimesh"])
     ap.add_argument("--convert", nargs="*", default=None, metavar="TREE")
+    ap.add_argument("--no-corpus", action="store_true", help="only the generated files and spot")
     ap.add_argument("extra", nargs="*", help="more OBJ files or folders of them")
     args = ap.parse_args()
     if args.worker:
         worker(*args.worker)
         return
     tmp = tempfile.mkdtemp(prefix="bench_obj_")
-    files = [write_bunny105k(tmp), SPOT]
-    files += sorted(glob.glob(os.path.join(CORPUS, "**", "*.obj"), recursive=True))
+    files = write_bunny105k(tmp) + [SPOT]
+    if not args.no_corpus:
+        files += sorted(glob.glob(os.path.join(CORPUS, "**", "*.obj"), recursive=True))
     for e in args.extra:
         files += sorted(glob.glob(os.path.join(e, "*.obj"))) if os.path.isdir(e) else [e]
     print(f"python {sys.version.split()[0]}, {os.cpu_count()} cores, load average "
