@@ -9,12 +9,13 @@ work, and MTL/texture paths written with backslashes or in other folders are
 found. Missing or unreadable material files and textures are recorded (and
 reported as warnings when colour is asked for), never fatal.
 
-The file is read on whole arrays, not one Python step per line (about 15x
-faster; see benchmarks/README.md): its lines are split once, each is
-classified by its first bytes, and the numbers of all plain ``v``/``vt``
-lines and the indices of all ``f`` lines are read at once. Lines the fast
-path is not certain about go through the plain reading of one statement
-(:func:`_statement`), which gives the same results and words the errors.
+The file is read on whole arrays, not one Python step per line (about 5x
+faster on 100k triangles; see benchmarks/README.md): its lines are split
+once, each is classified by its first bytes, and the numbers of all plain
+``v``/``vt`` lines and the indices of all ``f`` lines are read at once.
+Lines the fast path is not certain about go through the plain reading of
+one statement (:func:`_statement`), which gives the same results and words
+the errors.
 Text may be UTF-8 (with or without a byte order mark) or UTF-16/32, with
 LF, CRLF or CR line ends and trailing-backslash continuations.
 
