@@ -88,7 +88,7 @@ class Mesh:
     def bounds(self) -> np.ndarray:
         """(2, 3) float64: the bounding box of the faces' vertices."""
         if "bounds" not in self._cache:
-            used = self.vertices[np.unique(self.faces)]
+            used = self.vertices[_used(self.vertices, self.faces)]
             self._cache["bounds"] = np.stack([used.min(axis=0), used.max(axis=0)])
         return self._cache["bounds"]
 
@@ -111,6 +111,13 @@ class Mesh:
         return self._cache["geometric_faces"]
 
 
+def _used(vertices, faces) -> np.ndarray:
+    """(n,) bool: the vertices some face uses (a mask: np.unique sorts, slower than an OBJ read)."""
+    used = np.zeros(len(vertices), dtype=bool)
+    used[faces.ravel()] = True
+    return used
+
+
 def _check(vertices, faces, source, **extra) -> Mesh:
     vertices = np.ascontiguousarray(vertices, dtype=np.float64)
     faces = np.ascontiguousarray(faces, dtype=np.int64)
@@ -127,7 +134,7 @@ def _check(vertices, faces, source, **extra) -> Mesh:
             f"{source}: faces index vertices that do not exist "
             f"(indices {faces.min()}..{faces.max()}, {len(vertices)} vertices)"
         )
-    used = vertices[np.unique(faces)]
+    used = vertices[_used(vertices, faces)]
     if not np.all(np.isfinite(used)):
         bad = int((~np.isfinite(used)).any(axis=1).sum())
         raise MeshError(f"{source}: {bad} vertices have NaN or infinite coordinates")
