@@ -258,6 +258,7 @@ def _both(mesh, **kw):
 @pytest.mark.parametrize("name,mesh", SYNTHETIC, ids=[s[0] for s in SYNTHETIC])
 @pytest.mark.parametrize("res", [1, 2, 31, 96])
 @pytest.mark.parametrize("axis", [0, 2])
+@pytest.mark.filterwarnings("ignore:.*the volume is empty:geovox.errors.GeovoxWarning")
 def test_agrees_with_numpy_on_adversarial_meshes(gpu, name, mesh, res, axis):
     a, b = _both(mesh, resolution=res, axis=axis, inside="parity")
     np.testing.assert_array_equal(a.occupancy, b.occupancy)
@@ -273,6 +274,7 @@ def test_agrees_with_numpy_on_corpus(gpu, name, rel, res):
 
 @pytest.mark.parametrize("rel", ["suzanne/suzanne.obj", "trimesh_edge_cases/wallhole.obj",
                                  "cornell_box/cornell_box.obj"])
+@pytest.mark.filterwarnings("ignore:.*the volume is empty:geovox.errors.GeovoxWarning")
 def test_agrees_with_numpy_on_open_models(gpu, rel):
     # Not closed: the winding test casts the mesh with its holes capped.
     a, b = _both(corpus(rel), resolution=40, inside="winding")
