@@ -116,7 +116,8 @@ def _grid_options(c):
                    metavar=("XMIN", "YMIN", "ZMIN", "XMAX", "YMAX", "ZMAX"),
                    help="region of interest (default: the mesh's bounding box)")
     c.add_argument("--backend", default="auto", choices=["auto", "embree", "numpy"],
-                   help="ray-casting backend (default: auto = embree if installed, else numpy)")
+                   help="ray-casting backend (default: auto = numpy, the faster one for these "
+                        "column rays; embree gives the same volume)")
     c.add_argument("--inside", default="auto", choices=["auto", "parity", "vote", "winding"],
                    help="inside test (default: auto = parity for closed meshes, winding number "
                         "otherwise)")
