@@ -329,7 +329,7 @@ def _convert(args) -> int:
         formats.check_writable(args.preview)
     from .grid import make_grid
     from .mesh import load_mesh
-    from .stream import SLAB_BUDGET, STREAMABLE, bytes_per_voxel, slab_plan
+    from .stream import SLAB_BUDGET, STREAMABLE, bytes_per_voxel, slab_plan, streams_whole
 
     mesh = load_mesh(args.input)
     grid = make_grid(mesh.bounds, bounds=args.bounds, resolution=args.resolution,
@@ -341,7 +341,8 @@ def _convert(args) -> int:
 
     avail = _available_memory()
     budget = SLAB_BUDGET if avail is None else min(SLAB_BUDGET, 0.5 * avail)
-    if fmt.name in STREAMABLE and len(slab_plan(grid, per, budget)) > 1:
+    if fmt.name in STREAMABLE and (len(slab_plan(grid, per, budget)) > 1
+                                   or streams_whole(grid, args.color, args.density, args.sdf)):
         return _convert_streaming(args, mesh, output, t0)
     vol = _voxelize(args, mesh)
     t1 = time.perf_counter()

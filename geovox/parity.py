@@ -77,12 +77,54 @@ def fill(hits: Hits, columns: Columns, grid: Grid, out: np.ndarray | None = None
         out[...] = False
     flat = out.reshape(-1, order="F")  # a view: `out` is Fortran-ordered
     flat[toggle_indices(hits, columns, grid)] = True
-    if columns.axis != 0 and grid.shape[0] % 8 == 0:
+    _running_xor(out, columns.axis, jobs)
+    return out
+
+
+def _running_xor(out: np.ndarray, axis: int, jobs: int) -> None:
+    """Toggles -> occupancy in place: a running XOR along ``axis``."""
+    if axis != 0 and out.shape[0] % 8 == 0:
         # Eight voxels per XOR: bytes holding 0 or 1 stay 0 or 1, and with
         # rays along y or z the eight x-neighbours in a word are eight
         # separate columns, scanned side by side.
         words = out.T.view(np.uint64)
-        scan_along(np.bitwise_xor, words, 2 - columns.axis, jobs)
+        scan_along(np.bitwise_xor, words, 2 - axis, jobs)
     else:
-        scan_along(np.logical_xor, out, columns.axis, jobs)
-    return out
+        scan_along(np.logical_xor, out, axis, jobs)
+
+
+def fill_slabs(hits: Hits, columns: Columns, grid: Grid, thick: int = 64, jobs: int = 1):
+    """The occupancy :func:`fill` gives, made ``thick`` z-slices at a time in one buffer.
+
+    For rays along z: the toggles are found once for the whole grid, then
+    each slab is scanned on from the last slice of the one before. Peak
+    memory is one slab (and the hits), not the grid; and the buffer, touched
+    once, stays mapped, which on a large grid saves more time than the scan
+    costs (first touch of fresh memory is the slowest part of :func:`fill`).
+
+    Yields
+    ------
+    z0 : int
+        The slab's first z index.
+    occupancy : (nx, ny, z1 - z0) bool, Fortran order
+        The slab; the same buffer is refilled on the next step, so use it
+        (write it) before asking for the next one.
+    """
+    if columns.axis != 2:
+        raise ValueError("fill_slabs needs rays along z")
+    lin = toggle_indices(hits, columns, grid)
+    nx, ny, nz = grid.shape
+    plane = nx * ny
+    buf = np.empty((nx, ny, min(thick, nz)), dtype=bool, order="F")
+    carry = None
+    for z0 in range(0, nz, thick):
+        z1 = min(z0 + thick, nz)
+        out = buf[:, :, :z1 - z0]  # still Fortran-contiguous
+        out[...] = False
+        a, b = np.searchsorted(lin, [z0 * plane, z1 * plane])
+        out.reshape(-1, order="F")[lin[a:b] - z0 * plane] = True
+        if carry is not None:
+            np.logical_xor(out[:, :, 0], carry, out=out[:, :, 0])
+        _running_xor(out, 2, jobs)
+        carry = out[:, :, -1].copy()
+        yield z0, out
