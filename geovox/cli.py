@@ -258,7 +258,7 @@ def _batch(args) -> int:
     return EXIT_ERROR if any(r.status == "failed" for r in results) else EXIT_OK
 
 
-def _convert_streaming(args, mesh, output, t0) -> int:
+def _convert_streaming(args, mesh, output, t0, t_read=0.0) -> int:
     """A grid too big for one piece: slab by slab into .h5 or .raw."""
     import warnings
 
@@ -299,8 +299,10 @@ def _convert_streaming(args, mesh, output, t0) -> int:
     if not args.quiet:
         nx, ny, nz = info["shape"]
         dx, dy, dz = info["spacing"]
-        t = info["timings"]
-        print(f"{os.path.basename(info['source'])}: grid {nx} x {ny} x {nz} in {info['slabs']} slabs")
+        t = dict(info["timings"])
+        t["load"] = t.get("load", 0.0) + t_read  # the file was read before convert_to
+        slabs = f"{info['slabs']} slabs" if info["slabs"] > 1 else "64-slice slabs"
+        print(f"{os.path.basename(info['source'])}: grid {nx} x {ny} x {nz} in {slabs}")
         print(f"voxel size {dx:.6g} x {dy:.6g} x {dz:.6g}, backend {info['backend']}, "
               f"inside test {info['inside_test']}")
         print(f"inside {info['inside']:,} of {nx * ny * nz:,} voxels "
@@ -332,6 +334,7 @@ def _convert(args) -> int:
     from .stream import SLAB_BUDGET, STREAMABLE, bytes_per_voxel, slab_plan, streams_whole
 
     mesh = load_mesh(args.input)
+    t_read = time.perf_counter() - t0
     grid = make_grid(mesh.bounds, bounds=args.bounds, resolution=args.resolution,
                      shape=args.shape, voxel_size=args.voxel_size)
     output = _output_path(args, args.input, grid.shape)
@@ -343,7 +346,7 @@ def _convert(args) -> int:
     budget = SLAB_BUDGET if avail is None else min(SLAB_BUDGET, 0.5 * avail)
     if fmt.name in STREAMABLE and (len(slab_plan(grid, per, budget)) > 1
                                    or streams_whole(grid, args.color, args.density, args.sdf)):
-        return _convert_streaming(args, mesh, output, t0)
+        return _convert_streaming(args, mesh, output, t0, t_read)
     vol = _voxelize(args, mesh)
     t1 = time.perf_counter()
     options = {"shell": True} if args.shell and formats.format_for(output, args.fmt).name == "vox" else {}
@@ -365,7 +368,7 @@ def _convert(args) -> int:
               f"inside test {vol.inside}")
         print(f"inside {inside:,} of {nx * ny * nz:,} voxels ({100.0 * inside / (nx * ny * nz):.2f}%)")
         extra = "".join(f", {k} {t[k]:.2f}" for k in ("colour", "density", "sdf") if k in t)
-        print(f"time {t2 - t0:.2f} s (load {t['load']:.2f}, rays {t['rays']:.2f}, "
+        print(f"time {t2 - t0:.2f} s (load {t_read + t['load']:.2f}, rays {t['rays']:.2f}, "
               f"fill {t['fill']:.2f}{extra}, write {t2 - t1:.2f})")
         print("wrote " + ", ".join(written))
     return EXIT_OK
