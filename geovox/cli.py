@@ -301,8 +301,9 @@ def _convert_streaming(args, mesh, output, t0, t_read=0.0) -> int:
         dx, dy, dz = info["spacing"]
         t = dict(info["timings"])
         t["load"] = t.get("load", 0.0) + t_read  # the file was read before convert_to
-        slabs = f"{info['slabs']} slabs" if info["slabs"] > 1 else "64-slice slabs"
-        print(f"{os.path.basename(info['source'])}: grid {nx} x {ny} x {nz} in {slabs}")
+        slabs = (f" in {info['slabs']} slabs" if info["slabs"] > 1 else
+                 " in 64-slice slabs" if info.get("filled_in_slabs") else "")
+        print(f"{os.path.basename(info['source'])}: grid {nx} x {ny} x {nz}{slabs}")
         print(f"voxel size {dx:.6g} x {dy:.6g} x {dz:.6g}, backend {info['backend']}, "
               f"inside test {info['inside_test']}")
         print(f"inside {info['inside']:,} of {nx * ny * nz:,} voxels "

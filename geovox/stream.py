@@ -102,7 +102,9 @@ def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, *
     Returns
     -------
     dict with ``shape``, ``spacing``, ``bounds``, ``inside`` (count),
-    ``inside_test``, ``backend``, ``slabs``, ``files`` and ``timings``.
+    ``inside_test``, ``backend``, ``slabs``, ``files`` and ``timings``;
+    ``filled_in_slabs`` is True where a one-piece occupancy was filled and
+    written 64 slices at a time (see :func:`geovox.parity.fill_slabs`).
     """
     from . import formats
     from . import inside as inside_tests
@@ -193,9 +195,9 @@ def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, *
             # each slab written before the next is made (see
             # parity.fill_slabs): no grid-sized array is ever allocated.
             inside = _stream_occupancy(m, grid, engine, writer, jobs, timings, progress)
-            plan_left = []
+            plan_left, streamed = [], True
         else:
-            plan_left = plan
+            plan_left, streamed = plan, False
         for n, (z0, z1) in enumerate(plan_left):
             lo = grid.lo.copy()
             lo[2] = grid.lo[2] + z0 * h[2]
@@ -229,4 +231,5 @@ def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, *
     return {"shape": tuple(grid.shape), "spacing": tuple(float(x) for x in h),
             "bounds": meta.bounds, "inside": inside, "inside_test": method,
             "backend": engine.name, "slabs": len(plan), "files": files, "timings": timings,
+            "filled_in_slabs": streamed,
             "grid": grid, "source": m.source}
