@@ -1,6 +1,7 @@
 """The user's path (issue 11): one `geovox convert`, a fresh process, end to end.
 
-Every figure is the wall time of a new interpreter running the console
+Every figure is the wall time (and the CPU time, user + system, which a
+loaded machine inflates less) of a new interpreter running the console
 script `geovox convert MODEL.obj -o OUT -r N [--color] [--backend B]` (Python
 start, imports, reading the OBJ, rays, fill, colour, writing), median of
 ``--repeat`` runs, with that process's peak RSS (from ``os.wait4``) and the
@@ -83,7 +84,7 @@ def run_rss(cmd, cwd=None) -> dict:
         fo.seek(0)
         fe.seek(0)
         return {"wall": wall, "rc": p.returncode, "out": fo.read(), "err": fe.read(),
-                "rss": usage.ru_maxrss * 1024}
+                "rss": usage.ru_maxrss * 1024, "cpu": usage.ru_utime + usage.ru_stime}
 
 
 STAGE_RE = re.compile(r"^time ([\d.]+) s \((.*)\)$", re.M)
@@ -172,6 +173,7 @@ def bench_e2e(args, tmp) -> None:
                     mid = min(runs, key=lambda r: abs(r["wall"] - med))
                     backend_ran = re.search(r"backend (\w+)", mid["out"])
                     cells[backend] = {"wall": med, "lo": walls[0], "hi": walls[-1],
+                                      "cpu": statistics.median(r["cpu"] for r in runs),
                                       "rss": max(r["rss"] for r in runs),
                                       "stages": stages_of(mid["out"]),
                                       "ran": backend_ran.group(1) if backend_ran else "?"}
@@ -180,7 +182,7 @@ def bench_e2e(args, tmp) -> None:
                     out = os.path.join(tmp, "o3d.raw")
                     r = run_rss([sys.executable, "-c", OPEN3D_WORKER, path, str(res), out])
                     if r["rc"] == 0:
-                        o3d = {"wall": r["wall"], "rss": r["rss"]}
+                        o3d = {"wall": r["wall"], "rss": r["rss"], "cpu": r["cpu"]}
                     else:
                         print(f"Open3D failed: {r['err'][-300:]}", file=sys.stderr)
                 rows.append((name, res, ext, colour, cells, o3d))
@@ -202,16 +204,18 @@ def _print_row(row) -> None:
 
 
 def print_e2e_table(rows) -> None:
-    print("| model | grid | output | colour | backend | wall (s), median | range (s) | peak RSS (MiB) "
-          "| Open3D end to end (s) | Open3D / geovox | stages (s), median run |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    print("| model | grid | output | colour | backend | wall (s), median | range (s) | CPU (s) "
+          "| peak RSS (MiB) | Open3D end to end: wall / CPU (s) | Open3D / geovox (wall) "
+          "| stages (s), median run |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for name, res, ext, colour, cells, o3d in rows:
         for backend, c in cells.items():
             label = backend if backend != "default" else f"default ({c['ran']})"
             ratio = f"{o3d['wall'] / c['wall']:.1f}×" if o3d else ""
-            o3 = f"{o3d['wall']:.2f}" if o3d else ("n/a" if colour else "not run")
+            o3 = f"{o3d['wall']:.2f} / {o3d['cpu']:.2f}" if o3d else ("n/a" if colour else "not run")
             print(f"| {name} | {res}³ | {ext} | {'yes' if colour else 'no'} | {label} | "
-                  f"{c['wall']:.2f} | {c['lo']:.2f}-{c['hi']:.2f} | {c['rss'] / 2**20:.0f} | {o3} | "
+                  f"{c['wall']:.2f} | {c['lo']:.2f}-{c['hi']:.2f} | {c['cpu']:.2f} | "
+                  f"{c['rss'] / 2**20:.0f} | {o3} | "
                   f"{ratio} | {_fmt_stages(c['stages'])} |")
 
 
