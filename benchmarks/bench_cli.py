@@ -231,12 +231,14 @@ def bench_imports(args) -> None:
         ('python -c "import trimesh.ray.ray_pyembree"',
          [sys.executable, "-c", "import trimesh.ray.ray_pyembree"]),
     ]
-    print("| command | wall (s), median of %d | range (s) |" % args.import_repeat)
-    print("|---|---|---|")
+    print("| command | wall (s), median of %d | range (s) | CPU (s), median |" % args.import_repeat)
+    print("|---|---|---|---|")
     for label, cmd in cases:
-        walls = sorted(run_timed(cmd)["wall"] for _ in range(args.import_repeat))
-        print(f"| `{label}` | {statistics.median(walls):.3f} | {walls[0]:.3f}-{walls[-1]:.3f} |",
-              flush=True)
+        runs = [run_rss(cmd) for _ in range(args.import_repeat)]
+        walls = sorted(r["wall"] for r in runs)
+        cpu = statistics.median(r["cpu"] for r in runs)
+        print(f"| `{label}` | {statistics.median(walls):.3f} | {walls[0]:.3f}-{walls[-1]:.3f} | "
+              f"{cpu:.3f} |", flush=True)
 
 
 # --- auto rule: first call per backend, every corpus model -------------------------------
