@@ -93,12 +93,13 @@ def _running_xor(out: np.ndarray, axis: int, jobs: int) -> None:
         scan_along(np.logical_xor, out, axis, jobs)
 
 
-def fill_slabs(hits: Hits, columns: Columns, grid: Grid, thick: int = 64, jobs: int = 1):
+def fill_slabs(hits: Hits, columns: Columns, grid: Grid, thick: int = 64):
     """The occupancy :func:`fill` gives, made ``thick`` z-slices at a time in one buffer.
 
     For rays along z: the toggles are found once for the whole grid; then
     each z-slice is the one before it (copied) with its own toggles flipped.
-    That writes every voxel once -- no zeroing, no separate scan -- and peak
+    That writes every voxel once -- no zeroing, no separate scan -- in one
+    thread (a memory-bound copy of each slice), and peak
     memory is one slab (and the hits), not the grid. The buffer, touched
     once, stays mapped: on a large grid the first touch of fresh memory is
     the slowest part of :func:`fill`.

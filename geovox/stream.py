@@ -65,7 +65,7 @@ def _stream_occupancy(m, grid, engine, writer, jobs, timings, progress) -> int:
     timings["rays"] += time.perf_counter() - t
     inside = 0
     nx, ny, nz = grid.shape
-    slabs = parity.fill_slabs(hits, columns, grid, thick=64, jobs=jobs)
+    slabs = parity.fill_slabs(hits, columns, grid, thick=64)
     n_slabs = -(-nz // 64)
     for n in range(n_slabs):
         t = time.perf_counter()

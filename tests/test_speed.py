@@ -35,7 +35,7 @@ def test_fill_slabs_equals_fill(shape, thick, backend):
     cols = g.columns(2, start=float(m.bounds[0, 2]) - 1e-3 * m.scale)
     hits = get_backend(backend).cast(m, cols)
     ref = parity.fill(hits, cols, g)
-    got = [(z0, occ.copy()) for z0, occ in parity.fill_slabs(hits, cols, g, thick=thick, jobs=2)]
+    got = [(z0, occ.copy()) for z0, occ in parity.fill_slabs(hits, cols, g, thick=thick)]
     assert [z0 for z0, _ in got] == list(range(0, shape[2], thick))
     np.testing.assert_array_equal(np.concatenate([o for _, o in got], axis=2), ref)
     assert ref.any() and not ref.all()

@@ -11,10 +11,10 @@ ray on a regular lattice, which the NumPy backend scan-converts directly
 first imports trimesh and embreex (0.3-0.8 s in a fresh process), builds a
 scene and checks for coplanar overlapping triangles, and even warm is no
 faster than NumPy on these rays. Measured over every corpus model at
-64³-1024³, first call in a fresh process (``benchmarks/bench_cli.py
---auto-rule``, table in ``benchmarks/README.md``), NumPy was the faster
-backend or within the noise everywhere, so ``auto`` picks it whenever NumPy
-imports; ``embree`` stays available by name and gives identical volumes.
+64³-1024³, first call in a fresh process (``benchmarks/bench_cli.py --only
+auto-rule``, table in ``benchmarks/README.md``), Embree took 1.5-35× as
+long as NumPy, so ``auto`` picks NumPy whenever it imports; ``embree``
+stays available by name and gives identical volumes.
 """
 
 from __future__ import annotations
