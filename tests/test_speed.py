@@ -142,3 +142,30 @@ def test_default_convert_to_raw_imports_only_what_it_uses(tmp_path):
                           f"{str(out)!r}, '-r', '16', '-q']) == 0")
     assert out.exists()
     assert not HEAVY & mods, HEAVY & mods
+
+
+def test_streams_whole_only_for_big_occupancy_grids():
+    from geovox.grid import Grid
+    from geovox.stream import streams_whole
+
+    big = Grid(np.zeros(3), np.ones(3), (512, 512, 512))
+    assert streams_whole(big)
+    assert not streams_whole(big, color=True)
+    assert not streams_whole(big, density="coverage")
+    assert not streams_whole(big, sdf=True)
+    assert not streams_whole(Grid(np.zeros(3), np.ones(3), (256, 256, 256)))
+    assert not streams_whole(Grid(np.zeros(3), np.ones(3), (4096, 4096, 64)))
+
+
+def test_cli_fills_big_occupancy_in_slabs(tmp_path, capsys, monkeypatch):
+    import geovox.stream
+    from geovox.cli import main
+
+    # The size threshold lowered, so a small grid takes the big grids' path.
+    monkeypatch.setattr(geovox.stream, "streams_whole", lambda grid, *a: True)
+    out = tmp_path / "s.h5"
+    assert main(["convert", SPOT, "-o", str(out), "--shape", "24", "16", "150"]) == 0
+    printed = capsys.readouterr().out
+    assert "in 64-slice slabs" in printed and "load " in printed
+    ref = geovox.voxelize(SPOT, shape=(24, 16, 150))
+    np.testing.assert_array_equal(F.read(out).occupancy, ref.occupancy)
