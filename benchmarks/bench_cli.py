@@ -26,8 +26,10 @@ before and after, as the machine is shared)::
     python benchmarks/bench_cli.py --only imports
     python benchmarks/bench_cli.py --only auto-rule --res 64,256,1024
 
-(`/usr/bin/time -v geovox convert ...` gives the same wall time and peak
-memory for a single run by hand.)
+The full default run (imports and e2e, 3 runs a cell) took about 20 minutes
+under load average 8-10 on 2 cores; pick a subset with the options above.
+(`/usr/bin/time -v geovox convert ...` gives the same wall time, CPU time and
+peak memory for a single run by hand.)
 """
 
 from __future__ import annotations
@@ -62,19 +64,18 @@ def _geovox_cmd() -> list:
 
 
 def run_timed(cmd, cwd=None) -> dict:
-    """Wall time, peak RSS and output of one fresh process."""
+    """Wall time and output of one fresh process."""
     t = time.perf_counter()
     p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=_env(), cwd=cwd,
                          text=True)
     out, err = p.communicate()
     wall = time.perf_counter() - t
-    # communicate() has reaped the child; its rusage is in RUSAGE_CHILDREN
-    # only cumulatively, so ask /usr/bin/time-style via wait4 when we can.
     return {"wall": wall, "rc": p.returncode, "out": out, "err": err}
 
 
 def run_rss(cmd, cwd=None) -> dict:
-    """Like :func:`run_timed`, with the child's own peak RSS (``os.wait4``)."""
+    """Like :func:`run_timed`, with the child's own peak RSS and CPU time (``os.wait4``,
+    which reports the one child reaped, unlike ``RUSAGE_CHILDREN``)."""
     t = time.perf_counter()
     with tempfile.TemporaryFile("w+") as fo, tempfile.TemporaryFile("w+") as fe:
         p = subprocess.Popen(cmd, stdout=fo, stderr=fe, env=_env(), cwd=cwd, text=True)
@@ -332,7 +333,7 @@ def main() -> None:
             bench_e2e(args, tmp)
             print()
         if "auto-rule" in parts:
-            if args.res is None or "e2e" in parts:
+            if args.res is None or ("e2e" in parts and args.res == [128, 256, 512, 1024]):
                 args.res = [64, 128, 256, 512, 1024]
             bench_auto_rule(args, tmp)
     finally:
