@@ -93,7 +93,7 @@ def _running_xor(out: np.ndarray, axis: int, jobs: int) -> None:
         scan_along(np.logical_xor, out, axis, jobs)
 
 
-def fill_slabs(hits: Hits, columns: Columns, grid: Grid, thick: int = 64):
+def fill_slabs(hits: Hits, columns: Columns, grid: Grid, thick: int = 64, buffers: int = 1):
     """The occupancy :func:`fill` gives, made ``thick`` z-slices at a time in one buffer.
 
     For rays along z: the toggles are found once for the whole grid; then
@@ -109,8 +109,10 @@ def fill_slabs(hits: Hits, columns: Columns, grid: Grid, thick: int = 64):
     z0 : int
         The slab's first z index.
     occupancy : (nx, ny, z1 - z0) bool, Fortran order
-        The slab; the same buffer is refilled on the next step, so use it
-        (write it) before asking for the next one.
+        The slab. With ``buffers=1`` the same buffer is refilled on the next
+        step, so use it (write it) before asking for the next one; with
+        ``buffers=2`` a slab stays intact until two steps later, so it can
+        be written while the next one is made.
     """
     if columns.axis != 2:
         raise ValueError("fill_slabs needs rays along z")
@@ -119,11 +121,13 @@ def fill_slabs(hits: Hits, columns: Columns, grid: Grid, thick: int = 64):
     plane = nx * ny
     # Where each z-slice's toggles start in the sorted indices.
     bounds = np.searchsorted(lin, np.arange(nz + 1, dtype=np.int64) * plane)
-    buf = np.empty((nx, ny, min(thick, nz)), dtype=bool, order="F")
-    flat = buf.reshape(-1, order="F")  # a view: `buf` is Fortran-ordered
+    bufs = [np.empty((nx, ny, min(thick, nz)), dtype=bool, order="F")
+            for _ in range(max(1, min(buffers, -(-nz // thick))))]
     prev = np.zeros(plane, dtype=bool)
-    for z0 in range(0, nz, thick):
+    for n, z0 in enumerate(range(0, nz, thick)):
         z1 = min(z0 + thick, nz)
+        buf = bufs[n % len(bufs)]
+        flat = buf.reshape(-1, order="F")  # a view: `buf` is Fortran-ordered
         for k in range(z0, z1):
             cur = flat[(k - z0) * plane:(k - z0 + 1) * plane]
             cur[...] = prev

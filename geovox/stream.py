@@ -65,20 +65,45 @@ def _stream_occupancy(m, grid, engine, writer, jobs, timings, progress) -> int:
     timings["rays"] += time.perf_counter() - t
     inside = 0
     nx, ny, nz = grid.shape
-    slabs = parity.fill_slabs(hits, columns, grid, thick=64)
     n_slabs = -(-nz // 64)
-    for n in range(n_slabs):
+    # Two buffers: a slab is written (compressed, on the pool's threads)
+    # while the next one is filled; one write in flight at a time, so a
+    # buffer is refilled only after its slab has been written.
+    slabs = parity.fill_slabs(hits, columns, grid, thick=64, buffers=2)
+    from concurrent.futures import ThreadPoolExecutor
+
+    def write(z0, occ):
         t = time.perf_counter()
-        z0, occ = next(slabs)
-        inside += int(np.count_nonzero(occ))
-        tb = time.perf_counter()
-        timings["fill"] += tb - t
         # Only the slab's shape and arrays are read by the writers.
         writer.write(z0, Volume(occupancy=occ, grid=Grid(grid.lo, grid.hi, occ.shape),
                                 backend=engine.name))
-        timings["write"] += time.perf_counter() - tb
-        if progress:
-            progress(n + 1, n_slabs)
+        return time.perf_counter() - t
+
+    pending = None
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        try:
+            for n in range(n_slabs):
+                t = time.perf_counter()
+                z0, occ = next(slabs)
+                inside += int(np.count_nonzero(occ))
+                timings["fill"] += time.perf_counter() - t
+                if pending is not None:
+                    # "write": time spent writing, partly overlapping "fill".
+                    timings["write"] += pending.result()
+                    if progress:
+                        progress(n, n_slabs)
+                pending = pool.submit(write, z0, occ)
+            timings["write"] += pending.result()
+        except BaseException:
+            if pending is not None:
+                pending.cancel()
+                try:
+                    pending.result()
+                except BaseException:
+                    pass
+            raise
+    if progress:
+        progress(n_slabs, n_slabs)
     return inside
 
 

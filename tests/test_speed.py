@@ -41,6 +41,20 @@ def test_fill_slabs_equals_fill(shape, thick, backend):
     assert ref.any() and not ref.all()
 
 
+def test_fill_slabs_two_buffers_keep_the_last_slab():
+    m = geovox.load_mesh(SPOT)
+    g = make_grid(m.bounds, shape=(16, 16, 200))
+    cols = g.columns(2, start=float(m.bounds[0, 2]) - 1e-3 * m.scale)
+    ref = parity.fill(get_backend("numpy").cast(m, cols), cols, g)
+    slabs = parity.fill_slabs(get_backend("numpy").cast(m, cols), cols, g, thick=64, buffers=2)
+    last = None
+    for z0, occ in slabs:
+        if last is not None:  # the slab before is still intact while this one exists
+            np.testing.assert_array_equal(last[1], ref[:, :, last[0]:last[0] + last[1].shape[2]])
+        last = (z0, occ)
+    np.testing.assert_array_equal(last[1], ref[:, :, last[0]:])
+
+
 @pytest.mark.parametrize("shape", [(64, 64, 64), (8, 3, 5), (16, 64, 1)])
 def test_transpose_binary_equals_transpose(shape):
     data = (np.random.default_rng(1).random(shape) < 0.4).astype(np.uint8)
