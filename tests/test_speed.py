@@ -133,7 +133,7 @@ def _modules_after(code):
     env = dict(os.environ, PYTHONPATH=ROOT + os.pathsep + os.environ.get("PYTHONPATH", ""))
     out = subprocess.run([sys.executable, "-c", code + "\nimport sys\nprint(' '.join(sys.modules))"],
                          capture_output=True, text=True, env=env, cwd=ROOT, check=True)
-    return set(out.stdout.split()[-1:] and out.stdout.splitlines()[-1].split())
+    return set(out.stdout.splitlines()[-1].split())
 
 
 HEAVY = {"trimesh", "scipy", "h5py", "PIL", "tqdm", "embreex", "isal"}
