@@ -3,9 +3,12 @@
 >>> import geovox
 >>> vol = geovox.voxelize("model.obj", resolution=128)   # doctest: +SKIP
 >>> vol.occupancy.shape, vol.spacing, vol.backend          # doctest: +SKIP
+
+The public names are imported on first use (PEP 562), so ``import geovox``
+and ``geovox --help`` do not pay for NumPy and the pipeline's modules until
+something needs them.
 """
 
-from .backends import available_backends
 from .errors import (
     BackendUnavailableError,
     GeovoxError,
@@ -15,12 +18,19 @@ from .errors import (
     OutputError,
     ParameterError,
 )
-from .grid import Grid
-from .mesh import Mesh, load_mesh
-from .pipeline import Volume, voxelize
-from .stream import convert_to
 
 __version__ = "0.1.0"
+
+#: public name -> submodule that defines it
+_LAZY = {
+    "voxelize": "pipeline",
+    "Volume": "pipeline",
+    "convert_to": "stream",
+    "Grid": "grid",
+    "Mesh": "mesh",
+    "load_mesh": "mesh",
+    "available_backends": "backends",
+}
 
 __all__ = [
     "voxelize",
@@ -38,3 +48,22 @@ __all__ = [
     "OutputError",
     "GridTooLargeError",
 ]
+
+
+def __getattr__(name):
+    import importlib
+
+    if name in _LAZY:
+        value = getattr(importlib.import_module(f".{_LAZY[name]}", __name__), name)
+        globals()[name] = value  # later look-ups skip this function
+        return value
+    try:  # `geovox.grid` and the like, as when this file imported them all
+        return importlib.import_module(f".{name}", __name__)
+    except ModuleNotFoundError as exc:
+        if exc.name != f"{__name__}.{name}":
+            raise
+    raise AttributeError(f"module 'geovox' has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_LAZY))

@@ -118,7 +118,8 @@ def _grid_options(c):
                    metavar=("XMIN", "YMIN", "ZMIN", "XMAX", "YMAX", "ZMAX"),
                    help="region of interest (default: the mesh's bounding box)")
     c.add_argument("--backend", default="auto", choices=["auto", "embree", "numpy", "webgpu"],
-                   help="ray-casting backend (default: auto = embree if installed, else numpy)")
+                   help="ray-casting backend (default: auto = numpy, the faster one for these "
+                        "column rays; embree gives the same volume)")
     c.add_argument("--inside", default="auto", choices=["auto", "parity", "vote", "winding"],
                    help="inside test (default: auto = parity for closed meshes, winding number "
                         "otherwise)")
@@ -270,7 +271,7 @@ def _batch(args) -> int:
     return EXIT_ERROR if any(r.status == "failed" for r in results) else EXIT_OK
 
 
-def _convert_streaming(args, mesh, output, t0) -> int:
+def _convert_streaming(args, mesh, output, t0, t_read=0.0) -> int:
     """A grid too big for one piece: slab by slab into .h5 or .raw."""
     import warnings
 
@@ -311,8 +312,11 @@ def _convert_streaming(args, mesh, output, t0) -> int:
     if not args.quiet:
         nx, ny, nz = info["shape"]
         dx, dy, dz = info["spacing"]
-        t = info["timings"]
-        print(f"{os.path.basename(info['source'])}: grid {nx} x {ny} x {nz} in {info['slabs']} slabs")
+        t = dict(info["timings"])
+        t["load"] = t.get("load", 0.0) + t_read  # the file was read before convert_to
+        slabs = (f" in {info['slabs']} slabs" if info["slabs"] > 1 else
+                 " in 64-slice slabs" if info.get("filled_in_slabs") else "")
+        print(f"{os.path.basename(info['source'])}: grid {nx} x {ny} x {nz}{slabs}")
         print(f"voxel size {dx:.6g} x {dy:.6g} x {dz:.6g}, backend {info['backend']}, "
               f"inside test {info['inside_test']}")
         print(f"inside {info['inside']:,} of {nx * ny * nz:,} voxels "
@@ -341,9 +345,10 @@ def _convert(args) -> int:
         formats.check_writable(args.preview)
     from .grid import make_grid
     from .mesh import load_mesh
-    from .stream import SLAB_BUDGET, STREAMABLE, bytes_per_voxel, slab_plan
+    from .stream import SLAB_BUDGET, STREAMABLE, bytes_per_voxel, slab_plan, streams_whole
 
     mesh = load_mesh(args.input)
+    t_read = time.perf_counter() - t0
     grid = make_grid(mesh.bounds, bounds=args.bounds, resolution=args.resolution,
                      shape=args.shape, voxel_size=args.voxel_size)
     output = _output_path(args, args.input, grid.shape)
@@ -356,8 +361,9 @@ def _convert(args) -> int:
 
     avail = _available_memory()
     budget = SLAB_BUDGET if avail is None else min(SLAB_BUDGET, 0.5 * avail)
-    if fmt.name in STREAMABLE and len(slab_plan(grid, per, budget)) > 1:
-        return _convert_streaming(args, mesh, output, t0)
+    if fmt.name in STREAMABLE and (len(slab_plan(grid, per, budget)) > 1
+                                   or streams_whole(grid, args.color, args.density, args.sdf)):
+        return _convert_streaming(args, mesh, output, t0, t_read)
     vol = _voxelize(args, mesh)
     t1 = time.perf_counter()
     import warnings
@@ -389,7 +395,7 @@ def _convert(args) -> int:
               f"inside test {vol.inside}")
         print(f"inside {inside:,} of {nx * ny * nz:,} voxels ({100.0 * inside / (nx * ny * nz):.2f}%)")
         extra = "".join(f", {k} {t[k]:.2f}" for k in ("colour", "density", "sdf") if k in t)
-        print(f"time {t2 - t0:.2f} s (load {t['load']:.2f}, rays {t['rays']:.2f}, "
+        print(f"time {t2 - t0:.2f} s (load {t_read + t['load']:.2f}, rays {t['rays']:.2f}, "
               f"fill {t['fill']:.2f}{extra}, write {t2 - t1:.2f})")
         print("wrote " + ", ".join(written))
     return EXIT_OK

@@ -50,8 +50,20 @@ def boundary_edges(mesh: Mesh) -> np.ndarray:
     f = mesh.geometric_faces
     e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
     e = e[e[:, 0] != e[:, 1]]  # degenerate faces repeat a vertex
-    lo, hi = np.minimum(e[:, 0], e[:, 1]), np.maximum(e[:, 0], e[:, 1])
     n = int(f.max()) + 1 if len(f) else 1
+    lo, hi = np.minimum(e[:, 0], e[:, 1]), np.maximum(e[:, 0], e[:, 1])
+    # The common case first, with one sort: closed exactly when every
+    # undirected edge is run as often one way as the other. Sorted by
+    # (edge, direction), a running +-1 sum returns to 0 at the end of
+    # every edge's run.
+    forward = e[:, 0] < e[:, 1]
+    order = np.sort(2 * (lo * n + hi) + forward)
+    net = np.cumsum(np.where(order & 1, 1, -1))
+    ends = np.flatnonzero(np.r_[order[1:] >> 1 != order[:-1] >> 1, len(order) > 0])
+    if not net[ends].any():
+        out = np.zeros((0, 2), dtype=np.int64)
+        mesh._cache["boundary"] = out
+        return out
     key = lo * n + hi
     sign = np.where(e[:, 0] < e[:, 1], 1, -1)
     uniq, inverse = np.unique(key, return_inverse=True)

@@ -88,7 +88,7 @@ class Mesh:
     def bounds(self) -> np.ndarray:
         """(2, 3) float64: the bounding box of the faces' vertices."""
         if "bounds" not in self._cache:
-            used = self.vertices[_used(self.vertices, self.faces)]
+            used = _used_vertices(self.vertices, self.faces)
             self._cache["bounds"] = np.stack([used.min(axis=0), used.max(axis=0)])
         return self._cache["bounds"]
 
@@ -106,16 +106,28 @@ class Mesh:
         ray parity only sees positions, so adjacency is taken from these.
         """
         if "geometric_faces" not in self._cache:
-            _, inverse = np.unique(self.vertices, axis=0, return_inverse=True)
-            self._cache["geometric_faces"] = inverse.reshape(-1)[self.faces]
+            # np.unique(axis=0)'s numbering (lexicographic by x, y, z), by
+            # one lexsort of the columns: several times faster.
+            v = self.vertices
+            order = np.lexsort((v[:, 2], v[:, 1], v[:, 0]))
+            sv = v[order]
+            new = np.empty(len(v), dtype=bool)
+            new[:1] = True
+            np.any(sv[1:] != sv[:-1], axis=1, out=new[1:])
+            inverse = np.empty(len(v), dtype=np.int64)
+            inverse[order] = np.cumsum(new) - 1
+            self._cache["geometric_faces"] = inverse[self.faces]
         return self._cache["geometric_faces"]
 
 
-def _used(vertices, faces) -> np.ndarray:
-    """(n,) bool: the vertices some face uses (a mask: np.unique sorts, slower than an OBJ read)."""
+def _used_vertices(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(k, 3): the vertices some face uses (all of them, usually, without a copy).
+
+    A mask filled by indexing, not ``np.unique(faces)``: no sort.
+    """
     used = np.zeros(len(vertices), dtype=bool)
-    used[faces.ravel()] = True
-    return used
+    used[faces.reshape(-1)] = True
+    return vertices if used.all() else vertices[used]
 
 
 def _check(vertices, faces, source, **extra) -> Mesh:
@@ -134,7 +146,7 @@ def _check(vertices, faces, source, **extra) -> Mesh:
             f"{source}: faces index vertices that do not exist "
             f"(indices {faces.min()}..{faces.max()}, {len(vertices)} vertices)"
         )
-    used = vertices[_used(vertices, faces)]
+    used = _used_vertices(vertices, faces)
     if not np.all(np.isfinite(used)):
         bad = int((~np.isfinite(used)).any(axis=1).sum())
         raise MeshError(f"{source}: {bad} vertices have NaN or infinite coordinates")

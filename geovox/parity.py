@@ -77,12 +77,62 @@ def fill(hits: Hits, columns: Columns, grid: Grid, out: np.ndarray | None = None
         out[...] = False
     flat = out.reshape(-1, order="F")  # a view: `out` is Fortran-ordered
     flat[toggle_indices(hits, columns, grid)] = True
-    if columns.axis != 0 and grid.shape[0] % 8 == 0:
+    _running_xor(out, columns.axis, jobs)
+    return out
+
+
+def _running_xor(out: np.ndarray, axis: int, jobs: int) -> None:
+    """Toggles -> occupancy in place: a running XOR along ``axis``."""
+    if axis != 0 and out.shape[0] % 8 == 0:
         # Eight voxels per XOR: bytes holding 0 or 1 stay 0 or 1, and with
         # rays along y or z the eight x-neighbours in a word are eight
         # separate columns, scanned side by side.
         words = out.T.view(np.uint64)
-        scan_along(np.bitwise_xor, words, 2 - columns.axis, jobs)
+        scan_along(np.bitwise_xor, words, 2 - axis, jobs)
     else:
-        scan_along(np.logical_xor, out, columns.axis, jobs)
-    return out
+        scan_along(np.logical_xor, out, axis, jobs)
+
+
+def fill_slabs(hits: Hits, columns: Columns, grid: Grid, thick: int = 64, buffers: int = 1):
+    """The occupancy :func:`fill` gives, made ``thick`` z-slices at a time in one buffer.
+
+    For rays along z: the toggles are found once for the whole grid; then
+    each z-slice is the one before it (copied) with its own toggles flipped.
+    That writes every voxel once -- no zeroing, no separate scan -- in one
+    thread (a memory-bound copy of each slice), and peak
+    memory is one slab (and the hits), not the grid. The buffer, touched
+    once, stays mapped: on a large grid the first touch of fresh memory is
+    the slowest part of :func:`fill`.
+
+    Yields
+    ------
+    z0 : int
+        The slab's first z index.
+    occupancy : (nx, ny, z1 - z0) bool, Fortran order
+        The slab. With ``buffers=1`` the same buffer is refilled on the next
+        step, so use it (write it) before asking for the next one; with
+        ``buffers=2`` a slab stays intact until two steps later, so it can
+        be written while the next one is made.
+    """
+    if columns.axis != 2:
+        raise ValueError("fill_slabs needs rays along z")
+    lin = toggle_indices(hits, columns, grid)
+    nx, ny, nz = grid.shape
+    plane = nx * ny
+    # Where each z-slice's toggles start in the sorted indices.
+    bounds = np.searchsorted(lin, np.arange(nz + 1, dtype=np.int64) * plane)
+    bufs = [np.empty((nx, ny, min(thick, nz)), dtype=bool, order="F")
+            for _ in range(max(1, min(buffers, -(-nz // thick))))]
+    prev = np.zeros(plane, dtype=bool)
+    for n, z0 in enumerate(range(0, nz, thick)):
+        z1 = min(z0 + thick, nz)
+        buf = bufs[n % len(bufs)]
+        flat = buf.reshape(-1, order="F")  # a view: `buf` is Fortran-ordered
+        for k in range(z0, z1):
+            cur = flat[(k - z0) * plane:(k - z0 + 1) * plane]
+            cur[...] = prev
+            idx = lin[bounds[k]:bounds[k + 1]] - k * plane
+            cur[idx] = ~cur[idx]  # unique indices: each flips once
+            prev = cur
+        prev = prev.copy()  # the buffer is reused for the next slab
+        yield z0, buf[:, :, :z1 - z0]

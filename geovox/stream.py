@@ -42,6 +42,71 @@ def slab_plan(grid: Grid, per_voxel: float, budget: float = SLAB_BUDGET) -> list
     return [(z, min(z + thick, nz)) for z in range(0, nz, thick)]
 
 
+def streams_whole(grid: Grid, color=False, density=None, sdf=False) -> bool:
+    """Whether a one-piece conversion to .h5 / .raw is worth streaming anyway.
+
+    Occupancy alone of a grid of 512³ voxels or more: filling and writing
+    64 slices at a time skips allocating (and first touching) the whole
+    array, which on a 1024³ grid costs 0.2-2.5 s by itself, depending on
+    the machine's memory state.
+    """
+    return not (color or density or sdf) and grid.size >= 1 << 27 and grid.shape[2] > 64
+
+
+def _stream_occupancy(m, grid, engine, writer, jobs, timings, progress) -> int:
+    """Occupancy of the whole grid by rays along z, filled and written slab by slab."""
+    from . import parity
+    from .pipeline import Volume
+
+    t = time.perf_counter()
+    start = min(float(m.bounds[0, 2]), float(grid.lo[2])) - 1e-3 * m.scale
+    columns = grid.columns(2, start=start)
+    hits = engine.cast(m, columns, jobs=jobs)
+    timings["rays"] += time.perf_counter() - t
+    inside = 0
+    nx, ny, nz = grid.shape
+    n_slabs = -(-nz // 64)
+    # Two buffers: a slab is written (compressed, on the pool's threads)
+    # while the next one is filled; one write in flight at a time, so a
+    # buffer is refilled only after its slab has been written.
+    slabs = parity.fill_slabs(hits, columns, grid, thick=64, buffers=2)
+    from concurrent.futures import ThreadPoolExecutor
+
+    def write(z0, occ):
+        t = time.perf_counter()
+        # Only the slab's shape and arrays are read by the writers.
+        writer.write(z0, Volume(occupancy=occ, grid=Grid(grid.lo, grid.hi, occ.shape),
+                                backend=engine.name))
+        return time.perf_counter() - t
+
+    pending = None
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        try:
+            for n in range(n_slabs):
+                t = time.perf_counter()
+                z0, occ = next(slabs)
+                inside += int(np.count_nonzero(occ))
+                timings["fill"] += time.perf_counter() - t
+                if pending is not None:
+                    # "write": time spent writing, partly overlapping "fill".
+                    timings["write"] += pending.result()
+                    if progress:
+                        progress(n, n_slabs)
+                pending = pool.submit(write, z0, occ)
+            timings["write"] += pending.result()
+        except BaseException:
+            if pending is not None:
+                pending.cancel()
+                try:
+                    pending.result()
+                except BaseException:
+                    pass
+            raise
+    if progress:
+        progress(n_slabs, n_slabs)
+    return inside
+
+
 def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, **options):
     """Voxelise ``mesh`` into ``path`` slab by slab (HDF5 or RAW).
 
@@ -62,7 +127,9 @@ def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, *
     Returns
     -------
     dict with ``shape``, ``spacing``, ``bounds``, ``inside`` (count),
-    ``inside_test``, ``backend``, ``slabs``, ``files`` and ``timings``.
+    ``inside_test``, ``backend``, ``slabs``, ``files`` and ``timings``;
+    ``filled_in_slabs`` is True where a one-piece occupancy was filled and
+    written 64 slices at a time (see :func:`geovox.parity.fill_slabs`).
     """
     from . import formats
     from . import inside as inside_tests
@@ -147,7 +214,18 @@ def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, *
                             ordered=True), cols
 
             reuse = {2: along_z}
-        for n, (z0, z1) in enumerate(plan):
+        if len(plan) == 1 and method == "parity" and not any(
+                options.get(k) for k in ("color", "density", "sdf")):
+            # Occupancy alone, one piece: the rays along z are cast once for
+            # the whole grid (as voxelize casts them, so the file is the same)
+            # and the fill runs 64 slices at a time in one reused buffer,
+            # each slab written before the next is made (see
+            # parity.fill_slabs): no grid-sized array is ever allocated.
+            inside = _stream_occupancy(m, grid, engine, writer, jobs, timings, progress)
+            plan_left, streamed = [], True
+        else:
+            plan_left, streamed = plan, False
+        for n, (z0, z1) in enumerate(plan_left):
             lo = grid.lo.copy()
             lo[2] = grid.lo[2] + z0 * h[2]
             hi = grid.hi.copy()
@@ -184,4 +262,5 @@ def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, *
     return {"shape": tuple(grid.shape), "spacing": tuple(float(x) for x in h),
             "bounds": meta.bounds, "inside": inside, "inside_test": method,
             "backend": engine.name, "slabs": len(plan), "files": files, "timings": timings,
+            "filled_in_slabs": streamed,
             "grid": grid, "source": m.source}

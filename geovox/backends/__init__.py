@@ -4,6 +4,17 @@
 with :func:`importlib.util.find_spec` so listing backends imports nothing.
 ``"auto"`` walks :data:`PREFERENCE`; a backend asked for by name that cannot
 run is an error that says what to install, never a silent fallback.
+
+Why ``auto`` is NumPy: every ray geovox casts is an axis-parallel column
+ray on a regular lattice, which the NumPy backend scan-converts directly
+(cost ~ triangles + candidate pairs, no set-up), while the Embree backend
+first imports trimesh and embreex (0.3-0.8 s in a fresh process), builds a
+scene and checks for coplanar overlapping triangles, and even warm is no
+faster than NumPy on these rays. Measured over every corpus model at
+64³-1024³, first call in a fresh process (``benchmarks/bench_cli.py --only
+auto-rule``, table in ``benchmarks/README.md``), Embree took 1.5-35× as
+long as NumPy, so ``auto`` picks NumPy whenever it imports; ``embree``
+stays available by name and gives identical volumes.
 """
 
 from __future__ import annotations
@@ -21,8 +32,8 @@ REGISTRY = {
     # Not in PREFERENCE: `auto` never picks it (see README, "WebGPU backend").
     "webgpu": ("wgpu", "wgpu", "geovox.backends.webgpu:WebgpuBackend"),
 }
-#: Order tried by ``backend="auto"``.
-PREFERENCE = ("embree", "numpy")
+#: Order tried by ``backend="auto"`` (see the module docstring for the measurement).
+PREFERENCE = ("numpy", "embree")
 
 _instances: dict = {}
 

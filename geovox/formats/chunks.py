@@ -45,6 +45,31 @@ def compress(data: bytes) -> bytes:
     return _deflate.compress(data, LEVEL)
 
 
+def _transpose_binary(data: np.ndarray) -> np.ndarray:
+    """``data.transpose(2, 1, 0)``, C-contiguous, for a chunk of 0/1 bytes.
+
+    NumPy gathers bytes along a stride of a whole plane at about 3 ns each
+    (0.9 ms for a 64³ chunk, most of the time of writing a 1024³ file); as
+    bits the chunk is 8 times smaller: the bytes are packed 8 z-values to a
+    byte with shifts over whole planes, the small array is transposed, and
+    ``np.unpackbits`` (a table look-up) restores the bytes along the new
+    last axis. 0.2 ms for a 64³ chunk.
+
+    Parameters
+    ----------
+    data : (cz, cy, cx) uint8, C-contiguous, values 0 or 1, ``cz % 8 == 0``
+
+    Returns
+    -------
+    (cx, cy, cz) uint8, C-contiguous
+    """
+    q = data.reshape(data.shape[0] // 8, 8, *data.shape[1:])
+    packed = q[:, 0] << 7
+    for i in range(1, 8):
+        packed |= q[:, i] << (7 - i)
+    return np.unpackbits(np.ascontiguousarray(packed.transpose(2, 1, 0)), axis=2)
+
+
 def chunk_extrema(src: np.ndarray, chunks, jobs: int = 2):
     """Per-chunk minimum and maximum of a C-ordered ``(z, y, x[, c])`` array.
 
@@ -108,6 +133,8 @@ def write_both(src: np.ndarray, vtk, plain, z0: int = 0, jobs: int = 2) -> None:
     mixed = np.argwhere(~zero & ~(uniform & full))
     repeated = np.argwhere(uniform & ~zero & full)
     order = (2, 1, 0) + tuple(range(3, src.ndim))
+    # 0/1 bytes (occupancy) are transposed as bits: see _transpose_binary.
+    binary = src.dtype == np.uint8 and src.ndim == 3 and cz % 8 == 0 and int(hi.max(initial=0)) <= 1
     k0 = z0 // cz
 
     def offsets(index):
@@ -135,7 +162,10 @@ def write_both(src: np.ndarray, vtk, plain, z0: int = 0, jobs: int = 2) -> None:
         else:
             data = np.zeros(chunk, dtype=src.dtype)
             data[tuple(slice(0, n) for n in part.shape)] = part
-        other = compress(np.ascontiguousarray(data.transpose(order))) if plain is not None else None
+        other = None
+        if plain is not None:
+            other = compress(_transpose_binary(data) if binary else
+                             np.ascontiguousarray(data.transpose(order)))
         return index, compress(data), other
 
     with ThreadPoolExecutor(max_workers=max(1, jobs)) as pool:
