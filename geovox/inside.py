@@ -193,6 +193,13 @@ def capped(mesh: Mesh):
 def winding_occupancy(mesh: Mesh, grid, cast, axis: int, jobs: int = 1):
     """Occupancy by the generalised winding number (see the module notes).
 
+    The winding number is taken of :func:`target`'s mesh: the mesh itself
+    when it is closed and consistently wound, else its repaired copy. A
+    closed target gives the integer winding number from signed crossings
+    exactly, and a voxel is inside where it is not 0 (so overlapping parts
+    count, and a cavity inside an inward-facing shell does not). An open
+    target has its holes capped; inside is ``w_{M+K} - w_K > 1/2``.
+
     ``cast(mesh, axis)`` returns ``(Hits, Columns)`` for any mesh.
 
     Returns
@@ -200,102 +207,331 @@ def winding_occupancy(mesh: Mesh, grid, cast, axis: int, jobs: int = 1):
     occupancy : (nx, ny, nz) bool, Fortran order
     hits, columns : the crossings of the original mesh's triangles
     """
-    closed, cap_tris, piece = capped(mesh)
-    nf = len(mesh.faces)
+    tmesh, rep = target(mesh)
+    closed, cap_tris, _ = capped(tmesh)
+    nf = len(tmesh.faces)
+    # The integer winding number, a caps correction's float32 estimate and
+    # bound, and the occupancy: about 11 bytes a voxel.
+    from .pipeline import check_memory
+
+    check_memory(grid, 11.0 if len(cap_tris) else 3.0)
     hits, columns = cast(closed, axis)
     w = signed_counts(closed, hits, columns, grid, jobs)
-    occ = np.asfortranarray(w >= 1)
     if len(cap_tris):
-        _correct_near_caps(occ, w, grid, cap_tris, piece)
+        occ = np.zeros(grid.shape, dtype=bool, order="F")
+        _correct_caps(occ, w, grid, cap_tris)
         hits = hits.take(hits.triangle < nf)
+    else:
+        occ = np.asfortranarray(w != 0)
+    if rep is not None:
+        hits = rep.original_hits(hits)
     return occ, hits, columns
 
 
-#: Bricks of BRICK³ voxels organise the cap correction.
-BRICK = 8
+def target(mesh: Mesh):
+    """The mesh whose winding number decides the inside, and the repair that made it.
 
-
-def _correct_near_caps(occ, w, grid, cap_tris, piece) -> None:
-    """Decide ``w_M = w_{M+K} - w_K > 1/2`` exactly where ``w_K`` can change the answer.
-
-    The grid is cut into bricks of BRICK³ voxels. A cap piece next to a
-    brick (closer than the brick's diagonal) is summed exactly at every voxel
-    of it; a farther piece ``c`` (area ``A_c``) is summed at the brick's centre
-    only, and differs from that inside the brick by at most
-    ``rho * A_c / (pi d^3)`` (``rho`` the brick's half-diagonal, ``d`` the
-    distance), because the solid-angle kernel's gradient is at most
-    ``4 / r^3``. Voxels whose estimate is further than that bound from 1/2
-    are decided; the few others get the exact sum over every cap triangle.
+    Returns
+    -------
+    mesh : Mesh
+        ``mesh`` itself when every edge has a partner running the other way;
+        else its repaired copy (see :mod:`geovox.repair`).
+    repair : geovox.repair.Repair or None
     """
-    npieces = int(piece.max()) + 1
-    order = np.argsort(piece, kind="stable")
-    counts = np.bincount(piece, minlength=npieces)
-    starts = np.r_[0, np.cumsum(counts)[:-1]]
-    tri_sorted = cap_tris[order]
-    lo = np.minimum.reduceat(tri_sorted.min(axis=1), starts, axis=0)
-    hi = np.maximum.reduceat(tri_sorted.max(axis=1), starts, axis=0)
-    area = 0.5 * np.linalg.norm(np.cross(tri_sorted[:, 1] - tri_sorted[:, 0],
-                                         tri_sorted[:, 2] - tri_sorted[:, 0]), axis=1)
-    piece_area = np.add.reduceat(area, starts)
+    if "target" not in mesh._cache:
+        if len(boundary_edges(mesh)) == 0:
+            mesh._cache["target"] = (mesh, None)
+        else:
+            from .repair import repair
 
-    shape = np.asarray(grid.shape)
-    nb = -(-shape // BRICK)
-    centres = [grid.centres(a) for a in range(3)]
-    first = np.stack(np.meshgrid(*[np.arange(n) for n in nb], indexing="ij"), -1) * BRICK
-    last = np.minimum(first + BRICK, shape) - 1
-    b_lo = np.stack([centres[a][first[..., a]] for a in range(3)], -1)
-    b_hi = np.stack([centres[a][last[..., a]] for a in range(3)], -1)
-    mid = (b_lo + b_hi) / 2
-    rho = np.linalg.norm(b_hi - b_lo, axis=-1) / 2
-    reach = 2.0 * rho.max() + 1e-12
-    far_mid = solid_angles(cap_tris, mid.reshape(-1, 3)).reshape(tuple(nb))
-    deviation = np.zeros(tuple(nb))
-    near_sum = np.zeros(grid.shape, dtype=np.float32, order="F")
-    for c in range(npieces):
-        tris = tri_sorted[starts[c]:starts[c] + counts[c]]
-        gap = np.maximum(0.0, np.maximum(lo[c] - b_hi, b_lo - hi[c]))
-        d = np.sqrt((gap ** 2).sum(-1))
-        near = d <= reach
+            rep = repair(mesh)
+            mesh._cache["target"] = (rep.mesh, rep)
+    return mesh._cache["target"]
+
+
+def overlapping_pieces(mesh: Mesh) -> bool:
+    """Whether two pieces (connected through shared edges) have overlapping boxes.
+
+    Parity counts the space two closed parts share as outside; the winding
+    number counts it twice. Only then do the two differ on a closed,
+    consistently wound mesh, so only then is parity not enough.
+    """
+    if "overlap" in mesh._cache:
+        return mesh._cache["overlap"]
+    from .repair import edge_table, face_pieces
+
+    g = mesh.geometric_faces
+    g = g[(g[:, 0] != g[:, 1]) & (g[:, 1] != g[:, 2]) & (g[:, 2] != g[:, 0])]
+    overlap = False
+    if len(g) > 1:
+        edge, count, _ = edge_table(g, int(g.max()) + 1)
+        order = np.argsort(edge, kind="stable")
+        # Faces sharing an edge (any number of them) are one piece.
+        slot = order.reshape(-1)
+        same = edge[slot[1:]] == edge[slot[:-1]]
+        pairs = np.stack([slot[:-1][same], slot[1:][same]], axis=1)
+        n, label = face_pieces(len(g), pairs)
+        if n > 1:
+            order = np.argsort(label, kind="stable")
+            starts = np.r_[0, np.flatnonzero(np.diff(label[order])) + 1]
+            t = mesh.vertices[mesh.faces][0:0]  # dtype only
+            pos = np.zeros((int(g.max()) + 1, 3), dtype=t.dtype)
+            pos[mesh.geometric_faces.reshape(-1)] = mesh.vertices[mesh.faces.reshape(-1)]
+            tri = pos[g[order]]
+            lo = np.minimum.reduceat(tri.min(axis=1), starts, axis=0)
+            hi = np.maximum.reduceat(tri.max(axis=1), starts, axis=0)
+            overlap = _any_box_overlap(lo, hi)
+    mesh._cache["overlap"] = overlap
+    return overlap
+
+
+def _any_box_overlap(lo, hi, block: int = 512) -> bool:
+    """Whether any two of the boxes ``[lo, hi]`` (``(n, 3)``) share interior points."""
+    n = len(lo)
+    for s in range(0, n, block):
+        a_lo, a_hi = lo[s:s + block, None], hi[s:s + block, None]
+        inter = np.all((a_lo < hi[None]) & (lo[None] < a_hi), axis=2)
+        i = np.arange(s, min(s + block, n))[:, None]
+        if np.any(inter & (np.arange(n)[None] > i)):
+            return True
+    return False
+
+
+#: Opening ratio of the caps' far field: a group of cap triangles within
+#: radius ``r`` of its centre is summed as one dipole at a brick of radius
+#: ``rb`` when ``r + rb <= THETA * d`` (``d`` the gap between their balls).
+THETA = 0.5
+#: A far-field term whose error bound is below this is accepted whatever THETA says.
+EPS = 1e-4
+#: (brick, cap group) pairs handled at once: bounds the traversal's memory.
+PAIR_CHUNK = 1 << 17
+
+
+def _cap_tree(tris):
+    """A binary tree over the cap triangles, in Morton order, as flat arrays.
+
+    Level 0 holds the triangles; node ``j`` of level ``l`` covers the sorted
+    triangles ``j 2^l .. (j + 1) 2^l - 1``. Per node: area vector ``S`` (the
+    sum of the triangles' area-weighted normals, the dipole moment of their
+    solid angle), total area ``A``, box centre ``c`` and radius ``r`` (every
+    point of every triangle is within ``r`` of ``c``).
+
+    Returns
+    -------
+    tris : (k, 3, 3) float64, sorted
+    nodes : dict of flat arrays ``S (n, 3)``, ``A (n,)``, ``c (n, 3)``, ``r (n,)``
+    offset : list of int
+        Index of each level's first node in the flat arrays; ``size`` per level.
+    """
+    cen = tris.mean(axis=1)
+    lo, hi = cen.min(axis=0), cen.max(axis=0)
+    q = ((cen - lo) / max(float((hi - lo).max()), 1e-300) * 1023).astype(np.int64)
+    code = np.zeros(len(tris), dtype=np.int64)
+    for bit in range(10):
+        for k in range(3):
+            code |= ((q[:, k] >> bit) & 1) << (3 * bit + k)
+    tris = tris[np.argsort(code, kind="stable")]
+    S = 0.5 * np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
+    A = np.linalg.norm(S, axis=1)
+    blo, bhi = tris.min(axis=1), tris.max(axis=1)
+    levels = [(S, A, blo, bhi)]
+    while len(levels[-1][0]) > 1:
+        S, A, blo, bhi = levels[-1]
+        starts = np.arange(0, len(S), 2)
+        levels.append((np.add.reduceat(S, starts, axis=0), np.add.reduceat(A, starts),
+                       np.minimum.reduceat(blo, starts, axis=0),
+                       np.maximum.reduceat(bhi, starts, axis=0)))
+    size = [len(lv[0]) for lv in levels]
+    offset = np.r_[0, np.cumsum(size)[:-1]].astype(np.int64)
+    S = np.concatenate([lv[0] for lv in levels])
+    A = np.concatenate([lv[1] for lv in levels])
+    blo = np.concatenate([lv[2] for lv in levels])
+    bhi = np.concatenate([lv[3] for lv in levels])
+    nodes = {"S": S, "A": A, "c": (blo + bhi) / 2, "r": np.linalg.norm(bhi - blo, axis=1) / 2}
+    return tris, nodes, offset, np.asarray(size, dtype=np.int64)
+
+
+def _triangle_angles(tris: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Signed solid angle over 4 pi of triangle ``i`` at point ``i`` (both ``(n, 3[, 3])``)."""
+    A, B, C = tris[:, 0] - points, tris[:, 1] - points, tris[:, 2] - points
+    la, lb, lc = (np.sqrt(np.einsum("ij,ij->i", x, x)) for x in (A, B, C))
+    num = np.einsum("ij,ij->i", A, np.cross(B, C))
+    den = (la * lb * lc + np.einsum("ij,ij->i", A, B) * lc
+           + np.einsum("ij,ij->i", A, C) * lb + np.einsum("ij,ij->i", B, C) * la)
+    return np.arctan2(num, den) / (2.0 * np.pi)
+
+
+def cap_winding(grid, tris, bricks, theta=THETA, eps=EPS):
+    """The caps' winding number ``w_K`` over bricks of voxels, hierarchically, with a bound.
+
+    A dual-tree traversal in whole arrays. Voxels are grouped in cubic
+    bricks of ``2^k`` voxels a side (a brick of level 0 is one voxel centre),
+    cap triangles in the tree of :func:`_cap_tree`. Starting from the given
+    bricks paired with the root, each (brick, node) pair whose balls are far
+    apart is summed as the node's dipole ``S . (c - p) / (4 pi |c - p|^3)`` at
+    the brick's centre ``p``. Its error anywhere in the brick is at most
+    ``A (r + rb) / (2 pi d^3)``: the solid-angle kernel ``n.(x-p)/|x-p|^3`` has
+    gradient at most ``2 / |x-p|^3``, the triangles' points and the brick's
+    voxel centres move at most ``r + rb`` from the two centres, and stay at
+    least ``d`` (the gap between the balls) apart. Pairs that are not far
+    split their larger side (8 sub-bricks, or 2 child nodes); a voxel and a
+    single triangle are summed exactly (Van Oosterom and Strackee).
+
+    Parameters
+    ----------
+    grid : Grid
+    tris : (k, 3, 3) float64
+        Cap triangles.
+    bricks : tuple (level, (m, 3) int64)
+        The starting bricks: one level, their indices on that level.
+
+    Returns
+    -------
+    est : list of arrays, one per brick level ``l`` (shape ``ceil(shape / 2^l)``)
+        Sums to add up, each voxel taking its bricks' values on every level.
+    err : list of arrays of the same shapes: the bounds, added the same way.
+    """
+    tris, nodes, offset, size = _cap_tree(tris)
+    top = len(size) - 1
+    shape = np.asarray(grid.shape, dtype=np.int64)
+    level0, start = bricks
+    d = grid.spacing
+    lo = grid.lo
+    est = [np.zeros(tuple(-(-shape // (1 << k))), dtype=np.float32 if k == 0 else np.float64)
+           for k in range(level0 + 1)]
+    err = [np.zeros_like(e) for e in est]
+    S, A, C, R = nodes["S"], nodes["A"], nodes["c"], nodes["r"]
+    stack = [(np.full(len(start), level0, np.int64), start.astype(np.int64),
+              np.full(len(start), top, np.int64), np.zeros(len(start), np.int64))]
+    while stack:
+        kb, b, ln, nj = stack.pop()
+        if len(kb) > PAIR_CHUNK:
+            stack.append((kb[PAIR_CHUNK:], b[PAIR_CHUNK:], ln[PAIR_CHUNK:], nj[PAIR_CHUNK:]))
+            kb, b, ln, nj = kb[:PAIR_CHUNK], b[:PAIR_CHUNK], ln[:PAIR_CHUNK], nj[:PAIR_CHUNK]
+        side = (1 << kb).astype(np.float64)
+        p = lo + (b * side[:, None] + (side[:, None] - 1) / 2 + 0.5) * d
+        rb = 0.5 * (side - 1) * np.linalg.norm(d)
+        node = offset[ln] + nj
+        vec = C[node] - p
+        dist = np.sqrt(np.einsum("ij,ij->i", vec, vec))
+        reach = R[node] + rb
+        gap = dist - reach
         with np.errstate(divide="ignore", invalid="ignore"):
-            deviation += np.where(near, 0.0, rho * piece_area[c] / (np.pi * d ** 3))
-        bricks = np.argwhere(near)
-        if len(bricks) == 0:
+            bound = A[node] * reach / (2 * np.pi * gap ** 3)
+        far = (gap > 0) & ((reach <= theta * gap) | (bound <= eps))
+        leaf = ~far & (kb == 0) & (ln == 0)
+        if far.any():
+            f = np.flatnonzero(far)
+            val = np.einsum("ij,ij->i", S[node[f]], vec[f]) / (4 * np.pi * dist[f] ** 3)
+            _scatter(est, err, kb[f], b[f], val, bound[f])
+        if leaf.any():
+            f = np.flatnonzero(leaf)
+            val = _triangle_angles(tris[nj[f]], p[f])
+            _scatter(est, err, kb[f], b[f], val, np.zeros(len(f)))
+        split = np.flatnonzero(~far & ~leaf)
+        if len(split) == 0:
             continue
-        far_mid[near] -= solid_angles(tris, mid[near])
-        pts = []
-        for b in bricks:
-            pts.append(np.stack(np.meshgrid(*[np.arange(first[tuple(b)][a], last[tuple(b)][a] + 1)
-                                              for a in range(3)], indexing="ij"), -1).reshape(-1, 3))
-        vox = np.concatenate(pts)
-        p = np.stack([centres[a][vox[:, a]] for a in range(3)], axis=1)
-        near_sum[tuple(vox.T)] += solid_angles(tris, p).astype(np.float32)
-    expand = [np.repeat(np.arange(nb[a]), BRICK)[: shape[a]] for a in range(3)]
-    estimate = w - far_mid[np.ix_(*expand)] - near_sum
-    occ[...] = estimate > 0.5
-    # float32 rounding of the near sums is far below this margin.
-    unsure = np.abs(estimate - 0.5) <= deviation[np.ix_(*expand)] + 1e-4
-    idx = np.argwhere(unsure)
-    for s in range(0, len(idx), 1 << 16):
-        block = idx[s:s + (1 << 16)]
-        p = np.stack([centres[a][block[:, a]] for a in range(3)], axis=1)
-        ii = tuple(block.T)
-        occ[ii] = (w[ii] - solid_angles(cap_tris, p)) > 0.5
+        kb, b, ln, nj, rb_s, r_s = kb[split], b[split], ln[split], nj[split], rb[split], R[node[split]]
+        brick = (kb > 0) & ((ln == 0) | (rb_s > r_s))
+        if (~brick).any():  # two children of the node (the second may not exist)
+            s = np.flatnonzero(~brick)
+            c_ln = np.repeat(ln[s] - 1, 2)
+            c_nj = (2 * nj[s])[:, None] + np.arange(2)
+            c_nj = c_nj.reshape(-1)
+            ok = c_nj < size[c_ln]
+            stack.append((np.repeat(kb[s], 2)[ok], np.repeat(b[s], 2, axis=0)[ok], c_ln[ok], c_nj[ok]))
+        if brick.any():  # eight sub-bricks (those inside the grid)
+            s = np.flatnonzero(brick)
+            child = (2 * b[s])[:, None, :] + _OCTANTS[None]
+            c_kb = np.repeat(kb[s] - 1, 8)
+            child = child.reshape(-1, 3)
+            ok = np.all(child * (1 << c_kb)[:, None] < shape, axis=1)
+            stack.append((c_kb[ok], child[ok], np.repeat(ln[s], 8)[ok], np.repeat(nj[s], 8)[ok]))
+    return est, err
+
+
+_OCTANTS = np.array([[i, j, k] for k in (0, 1) for j in (0, 1) for i in (0, 1)], dtype=np.int64)
+
+
+def _scatter(est, err, kb, b, val, bound):
+    """Add each pair's value and bound to its brick, level by level."""
+    for k in np.unique(kb):
+        sel = kb == k
+        lin = np.ravel_multi_index(tuple(b[sel].T), est[k].shape)
+        np.add.at(est[k].reshape(-1), lin, val[sel].astype(est[k].dtype))
+        np.add.at(err[k].reshape(-1), lin, bound[sel].astype(err[k].dtype))
+
+
+def _correct_caps(occ, w, grid, cap_tris) -> None:
+    """Decide ``w_M = w_{M+K} - w_K > 1/2`` with the caps' winding number from :func:`cap_winding`.
+
+    A first pass over bricks of 16 voxels gives every voxel an estimate of
+    ``w_K`` and a proven bound on its error; voxels whose estimate is not
+    decisive (within the bound of 1/2) get a second, voxel-by-voxel pass
+    with a tighter opening ratio, and any still undecided are summed
+    exactly over every cap triangle.
+    """
+    shape = np.asarray(grid.shape)
+    top = max(0, int(np.ceil(np.log2(max(1, int(shape.max()) / 16)))))
+    nb = -(-shape // (1 << top))
+    start = np.stack(np.meshgrid(*[np.arange(n) for n in nb], indexing="ij"), -1).reshape(-1, 3)
+    est, err = cap_winding(grid, cap_tris, (top, start))
+    # Push every level's sums down to the voxels, one z slice of bricks at a time.
+    wk = est[0]
+    bound = err[0]
+    for k in range(1, len(est)):
+        expand = [np.repeat(np.arange(est[k].shape[a]), 1 << k)[: shape[a]] for a in range(3)]
+        wk += est[k].astype(np.float32)[np.ix_(*expand)]
+        bound += err[k].astype(np.float32)[np.ix_(*expand)]
+    # float32 rounding of the sums is far below this margin.
+    bound += np.float32(1e-4)
+    wm = w.astype(np.float32)
+    wm -= wk
+    np.greater(wm, np.float32(0.5), out=occ)
+    unsure = np.argwhere(np.abs(wm - np.float32(0.5)) <= bound)
+    del wk, bound, wm, est, err
+    for theta in (0.2, 0.0):
+        if len(unsure) == 0:
+            return
+        e2, b2 = cap_winding(grid, cap_tris, (0, unsure), theta=theta, eps=1e-6 if theta else 0.0)
+        ii = tuple(unsure.T)
+        v = w[ii] - e2[0][ii].astype(np.float64)
+        occ[ii] = v > 0.5
+        still = np.abs(v - 0.5) <= b2[0][ii] + 1e-4
+        unsure = unsure[still]
 
 
 def choose(mesh: Mesh, method: str) -> str:
-    """The method to run for ``method`` (resolving ``auto``), warning when it had to guess."""
+    """The method to run for ``method`` (resolving ``auto``), warning when it had to repair.
+
+    ``auto`` is parity for a closed, consistently wound mesh whose pieces do
+    not overlap (exact, and the fastest); ``winding`` for one whose pieces'
+    boxes overlap (signed crossings count the shared space; silent, nothing
+    was guessed); and ``winding`` on a repaired copy otherwise, with a
+    warning saying what was repaired and what is left open. ``winding``
+    asked for by name warns only when the repair changed faces.
+    """
     if method not in METHODS:
         raise ParameterError(f"`inside` must be one of {', '.join(METHODS)}; got {method!r}")
-    if method != "auto":
+    if method in ("parity", "vote"):
         return method
     edges = boundary_edges(mesh)
     if len(edges) == 0:
-        return "parity"
+        if method == "auto" and not overlapping_pieces(mesh):
+            return "parity"
+        return "winding"
+    tmesh, rep = target(mesh)
+    if method == "winding" and not rep.changed:
+        return "winding"
     n_open, n_nonmanifold = edge_counts(mesh)
+    left = len(boundary_edges(tmesh))
+    then = (f"the copy has {left:,} edges without a partner, so the winding-number inside test "
+            f"bridges its holes" if left else
+            "the copy is closed, so its winding number comes exactly from signed crossings")
     warnings.warn(
-        f"{mesh.source}: the mesh is not closed ({n_open} open edges, {n_nonmanifold} "
-        f"non-manifold, {len(edges)} without a partner edge running the other way, after "
-        f"merging vertices by position); using the winding-number inside test, which bridges "
-        f"holes (pass inside='parity' or --inside parity to override)",
+        f"{mesh.source}: the mesh is not closed and consistently wound ({n_open:,} open edges, "
+        f"{n_nonmanifold:,} non-manifold, {len(edges):,} without a partner edge running the other "
+        f"way, after merging vertices by position); repaired a copy: {rep.describe()}; {then}"
+        + (" (pass inside='parity' or --inside parity to override)" if method == "auto" else ""),
         GeovoxWarning, stacklevel=3)
     return "winding"
