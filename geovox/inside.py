@@ -234,12 +234,12 @@ def target(mesh: Mesh):
     Returns
     -------
     mesh : Mesh
-        ``mesh`` itself when every edge has a partner running the other way;
-        else its repaired copy (see :mod:`geovox.repair`).
+        ``mesh`` itself when it is :func:`consistent`; else its repaired
+        copy (see :mod:`geovox.repair`).
     repair : geovox.repair.Repair or None
     """
     if "target" not in mesh._cache:
-        if len(boundary_edges(mesh)) == 0:
+        if consistent(mesh):
             mesh._cache["target"] = (mesh, None)
         else:
             from .repair import repair
@@ -247,6 +247,29 @@ def target(mesh: Mesh):
             rep = repair(mesh)
             mesh._cache["target"] = (rep.mesh, rep)
     return mesh._cache["target"]
+
+
+def consistent(mesh: Mesh) -> bool:
+    """Closed and consistently wound: every edge has a partner running the other way,
+    and no two faces use the same three vertices.
+
+    The second condition catches double-sided models (every face also stored
+    reversed), whose edges all have partners but whose every crossing counts
+    twice under parity and cancels under the winding number.
+    """
+    if "consistent" not in mesh._cache:
+        ok = len(boundary_edges(mesh)) == 0
+        if ok:
+            s = np.sort(mesh.geometric_faces, axis=1)
+            n = np.int64(s.max()) + 1 if len(s) else np.int64(1)
+            if n < (1 << 21):  # three ids fit in one int64 key
+                key = (s[:, 0] * n + s[:, 1]) * n + s[:, 2]
+                key.sort()
+                ok = not np.any(key[1:] == key[:-1])
+            else:
+                ok = len(np.unique(s, axis=0)) == len(s)
+        mesh._cache["consistent"] = bool(ok)
+    return mesh._cache["consistent"]
 
 
 def overlapping_pieces(mesh: Mesh) -> bool:
@@ -258,24 +281,20 @@ def overlapping_pieces(mesh: Mesh) -> bool:
     """
     if "overlap" in mesh._cache:
         return mesh._cache["overlap"]
-    from .repair import edge_table, face_pieces
+    from .repair import edge_table, face_pieces, manifold_pairs
 
     g = mesh.geometric_faces
     g = g[(g[:, 0] != g[:, 1]) & (g[:, 1] != g[:, 2]) & (g[:, 2] != g[:, 0])]
     overlap = False
     if len(g) > 1:
         edge, count, _ = edge_table(g, int(g.max()) + 1)
-        order = np.argsort(edge, kind="stable")
-        # Faces sharing an edge (any number of them) are one piece.
-        slot = order.reshape(-1)
-        same = edge[slot[1:]] == edge[slot[:-1]]
-        pairs = np.stack([slot[:-1][same], slot[1:][same]], axis=1)
-        n, label = face_pieces(len(g), pairs)
+        # Pieces meet across manifold edges only: two closed parts that touch
+        # along an edge (four faces on it) stay two pieces.
+        n, label = face_pieces(len(g), manifold_pairs(edge, count))
         if n > 1:
             order = np.argsort(label, kind="stable")
             starts = np.r_[0, np.flatnonzero(np.diff(label[order])) + 1]
-            t = mesh.vertices[mesh.faces][0:0]  # dtype only
-            pos = np.zeros((int(g.max()) + 1, 3), dtype=t.dtype)
+            pos = np.zeros((int(g.max()) + 1, 3))
             pos[mesh.geometric_faces.reshape(-1)] = mesh.vertices[mesh.faces.reshape(-1)]
             tri = pos[g[order]]
             lo = np.minimum.reduceat(tri.min(axis=1), starts, axis=0)
@@ -516,7 +535,7 @@ def choose(mesh: Mesh, method: str) -> str:
     if method in ("parity", "vote"):
         return method
     edges = boundary_edges(mesh)
-    if len(edges) == 0:
+    if consistent(mesh):
         if method == "auto" and not overlapping_pieces(mesh):
             return "parity"
         return "winding"
@@ -531,7 +550,8 @@ def choose(mesh: Mesh, method: str) -> str:
     warnings.warn(
         f"{mesh.source}: the mesh is not closed and consistently wound ({n_open:,} open edges, "
         f"{n_nonmanifold:,} non-manifold, {len(edges):,} without a partner edge running the other "
-        f"way, after merging vertices by position); repaired a copy: {rep.describe()}; {then}"
+        f"way, {rep.duplicates + rep.opposite:,} duplicate faces, after merging vertices by "
+        f"position); repaired a copy: {rep.describe()}; {then}"
         + (" (pass inside='parity' or --inside parity to override)" if method == "auto" else ""),
         GeovoxWarning, stacklevel=3)
     return "winding"
