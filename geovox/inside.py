@@ -322,6 +322,9 @@ def _any_box_overlap(lo, hi, block: int = 512) -> bool:
 THETA = 0.5
 #: A far-field term whose error bound is below this is accepted whatever THETA says.
 EPS = 1e-4
+#: The traversal's passes: (THETA, EPS) of each, tighter each time, over the
+#: voxels the one before left undecided; then the exact sum.
+PASSES = ((1.0, 1e-3), (0.3, 1e-5), (0.1, 1e-6))
 #: (brick, cap group) pairs handled at once: bounds the traversal's memory.
 PAIR_CHUNK = 1 << 17
 
@@ -366,7 +369,8 @@ def _cap_tree(tris):
     A = np.concatenate([lv[1] for lv in levels])
     blo = np.concatenate([lv[2] for lv in levels])
     bhi = np.concatenate([lv[3] for lv in levels])
-    nodes = {"S": S, "A": A, "c": (blo + bhi) / 2, "r": np.linalg.norm(bhi - blo, axis=1) / 2}
+    nodes = {"S": S, "A": A, "c": (blo + bhi) / 2, "r": np.linalg.norm(bhi - blo, axis=1) / 2,
+             "h": (bhi - blo) / 2}
     return tris, nodes, offset, np.asarray(size, dtype=np.int64)
 
 
@@ -380,7 +384,7 @@ def _triangle_angles(tris: np.ndarray, points: np.ndarray) -> np.ndarray:
     return np.arctan2(num, den) / (2.0 * np.pi)
 
 
-def cap_winding(grid, tris, bricks, theta=THETA, eps=EPS):
+def cap_winding(grid, tris, active, theta=THETA, eps=EPS):
     """The caps' winding number ``w_K`` over bricks of voxels, hierarchically, with a bound.
 
     A dual-tree traversal in whole arrays. Voxels are grouped in cubic
@@ -401,8 +405,9 @@ def cap_winding(grid, tris, bricks, theta=THETA, eps=EPS):
     grid : Grid
     tris : (k, 3, 3) float64
         Cap triangles.
-    bricks : tuple (level, (m, 3) int64)
-        The starting bricks: one level, their indices on that level.
+    active : list of bool arrays, one per brick level (shape ``ceil(shape / 2^l)``)
+        The bricks that hold voxels to evaluate (see :func:`_pyramid`); the
+        traversal starts at the top level and never enters an inactive brick.
 
     Returns
     -------
@@ -413,13 +418,14 @@ def cap_winding(grid, tris, bricks, theta=THETA, eps=EPS):
     tris, nodes, offset, size = _cap_tree(tris)
     top = len(size) - 1
     shape = np.asarray(grid.shape, dtype=np.int64)
-    level0, start = bricks
+    level0 = len(active) - 1
+    start = np.argwhere(active[level0])
     d = grid.spacing
     lo = grid.lo
     est = [np.zeros(tuple(-(-shape // (1 << k))), dtype=np.float32 if k == 0 else np.float64)
            for k in range(level0 + 1)]
     err = [np.zeros_like(e) for e in est]
-    S, A, C, R = nodes["S"], nodes["A"], nodes["c"], nodes["r"]
+    S, A, C, R, H = nodes["S"], nodes["A"], nodes["c"], nodes["r"], nodes["h"]
     stack = [(np.full(len(start), level0, np.int64), start.astype(np.int64),
               np.full(len(start), top, np.int64), np.zeros(len(start), np.int64))]
     while stack:
@@ -433,12 +439,22 @@ def cap_winding(grid, tris, bricks, theta=THETA, eps=EPS):
         node = offset[ln] + nj
         vec = C[node] - p
         dist = np.sqrt(np.einsum("ij,ij->i", vec, vec))
+        # The gap between the brick's ball and the node's box.
+        out = np.maximum(np.abs(vec) - H[node], 0.0)
+        gap = np.sqrt(np.einsum("ij,ij->i", out, out)) - rb
         reach = R[node] + rb
-        gap = dist - reach
+        single = ln == 0
         with np.errstate(divide="ignore", invalid="ignore"):
-            bound = A[node] * reach / (2 * np.pi * gap ** 3)
-        far = (gap > 0) & ((reach <= theta * gap) | (bound <= eps))
-        leaf = ~far & (kb == 0) & (ln == 0)
+            # A group's dipole at the brick's centre, or one triangle's exact
+            # value there: the first errs by moving both ends (r + rb), the
+            # second by moving the brick's end only (rb; and the kernel's
+            # integral over a triangle at least g away is at most 2 pi / g).
+            bound = np.where(single,
+                             np.minimum(A[node] * rb / (2 * np.pi * gap ** 3), rb / gap),
+                             A[node] * reach / (2 * np.pi * gap ** 3))
+        far = (gap > 0) & ((np.where(single, rb, reach) <= theta * gap) | (bound <= eps))
+        leaf = single & (far | (kb == 0))
+        far &= ~single
         if far.any():
             f = np.flatnonzero(far)
             val = np.einsum("ij,ij->i", S[node[f]], vec[f]) / (4 * np.pi * dist[f] ** 3)
@@ -446,7 +462,7 @@ def cap_winding(grid, tris, bricks, theta=THETA, eps=EPS):
         if leaf.any():
             f = np.flatnonzero(leaf)
             val = _triangle_angles(tris[nj[f]], p[f])
-            _scatter(est, err, kb[f], b[f], val, np.zeros(len(f)))
+            _scatter(est, err, kb[f], b[f], val, np.where(kb[f] == 0, 0.0, bound[f]))
         split = np.flatnonzero(~far & ~leaf)
         if len(split) == 0:
             continue
@@ -465,11 +481,32 @@ def cap_winding(grid, tris, bricks, theta=THETA, eps=EPS):
             c_kb = np.repeat(kb[s] - 1, 8)
             child = child.reshape(-1, 3)
             ok = np.all(child * (1 << c_kb)[:, None] < shape, axis=1)
+            ok[ok] = _lookup(active, c_kb[ok], child[ok])
             stack.append((c_kb[ok], child[ok], np.repeat(ln[s], 8)[ok], np.repeat(nj[s], 8)[ok]))
     return est, err
 
 
 _OCTANTS = np.array([[i, j, k] for k in (0, 1) for j in (0, 1) for i in (0, 1)], dtype=np.int64)
+
+
+def _lookup(active, kb, b):
+    out = np.zeros(len(kb), dtype=bool)
+    for k in np.unique(kb):
+        sel = kb == k
+        out[sel] = active[k][tuple(b[sel].T)]
+    return out
+
+
+def _pyramid(mask, levels):
+    """``[mask, any over 2³ blocks of it, ...]``: ``levels + 1`` arrays."""
+    out = [mask]
+    for _ in range(levels):
+        m = out[-1]
+        pad = [(0, s % 2) for s in m.shape]
+        m = np.pad(m, pad)
+        nx, ny, nz = (s // 2 for s in m.shape)
+        out.append(m.reshape(nx, 2, ny, 2, nz, 2).any(axis=(1, 3, 5)))
+    return out
 
 
 def _scatter(est, err, kb, b, val, bound):
@@ -484,40 +521,61 @@ def _scatter(est, err, kb, b, val, bound):
 def _correct_caps(occ, w, grid, cap_tris) -> None:
     """Decide ``w_M = w_{M+K} - w_K > 1/2`` with the caps' winding number from :func:`cap_winding`.
 
-    A first pass over bricks of 16 voxels gives every voxel an estimate of
-    ``w_K`` and a proven bound on its error; voxels whose estimate is not
-    decisive (within the bound of 1/2) get a second, voxel-by-voxel pass
-    with a tighter opening ratio, and any still undecided are summed
-    exactly over every cap triangle.
+    A first pass gives every voxel an estimate of ``w_K`` and a proven bound
+    on its error; the voxels whose estimate is not decisive (within the bound
+    of 1/2) get a second pass with a tighter opening ratio, over only the
+    bricks that hold them, and any still undecided are summed exactly over
+    every cap triangle.
     """
     shape = np.asarray(grid.shape)
     top = max(0, int(np.ceil(np.log2(max(1, int(shape.max()) / 16)))))
-    nb = -(-shape // (1 << top))
-    start = np.stack(np.meshgrid(*[np.arange(n) for n in nb], indexing="ij"), -1).reshape(-1, 3)
-    est, err = cap_winding(grid, cap_tris, (top, start))
-    # Push every level's sums down to the voxels, one z slice of bricks at a time.
-    wk = est[0]
-    bound = err[0]
-    for k in range(1, len(est)):
-        expand = [np.repeat(np.arange(est[k].shape[a]), 1 << k)[: shape[a]] for a in range(3)]
-        wk += est[k].astype(np.float32)[np.ix_(*expand)]
-        bound += err[k].astype(np.float32)[np.ix_(*expand)]
-    # float32 rounding of the sums is far below this margin.
-    bound += np.float32(1e-4)
-    wm = w.astype(np.float32)
-    wm -= wk
-    np.greater(wm, np.float32(0.5), out=occ)
-    unsure = np.argwhere(np.abs(wm - np.float32(0.5)) <= bound)
-    del wk, bound, wm, est, err
-    for theta in (0.2, 0.0):
-        if len(unsure) == 0:
+    active = _pyramid(np.ones(grid.shape, dtype=bool), top)
+    first = True
+    for theta, eps in PASSES:
+        est, err = cap_winding(grid, cap_tris, active, theta=theta, eps=eps)
+        # Every level's sums, pushed down to the voxels one level at a time.
+        for k in range(len(est) - 1, 0, -1):
+            for arrays in (est, err):
+                fine = arrays[k - 1]
+                up = arrays[k].astype(fine.dtype)
+                for a in range(3):
+                    up = np.repeat(up, 2, axis=a)
+                fine += up[: fine.shape[0], : fine.shape[1], : fine.shape[2]]
+                arrays[k] = None
+        wk, bound = est[0], err[0]
+        del est, err
+        # float32 rounding of the sums is far below this margin.
+        bound += np.float32(1e-4)
+        if first:
+            wm = w.astype(np.float32)
+            wm -= wk
+            del wk
+            np.greater(wm, np.float32(0.5), out=occ)
+            wm -= np.float32(0.5)
+            np.abs(wm, out=wm)
+            unsure = wm <= bound
+            del wm, bound
+            first = False
+        else:
+            ii = np.nonzero(active[0])
+            v = w[ii] - wk[ii]
+            occ[ii] = v > 0.5
+            unsure = np.zeros(grid.shape, dtype=bool)
+            unsure[ii] = np.abs(v - 0.5) <= bound[ii]
+            del wk, bound
+        if not unsure.any():
             return
-        e2, b2 = cap_winding(grid, cap_tris, (0, unsure), theta=theta, eps=1e-6 if theta else 0.0)
-        ii = tuple(unsure.T)
-        v = w[ii] - e2[0][ii].astype(np.float64)
-        occ[ii] = v > 0.5
-        still = np.abs(v - 0.5) <= b2[0][ii] + 1e-4
-        unsure = unsure[still]
+        active = _pyramid(unsure, top)
+    # The last few: the exact sum over every cap triangle.
+    idx = np.argwhere(active[0])
+    centres = [grid.centres(a) for a in range(3)]
+    block = max(1, (1 << 20) // len(cap_tris))
+    for s in range(0, len(idx), block):
+        ii = tuple(idx[s:s + block].T)
+        p = np.stack([centres[a][ii[a]] for a in range(3)], axis=1)
+        k = len(p)
+        wk = _triangle_angles(np.tile(cap_tris, (k, 1, 1)), np.repeat(p, len(cap_tris), axis=0))
+        occ[ii] = (w[ii] - wk.reshape(k, -1).sum(axis=1)) > 0.5
 
 
 def choose(mesh: Mesh, method: str) -> str:
