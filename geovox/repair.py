@@ -48,6 +48,8 @@ class Repair:
         Index in the original mesh's faces of each face of the copy.
     swapped : (k,) bool
         The copy's face has the original's vertices 1 and 2 swapped.
+    piece : (k,) int64
+        The piece (connected through manifold edges) of each face of the copy.
     merged_vertices : int
         Vertices removed by merging by position.
     degenerate : int
@@ -69,6 +71,7 @@ class Repair:
     mesh: Mesh
     face: np.ndarray
     swapped: np.ndarray
+    piece: np.ndarray
     merged_vertices: int = 0
     degenerate: int = 0
     duplicates: int = 0
@@ -292,7 +295,7 @@ def repair(mesh: Mesh) -> Repair:
     f = np.where(turn[label][:, None], f[:, [0, 2, 1]], f)
     swapped = flip ^ turn[label]
     out = Mesh(pos, f, source=mesh.source)
-    return Repair(mesh=out, face=face, swapped=swapped, merged_vertices=int(merged),
+    return Repair(mesh=out, face=face, swapped=swapped, piece=label, merged_vertices=int(merged),
                   degenerate=int(degenerate), duplicates=duplicates, opposite=opposite,
                   flipped=int(np.count_nonzero(swapped)), pieces=npieces,
                   closed_pieces=int(np.count_nonzero(closed_piece)),
