@@ -6,7 +6,9 @@ face stored twice (once each way, as double-sided game assets are), duplicate
 and degenerate faces. :func:`repair` makes a copy that satisfies the
 assumption, in whole-array steps (no loop per face or per piece):
 
-1. vertices merged by exact position;
+1. vertices merged by position: equal ones, and those closer than ``WELD``
+   times the model's size (an unwelded seam is a crack no ray can pass,
+   but it would leave open edges whose caps span the whole seam);
 2. degenerate faces dropped (a repeated vertex, or zero area);
 3. duplicates collapsed to the first one: the same three vertices in either
    order, so the two sides of a double-sided face become one face;
@@ -52,6 +54,8 @@ class Repair:
         The piece (connected through manifold edges) of each face of the copy.
     merged_vertices : int
         Vertices removed by merging by position.
+    welded : int
+        Of those, vertices merged with a distinct one closer than ``WELD``.
     degenerate : int
         Faces dropped as degenerate.
     duplicates : int
@@ -73,6 +77,7 @@ class Repair:
     swapped: np.ndarray
     piece: np.ndarray
     merged_vertices: int = 0
+    welded: int = 0
     degenerate: int = 0
     duplicates: int = 0
     opposite: int = 0
@@ -84,7 +89,8 @@ class Repair:
     @property
     def changed(self) -> bool:
         """Whether the copy differs from the original in anything but vertex numbering."""
-        return bool(self.degenerate or self.duplicates or self.opposite or self.flipped)
+        return bool(self.degenerate or self.duplicates or self.opposite or self.flipped
+                    or self.welded)
 
     def describe(self) -> str:
         """One phrase saying what was repaired, for warnings and ``geovox info``."""
@@ -92,6 +98,9 @@ class Repair:
         if self.duplicates or self.opposite:
             parts.append(f"{self.duplicates + self.opposite:,} duplicate faces dropped "
                          f"({self.opposite:,} of them the reversed side of a double-sided face)")
+        if self.welded:
+            parts.append(f"{self.welded:,} vertices welded to a neighbour closer than "
+                         f"{WELD:g} of the model's size")
         if self.degenerate:
             parts.append(f"{self.degenerate:,} degenerate faces dropped")
         parts.append(f"{self.pieces:,} pieces ({self.closed_pieces:,} closed, "
@@ -219,6 +228,36 @@ def _relative_flips(nf, pairs, forward, label, npieces):
     return x[:nf]
 
 
+#: Vertices closer than this fraction of the model's size are one vertex: seams
+#: left unwelded by float32 round-off (a crack no ray can pass) are closed.
+WELD = 1e-6
+
+
+def _weld(g, pos, tol):
+    """Merge vertices within ``tol`` of each other (transitively).
+
+    Returns
+    -------
+    faces : (k, 3) int64 over the merged vertices
+    pos : (n, 3) float64, the first position of each group
+    welded : int
+        Vertices merged away.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
+    pairs = cKDTree(pos).query_pairs(tol, output_type="ndarray")
+    if len(pairs) == 0:
+        return g, pos, 0
+    n = len(pos)
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+    k, label = connected_components(graph, directed=False)
+    first = np.zeros(k, dtype=np.int64)
+    first[label[::-1]] = np.arange(n)[::-1]
+    return label[g], pos[first], n - k
+
+
 def repair(mesh: Mesh) -> Repair:
     """A consistently oriented, outward-facing copy of ``mesh`` (see the module notes).
 
@@ -230,10 +269,12 @@ def repair(mesh: Mesh) -> Repair:
     -------
     Repair
     """
-    g = mesh.geometric_faces
-    nv = int(g.max()) + 1
-    pos = np.zeros((nv, 3))
+    used, g = np.unique(mesh.geometric_faces, return_inverse=True)
+    g = g.reshape(-1, 3)
+    pos = np.zeros((len(used), 3))
     pos[g.reshape(-1)] = mesh.vertices[mesh.faces.reshape(-1)]
+    g, pos, welded = _weld(g, pos, WELD * mesh.scale)
+    nv = len(pos)
     merged = len(np.unique(mesh.faces)) - len(np.unique(g))
 
     # Degenerate: a repeated vertex, or zero area (the cross product is exactly 0).
@@ -295,7 +336,7 @@ def repair(mesh: Mesh) -> Repair:
     f = np.where(turn[label][:, None], f[:, [0, 2, 1]], f)
     swapped = flip ^ turn[label]
     out = Mesh(pos, f, source=mesh.source)
-    return Repair(mesh=out, face=face, swapped=swapped, piece=label, merged_vertices=int(merged),
+    return Repair(mesh=out, face=face, swapped=swapped, piece=label, merged_vertices=int(merged), welded=int(welded),
                   degenerate=int(degenerate), duplicates=duplicates, opposite=opposite,
                   flipped=int(np.count_nonzero(swapped)), pieces=npieces,
                   closed_pieces=int(np.count_nonzero(closed_piece)),
