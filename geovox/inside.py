@@ -2,24 +2,29 @@
 
 ``parity``  odd/even crossings along one axis: exact for closed meshes.
 ``vote``    parity along x, y and z; the majority decides.
-``winding`` the generalised winding number, computed exactly and fast:
+``winding`` the generalised winding number, computed exactly and fast, of
+            the mesh itself when it is closed and consistently wound, else
+            of a repaired copy (:mod:`geovox.repair`: vertices merged,
+            degenerate and duplicate faces dropped, faces oriented across
+            manifold edges, pieces turned outward).
 
-    Fill every hole of the mesh M with a cap K: for each connected piece of
-    the boundary (the directed edges whose opposite edge is missing), a fan
-    of triangles from the piece's centroid, oriented so that M + K is closed.
-    For a closed surface the winding number is an integer that the column
-    rays give exactly (signed crossings, by the same exact rules as parity),
-    and by additivity ``w_M = w_{M+K} - w_K``, where ``w_K`` is the solid
-    angle of the cap triangles over 4 pi. A point is inside when
-    ``w_M > 1/2``. Since ``w_{M+K}`` is an integer, ``w_K`` only matters where
-    ``|w_K| >= 1/2``, and ``|w_K| <= area(K) / (4 pi d^2)`` at distance ``d``
-    from a cap, so ``w_K`` is summed exactly only for the voxels near the caps.
-    Holes are bridged the way the surface around them suggests, and regions
-    where parts of the mesh overlap (self-intersections) count as inside.
+A closed target's winding number is an integer that the column rays give
+exactly (signed crossings, by the same exact rules as parity); a voxel is
+inside where it is not 0, so the space two overlapping parts share counts
+and a cavity inside an inward-facing shell does not. An open target M has
+its holes filled with caps K: for each connected piece of the boundary (the
+directed edges whose opposite edge is missing), a fan of triangles from the
+piece's centroid, oriented so that M + K is closed. By additivity
+``w_M = w_{M+K} - w_K``: the first term is the exact integer from signed
+crossings, the second the caps' solid angle over 4 pi, and a point is inside
+when ``w_M > 1/2``. ``w_K`` is summed hierarchically (:func:`cap_winding`: a
+dual tree over bricks of voxels and cap triangles, far-field dipoles with a
+proven error bound), in passes that tighten only where the bound leaves the
+answer open, and exactly over every cap triangle for the last few voxels.
 
-``auto`` uses parity when the mesh is closed (every edge, after merging
-vertices by position, has a partner edge running the other way) and
-``winding`` otherwise, with a warning that says why.
+``auto`` uses parity when the mesh is closed and consistently wound and its
+pieces' boxes do not overlap; ``winding`` otherwise (with a warning that says
+what was repaired, unless the mesh only had overlapping closed pieces).
 """
 
 from __future__ import annotations
@@ -501,7 +506,7 @@ _OCTANTS = np.array([[i, j, k] for k in (0, 1) for j in (0, 1) for i in (0, 1)],
 
 def _lookup(active, kb, b):
     out = np.zeros(len(kb), dtype=bool)
-    for k in np.unique(kb):
+    for k in np.flatnonzero(np.bincount(kb)):
         sel = kb == k
         out[sel] = active[k][tuple(b[sel].T)]
     return out
@@ -521,7 +526,7 @@ def _pyramid(mask, levels):
 
 def _scatter(est, err, kb, b, val, bound):
     """Add each pair's value and bound to its brick, level by level."""
-    for k in np.unique(kb):
+    for k in np.flatnonzero(np.bincount(kb)):
         sel = kb == k
         lin = np.ravel_multi_index(tuple(b[sel].T), est[k].shape)
         np.add.at(est[k].reshape(-1), lin, val[sel].astype(est[k].dtype))
