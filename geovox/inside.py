@@ -215,11 +215,9 @@ def winding_occupancy(mesh: Mesh, grid, cast, axis: int, jobs: int = 1):
     tmesh, rep = target(mesh)
     closed, cap_tris, _ = capped(tmesh)
     nf = len(tmesh.faces)
-    # The integer winding number, a caps correction's float32 estimate and
-    # bound, and the occupancy: about 11 bytes a voxel.
     from .pipeline import check_memory
 
-    check_memory(grid, 11.0 if len(cap_tris) else 3.0)
+    check_memory(grid, 1.0 + working_bytes(mesh, "winding"))
     hits, columns = cast(closed, axis)
     w = signed_counts(closed, hits, columns, grid, jobs)
     if len(cap_tris):
@@ -231,6 +229,19 @@ def winding_occupancy(mesh: Mesh, grid, cast, axis: int, jobs: int = 1):
     if rep is not None:
         hits = rep.original_hits(hits)
     return occ, hits, columns
+
+
+def working_bytes(mesh: Mesh, method: str) -> float:
+    """Bytes a voxel that ``method`` needs beside the occupancy, at its peak.
+
+    ``winding`` holds the integer winding number (int16) and, where there
+    are caps, a float32 estimate and bound per voxel and a float32 working
+    copy and the pushed-down level; ``vote`` one uint8 count. Slab streaming
+    plans with this.
+    """
+    if method == "winding":
+        return 15.0 if len(capped(target(mesh)[0])[1]) else 2.0
+    return 1.0 if method == "vote" else 0.0
 
 
 def target(mesh: Mesh):

@@ -207,7 +207,7 @@ def test_winding_that_cannot_fit_says_so_before_allocating(monkeypatch):
     mesh = open_boxes(3)
     grid_voxels = 40 ** 3
     # Enough for the occupancy grid, not for the winding number's working arrays.
-    monkeypatch.setattr(pipeline, "_available_memory", lambda: int(grid_voxels * 4))
+    monkeypatch.setattr(pipeline, "_available_memory", lambda: int(grid_voxels * 4))  # 16 needed
     with pytest.warns(GeovoxWarning), pytest.raises(GridTooLargeError, match="needs"):
         geovox.voxelize(mesh, resolution=40, inside="auto")
 
