@@ -60,7 +60,10 @@ def boundary_edges(mesh: Mesh) -> np.ndarray:
     key = lo * n + hi
     sign = np.where(e[:, 0] < e[:, 1], 1, -1)
     uniq, inverse = np.unique(key, return_inverse=True)
-    net = np.bincount(inverse.reshape(-1), weights=sign, minlength=len(uniq)).astype(np.int64)
+    inverse = inverse.reshape(-1)
+    net = np.bincount(inverse, weights=sign, minlength=len(uniq)).astype(np.int64)
+    # Whether some edge is used by more than two faces (see overlapping_pieces).
+    mesh._cache["non_manifold"] = bool(len(inverse) and np.bincount(inverse).max() > 2)
     k = np.flatnonzero(net)
     a, b = uniq[k] // n, uniq[k] % n
     m = net[k]
@@ -299,10 +302,23 @@ def overlapping_pieces(mesh: Mesh) -> bool:
         return mesh._cache["overlap"]
     from .repair import edge_table, face_pieces, manifold_pairs
 
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
     g = mesh.geometric_faces
     g = g[(g[:, 0] != g[:, 1]) & (g[:, 1] != g[:, 2]) & (g[:, 2] != g[:, 0])]
     overlap = False
+    single = True
     if len(g) > 1:
+        # Cheap first: one vertex-connected component without non-manifold
+        # edges is one piece.
+        nv = int(g.max()) + 1
+        rows, cols = np.r_[g[:, 0], g[:, 1]], np.r_[g[:, 1], g[:, 2]]
+        graph = coo_matrix((np.ones(len(rows), np.int8), (rows, cols)), shape=(nv, nv))
+        n_vc = connected_components(graph, directed=False)[0] - (nv - len(np.unique(g)))
+        boundary_edges(mesh)
+        single = n_vc == 1 and not mesh._cache["non_manifold"]
+    if not single:
         edge, count, _ = edge_table(g, int(g.max()) + 1)
         # Pieces meet across manifold edges only: two closed parts that touch
         # along an edge (four faces on it) stay two pieces.
