@@ -352,6 +352,9 @@ def _any_box_overlap(lo, hi, block: int = 512) -> bool:
 #: radius ``r`` of its centre is summed as one dipole at a brick of radius
 #: ``rb`` when ``r + rb <= THETA * d`` (``d`` the gap between their balls).
 THETA = 0.5
+#: A single cap triangle is summed once for a whole brick only where its
+#: bound there is below THETA times this.
+SINGLE = 0.05
 #: A far-field term whose error bound is below this is accepted whatever THETA says.
 EPS = 1e-4
 #: The traversal's passes: (THETA, EPS) of each, tighter each time, over the
@@ -494,7 +497,11 @@ def cap_winding(grid, tris, active, theta=THETA, eps=EPS, budget=None):
             bound = np.where(single,
                              np.minimum(A[node] * rb / (2 * np.pi * gap ** 3), rb / gap),
                              A[node] * reach / (2 * np.pi * gap ** 3))
-        far = (gap > 0) & ((np.where(single, rb, reach) <= theta * gap) | (bound <= eps))
+        # A single triangle's bound at a brick (up to rb / g) shrinks only
+        # linearly with the brick: it must also be small in absolute terms,
+        # or large triangles next to many voxels leave them all undecided.
+        far = (gap > 0) & (((reach <= theta * gap) & ~single)
+                           | ((rb <= theta * gap) & (bound <= theta * SINGLE)) | (bound <= eps))
         leaf = single & (far | (kb == 0))
         far &= ~single
         if far.any():
