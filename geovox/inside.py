@@ -316,8 +316,7 @@ def overlapping_pieces(mesh: Mesh) -> bool:
         rows, cols = np.r_[g[:, 0], g[:, 1]], np.r_[g[:, 1], g[:, 2]]
         graph = coo_matrix((np.ones(len(rows), np.int8), (rows, cols)), shape=(nv, nv))
         n_vc = connected_components(graph, directed=False)[0] - (nv - len(np.unique(g)))
-        boundary_edges(mesh)
-        single = n_vc == 1 and not mesh._cache["non_manifold"]
+        single = n_vc == 1 and not _non_manifold(mesh)
     if not single:
         edge, count, _ = edge_table(g, int(g.max()) + 1)
         # Pieces meet across manifold edges only: two closed parts that touch
@@ -334,6 +333,18 @@ def overlapping_pieces(mesh: Mesh) -> bool:
             overlap = _any_box_overlap(lo, hi)
     mesh._cache["overlap"] = overlap
     return overlap
+
+
+def _non_manifold(mesh: Mesh) -> bool:
+    """Whether some edge is used by more than two faces (cached by boundary_edges when it can)."""
+    if "non_manifold" not in mesh._cache:
+        f = mesh.geometric_faces
+        e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+        e = e[e[:, 0] != e[:, 1]]
+        n = np.int64(f.max()) + 1 if len(f) else np.int64(1)
+        key = np.sort(np.minimum(e[:, 0], e[:, 1]) * n + np.maximum(e[:, 0], e[:, 1]))
+        mesh._cache["non_manifold"] = bool(np.any(key[2:] == key[:-2]))
+    return mesh._cache["non_manifold"]
 
 
 def _any_box_overlap(lo, hi, block: int = 512) -> bool:
