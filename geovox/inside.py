@@ -83,9 +83,11 @@ def boundary_edges(mesh: Mesh) -> np.ndarray:
 def edge_counts(mesh: Mesh):
     """``(open, non_manifold)``: edges used by one face, and edges used by more than two."""
     f = mesh.geometric_faces
-    e = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
+    e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
     e = e[e[:, 0] != e[:, 1]]
-    _, counts = np.unique(e, axis=0, return_counts=True)
+    n = np.int64(f.max()) + 1 if len(f) else np.int64(1)
+    key = np.sort(np.minimum(e[:, 0], e[:, 1]) * n + np.maximum(e[:, 0], e[:, 1]))
+    counts = np.diff(np.flatnonzero(np.r_[True, key[1:] != key[:-1], True]))
     return int(np.count_nonzero(counts == 1)), int(np.count_nonzero(counts > 2))
 
 
@@ -558,14 +560,21 @@ def _lookup(active, kb, b):
 
 
 def _pyramid(mask, levels):
-    """``[mask, any over 2³ blocks of it, ...]``: ``levels + 1`` arrays."""
+    """``[mask, any over 2³ blocks of it, ...]``: ``levels + 1`` arrays.
+
+    ``mask`` is a bool array, or a shape for an all-True one. Built from the
+    True voxels' indices: the masks after the first pass are sparse.
+    """
+    if not isinstance(mask, np.ndarray):
+        shape = np.asarray(mask)
+        return [np.ones(tuple(-(-shape // (1 << k))), dtype=bool) for k in range(levels + 1)]
+    shape = np.asarray(mask.shape)
+    idx = np.argwhere(mask)
     out = [mask]
-    for _ in range(levels):
-        m = out[-1]
-        pad = [(0, s % 2) for s in m.shape]
-        m = np.pad(m, pad)
-        nx, ny, nz = (s // 2 for s in m.shape)
-        out.append(m.reshape(nx, 2, ny, 2, nz, 2).any(axis=(1, 3, 5)))
+    for k in range(1, levels + 1):
+        m = np.zeros(tuple(-(-shape // (1 << k))), dtype=bool)
+        m[tuple((idx >> k).T)] = True
+        out.append(m)
     return out
 
 
@@ -589,7 +598,7 @@ def _correct_caps(occ, w, grid, cap_tris) -> None:
     """
     shape = np.asarray(grid.shape)
     top = max(0, int(np.ceil(np.log2(max(1, int(shape.max()) / 16)))))
-    active = _pyramid(np.ones(grid.shape, dtype=bool), top)
+    active = _pyramid(grid.shape, top)
     first = True
     for theta, eps in PASSES:
         got = cap_winding(grid, cap_tris, active, theta=theta, eps=eps,
