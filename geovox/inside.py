@@ -468,6 +468,8 @@ def cap_winding(grid, tris, active, theta=THETA, eps=EPS, budget=None):
     est : list of arrays, one per brick level ``l`` (shape ``ceil(shape / 2^l)``)
         Sums to add up, each voxel taking its bricks' values on every level.
     err : list of arrays of the same shapes: the bounds, added the same way.
+    touched : (m, 3) int64
+        The voxels that got a value of their own (level 0), with repeats.
     """
     tris, nodes, offset, size = _cap_tree(tris)
     top = len(size) - 1
@@ -483,6 +485,7 @@ def cap_winding(grid, tris, active, theta=THETA, eps=EPS, budget=None):
     stack = [(np.full(len(start), level0, np.int64), start.astype(np.int64),
               np.full(len(start), top, np.int64), np.zeros(len(start), np.int64))]
     handled = 0
+    touched = []
     while stack:
         kb, b, ln, nj = stack.pop()
         handled += min(len(kb), PAIR_CHUNK)
@@ -521,10 +524,12 @@ def cap_winding(grid, tris, active, theta=THETA, eps=EPS, budget=None):
             f = np.flatnonzero(far)
             val = np.einsum("ij,ij->i", S[node[f]], vec[f]) / (4 * np.pi * dist[f] ** 3)
             _scatter(est, err, kb[f], b[f], val, bound[f])
+            touched.append(b[f][kb[f] == 0])
         if leaf.any():
             f = np.flatnonzero(leaf)
             val = _triangle_angles(tris[nj[f]], p[f])
             _scatter(est, err, kb[f], b[f], val, np.where(kb[f] == 0, 0.0, bound[f]))
+            touched.append(b[f][kb[f] == 0])
         split = np.flatnonzero(~far & ~leaf)
         if len(split) == 0:
             continue
@@ -545,7 +550,7 @@ def cap_winding(grid, tris, active, theta=THETA, eps=EPS, budget=None):
             ok = np.all(child * (1 << c_kb)[:, None] < shape, axis=1)
             ok[ok] = _lookup(active, c_kb[ok], child[ok])
             stack.append((c_kb[ok], child[ok], np.repeat(ln[s], 8)[ok], np.repeat(nj[s], 8)[ok]))
-    return est, err
+    return est, err, np.concatenate(touched) if touched else np.zeros((0, 3), np.int64)
 
 
 _OCTANTS = np.array([[i, j, k] for k in (0, 1) for j in (0, 1) for i in (0, 1)], dtype=np.int64)
@@ -606,37 +611,48 @@ def _correct_caps(occ, w, grid, cap_tris) -> None:
         if got is None:
             _estimated(active[0], grid)
             return
-        est, err = got
-        # Every level's sums, pushed down to the voxels one level at a time.
-        for k in range(len(est) - 1, 0, -1):
+        est, err, touched = got
+        # Every coarse level's sums, pushed down to bricks of 2³ voxels.
+        for k in range(len(est) - 1, 1, -1):
             for arrays in (est, err):
                 fine = arrays[k - 1]
-                up = arrays[k].astype(fine.dtype)
+                up = arrays[k]
                 for a in range(3):
                     up = np.repeat(up, 2, axis=a)
                 fine += up[: fine.shape[0], : fine.shape[1], : fine.shape[2]]
                 arrays[k] = None
-        wk, bound = est[0], err[0]
-        del est, err
-        # float32 rounding of the sums is far below this margin.
-        bound += np.float32(1e-4)
         if first:
-            wm = w.astype(np.float32)
-            wm -= wk
-            del wk
-            np.greater(wm, np.float32(0.5), out=occ)
-            wm -= np.float32(0.5)
-            np.abs(wm, out=wm)
-            unsure = wm <= bound
-            del wm, bound
-            first = False
+            np.greater_equal(w, 1, out=occ)
+        # A brick of 2³ whose voxels got nothing of their own and whose
+        # estimate and bound keep |w_K| below 1/2 leaves every integer
+        # w_{M+K} decided as it is (w >= 1, set above); only the other
+        # bricks' voxels are looked at one by one.
+        if len(est) > 1:
+            loose = np.abs(est[1]) + err[1] >= 0.5 - 1e-4
+            loose[tuple((touched >> 1).T)] = True
+            if not first:
+                loose &= active[1]
+            bricks = np.argwhere(loose)
+            vox = ((2 * bricks)[:, None, :] + _OCTANTS[None]).reshape(-1, 3)
+            vox = vox[np.all(vox < shape, axis=1)]
         else:
-            ii = np.nonzero(active[0])
-            v = w[ii] - wk[ii]
-            occ[ii] = v > 0.5
-            unsure = np.zeros(grid.shape, dtype=bool)
-            unsure[ii] = np.abs(v - 0.5) <= bound[ii]
-            del wk, bound
+            vox = np.argwhere(active[0])
+        if not first:
+            vox = vox[active[0][tuple(vox.T)]]
+        ii = tuple(vox.T)
+        wk = est[0][ii].astype(np.float64)
+        bound = err[0][ii].astype(np.float64)
+        if len(est) > 1:
+            jj = tuple((vox >> 1).T)
+            wk += est[1][jj]
+            bound += err[1][jj]
+        del est, err
+        v = w[ii] - wk
+        occ[ii] = v > 0.5
+        # float32 rounding of the voxel-level sums is far below this margin.
+        unsure = np.zeros(grid.shape, dtype=bool)
+        unsure[ii] = np.abs(v - 0.5) <= bound + 1e-4
+        first = False
         if not unsure.any():
             return
         active = _pyramid(unsure, top)
