@@ -52,6 +52,8 @@ def boundary_edges(mesh: Mesh) -> np.ndarray:
     """
     if "boundary" in mesh._cache:
         return mesh._cache["boundary"]
+    if len(mesh.faces) == 0:
+        return np.zeros((0, 2), dtype=np.int64)
     f = mesh.geometric_faces
     e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
     e = e[e[:, 0] != e[:, 1]]  # degenerate faces repeat a vertex
@@ -218,6 +220,9 @@ def winding_occupancy(mesh: Mesh, grid, cast, axis: int, jobs: int = 1):
     hits, columns : the crossings of the original mesh's triangles
     """
     tmesh, rep = target(mesh)
+    if len(tmesh.faces) == 0:  # every face degenerate: no crossings, nothing inside
+        hits, columns = cast(mesh, axis)
+        return np.zeros(grid.shape, dtype=bool, order="F"), hits, columns
     closed, cap_tris, _ = capped(tmesh)
     nf = len(tmesh.faces)
     from .pipeline import check_memory
@@ -245,7 +250,8 @@ def working_bytes(mesh: Mesh, method: str) -> float:
     plans with this.
     """
     if method == "winding":
-        return 15.0 if len(capped(target(mesh)[0])[1]) else 2.0
+        tmesh = target(mesh)[0]
+        return 15.0 if len(tmesh.faces) and len(capped(tmesh)[1]) else 2.0
     return 1.0 if method == "vote" else 0.0
 
 

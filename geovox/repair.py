@@ -284,6 +284,10 @@ def repair(mesh: Mesh) -> Repair:
     good = ~repeated & np.any(cross != 0, axis=1)
     keep = np.flatnonzero(good)
     degenerate = len(g) - len(keep)
+    if len(keep) == 0:  # nothing with an area: nothing encloses anything
+        return Repair(mesh=Mesh(pos, np.zeros((0, 3), np.int64), source=mesh.source),
+                      face=keep, swapped=np.zeros(0, bool), piece=np.zeros(0, np.int64),
+                      merged_vertices=int(merged), welded=int(welded), degenerate=int(degenerate))
 
     # Duplicates: the same vertex set; the first face of each set stays.
     s = np.sort(g[keep], axis=1)

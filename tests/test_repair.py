@@ -250,3 +250,13 @@ def test_past_the_work_budget_the_estimate_decides_with_a_warning(monkeypatch):
     # The first pass's estimate (error bound up to its opening ratio) still
     # decides nearly every voxel as the exact sum does.
     assert np.mean(rough.occupancy == exact.occupancy) >= 0.99
+
+
+def test_a_mesh_of_degenerate_faces_only_gives_an_empty_volume(backend):
+    # Found by hypothesis: the repair drops every face, and nothing may break after it.
+    v = np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0], [0, 1, 1.0]])
+    mesh = geovox.Mesh(v, np.array([[0, 1, 2], [0, 0, 3]]), source="degenerate")
+    assert len(repair(mesh).mesh.faces) == 0
+    with pytest.warns(GeovoxWarning, match="2 degenerate faces dropped"):
+        vol = geovox.voxelize(mesh, resolution=4, color=True, backend=backend)
+    assert vol.inside_count == 0
