@@ -2,24 +2,29 @@
 
 ``parity``  odd/even crossings along one axis: exact for closed meshes.
 ``vote``    parity along x, y and z; the majority decides.
-``winding`` the generalised winding number, computed exactly and fast:
+``winding`` the generalised winding number, computed exactly and fast, of
+            the mesh itself when it is closed and consistently wound, else
+            of a repaired copy (:mod:`geovox.repair`: vertices merged,
+            degenerate and duplicate faces dropped, faces oriented across
+            manifold edges, pieces turned outward).
 
-    Fill every hole of the mesh M with a cap K: for each connected piece of
-    the boundary (the directed edges whose opposite edge is missing), a fan
-    of triangles from the piece's centroid, oriented so that M + K is closed.
-    For a closed surface the winding number is an integer that the column
-    rays give exactly (signed crossings, by the same exact rules as parity),
-    and by additivity ``w_M = w_{M+K} - w_K``, where ``w_K`` is the solid
-    angle of the cap triangles over 4 pi. A point is inside when
-    ``w_M > 1/2``. Since ``w_{M+K}`` is an integer, ``w_K`` only matters where
-    ``|w_K| >= 1/2``, and ``|w_K| <= area(K) / (4 pi d^2)`` at distance ``d``
-    from a cap, so ``w_K`` is summed exactly only for the voxels near the caps.
-    Holes are bridged the way the surface around them suggests, and regions
-    where parts of the mesh overlap (self-intersections) count as inside.
+A closed target's winding number is an integer that the column rays give
+exactly (signed crossings, by the same exact rules as parity); a voxel is
+inside where it is not 0, so the space two overlapping parts share counts
+and a cavity inside an inward-facing shell does not. An open target M has
+its holes filled with caps K: for each connected piece of the boundary (the
+directed edges whose opposite edge is missing), a fan of triangles from the
+piece's centroid, oriented so that M + K is closed. By additivity
+``w_M = w_{M+K} - w_K``: the first term is the exact integer from signed
+crossings, the second the caps' solid angle over 4 pi, and a point is inside
+when ``w_M > 1/2``. ``w_K`` is summed hierarchically (:func:`cap_winding`: a
+dual tree over bricks of voxels and cap triangles, far-field dipoles with a
+proven error bound), in passes that tighten only where the bound leaves the
+answer open, and exactly over every cap triangle for the last few voxels.
 
-``auto`` uses parity when the mesh is closed (every edge, after merging
-vertices by position, has a partner edge running the other way) and
-``winding`` otherwise, with a warning that says why.
+``auto`` uses parity when the mesh is closed and consistently wound and its
+pieces' boxes do not overlap; ``winding`` otherwise (with a warning that says
+what was repaired, unless the mesh only had overlapping closed pieces).
 """
 
 from __future__ import annotations
@@ -47,6 +52,8 @@ def boundary_edges(mesh: Mesh) -> np.ndarray:
     """
     if "boundary" in mesh._cache:
         return mesh._cache["boundary"]
+    if len(mesh.faces) == 0:
+        return np.zeros((0, 2), dtype=np.int64)
     f = mesh.geometric_faces
     e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
     e = e[e[:, 0] != e[:, 1]]  # degenerate faces repeat a vertex
@@ -67,7 +74,10 @@ def boundary_edges(mesh: Mesh) -> np.ndarray:
     key = lo * n + hi
     sign = np.where(e[:, 0] < e[:, 1], 1, -1)
     uniq, inverse = np.unique(key, return_inverse=True)
-    net = np.bincount(inverse.reshape(-1), weights=sign, minlength=len(uniq)).astype(np.int64)
+    inverse = inverse.reshape(-1)
+    net = np.bincount(inverse, weights=sign, minlength=len(uniq)).astype(np.int64)
+    # Whether some edge is used by more than two faces (see overlapping_pieces).
+    mesh._cache["non_manifold"] = bool(len(inverse) and np.bincount(inverse).max() > 2)
     k = np.flatnonzero(net)
     a, b = uniq[k] // n, uniq[k] % n
     m = net[k]
@@ -87,9 +97,11 @@ def boundary_edges(mesh: Mesh) -> np.ndarray:
 def edge_counts(mesh: Mesh):
     """``(open, non_manifold)``: edges used by one face, and edges used by more than two."""
     f = mesh.geometric_faces
-    e = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
+    e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
     e = e[e[:, 0] != e[:, 1]]
-    _, counts = np.unique(e, axis=0, return_counts=True)
+    n = np.int64(f.max()) + 1 if len(f) else np.int64(1)
+    key = np.sort(np.minimum(e[:, 0], e[:, 1]) * n + np.maximum(e[:, 0], e[:, 1]))
+    counts = np.diff(np.flatnonzero(np.r_[True, key[1:] != key[:-1], True]))
     return int(np.count_nonzero(counts == 1)), int(np.count_nonzero(counts > 2))
 
 
@@ -205,6 +217,13 @@ def capped(mesh: Mesh):
 def winding_occupancy(mesh: Mesh, grid, cast, axis: int, jobs: int = 1):
     """Occupancy by the generalised winding number (see the module notes).
 
+    The winding number is taken of :func:`target`'s mesh: the mesh itself
+    when it is closed and consistently wound, else its repaired copy. A
+    closed target gives the integer winding number from signed crossings
+    exactly, and a voxel is inside where it is not 0 (so overlapping parts
+    count, and a cavity inside an inward-facing shell does not). An open
+    target has its holes capped; inside is ``w_{M+K} - w_K > 1/2``.
+
     ``cast(mesh, axis)`` returns ``(Hits, Columns)`` for any mesh.
 
     Returns
@@ -212,102 +231,505 @@ def winding_occupancy(mesh: Mesh, grid, cast, axis: int, jobs: int = 1):
     occupancy : (nx, ny, nz) bool, Fortran order
     hits, columns : the crossings of the original mesh's triangles
     """
-    closed, cap_tris, piece = capped(mesh)
-    nf = len(mesh.faces)
+    tmesh, rep = target(mesh)
+    if len(tmesh.faces) == 0:  # every face degenerate: no crossings, nothing inside
+        hits, columns = cast(mesh, axis)
+        return np.zeros(grid.shape, dtype=bool, order="F"), hits, columns
+    closed, cap_tris, _ = capped(tmesh)
+    nf = len(tmesh.faces)
+    from .pipeline import check_memory
+
+    check_memory(grid, 1.0 + working_bytes(mesh, "winding"))
     hits, columns = cast(closed, axis)
     w = signed_counts(closed, hits, columns, grid, jobs)
-    occ = np.asfortranarray(w >= 1)
     if len(cap_tris):
-        _correct_near_caps(occ, w, grid, cap_tris, piece)
+        occ = np.zeros(grid.shape, dtype=bool, order="F")
+        _correct_caps(occ, w, grid, cap_tris)
         hits = hits.take(hits.triangle < nf)
+    else:
+        occ = np.asfortranarray(w != 0)
+    if rep is not None:
+        hits = rep.original_hits(hits)
     return occ, hits, columns
 
 
-#: Bricks of BRICK³ voxels organise the cap correction.
-BRICK = 8
+def working_bytes(mesh: Mesh, method: str) -> float:
+    """Bytes a voxel that ``method`` needs beside the occupancy, at its peak.
 
-
-def _correct_near_caps(occ, w, grid, cap_tris, piece) -> None:
-    """Decide ``w_M = w_{M+K} - w_K > 1/2`` exactly where ``w_K`` can change the answer.
-
-    The grid is cut into bricks of BRICK³ voxels. A cap piece next to a
-    brick (closer than the brick's diagonal) is summed exactly at every voxel
-    of it; a farther piece ``c`` (area ``A_c``) is summed at the brick's centre
-    only, and differs from that inside the brick by at most
-    ``rho * A_c / (pi d^3)`` (``rho`` the brick's half-diagonal, ``d`` the
-    distance), because the solid-angle kernel's gradient is at most
-    ``4 / r^3``. Voxels whose estimate is further than that bound from 1/2
-    are decided; the few others get the exact sum over every cap triangle.
+    ``winding`` holds the integer winding number (int16) and, where there
+    are caps, a float32 estimate and bound per voxel and a float32 working
+    copy and the pushed-down level; ``vote`` one uint8 count. Slab streaming
+    plans with this.
     """
-    npieces = int(piece.max()) + 1
-    order = np.argsort(piece, kind="stable")
-    counts = np.bincount(piece, minlength=npieces)
-    starts = np.r_[0, np.cumsum(counts)[:-1]]
-    tri_sorted = cap_tris[order]
-    lo = np.minimum.reduceat(tri_sorted.min(axis=1), starts, axis=0)
-    hi = np.maximum.reduceat(tri_sorted.max(axis=1), starts, axis=0)
-    area = 0.5 * np.linalg.norm(np.cross(tri_sorted[:, 1] - tri_sorted[:, 0],
-                                         tri_sorted[:, 2] - tri_sorted[:, 0]), axis=1)
-    piece_area = np.add.reduceat(area, starts)
+    if method == "winding":
+        tmesh = target(mesh)[0]
+        return 15.0 if len(tmesh.faces) and len(capped(tmesh)[1]) else 2.0
+    return 1.0 if method == "vote" else 0.0
 
-    shape = np.asarray(grid.shape)
-    nb = -(-shape // BRICK)
-    centres = [grid.centres(a) for a in range(3)]
-    first = np.stack(np.meshgrid(*[np.arange(n) for n in nb], indexing="ij"), -1) * BRICK
-    last = np.minimum(first + BRICK, shape) - 1
-    b_lo = np.stack([centres[a][first[..., a]] for a in range(3)], -1)
-    b_hi = np.stack([centres[a][last[..., a]] for a in range(3)], -1)
-    mid = (b_lo + b_hi) / 2
-    rho = np.linalg.norm(b_hi - b_lo, axis=-1) / 2
-    reach = 2.0 * rho.max() + 1e-12
-    far_mid = solid_angles(cap_tris, mid.reshape(-1, 3)).reshape(tuple(nb))
-    deviation = np.zeros(tuple(nb))
-    near_sum = np.zeros(grid.shape, dtype=np.float32, order="F")
-    for c in range(npieces):
-        tris = tri_sorted[starts[c]:starts[c] + counts[c]]
-        gap = np.maximum(0.0, np.maximum(lo[c] - b_hi, b_lo - hi[c]))
-        d = np.sqrt((gap ** 2).sum(-1))
-        near = d <= reach
+
+def target(mesh: Mesh):
+    """The mesh whose winding number decides the inside, and the repair that made it.
+
+    Returns
+    -------
+    mesh : Mesh
+        ``mesh`` itself when it is :func:`consistent`; else its repaired
+        copy (see :mod:`geovox.repair`).
+    repair : geovox.repair.Repair or None
+    """
+    if "target" not in mesh._cache:
+        if consistent(mesh):
+            mesh._cache["target"] = (mesh, None)
+        else:
+            from .repair import repair
+
+            rep = repair(mesh)
+            mesh._cache["target"] = (rep.mesh, rep)
+    return mesh._cache["target"]
+
+
+def consistent(mesh: Mesh) -> bool:
+    """Closed and consistently wound: every edge has a partner running the other way,
+    and no two faces use the same three vertices.
+
+    The second condition catches double-sided models (every face also stored
+    reversed), whose edges all have partners but whose every crossing counts
+    twice under parity and cancels under the winding number.
+    """
+    if "consistent" not in mesh._cache:
+        ok = len(boundary_edges(mesh)) == 0
+        if ok:
+            s = np.sort(mesh.geometric_faces, axis=1)
+            n = np.int64(s.max()) + 1 if len(s) else np.int64(1)
+            if n < (1 << 21):  # three ids fit in one int64 key
+                key = (s[:, 0] * n + s[:, 1]) * n + s[:, 2]
+                key.sort()
+                ok = not np.any(key[1:] == key[:-1])
+            else:
+                ok = len(np.unique(s, axis=0)) == len(s)
+        mesh._cache["consistent"] = bool(ok)
+    return mesh._cache["consistent"]
+
+
+def overlapping_pieces(mesh: Mesh) -> bool:
+    """Whether two pieces (connected through shared edges) have overlapping boxes.
+
+    Parity counts the space two closed parts share as outside; the winding
+    number counts it twice. Only then do the two differ on a closed,
+    consistently wound mesh, so only then is parity not enough.
+    """
+    if "overlap" in mesh._cache:
+        return mesh._cache["overlap"]
+    from .repair import edge_table, face_pieces, manifold_pairs
+
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    g = mesh.geometric_faces
+    g = g[(g[:, 0] != g[:, 1]) & (g[:, 1] != g[:, 2]) & (g[:, 2] != g[:, 0])]
+    overlap = False
+    single = True
+    if len(g) > 1:
+        # Cheap first: one vertex-connected component without non-manifold
+        # edges is one piece.
+        nv = int(g.max()) + 1
+        rows, cols = np.r_[g[:, 0], g[:, 1]], np.r_[g[:, 1], g[:, 2]]
+        graph = coo_matrix((np.ones(len(rows), np.int8), (rows, cols)), shape=(nv, nv))
+        n_vc = connected_components(graph, directed=False)[0] - (nv - len(np.unique(g)))
+        single = n_vc == 1 and not _non_manifold(mesh)
+    if not single:
+        edge, count, _ = edge_table(g, int(g.max()) + 1)
+        # Pieces meet across manifold edges only: two closed parts that touch
+        # along an edge (four faces on it) stay two pieces.
+        n, label = face_pieces(len(g), manifold_pairs(edge, count))
+        if n > 1:
+            order = np.argsort(label, kind="stable")
+            starts = np.r_[0, np.flatnonzero(np.diff(label[order])) + 1]
+            pos = np.zeros((int(g.max()) + 1, 3))
+            pos[mesh.geometric_faces.reshape(-1)] = mesh.vertices[mesh.faces.reshape(-1)]
+            tri = pos[g[order]]
+            lo = np.minimum.reduceat(tri.min(axis=1), starts, axis=0)
+            hi = np.maximum.reduceat(tri.max(axis=1), starts, axis=0)
+            overlap = _any_box_overlap(lo, hi)
+    mesh._cache["overlap"] = overlap
+    return overlap
+
+
+def _non_manifold(mesh: Mesh) -> bool:
+    """Whether some edge is used by more than two faces (cached by boundary_edges when it can)."""
+    if "non_manifold" not in mesh._cache:
+        f = mesh.geometric_faces
+        e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+        e = e[e[:, 0] != e[:, 1]]
+        n = np.int64(f.max()) + 1 if len(f) else np.int64(1)
+        key = np.sort(np.minimum(e[:, 0], e[:, 1]) * n + np.maximum(e[:, 0], e[:, 1]))
+        mesh._cache["non_manifold"] = bool(np.any(key[2:] == key[:-2]))
+    return mesh._cache["non_manifold"]
+
+
+def _any_box_overlap(lo, hi, block: int = 512) -> bool:
+    """Whether any two of the boxes ``[lo, hi]`` (``(n, 3)``) share interior points."""
+    n = len(lo)
+    for s in range(0, n, block):
+        a_lo, a_hi = lo[s:s + block, None], hi[s:s + block, None]
+        inter = np.all((a_lo < hi[None]) & (lo[None] < a_hi), axis=2)
+        i = np.arange(s, min(s + block, n))[:, None]
+        if np.any(inter & (np.arange(n)[None] > i)):
+            return True
+    return False
+
+
+#: Opening ratio of the caps' far field: a group of cap triangles within
+#: radius ``r`` of its centre is summed as one dipole at a brick of radius
+#: ``rb`` when ``r + rb <= THETA * d`` (``d`` the gap between their balls).
+THETA = 0.5
+#: A single cap triangle is summed once for a whole brick only where its
+#: bound there is below THETA times this.
+SINGLE = 0.05
+#: A far-field term whose error bound is below this is accepted whatever THETA says.
+EPS = 1e-4
+#: The traversal's passes: (THETA, EPS) of each, tighter each time, over the
+#: voxels the one before left undecided; then the exact sum.
+PASSES = ((1.0, 1e-3), (0.3, 1e-5), (0.1, 1e-6))
+#: (brick, cap group) pairs a refining pass may handle (about 10 s here) before
+#: the voxels it would refine are decided by the estimate they have, with a warning.
+PAIR_BUDGET = 10_000_000
+#: (brick, cap group) pairs handled at once: bounds the traversal's memory.
+PAIR_CHUNK = 1 << 17
+
+
+def _cap_tree(tris):
+    """A binary tree over the cap triangles, in Morton order, as flat arrays.
+
+    Level 0 holds the triangles; node ``j`` of level ``l`` covers the sorted
+    triangles ``j 2^l .. (j + 1) 2^l - 1``. Per node: area vector ``S`` (the
+    sum of the triangles' area-weighted normals, the dipole moment of their
+    solid angle), total area ``A``, box centre ``c`` and radius ``r`` (every
+    point of every triangle is within ``r`` of ``c``).
+
+    Returns
+    -------
+    tris : (k, 3, 3) float64, sorted
+    nodes : dict of flat arrays ``S (n, 3)``, ``A (n,)``, ``c (n, 3)``, ``r (n,)``
+    offset : list of int
+        Index of each level's first node in the flat arrays; ``size`` per level.
+    """
+    cen = tris.mean(axis=1)
+    lo, hi = cen.min(axis=0), cen.max(axis=0)
+    q = ((cen - lo) / max(float((hi - lo).max()), 1e-300) * 1023).astype(np.int64)
+    code = np.zeros(len(tris), dtype=np.int64)
+    for bit in range(10):
+        for k in range(3):
+            code |= ((q[:, k] >> bit) & 1) << (3 * bit + k)
+    tris = tris[np.argsort(code, kind="stable")]
+    S = 0.5 * np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
+    A = np.linalg.norm(S, axis=1)
+    blo, bhi = tris.min(axis=1), tris.max(axis=1)
+    levels = [(S, A, blo, bhi)]
+    while len(levels[-1][0]) > 1:
+        S, A, blo, bhi = levels[-1]
+        starts = np.arange(0, len(S), 2)
+        levels.append((np.add.reduceat(S, starts, axis=0), np.add.reduceat(A, starts),
+                       np.minimum.reduceat(blo, starts, axis=0),
+                       np.maximum.reduceat(bhi, starts, axis=0)))
+    size = [len(lv[0]) for lv in levels]
+    offset = np.r_[0, np.cumsum(size)[:-1]].astype(np.int64)
+    S = np.concatenate([lv[0] for lv in levels])
+    A = np.concatenate([lv[1] for lv in levels])
+    blo = np.concatenate([lv[2] for lv in levels])
+    bhi = np.concatenate([lv[3] for lv in levels])
+    nodes = {"S": S, "A": A, "c": (blo + bhi) / 2, "r": np.linalg.norm(bhi - blo, axis=1) / 2,
+             "h": (bhi - blo) / 2}
+    return tris, nodes, offset, np.asarray(size, dtype=np.int64)
+
+
+def _triangle_angles(tris: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Signed solid angle over 4 pi of triangle ``i`` at point ``i`` (both ``(n, 3[, 3])``)."""
+    A, B, C = tris[:, 0] - points, tris[:, 1] - points, tris[:, 2] - points
+    la, lb, lc = (np.sqrt(np.einsum("ij,ij->i", x, x)) for x in (A, B, C))
+    num = np.einsum("ij,ij->i", A, np.cross(B, C))
+    den = (la * lb * lc + np.einsum("ij,ij->i", A, B) * lc
+           + np.einsum("ij,ij->i", A, C) * lb + np.einsum("ij,ij->i", B, C) * la)
+    return np.arctan2(num, den) / (2.0 * np.pi)
+
+
+def cap_winding(grid, tris, active, theta=THETA, eps=EPS, budget=None):
+    """The caps' winding number ``w_K`` over bricks of voxels, hierarchically, with a bound.
+
+    A dual-tree traversal in whole arrays. Voxels are grouped in cubic
+    bricks of ``2^k`` voxels a side (a brick of level 0 is one voxel centre),
+    cap triangles in the tree of :func:`_cap_tree`. Starting from the given
+    bricks paired with the root, each (brick, node) pair whose balls are far
+    apart is summed as the node's dipole ``S . (c - p) / (4 pi |c - p|^3)`` at
+    the brick's centre ``p``. Its error anywhere in the brick is at most
+    ``A (r + rb) / (2 pi d^3)``: the solid-angle kernel ``n.(x-p)/|x-p|^3`` has
+    gradient at most ``2 / |x-p|^3``, the triangles' points and the brick's
+    voxel centres move at most ``r + rb`` from the two centres, and stay at
+    least ``d`` (the gap between the balls) apart. Pairs that are not far
+    split their larger side (8 sub-bricks, or 2 child nodes); a voxel and a
+    single triangle are summed exactly (Van Oosterom and Strackee).
+
+    Parameters
+    ----------
+    grid : Grid
+    tris : (k, 3, 3) float64
+        Cap triangles.
+    active : list of bool arrays, one per brick level (shape ``ceil(shape / 2^l)``)
+        The bricks that hold voxels to evaluate (see :func:`_pyramid`); the
+        traversal starts at the top level and never enters an inactive brick.
+
+    budget : int, optional
+        Give up (return None) once this many pairs have been handled.
+
+    Returns
+    -------
+    est : list of arrays, one per brick level ``l`` (shape ``ceil(shape / 2^l)``)
+        Sums to add up, each voxel taking its bricks' values on every level.
+    err : list of arrays of the same shapes: the bounds, added the same way.
+    touched : (m, 3) int64
+        The voxels that got a value of their own (level 0), with repeats.
+    """
+    tris, nodes, offset, size = _cap_tree(tris)
+    top = len(size) - 1
+    shape = np.asarray(grid.shape, dtype=np.int64)
+    level0 = len(active) - 1
+    start = np.argwhere(active[level0])
+    d = grid.spacing
+    lo = grid.lo
+    est = [np.zeros(tuple(-(-shape // (1 << k))), dtype=np.float32 if k == 0 else np.float64)
+           for k in range(level0 + 1)]
+    err = [np.zeros_like(e) for e in est]
+    S, A, C, R, H = nodes["S"], nodes["A"], nodes["c"], nodes["r"], nodes["h"]
+    stack = [(np.full(len(start), level0, np.int64), start.astype(np.int64),
+              np.full(len(start), top, np.int64), np.zeros(len(start), np.int64))]
+    handled = 0
+    touched = []
+    while stack:
+        kb, b, ln, nj = stack.pop()
+        handled += min(len(kb), PAIR_CHUNK)
+        if budget is not None and handled > budget:
+            return None
+        if len(kb) > PAIR_CHUNK:
+            stack.append((kb[PAIR_CHUNK:], b[PAIR_CHUNK:], ln[PAIR_CHUNK:], nj[PAIR_CHUNK:]))
+            kb, b, ln, nj = kb[:PAIR_CHUNK], b[:PAIR_CHUNK], ln[:PAIR_CHUNK], nj[:PAIR_CHUNK]
+        side = (1 << kb).astype(np.float64)
+        p = lo + (b * side[:, None] + (side[:, None] - 1) / 2 + 0.5) * d
+        rb = 0.5 * (side - 1) * np.linalg.norm(d)
+        node = offset[ln] + nj
+        vec = C[node] - p
+        dist = np.sqrt(np.einsum("ij,ij->i", vec, vec))
+        # The gap between the brick's ball and the node's box.
+        out = np.maximum(np.abs(vec) - H[node], 0.0)
+        gap = np.sqrt(np.einsum("ij,ij->i", out, out)) - rb
+        reach = R[node] + rb
+        single = ln == 0
         with np.errstate(divide="ignore", invalid="ignore"):
-            deviation += np.where(near, 0.0, rho * piece_area[c] / (np.pi * d ** 3))
-        bricks = np.argwhere(near)
-        if len(bricks) == 0:
+            # A group's dipole at the brick's centre, or one triangle's exact
+            # value there: the first errs by moving both ends (r + rb), the
+            # second by moving the brick's end only (rb; and the kernel's
+            # integral over a triangle at least g away is at most 2 pi / g).
+            bound = np.where(single,
+                             np.minimum(A[node] * rb / (2 * np.pi * gap ** 3), rb / gap),
+                             A[node] * reach / (2 * np.pi * gap ** 3))
+        # A single triangle's bound at a brick (up to rb / g) shrinks only
+        # linearly with the brick: it must also be small in absolute terms,
+        # or large triangles next to many voxels leave them all undecided.
+        far = (gap > 0) & (((reach <= theta * gap) & ~single)
+                           | ((rb <= theta * gap) & (bound <= theta * SINGLE)) | (bound <= eps))
+        leaf = single & (far | (kb == 0))
+        far &= ~single
+        if far.any():
+            f = np.flatnonzero(far)
+            val = np.einsum("ij,ij->i", S[node[f]], vec[f]) / (4 * np.pi * dist[f] ** 3)
+            _scatter(est, err, kb[f], b[f], val, bound[f])
+            touched.append(b[f][kb[f] == 0])
+        if leaf.any():
+            f = np.flatnonzero(leaf)
+            val = _triangle_angles(tris[nj[f]], p[f])
+            _scatter(est, err, kb[f], b[f], val, np.where(kb[f] == 0, 0.0, bound[f]))
+            touched.append(b[f][kb[f] == 0])
+        split = np.flatnonzero(~far & ~leaf)
+        if len(split) == 0:
             continue
-        far_mid[near] -= solid_angles(tris, mid[near])
-        pts = []
-        for b in bricks:
-            pts.append(np.stack(np.meshgrid(*[np.arange(first[tuple(b)][a], last[tuple(b)][a] + 1)
-                                              for a in range(3)], indexing="ij"), -1).reshape(-1, 3))
-        vox = np.concatenate(pts)
-        p = np.stack([centres[a][vox[:, a]] for a in range(3)], axis=1)
-        near_sum[tuple(vox.T)] += solid_angles(tris, p).astype(np.float32)
-    expand = [np.repeat(np.arange(nb[a]), BRICK)[: shape[a]] for a in range(3)]
-    estimate = w - far_mid[np.ix_(*expand)] - near_sum
-    occ[...] = estimate > 0.5
-    # float32 rounding of the near sums is far below this margin.
-    unsure = np.abs(estimate - 0.5) <= deviation[np.ix_(*expand)] + 1e-4
-    idx = np.argwhere(unsure)
-    for s in range(0, len(idx), 1 << 16):
-        block = idx[s:s + (1 << 16)]
-        p = np.stack([centres[a][block[:, a]] for a in range(3)], axis=1)
-        ii = tuple(block.T)
-        occ[ii] = (w[ii] - solid_angles(cap_tris, p)) > 0.5
+        kb, b, ln, nj, rb_s, r_s = kb[split], b[split], ln[split], nj[split], rb[split], R[node[split]]
+        brick = (kb > 0) & ((ln == 0) | (rb_s > r_s))
+        if (~brick).any():  # two children of the node (the second may not exist)
+            s = np.flatnonzero(~brick)
+            c_ln = np.repeat(ln[s] - 1, 2)
+            c_nj = (2 * nj[s])[:, None] + np.arange(2)
+            c_nj = c_nj.reshape(-1)
+            ok = c_nj < size[c_ln]
+            stack.append((np.repeat(kb[s], 2)[ok], np.repeat(b[s], 2, axis=0)[ok], c_ln[ok], c_nj[ok]))
+        if brick.any():  # eight sub-bricks (those inside the grid)
+            s = np.flatnonzero(brick)
+            child = (2 * b[s])[:, None, :] + _OCTANTS[None]
+            c_kb = np.repeat(kb[s] - 1, 8)
+            child = child.reshape(-1, 3)
+            ok = np.all(child * (1 << c_kb)[:, None] < shape, axis=1)
+            ok[ok] = _lookup(active, c_kb[ok], child[ok])
+            stack.append((c_kb[ok], child[ok], np.repeat(ln[s], 8)[ok], np.repeat(nj[s], 8)[ok]))
+    return est, err, np.concatenate(touched) if touched else np.zeros((0, 3), np.int64)
+
+
+_OCTANTS = np.array([[i, j, k] for k in (0, 1) for j in (0, 1) for i in (0, 1)], dtype=np.int64)
+
+
+def _lookup(active, kb, b):
+    out = np.zeros(len(kb), dtype=bool)
+    for k in np.flatnonzero(np.bincount(kb)):
+        sel = kb == k
+        out[sel] = active[k][tuple(b[sel].T)]
+    return out
+
+
+def _pyramid(mask, levels):
+    """``[mask, any over 2³ blocks of it, ...]``: ``levels + 1`` arrays.
+
+    ``mask`` is a bool array, or a shape for an all-True one. Built from the
+    True voxels' indices: the masks after the first pass are sparse.
+    """
+    if not isinstance(mask, np.ndarray):
+        shape = np.asarray(mask)
+        return [np.ones(tuple(-(-shape // (1 << k))), dtype=bool) for k in range(levels + 1)]
+    shape = np.asarray(mask.shape)
+    idx = np.argwhere(mask)
+    out = [mask]
+    for k in range(1, levels + 1):
+        m = np.zeros(tuple(-(-shape // (1 << k))), dtype=bool)
+        m[tuple((idx >> k).T)] = True
+        out.append(m)
+    return out
+
+
+def _scatter(est, err, kb, b, val, bound):
+    """Add each pair's value and bound to its brick, level by level."""
+    for k in np.flatnonzero(np.bincount(kb)):
+        sel = kb == k
+        lin = np.ravel_multi_index(tuple(b[sel].T), est[k].shape)
+        np.add.at(est[k].reshape(-1), lin, val[sel].astype(est[k].dtype))
+        np.add.at(err[k].reshape(-1), lin, bound[sel].astype(err[k].dtype))
+
+
+def _correct_caps(occ, w, grid, cap_tris) -> None:
+    """Decide ``w_M = w_{M+K} - w_K > 1/2`` with the caps' winding number from :func:`cap_winding`.
+
+    A first pass gives every voxel an estimate of ``w_K`` and a proven bound
+    on its error; the voxels whose estimate is not decisive (within the bound
+    of 1/2) get a second pass with a tighter opening ratio, over only the
+    bricks that hold them, and any still undecided are summed exactly over
+    every cap triangle.
+    """
+    shape = np.asarray(grid.shape)
+    top = max(0, int(np.ceil(np.log2(max(1, int(shape.max()) / 16)))))
+    active = _pyramid(grid.shape, top)
+    first = True
+    for theta, eps in PASSES:
+        got = cap_winding(grid, cap_tris, active, theta=theta, eps=eps,
+                          budget=None if first else PAIR_BUDGET)
+        if got is None:
+            _estimated(active[0], grid)
+            return
+        est, err, touched = got
+        # Every coarse level's sums, pushed down to bricks of 2³ voxels.
+        for k in range(len(est) - 1, 1, -1):
+            for arrays in (est, err):
+                fine = arrays[k - 1]
+                up = arrays[k]
+                for a in range(3):
+                    up = np.repeat(up, 2, axis=a)
+                fine += up[: fine.shape[0], : fine.shape[1], : fine.shape[2]]
+                arrays[k] = None
+        if first:
+            np.greater_equal(w, 1, out=occ)
+        # A brick of 2³ whose voxels got nothing of their own and whose
+        # estimate and bound keep |w_K| below 1/2 leaves every integer
+        # w_{M+K} decided as it is (w >= 1, set above); only the other
+        # bricks' voxels are looked at one by one.
+        if len(est) > 1:
+            loose = np.abs(est[1]) + err[1] >= 0.5 - 1e-4
+            loose[tuple((touched >> 1).T)] = True
+            if not first:
+                loose &= active[1]
+            bricks = np.argwhere(loose)
+            vox = ((2 * bricks)[:, None, :] + _OCTANTS[None]).reshape(-1, 3)
+            vox = vox[np.all(vox < shape, axis=1)]
+        else:
+            vox = np.argwhere(active[0])
+        if not first:
+            vox = vox[active[0][tuple(vox.T)]]
+        ii = tuple(vox.T)
+        wk = est[0][ii].astype(np.float64)
+        bound = err[0][ii].astype(np.float64)
+        if len(est) > 1:
+            jj = tuple((vox >> 1).T)
+            wk += est[1][jj]
+            bound += err[1][jj]
+        del est, err
+        v = w[ii] - wk
+        occ[ii] = v > 0.5
+        # float32 rounding of the voxel-level sums is far below this margin.
+        unsure = np.zeros(grid.shape, dtype=bool)
+        unsure[ii] = np.abs(v - 0.5) <= bound + 1e-4
+        first = False
+        if not unsure.any():
+            return
+        active = _pyramid(unsure, top)
+    # The last few: the exact sum over every cap triangle.
+    idx = np.argwhere(active[0])
+    if len(idx) * len(cap_tris) > 4 * PAIR_BUDGET:
+        _estimated(active[0], grid)
+        return
+    centres = [grid.centres(a) for a in range(3)]
+    block = max(1, (1 << 20) // len(cap_tris))
+    for s in range(0, len(idx), block):
+        ii = tuple(idx[s:s + block].T)
+        p = np.stack([centres[a][ii[a]] for a in range(3)], axis=1)
+        k = len(p)
+        wk = _triangle_angles(np.tile(cap_tris, (k, 1, 1)), np.repeat(p, len(cap_tris), axis=0))
+        occ[ii] = (w[ii] - wk.reshape(k, -1).sum(axis=1)) > 0.5
+
+
+def _estimated(unsure, grid) -> None:
+    n = int(np.count_nonzero(unsure))
+    warnings.warn(
+        f"the holes' caps are too many and too large to settle every voxel exactly within the "
+        f"work budget: {n:,} of {grid.size:,} voxels ({100.0 * n / grid.size:.2g} %) were decided "
+        f"by an estimate of the winding number whose proven error bound reaches 1/2 "
+        f"(--inside vote or parity are the fast alternatives)", GeovoxWarning, stacklevel=4)
 
 
 def choose(mesh: Mesh, method: str) -> str:
-    """The method to run for ``method`` (resolving ``auto``), warning when it had to guess."""
+    """The method to run for ``method`` (resolving ``auto``), warning when it had to repair.
+
+    ``auto`` is parity for a closed, consistently wound mesh whose pieces do
+    not overlap (exact, and the fastest); ``winding`` for one whose pieces'
+    boxes overlap (signed crossings count the shared space; silent, nothing
+    was guessed); and ``winding`` on a repaired copy otherwise, with a
+    warning saying what was repaired and what is left open. ``winding``
+    asked for by name warns only when the repair changed faces.
+    """
     if method not in METHODS:
         raise ParameterError(f"`inside` must be one of {', '.join(METHODS)}; got {method!r}")
-    if method != "auto":
+    if method in ("parity", "vote"):
         return method
     edges = boundary_edges(mesh)
-    if len(edges) == 0:
-        return "parity"
+    if consistent(mesh):
+        if method == "auto" and not overlapping_pieces(mesh):
+            return "parity"
+        return "winding"
+    tmesh, rep = target(mesh)
+    if method == "winding" and not rep.changed:
+        return "winding"
     n_open, n_nonmanifold = edge_counts(mesh)
+    left = len(boundary_edges(tmesh))
+    then = (f"the copy has {left:,} edges without a partner, so the winding-number inside test "
+            f"bridges its holes" if left else
+            "the copy is closed, so its winding number comes exactly from signed crossings")
     warnings.warn(
-        f"{mesh.source}: the mesh is not closed ({n_open} open edges, {n_nonmanifold} "
-        f"non-manifold, {len(edges)} without a partner edge running the other way, after "
-        f"merging vertices by position); using the winding-number inside test, which bridges "
-        f"holes (pass inside='parity' or --inside parity to override)",
+        f"{mesh.source}: the mesh is not closed and consistently wound ({n_open:,} open edges, "
+        f"{n_nonmanifold:,} non-manifold, {len(edges):,} without a partner edge running the other "
+        f"way, {rep.duplicates + rep.opposite:,} duplicate faces, after merging vertices by "
+        f"position); repaired a copy: {rep.describe()}; {then}"
+        + (" (pass inside='parity' or --inside parity to override)" if method == "auto" else ""),
         GeovoxWarning, stacklevel=3)
     return "winding"

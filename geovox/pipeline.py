@@ -291,7 +291,7 @@ def voxelize(
         t = time.perf_counter()
         target = m
         if method == "winding":
-            target = inside_tests.capped(m)[0]
+            target = inside_tests.capped(inside_tests.target(m)[0])[0]
         start = min(float(target.bounds[0, axis]), float(grid.lo[axis])) - 1e-3 * target.scale
         sub = sub_columns(grid.columns(axis, start=start), supersample)
         frac = coverage(engine.cast(target, sub, jobs=jobs), sub, grid, supersample, jobs)

@@ -7,7 +7,7 @@ import os
 import numpy as np
 
 from .grid import make_grid
-from .inside import boundary_edges, edge_counts
+from .inside import boundary_edges, consistent, edge_counts, overlapping_pieces, target
 from .mesh import Mesh
 
 
@@ -18,8 +18,12 @@ def mesh_report(mesh: Mesh) -> dict:
     -------
     dict with ``triangles``, ``vertices``, ``bounds``, ``closed``,
     ``open_edges``, ``non_manifold_edges``, ``components``, ``degenerate_faces``,
-    ``duplicate_faces``, ``materials`` (name, Kd, texture, status) and
-    ``problems``.
+    ``duplicate_faces``, ``consistent`` (closed and consistently wound, no
+    face stored twice), ``overlapping_pieces``, ``repair`` (None, or what
+    ``--inside auto`` repairs on a copy: ``flipped``, ``duplicates``,
+    ``opposite``, ``degenerate``, ``pieces``, ``closed_pieces``,
+    ``outward``, ``open_edges_after``, ``summary``), ``materials`` (name,
+    Kd, texture, status) and ``problems``.
     """
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
@@ -40,6 +44,14 @@ def mesh_report(mesh: Mesh) -> dict:
     degenerate = int(np.count_nonzero(repeated | (area2 == 0)))
     _, counts = np.unique(np.sort(f, axis=1), axis=0, return_counts=True)
     duplicates = int((counts - 1).sum())
+    is_consistent = consistent(mesh)
+    repair = None
+    if not is_consistent:
+        tmesh, rep = target(mesh)
+        repair = {"flipped": rep.flipped, "duplicates": rep.duplicates, "opposite": rep.opposite,
+                  "degenerate": rep.degenerate, "pieces": rep.pieces,
+                  "closed_pieces": rep.closed_pieces, "outward": rep.outward,
+                  "open_edges_after": int(len(boundary_edges(tmesh))), "summary": rep.describe()}
     materials = []
     for m in mesh.materials:
         if m.texture_file:
@@ -63,6 +75,9 @@ def mesh_report(mesh: Mesh) -> dict:
         "components": int(components),
         "degenerate_faces": degenerate,
         "duplicate_faces": duplicates,
+        "consistent": is_consistent,
+        "overlapping_pieces": bool(is_consistent and overlapping_pieces(mesh)),
+        "repair": repair,
         "uv": mesh.corner_uv is not None,
         "vertex_colors": mesh.vertex_colors is not None,
         "materials": materials,
@@ -78,6 +93,22 @@ def grid_cost(mesh: Mesh, **grid_options) -> dict:
             "occupancy_bytes": n, "with_colour_bytes": n * 21}
 
 
+def _inside_line(rep: dict) -> str:
+    """What ``--inside auto`` will do, and what it repairs first."""
+    if rep["consistent"] and not rep["overlapping_pieces"]:
+        return "closed: yes (parity is exact)"
+    if rep["consistent"]:
+        return ("closed: yes, with pieces that overlap; --inside auto counts their shared space "
+                "as inside (the winding number, from signed crossings)")
+    r = rep["repair"]
+    head = "closed: no" if rep["open_edges"] else "closed: yes, but not consistently wound"
+    then = (f"the copy has {r['open_edges_after']:,} edges without a partner, so the winding number "
+            f"bridges its holes" if r["open_edges_after"] else
+            "the copy is closed, so its winding number is exact from signed crossings")
+    return (f"{head} - {rep['open_edges']:,} open edges; --inside auto repairs a copy: "
+            f"{r['summary']}; {then}")
+
+
 def format_report(rep: dict, cost: dict) -> str:
     def mib(b):
         return f"{b / 2**20:,.1f} MiB" if b < 2**30 else f"{b / 2**30:,.2f} GiB"
@@ -87,8 +118,7 @@ def format_report(rep: dict, cost: dict) -> str:
         f"{os.path.basename(rep['source'])}: {rep['triangles']:,} triangles, "
         f"{rep['vertices']:,} vertices (merged by position), {rep['components']} component(s)",
         "bounds (" + ", ".join(f"{v:.6g}" for v in lo) + ") .. (" + ", ".join(f"{v:.6g}" for v in hi) + ")",
-        ("closed: yes (parity is exact)" if rep["closed"] else
-         f"closed: no - {rep['open_edges']:,} open edges; --inside auto will use the winding number"),
+        _inside_line(rep),
         f"non-manifold edges: {rep['non_manifold_edges']:,}; degenerate faces: "
         f"{rep['degenerate_faces']:,}; duplicate faces: {rep['duplicate_faces']:,}",
         f"texture coordinates: {'yes' if rep['uv'] else 'no'}; vertex colours: "

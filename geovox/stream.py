@@ -157,6 +157,7 @@ def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, *
     if not (np.all(m.bounds[0] <= grid.hi) and np.all(m.bounds[1] >= grid.lo)):
         warnings.warn("the region misses the mesh; the volume is empty", GeovoxWarning, stacklevel=2)
     per = bytes_per_voxel(options.get("color"), options.get("density"), options.get("sdf"))
+    per += inside_tests.working_bytes(m, method)
     from .pipeline import _available_memory, check_memory
 
     if budget is None:
