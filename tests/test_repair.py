@@ -252,6 +252,7 @@ def test_past_the_work_budget_the_estimate_decides_with_a_warning(monkeypatch):
     assert np.mean(rough.occupancy == exact.occupancy) >= 0.99
 
 
+@pytest.mark.filterwarnings("ignore:.*the volume is empty:geovox.errors.GeovoxWarning")
 def test_a_mesh_of_degenerate_faces_only_gives_an_empty_volume(backend):
     # Found by hypothesis: the repair drops every face, and nothing may break after it.
     v = np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0], [0, 1, 1.0]])
@@ -260,3 +261,27 @@ def test_a_mesh_of_degenerate_faces_only_gives_an_empty_volume(backend):
     with pytest.warns(GeovoxWarning, match="2 degenerate faces dropped"):
         vol = geovox.voxelize(mesh, resolution=4, color=True, backend=backend)
     assert vol.inside_count == 0
+
+
+@pytest.mark.parametrize("sub", [0, 2, 4])
+def test_vertex_connectivity_without_scipy_matches_csgraph(sub):
+    # The closed-mesh fast path searches the vertex graph in NumPy so the
+    # default conversion never imports scipy; check it against csgraph.
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    from geovox.inside import _vertex_connected
+
+    def one_component(g):
+        nv = int(g.max()) + 1
+        rows, cols = np.r_[g[:, 0], g[:, 1]], np.r_[g[:, 1], g[:, 2]]
+        graph = coo_matrix((np.ones(len(rows), np.int8), (rows, cols)), shape=(nv, nv))
+        return connected_components(graph, directed=False)[0] - (nv - len(np.unique(g))) == 1
+
+    rng = np.random.default_rng(sub)
+    f = np.asarray(trimesh.creation.icosphere(subdivisions=sub).faces, dtype=np.int64)
+    n = int(f.max()) + 1
+    cases = [f, np.vstack([f, f + n]), f[rng.permutation(len(f))[: max(1, len(f) // 3)]],
+             f[rng.permutation(len(f))], np.vstack([f, f[:1] + n])]
+    for g in cases:
+        assert _vertex_connected(g) == one_component(g)
