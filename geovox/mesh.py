@@ -160,6 +160,12 @@ def check_mesh(mesh: Mesh) -> Mesh:
     return _check(mesh.vertices, mesh.faces, mesh.source, **extra)
 
 
+#: The diffuse colour trimesh gives a material the file does not colour.
+TRIMESH_DEFAULT = np.array([102, 102, 102, 255])
+#: The texel of the 2 x 2 image trimesh makes up for UVs without a texture.
+TRIMESH_PLACEHOLDER = np.array([100, 100, 100, 255])
+
+
 def _visual_parts(g, nfaces, materials):
     """Per-face material, corner UVs and vertex colours of one trimesh geometry."""
     visual = getattr(g, "visual", None)
@@ -170,13 +176,27 @@ def _visual_parts(g, nfaces, materials):
         mat = getattr(visual, "material", None)
         m = Material(name=getattr(mat, "name", None) or "material")
         image = getattr(mat, "image", None) or getattr(mat, "baseColorTexture", None)
+        if image is not None and image.size == (2, 2) and np.all(
+                np.asarray(image.convert("RGBA")) == TRIMESH_PLACEHOLDER):
+            # trimesh.visual.material.empty_material's stand-in for a
+            # texture the file does not have (a PLY with UVs only)
+            image = None
         if image is not None:
+            # sRGB texels as stored (no linearisation), alpha dropped
             m.image = np.asarray(image.convert("RGB"))
-        colour = getattr(mat, "diffuse", None)
-        if colour is None:
-            colour = getattr(mat, "baseColorFactor", None)
-        if colour is not None:
-            m.kd = np.asarray(colour, dtype=np.float64)[:3] / 255.0
+        if hasattr(mat, "baseColorFactor"):
+            # glTF (metallic-roughness, or specular-glossiness converted by
+            # trimesh): base colour = factor x texture; the factor's default
+            # in the glTF specification is white.
+            factor = mat.baseColorFactor
+            m.kd = (np.ones(3) if factor is None
+                    else np.asarray(factor, dtype=np.float64)[:3] / 255.0)
+        else:
+            colour = getattr(mat, "diffuse", None)
+            # trimesh gives materials it makes up (a PLY's texture, UVs
+            # without any) its default 0.4 grey: not the file's colour.
+            if colour is not None and not np.array_equal(np.asarray(colour), TRIMESH_DEFAULT):
+                m.kd = np.asarray(colour, dtype=np.float64)[:3] / 255.0
         fm[:] = len(materials)
         materials.append(m)
         if visual.uv is not None and len(visual.uv) == len(g.vertices):

@@ -293,3 +293,96 @@ def test_relevant_crossings_keeps_what_a_voxel_can_use():
         before, inner, after = on[ks[on] == 0], on[(ks[on] > 0) & (ks[on] < n)], on[ks[on] == n]
         want += list(before[-1:]) + list(inner) + list(after[:1])
     np.testing.assert_array_equal(got.triangle, s.triangle[np.array(want)])
+
+
+# Materials as other formats state them (glTF, PLY): a colour the file does not
+# state is never taken for one it does.
+
+
+
+def _inside_rgb(path, res=16):
+    vol = geovox.voxelize(path, resolution=res, color=True)
+    return vol.colors[vol.occupancy, :3]
+
+
+def test_fuze_ply_has_the_colours_of_fuze_obj():
+    # The PLY names the same texture and states no material colour: trimesh's
+    # made-up 0.4 grey must not darken it.
+    a = geovox.voxelize(corpus("fuze", "fuze.obj"), resolution=24, color=True)
+    b = geovox.voxelize(corpus("fuze", "fuze.ply"), resolution=24, color=True)
+    np.testing.assert_array_equal(a.occupancy, b.occupancy)
+    diff = np.abs(a.colors.astype(int) - b.colors.astype(int))
+    assert np.mean(diff[a.occupancy].max(axis=1) <= 2) > 0.99
+
+
+def _box():
+    m = trimesh.creation.box(extents=(2, 2, 2))
+    m.apply_translation((1, 1, 1))
+    return m
+
+
+def test_ply_with_uvs_and_no_texture_is_the_default_grey(tmp_path):
+    m = _box()
+    m.visual = trimesh.visual.TextureVisuals(uv=m.vertices[:, :2] / 2)
+    m.export(tmp_path / "uv.ply")
+    assert np.all(_inside_rgb(tmp_path / "uv.ply") == 204)
+
+
+def test_ply_vertex_and_face_colours(tmp_path):
+    m = _box()
+    m.visual.vertex_colors = np.tile([10, 200, 30, 255], (len(m.vertices), 1))
+    m.export(tmp_path / "vc.ply")
+    assert np.all(_inside_rgb(tmp_path / "vc.ply") == (10, 200, 30))
+    m = _box()
+    m.visual.face_colors = np.tile([250, 5, 60, 255], (len(m.faces), 1))
+    m.export(tmp_path / "fc.ply")
+    assert np.all(_inside_rgb(tmp_path / "fc.ply") == (250, 5, 60))
+    plain = _box()
+    plain.export(tmp_path / "plain.ply")
+    assert np.all(_inside_rgb(tmp_path / "plain.ply") == 204)
+
+
+def test_glb_base_colour_factor_and_texture(tmp_path):
+    from trimesh.visual.material import PBRMaterial
+
+    m = _box()
+    m.visual = trimesh.visual.TextureVisuals(material=PBRMaterial(baseColorFactor=[255, 128, 0, 255]))
+    m.export(tmp_path / "factor.glb")
+    got = _inside_rgb(tmp_path / "factor.glb")
+    assert np.all(np.abs(got.astype(int) - (255, 128, 0)) <= 1)
+    # texture x factor, with the texture's values as stored (sRGB, no conversion)
+    tex = Image.fromarray(np.full((8, 8, 3), (200, 100, 50), np.uint8))
+    m = _box()
+    uv = np.full((len(m.vertices), 2), 0.5)
+    m.visual = trimesh.visual.TextureVisuals(
+        uv=uv, material=PBRMaterial(baseColorTexture=tex, baseColorFactor=[255, 128, 255, 255]))
+    m.export(tmp_path / "tex.glb")
+    got = _inside_rgb(tmp_path / "tex.glb")
+    assert np.all(np.abs(got.astype(int) - (200, 50, 50)) <= 1)
+    # no factor and no texture: glTF's default base colour is white
+    m = _box()
+    m.visual = trimesh.visual.TextureVisuals(material=PBRMaterial())
+    m.export(tmp_path / "plain.glb")
+    assert np.all(_inside_rgb(tmp_path / "plain.glb") == 255)
+
+
+def test_glb_primitives_keep_their_own_materials(tmp_path):
+    from trimesh.visual.material import PBRMaterial
+
+    a, b = _box(), _box()
+    b.apply_translation((2, 0, 0))
+    a.visual = trimesh.visual.TextureVisuals(material=PBRMaterial(baseColorFactor=[255, 0, 0, 255]))
+    b.visual = trimesh.visual.TextureVisuals(material=PBRMaterial(baseColorFactor=[0, 0, 255, 255]))
+    trimesh.Scene([a, b]).export(tmp_path / "two.glb")
+    vol = geovox.voxelize(tmp_path / "two.glb", shape=(16, 8, 8), color=True)
+    # voxels nearest each box's outer end (where the boxes touch, their
+    # coincident faces are equally near)
+    assert np.all(vol.colors[1:3, 3:5, 3:5, :3] == (255, 0, 0))
+    assert np.all(vol.colors[13:15, 3:5, 3:5, :3] == (0, 0, 255))
+
+
+def test_glb_vertex_colours(tmp_path):
+    m = _box()
+    m.visual.vertex_colors = np.tile([40, 80, 160, 255], (len(m.vertices), 1))
+    m.export(tmp_path / "vc.glb")
+    assert np.all(_inside_rgb(tmp_path / "vc.glb") == (40, 80, 160))
