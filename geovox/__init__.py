@@ -24,7 +24,7 @@ __version__ = "0.1.0"
 #: public name -> submodule that defines it
 _LAZY = {
     "voxelize": "pipeline",
-    "Volume": "pipeline",
+    "Volume": "volume",
     "convert_to": "stream",
     "Grid": "grid",
     "Mesh": "mesh",

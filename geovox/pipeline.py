@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
-
 import numpy as np
 
 from . import parity
@@ -12,65 +10,10 @@ from .backends import get_backend
 from .errors import GridTooLargeError, ParameterError
 from .grid import Grid, make_grid
 from .mesh import load_mesh
+from .volume import Volume
 
 #: Refuse grids whose occupancy array alone would exceed this fraction of RAM.
 MEMORY_FRACTION = 0.8
-
-
-@dataclass
-class Volume:
-    """A voxelised mesh.
-
-    Attributes
-    ----------
-    occupancy : (nx, ny, nz) bool, Fortran order
-        True inside. Indexed ``[x, y, z]``; x is fastest in memory, so
-        ``occupancy.T.tobytes()`` is the x-fastest byte order of RAW files.
-    grid : Grid
-    backend : str
-        Name of the backend that ran.
-    source : str
-    colors : (nx, ny, nz, 4) uint8 or None
-        RGBA colour per voxel, when colour was asked for.
-    inside : str
-        The inside/outside method that ran (``auto`` resolved).
-    density : (nx, ny, nz) uint8 or float32, or None
-        Coverage: the fraction of each voxel inside the mesh (0-255 as uint8).
-    sdf : (nx, ny, nz) float32 or None
-        Signed distance from each voxel centre to the surface, negative inside,
-        exact within ``band`` voxels and clamped to ``+-band`` voxels beyond.
-    timings : dict
-        Seconds per stage.
-    """
-
-    occupancy: np.ndarray
-    grid: Grid
-    backend: str
-    source: str = "<mesh>"
-    colors: np.ndarray | None = None
-    timings: dict = field(default_factory=dict)
-    inside: str = "parity"
-    density: np.ndarray | None = None
-    sdf: np.ndarray | None = None
-
-    @property
-    def bounds(self) -> tuple:
-        """``((xmin, ymin, zmin), (xmax, ymax, zmax))`` of the grid."""
-        return (tuple(float(x) for x in self.grid.lo), tuple(float(x) for x in self.grid.hi))
-
-    @property
-    def spacing(self) -> tuple:
-        """``(dx, dy, dz)``: the voxel dimensions."""
-        return tuple(float(x) for x in self.grid.spacing)
-
-    @property
-    def shape(self) -> tuple:
-        """``(nx, ny, nz)``."""
-        return tuple(self.grid.shape)
-
-    @property
-    def inside_count(self) -> int:
-        return int(np.count_nonzero(self.occupancy))
 
 
 def _available_memory() -> int | None:

@@ -56,7 +56,7 @@ def streams_whole(grid: Grid, color=False, density=None, sdf=False) -> bool:
 def _stream_occupancy(m, grid, engine, writer, jobs, timings, progress) -> int:
     """Occupancy of the whole grid by rays along z, filled and written slab by slab."""
     from . import parity
-    from .pipeline import Volume
+    from .volume import Volume
 
     t = time.perf_counter()
     start = min(float(m.bounds[0, 2]), float(grid.lo[2])) - 1e-3 * m.scale
@@ -135,7 +135,8 @@ def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, *
     from . import inside as inside_tests
     from .backends import get_backend
     from .parallel import resolve_jobs
-    from .pipeline import Volume, voxelize
+    from .pipeline import voxelize
+    from .volume import Volume
 
     t0 = time.perf_counter()
     f = formats.format_for(path, fmt)
@@ -231,7 +232,6 @@ def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, *
             lo[2] = grid.lo[2] + z0 * h[2]
             hi = grid.hi.copy()
             hi[2] = grid.lo[2] + z1 * h[2] if z1 < grid.shape[2] else grid.hi[2]
-            ta = time.perf_counter()
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", GeovoxWarning)  # said once, above
                 # Several slabs: rays along y, so a slab's columns are its own

@@ -149,7 +149,7 @@ def parse(data: bytes):
 def read_binvox(path):
     """A Volume from a binvox file: the whole cube (padding included)."""
     from ..grid import Grid
-    from ..pipeline import Volume
+    from ..volume import Volume
 
     with open(path, "rb") as f:
         occ, translate, scale = parse(f.read())

@@ -135,7 +135,7 @@ def read_hdf5(path):
     import h5py
 
     from ..grid import Grid
-    from ..pipeline import Volume
+    from ..volume import Volume
 
     with h5py.File(path, "r") as f:
         d = f["occupancy"]

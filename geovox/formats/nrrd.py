@@ -78,7 +78,7 @@ def read_nrrd(path):
     import nrrd
 
     from ..grid import Grid
-    from ..pipeline import Volume
+    from ..volume import Volume
     from .raw import colour_path
 
     data, header = nrrd.read(os.fspath(path))

@@ -85,7 +85,7 @@ def write_npz(volume, path, pack_bits: bool = False) -> list:
 
 def read_npz(path):
     from ..grid import Grid
-    from ..pipeline import Volume
+    from ..volume import Volume
 
     with np.load(path) as z:
         if "occupancy_bits" in z:
@@ -106,7 +106,7 @@ def read_npz(path):
 
 def read_npy(path):
     from ..grid import Grid
-    from ..pipeline import Volume
+    from ..volume import Volume
 
     occ = np.asfortranarray(np.load(path) > 0)
     return Volume(occupancy=occ, grid=Grid(np.zeros(3), np.asarray(occ.shape, float), occ.shape),

@@ -168,7 +168,7 @@ def write_raw(volume, path) -> list:
 def read_raw_volume(path):
     """A Volume from a RAW file and its JSON sidecar (colour too when present)."""
     from ..grid import Grid
-    from ..pipeline import Volume
+    from ..volume import Volume
 
     path = os.fspath(path)
     sidecar = os.path.splitext(path)[0] + ".json"

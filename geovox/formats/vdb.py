@@ -580,7 +580,7 @@ def read_vdb(path):
     ``sdf < 0`` when there is a distance grid, else coverage ≥ 0.5.
     """
     from ..grid import Grid
-    from ..pipeline import Volume
+    from ..volume import Volume
 
     with open(path, "rb") as f:
         r = _Reader(f.read())

@@ -213,7 +213,7 @@ def decode(data: bytes):
 def read_vox(path):
     """A Volume (unit voxels, origin at 0) assembled from a .vox file's models."""
     from ..grid import Grid
-    from ..pipeline import Volume
+    from ..volume import Volume
 
     with open(path, "rb") as f:
         models, transforms, palette = decode(f.read())

@@ -123,7 +123,7 @@ def read_vtkhdf(path):
     import h5py
 
     from ..grid import Grid
-    from ..pipeline import Volume
+    from ..volume import Volume
 
     with h5py.File(path, "r") as f:
         g = f["VTKHDF"]
