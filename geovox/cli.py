@@ -357,7 +357,7 @@ def _convert(args) -> int:
     if fmt.check is not None:
         fmt.check(grid)  # e.g. binvox needs cubic voxels
     per = bytes_per_voxel(args.color, args.density, args.sdf)
-    from .pipeline import _available_memory
+    from .memory import _available_memory
 
     avail = _available_memory()
     budget = SLAB_BUDGET if avail is None else min(SLAB_BUDGET, 0.5 * avail)

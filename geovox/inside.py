@@ -237,7 +237,7 @@ def winding_occupancy(mesh: Mesh, grid, cast, axis: int, jobs: int = 1):
         return np.zeros(grid.shape, dtype=bool, order="F"), hits, columns
     closed, cap_tris, _ = capped(tmesh)
     nf = len(tmesh.faces)
-    from .pipeline import check_memory
+    from .memory import check_memory
 
     check_memory(grid, 1.0 + working_bytes(mesh, "winding"))
     hits, columns = cast(closed, axis)

@@ -1,44 +1,26 @@
-"""The pipeline: load -> grid -> rays -> parity fill, and the Volume it makes."""
+"""The pipeline: load -> grid -> rays -> parity fill, and the Volume it makes.
+
+:func:`voxelize_block` runs the stages on one block of a grid (the whole grid,
+or a slab of it along z) with every option; :func:`voxelize` is load + grid +
+one block, and the slab streamer (:mod:`geovox.stream`) runs one block per
+slab. Rays always start outside the whole mesh, never at the block's edge, so
+a block's voxels are classified exactly as the full grid's would be.
+"""
 
 from __future__ import annotations
 
 import time
+import warnings
+
 import numpy as np
 
 from . import parity
 from .backends import get_backend
-from .errors import GridTooLargeError, ParameterError
+from .errors import GeovoxWarning, ParameterError
 from .grid import Grid, make_grid
+from .memory import bytes_per_voxel, check_memory
 from .mesh import load_mesh
 from .volume import Volume
-
-#: Refuse grids whose occupancy array alone would exceed this fraction of RAM.
-MEMORY_FRACTION = 0.8
-
-
-def _available_memory() -> int | None:
-    try:
-        with open("/proc/meminfo") as f:
-            for line in f:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except OSError:
-        pass
-    return None
-
-
-def check_memory(grid: Grid, bytes_per_voxel: float = 1.0) -> None:
-    """Refuse, before allocating, a grid that cannot fit in memory."""
-    need = grid.size * bytes_per_voxel
-    avail = _available_memory()
-    if avail is not None and need > MEMORY_FRACTION * avail:
-        nx, ny, nz = grid.shape
-        raise GridTooLargeError(
-            f"a {nx} x {ny} x {nz} grid needs {need / 2**30:.1f} GiB but only "
-            f"{avail / 2**30:.1f} GiB of memory is available; use a smaller resolution, or "
-            f"write it slab by slab to .h5 or .raw (geovox convert does; in Python, "
-            f"geovox.convert_to)"
-        )
 
 
 def voxelize(
@@ -61,7 +43,6 @@ def voxelize(
     sdf=False,
     band=3.0,
     progress=None,
-    _reuse=None,
 ) -> Volume:
     """Turn a closed triangle mesh into a solid voxel volume.
 
@@ -120,10 +101,6 @@ def voxelize(
     progress : callable, optional
         Called with the name of each stage as it starts ("load", "rays",
         "colour", "density", "sdf").
-    _reuse : dict, optional
-        Internal (slab streaming): ``axis -> f(grid)`` giving the colour
-        step's crossings along that axis, ``(Hits, Columns)``, cast once for
-        the whole grid instead of again for every slab.
 
     Returns
     -------
@@ -135,13 +112,65 @@ def voxelize(
     from .parallel import resolve_jobs
 
     jobs = resolve_jobs(jobs)
-    step = progress or (lambda stage: None)
-    step("load")
+    (progress or (lambda stage: None))("load")
     engine = get_backend(backend)
     m = load_mesh(mesh)
     t_load = time.perf_counter()
     grid = make_grid(m.bounds, bounds=bounds, resolution=resolution, shape=shape,
                      voxel_size=voxel_size)
+    vol = voxelize_block(m, grid, engine=engine, inside=inside, axis=axis, jobs=jobs, color=color,
+                         diffuse=diffuse, ambient=ambient, density=density,
+                         supersample=supersample, density_dtype=density_dtype, sdf=sdf,
+                         band=band, progress=progress, _stacklevel=3)
+    vol.timings = {"load": t_load - t0, **vol.timings, "total": time.perf_counter() - t0}
+    return vol
+
+
+def block_grid(grid: Grid, block=None) -> Grid:
+    """The sub-grid of ``grid`` that a block covers.
+
+    Parameters
+    ----------
+    grid : Grid
+        The whole grid.
+    block : (z0, z1) int, optional
+        Voxel layers ``z0 <= k < z1`` along z; None for the whole grid.
+
+    Returns
+    -------
+    Grid
+        ``(nx, ny, z1 - z0)`` voxels with the whole grid's spacing, its last
+        block ending exactly at ``grid.hi``.
+    """
+    if block is None:
+        return grid
+    z0, z1 = (int(z) for z in block)
+    nx, ny, nz = grid.shape
+    if not 0 <= z0 < z1 <= nz:
+        raise ParameterError(f"a block must be layers z0..z1 with 0 <= z0 < z1 <= {nz}, "
+                             f"got {block!r}")
+    if (z0, z1) == (0, nz):
+        return grid
+    h = grid.spacing
+    lo = grid.lo.copy()
+    lo[2] = grid.lo[2] + z0 * h[2]
+    hi = grid.hi.copy()
+    hi[2] = grid.lo[2] + z1 * h[2] if z1 < nz else grid.hi[2]
+    return Grid(lo=lo, hi=hi, shape=(nx, ny, z1 - z0))
+
+
+def ray_start(mesh, grid: Grid, axis: int) -> float:
+    """Where the column rays along ``axis`` start: outside the whole mesh and the grid.
+
+    A block's rays start where the whole grid's would (not at the block's
+    low face), so every crossing below the block is counted and the block's
+    parity is the full grid's.
+    """
+    return min(float(mesh.bounds[0, axis]), float(grid.lo[axis])) - 1e-3 * mesh.scale
+
+
+def _check_options(density, density_dtype, supersample, sdf, band):
+    """Validated ``(supersample, band)``; ParameterError for a bad option."""
     if density not in (None, "coverage"):
         raise ParameterError(f"`density` must be None or 'coverage', got {density!r}")
     if density_dtype not in ("uint8", "float32"):
@@ -157,11 +186,85 @@ def voxelize(
             raise ParameterError(f"`band` must be a positive number of voxels, got {band!r}") from None
         if not band > 0:
             raise ParameterError(f"`band` must be a positive number of voxels, got {band!r}")
-    # Occupancy is 1 byte a voxel; colour adds 4 for RGBA and about 16 of
-    # working arrays while nearest crossings are found; density and distance
-    # 4 each plus a float32 working copy.
-    from .stream import bytes_per_voxel
+    return supersample, band
 
+
+def voxelize_block(
+    mesh,
+    grid: Grid,
+    block=None,
+    *,
+    engine="auto",
+    inside="auto",
+    axis=2,
+    jobs=1,
+    color=False,
+    diffuse=True,
+    ambient=False,
+    density=None,
+    supersample=4,
+    density_dtype="uint8",
+    sdf=False,
+    band=3.0,
+    progress=None,
+    shared_crossings=None,
+    _stacklevel=2,
+) -> Volume:
+    """Voxelise one block of a grid -- the whole grid or a slab along z -- with every option.
+
+    The one place the stages (rays, fill, colour, density, distance) are
+    run: :func:`voxelize` calls it once for the whole grid, and slab-by-slab
+    conversions once per slab. A block is classified exactly as the whole
+    grid would be: its rays start outside the whole mesh (see
+    :func:`ray_start`).
+
+    Parameters
+    ----------
+    mesh : geovox.mesh.Mesh
+        The loaded model (anything :func:`geovox.mesh.load_mesh` reads is
+        loaded first, once per call).
+    grid : Grid
+        The whole grid.
+    block : (z0, z1) int, optional
+        Voxel layers ``z0 <= k < z1`` to make (see :func:`block_grid`);
+        default the whole grid.
+    engine : str or geovox.backends.Backend
+        Ray-casting backend, or its name.
+    inside : {"auto", "parity", "vote", "winding"}
+        Inside test, resolved by :func:`geovox.inside.choose` (a resolved
+        name is kept as it is).
+    axis, jobs, color, diffuse, ambient, density, supersample, density_dtype, sdf, band, progress
+        As for :func:`voxelize` (``jobs`` already resolved: an int >= 1;
+        ``progress`` is not told "load").
+    shared_crossings : dict, optional
+        ``axis -> f(block_grid) -> (Hits, Columns)``: the colour step's
+        crossings along that axis, cast once for the whole grid by the
+        caller instead of again for every block.
+
+    Returns
+    -------
+    Volume
+        Over the block's sub-grid: ``occupancy`` (nx, ny, nz_block) bool,
+        Fortran order, and ``colors`` / ``density`` / ``sdf`` as asked for.
+        ``timings`` holds "rays", "fill", then "colour",
+        "density", "sdf" as run (seconds); no "total".
+
+    Raises
+    ------
+    ParameterError
+        A bad option or block.
+    GridTooLargeError
+        The block's arrays would not fit in the available memory.
+    """
+    t0 = time.perf_counter()
+    if axis not in (0, 1, 2):
+        raise ParameterError(f"`axis` must be 0, 1 or 2, got {axis!r}")
+    if isinstance(engine, str):
+        engine = get_backend(engine)
+    m = load_mesh(mesh)
+    step = progress or (lambda stage: None)
+    grid = block_grid(grid, block)
+    supersample, band = _check_options(density, density_dtype, supersample, sdf, band)
     check_memory(grid, bytes_per_voxel(color, density, sdf))
 
     from . import inside as inside_tests
@@ -169,9 +272,7 @@ def voxelize(
     method = inside_tests.choose(m, inside)
 
     def cast_mesh(mesh, ax):
-        # Rays start outside the whole mesh, not at the region's edge.
-        start = min(float(mesh.bounds[0, ax]), float(grid.lo[ax])) - 1e-3 * mesh.scale
-        columns = grid.columns(ax, start=start)
+        columns = grid.columns(ax, start=ray_start(mesh, grid, ax))
         return engine.cast(mesh, columns, jobs=jobs), columns
 
     def cast(ax):
@@ -198,19 +299,16 @@ def voxelize(
         crossings[axis] = (hits, columns)
         t_rays = time.perf_counter()
     t_fill = time.perf_counter()
-    timings = {"load": t_load - t0, "rays": t_rays - t_load, "fill": t_fill - t_rays}
+    # The checks and the inside test's choice count with the rays.
+    timings = {"rays": t_rays - t0, "fill": t_fill - t_rays}
     if not occ.any():
-        import warnings
-
-        from .errors import GeovoxWarning
-
-        warnings.warn(empty_reason(m, grid, method), GeovoxWarning, stacklevel=2)
+        warnings.warn(empty_reason(m, grid, method), GeovoxWarning, stacklevel=_stacklevel)
     colors = None
     if color:
         from .colour import colour_volume
 
         step("colour")
-        for a, crossings_of in (_reuse or {}).items():
+        for a, crossings_of in (shared_crossings or {}).items():
             if a not in crossings:
                 crossings[a] = crossings_of(grid)
         others = [a for a in range(3) if a not in crossings]
@@ -235,8 +333,7 @@ def voxelize(
         target = m
         if method == "winding":
             target = inside_tests.capped(inside_tests.target(m)[0])[0]
-        start = min(float(target.bounds[0, axis]), float(grid.lo[axis])) - 1e-3 * target.scale
-        sub = sub_columns(grid.columns(axis, start=start), supersample)
+        sub = sub_columns(grid.columns(axis, start=ray_start(target, grid, axis)), supersample)
         frac = coverage(engine.cast(target, sub, jobs=jobs), sub, grid, supersample, jobs)
         if density_dtype == "uint8":
             dens = np.asfortranarray(np.rint(frac * np.float32(255.0)).astype(np.uint8))
@@ -251,7 +348,6 @@ def voxelize(
         t = time.perf_counter()
         dist = signed_distance(m, grid, occ, band=band, jobs=jobs)
         timings["sdf"] = time.perf_counter() - t
-    timings["total"] = time.perf_counter() - t0
     return Volume(
         occupancy=occ,
         grid=grid,

@@ -1,7 +1,8 @@
 """Big grids in bounded memory: convert slab by slab, streaming into the file.
 
 The grid is cut into slabs along z (64 voxels thick, or a multiple, to match
-the 64³ HDF5 chunks), each slab is voxelised as a sub-grid of its own -- the
+the 64³ HDF5 chunks), each slab is voxelised as a block of the grid
+(:func:`geovox.pipeline.voxelize_block`, as the in-memory path is) -- the
 rays still start outside the whole mesh, so a slab is classified exactly as
 the full grid would be -- and written into its place in the output before
 the next one is made. Peak memory is one slab's arrays, whatever the grid.
@@ -21,17 +22,14 @@ import numpy as np
 
 from .errors import GeovoxWarning, ParameterError
 from .grid import Grid, make_grid
+from .memory import bytes_per_voxel  # noqa: F401 (re-exported: the CLI and batch use it)
 from .mesh import load_mesh
+from .pipeline import empty_reason, ray_start, voxelize_block
 
 #: Memory a slab's arrays may take, by default: 2048³ occupancy goes in
 #: 256-voxel slabs and stays under 3 GiB; occupancy up to 1024³ is one slab.
 SLAB_BUDGET = 1 << 30
 STREAMABLE = ("hdf5", "raw", "vtkhdf")
-
-
-def bytes_per_voxel(color=False, density=None, sdf=False) -> float:
-    """Working memory per voxel of one conversion (occupancy and what is asked for)."""
-    return 1.0 + (20.0 if color else 0.0) + (8.0 if density else 0.0) + (8.0 if sdf else 0.0)
 
 
 def slab_plan(grid: Grid, per_voxel: float, budget: float = SLAB_BUDGET) -> list:
@@ -59,8 +57,7 @@ def _stream_occupancy(m, grid, engine, writer, jobs, timings, progress) -> int:
     from .volume import Volume
 
     t = time.perf_counter()
-    start = min(float(m.bounds[0, 2]), float(grid.lo[2])) - 1e-3 * m.scale
-    columns = grid.columns(2, start=start)
+    columns = grid.columns(2, start=ray_start(m, grid, 2))
     hits = engine.cast(m, columns, jobs=jobs)
     timings["rays"] += time.perf_counter() - t
     inside = 0
@@ -135,7 +132,6 @@ def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, *
     from . import inside as inside_tests
     from .backends import get_backend
     from .parallel import resolve_jobs
-    from .pipeline import voxelize
     from .volume import Volume
 
     t0 = time.perf_counter()
@@ -159,15 +155,15 @@ def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, *
         warnings.warn("the region misses the mesh; the volume is empty", GeovoxWarning, stacklevel=2)
     per = bytes_per_voxel(options.get("color"), options.get("density"), options.get("sdf"))
     per += inside_tests.working_bytes(m, method)
-    from .pipeline import _available_memory, check_memory
+    from . import memory
 
     if budget is None:
-        avail = _available_memory()
+        avail = memory._available_memory()
         budget = SLAB_BUDGET if avail is None else min(SLAB_BUDGET, 0.5 * avail)
     plan = slab_plan(grid, per, budget)
     try:
         z0, z1 = plan[0]
-        check_memory(Grid(grid.lo, grid.hi, (grid.shape[0], grid.shape[1], z1 - z0)), per)
+        memory.check_memory(Grid(grid.lo, grid.hi, (grid.shape[0], grid.shape[1], z1 - z0)), per)
     except MemoryError:
         nx, ny, nz = grid.shape
         from .errors import GridTooLargeError
@@ -191,7 +187,6 @@ def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, *
     writer = {"hdf5": HDF5Writer, "raw": RawWriter, "vtkhdf": VTKHDFWriter}[f.name](path, meta, jobs)
     inside = 0
     timings = {"load": 0.0, "rays": 0.0, "fill": 0.0, "write": 0.0}
-    nx, ny, _ = grid.shape
     h = grid.spacing
     reuse = None
     try:
@@ -201,7 +196,7 @@ def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, *
             # and each slab takes them with depths measured from its own
             # low face (the slab's rays along x and y are its own).
             tz = time.perf_counter()
-            z_start = min(float(m.bounds[0, 2]), float(grid.lo[2])) - 1e-3 * m.scale
+            z_start = ray_start(m, grid, 2)
             # Sorted once here, so each slab only picks its part.
             z_hits = engine.cast(m, grid.columns(2, start=z_start), jobs=jobs).sorted()
             timings["colour"] = time.perf_counter() - tz
@@ -228,18 +223,14 @@ def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, *
         else:
             plan_left, streamed = plan, False
         for n, (z0, z1) in enumerate(plan_left):
-            lo = grid.lo.copy()
-            lo[2] = grid.lo[2] + z0 * h[2]
-            hi = grid.hi.copy()
-            hi[2] = grid.lo[2] + z1 * h[2] if z1 < grid.shape[2] else grid.hi[2]
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", GeovoxWarning)  # said once, above
                 # Several slabs: rays along y, so a slab's columns are its own
                 # (x, z) pairs and no ray is cast twice. One piece: voxelize's
                 # default axis, so the file equals the in-memory volume.
-                vol = voxelize(m, shape=(nx, ny, z1 - z0), bounds=np.r_[lo, hi], backend=engine.name,
-                               inside=method, jobs=jobs, axis=1 if len(plan) > 1 else 2,
-                               _reuse=reuse, **options)
+                vol = voxelize_block(m, grid, (z0, z1), engine=engine, inside=method, jobs=jobs,
+                                     axis=1 if len(plan) > 1 else 2, shared_crossings=reuse,
+                                     **options)
             tb = time.perf_counter()
             writer.write(z0, vol)
             for key, value in vol.timings.items():
@@ -252,8 +243,6 @@ def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, *
                 progress(n + 1, len(plan))
         files = writer.close()
         if inside == 0 and np.all(m.bounds[0] <= grid.hi) and np.all(m.bounds[1] >= grid.lo):
-            from .pipeline import empty_reason
-
             warnings.warn(empty_reason(m, grid, method), GeovoxWarning, stacklevel=2)
     except BaseException:
         writer.abort()

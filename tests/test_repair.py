@@ -203,12 +203,12 @@ def test_colour_follows_a_repaired_copy(backend):
 
 
 def test_winding_that_cannot_fit_says_so_before_allocating(monkeypatch):
-    from geovox import pipeline
+    from geovox import memory
 
     mesh = open_boxes(3)
     grid_voxels = 40 ** 3
     # Enough for the occupancy grid, not for the winding number's working arrays.
-    monkeypatch.setattr(pipeline, "_available_memory", lambda: int(grid_voxels * 4))  # 16 needed
+    monkeypatch.setattr(memory, "_available_memory", lambda: int(grid_voxels * 4))  # 16 needed
     with pytest.warns(GeovoxWarning), pytest.raises(GridTooLargeError, match="needs"):
         geovox.voxelize(mesh, resolution=40, inside="auto")
 

@@ -62,9 +62,9 @@ def test_cli_streams_big_grids(tmp_path, capsys, monkeypatch):
 
 
 def test_failed_stream_leaves_nothing(tmp_path, monkeypatch):
-    import geovox.pipeline as pipeline
+    import geovox.stream as stream
 
-    real = pipeline.voxelize
+    real = stream.voxelize_block
     calls = {"n": 0}
 
     def fail_on_second_slab(*a, **k):
@@ -73,7 +73,7 @@ def test_failed_stream_leaves_nothing(tmp_path, monkeypatch):
             raise KeyboardInterrupt
         return real(*a, **k)
 
-    monkeypatch.setattr(pipeline, "voxelize", fail_on_second_slab)
+    monkeypatch.setattr(stream, "voxelize_block", fail_on_second_slab)
     for ext in (".h5", ".raw"):
         calls["n"] = 0
         with pytest.raises(KeyboardInterrupt):

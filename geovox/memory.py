@@ -1,0 +1,56 @@
+"""Memory budgeting: what a conversion needs, what the machine has, and refusing early.
+
+Its own module so that the pipeline, the slab streamer, the inside tests and
+the command line share one rule without importing each other.
+"""
+
+from __future__ import annotations
+
+from .errors import GridTooLargeError
+from .grid import Grid
+
+#: Refuse grids whose occupancy array alone would exceed this fraction of RAM.
+MEMORY_FRACTION = 0.8
+
+
+def _available_memory() -> int | None:
+    """Bytes of memory available now (``MemAvailable``), or None where unknown."""
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return None
+
+
+def bytes_per_voxel(color=False, density=None, sdf=False) -> float:
+    """Working memory per voxel of one conversion (occupancy and what is asked for).
+
+    Occupancy is 1 byte a voxel; colour adds 4 for RGBA and about 16 of
+    working arrays while nearest crossings are found; density and distance
+    4 each plus a float32 working copy.
+    """
+    return 1.0 + (20.0 if color else 0.0) + (8.0 if density else 0.0) + (8.0 if sdf else 0.0)
+
+
+def check_memory(grid: Grid, bytes_per_voxel: float = 1.0) -> None:
+    """Refuse, before allocating, a grid that cannot fit in memory.
+
+    Raises
+    ------
+    GridTooLargeError
+        ``grid.size * bytes_per_voxel`` exceeds ``MEMORY_FRACTION`` of the
+        available memory.
+    """
+    need = grid.size * bytes_per_voxel
+    avail = _available_memory()
+    if avail is not None and need > MEMORY_FRACTION * avail:
+        nx, ny, nz = grid.shape
+        raise GridTooLargeError(
+            f"a {nx} x {ny} x {nz} grid needs {need / 2**30:.1f} GiB but only "
+            f"{avail / 2**30:.1f} GiB of memory is available; use a smaller resolution, or "
+            f"write it slab by slab to .h5 or .raw (geovox convert does; in Python, "
+            f"geovox.convert_to)"
+        )
