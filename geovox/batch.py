@@ -67,7 +67,7 @@ def _convert_one(task):
     import warnings
 
     from .errors import GeovoxWarning
-    from .stream import SLAB_BUDGET, STREAMABLE, bytes_per_voxel, convert_to, slab_plan
+    from .stream import convert_to, streams
 
     try:
         with warnings.catch_warnings(record=True) as caught:
@@ -82,8 +82,8 @@ def _convert_one(task):
                               time.perf_counter() - t0)
             from .formats import format_for
 
-            per = bytes_per_voxel(options.get("color"), options.get("density"), options.get("sdf"))
-            if format_for(out).name in STREAMABLE and len(slab_plan(grid, per, SLAB_BUDGET)) > 1:
+            if streams(grid, format_for(out).name, options.get("color"), options.get("density"),
+                       options.get("sdf")):
                 opts = {k: v for k, v in options.items() if k not in ("resolution", "shape",
                                                                        "voxel_size", "bounds")}
                 info = convert_to(mesh, out, shape=grid.shape, bounds=np.r_[grid.lo, grid.hi], **opts)

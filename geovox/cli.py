@@ -345,7 +345,7 @@ def _convert(args) -> int:
         formats.check_writable(args.preview)
     from .grid import make_grid
     from .mesh import load_mesh
-    from .stream import SLAB_BUDGET, STREAMABLE, bytes_per_voxel, slab_plan, streams_whole
+    from .stream import streams
 
     mesh = load_mesh(args.input)
     t_read = time.perf_counter() - t0
@@ -356,13 +356,7 @@ def _convert(args) -> int:
     write_options = _write_options(args, fmt)  # a bad combination fails before any work
     if fmt.check is not None:
         fmt.check(grid)  # e.g. binvox needs cubic voxels
-    per = bytes_per_voxel(args.color, args.density, args.sdf)
-    from .memory import _available_memory
-
-    avail = _available_memory()
-    budget = SLAB_BUDGET if avail is None else min(SLAB_BUDGET, 0.5 * avail)
-    if fmt.name in STREAMABLE and (len(slab_plan(grid, per, budget)) > 1
-                                   or streams_whole(grid, args.color, args.density, args.sdf)):
+    if streams(grid, fmt.name, args.color, args.density, args.sdf):
         return _convert_streaming(args, mesh, output, t0, t_read)
     vol = _voxelize(args, mesh)
     t1 = time.perf_counter()

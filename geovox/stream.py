@@ -22,7 +22,8 @@ import numpy as np
 
 from .errors import GeovoxWarning, ParameterError
 from .grid import Grid, make_grid
-from .memory import bytes_per_voxel  # noqa: F401 (re-exported: the CLI and batch use it)
+from . import memory
+from .memory import bytes_per_voxel
 from .mesh import load_mesh
 from .pipeline import empty_reason, ray_start, voxelize_block
 
@@ -38,6 +39,26 @@ def slab_plan(grid: Grid, per_voxel: float, budget: float = SLAB_BUDGET) -> list
     fit = int(budget // max(1.0, nx * ny * per_voxel))
     thick = nz if fit >= nz else max(64, fit // 64 * 64)
     return [(z, min(z + thick, nz)) for z in range(0, nz, thick)]
+
+
+def slab_budget() -> float:
+    """Bytes one slab's arrays may take: ``SLAB_BUDGET``, or half the available memory if less."""
+    avail = memory._available_memory()
+    return SLAB_BUDGET if avail is None else min(SLAB_BUDGET, 0.5 * avail)
+
+
+def streams(grid: Grid, fmt: str, color=False, density=None, sdf=False) -> bool:
+    """Whether a conversion into format ``fmt`` runs slab by slab (:func:`convert_to`).
+
+    The one rule for the command line and batches: a streamable format, and
+    a grid that needs several slabs within :func:`slab_budget`, or whose
+    occupancy is worth streaming in one piece (:func:`streams_whole`).
+    Either way the file is the same as one written from memory.
+    """
+    if fmt not in STREAMABLE:
+        return False
+    plan = slab_plan(grid, bytes_per_voxel(color, density, sdf), slab_budget())
+    return len(plan) > 1 or streams_whole(grid, color, density, sdf)
 
 
 def streams_whole(grid: Grid, color=False, density=None, sdf=False) -> bool:
@@ -155,11 +176,8 @@ def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, *
         warnings.warn("the region misses the mesh; the volume is empty", GeovoxWarning, stacklevel=2)
     per = bytes_per_voxel(options.get("color"), options.get("density"), options.get("sdf"))
     per += inside_tests.working_bytes(m, method)
-    from . import memory
-
     if budget is None:
-        avail = memory._available_memory()
-        budget = SLAB_BUDGET if avail is None else min(SLAB_BUDGET, 0.5 * avail)
+        budget = slab_budget()
     plan = slab_plan(grid, per, budget)
     try:
         z0, z1 = plan[0]
