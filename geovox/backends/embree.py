@@ -225,7 +225,7 @@ def _plane_neighbours(t, unit, length, mesh, plane) -> np.ndarray:
 def _clean_vertices(t, unit, g) -> np.ndarray:
     """(v,) bool: vertices whose incident faces' wedges do not overlap.
 
-    Each vertex's fan is projected along the axis its (area-weighted) normal
+    Each vertex's fan is projected along the axis its mean face normal
     is largest along; each incident face covers a wedge of directions there.
     Two faces that share a vertex and lie in one plane overlap exactly when
     their wedges at that vertex do (the projection maps their common plane
@@ -242,8 +242,8 @@ def _clean_vertices(t, unit, g) -> np.ndarray:
     nv = int(g.max()) + 1 if g.size else 0
     vert = g.reshape(-1)
     face = np.repeat(np.arange(len(g)), 3)
-    area = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
-    normal = np.column_stack([np.bincount(vert, np.repeat(area[:, i], 3), minlength=nv)
+    # Any normal will do to pick the axis: a face steep to it is caught below.
+    normal = np.column_stack([np.bincount(vert, np.repeat(unit[:, i], 3), minlength=nv)
                               for i in range(3)])
     drop = np.argmax(np.abs(normal), axis=1)[vert]  # per incidence
     # Incidence 3 f + c: corner c of face f; its coordinates along the two
