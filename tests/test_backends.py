@@ -312,3 +312,34 @@ def test_backends_agree_on_big_fans():
     assert coplanar_overlaps(mesh).sum() >= 3000
     a, b = _both(mesh, resolution=40, inside="parity")
     np.testing.assert_array_equal(a.occupancy, b.occupancy)
+
+
+def test_clean_vertices_drop_no_overlapping_pair(monkeypatch):
+    # Pairs sharing a vertex whose fan's wedges are apart are skipped; the
+    # flags must be those of the full pairing (no vertex clean), on fans wound
+    # round more than once, folds, duplicated and nearly coplanar faces.
+    from geovox.backends import embree as E
+    from geovox.mesh import Mesh
+
+    rng = np.random.default_rng(5)
+    meshes = []
+    # A flat fan round vertex 0 wound twice: its triangles overlap in pairs
+    # that share only the hub.
+    ring = np.linspace(0, 4 * np.pi, 13)[:-1]
+    v = np.r_[[[0, 0, 0]], np.c_[np.cos(ring), np.sin(ring), np.zeros(12)]]
+    meshes.append(Mesh(v, np.array([[0, i, i % 12 + 1] for i in range(1, 13)])))
+    for k in range(150):
+        nv = int(rng.integers(4, 12))
+        v = np.c_[rng.normal(size=(nv, 2)), rng.normal(size=nv) * (1e-7 if k % 3 == 0 else 0.0)]
+        f = [[0, i, i + 1] for i in range(1, nv - 1)]
+        f += [list(rng.choice(nv, 3, replace=False)) for _ in range(int(rng.integers(0, 4)))]
+        meshes.append(Mesh(v, np.array(f)))
+    got = []
+    for m in meshes:
+        got.append(E.coplanar_overlaps(m))
+        m._cache.pop("coplanar")
+    assert got[0].all()
+    assert sum(g.any() for g in got) > 50
+    monkeypatch.setattr(E, "_clean_vertices", lambda t, unit, g: np.zeros(int(g.max()) + 1, bool))
+    for m, g in zip(meshes, got):
+        np.testing.assert_array_equal(E.coplanar_overlaps(m), g)
