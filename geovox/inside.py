@@ -476,11 +476,19 @@ def _cap_tree(tris):
 
 def _triangle_angles(tris: np.ndarray, points: np.ndarray) -> np.ndarray:
     """Signed solid angle over 4 pi of triangle ``i`` at point ``i`` (both ``(n, 3[, 3])``)."""
-    A, B, C = tris[:, 0] - points, tris[:, 1] - points, tris[:, 2] - points
-    la, lb, lc = (np.sqrt(np.einsum("ij,ij->i", x, x)) for x in (A, B, C))
-    num = np.einsum("ij,ij->i", A, np.cross(B, C))
-    den = (la * lb * lc + np.einsum("ij,ij->i", A, B) * lc
-           + np.einsum("ij,ij->i", A, C) * lb + np.einsum("ij,ij->i", B, C) * la)
+    # Component by component: about 2.5 times faster than einsum and
+    # np.cross on (n, 3) rows, which copy and stride; the same formula.
+    t = tris.reshape(len(tris), 9)
+    px, py, pz = points[:, 0], points[:, 1], points[:, 2]
+    ax, ay, az = t[:, 0] - px, t[:, 1] - py, t[:, 2] - pz
+    bx, by, bz = t[:, 3] - px, t[:, 4] - py, t[:, 5] - pz
+    cx, cy, cz = t[:, 6] - px, t[:, 7] - py, t[:, 8] - pz
+    la = np.sqrt(ax * ax + ay * ay + az * az)
+    lb = np.sqrt(bx * bx + by * by + bz * bz)
+    lc = np.sqrt(cx * cx + cy * cy + cz * cz)
+    num = ax * (by * cz - bz * cy) + ay * (bz * cx - bx * cz) + az * (bx * cy - by * cx)
+    den = (la * lb * lc + (ax * bx + ay * by + az * bz) * lc
+           + (ax * cx + ay * cy + az * cz) * lb + (bx * cx + by * cy + bz * cz) * la)
     return np.arctan2(num, den) / (2.0 * np.pi)
 
 
@@ -590,7 +598,10 @@ def cap_winding(grid, tris, active, theta=THETA, eps=EPS, budget=None):
             c_nj = (2 * nj[s])[:, None] + np.arange(2)
             c_nj = c_nj.reshape(-1)
             ok = c_nj < size[c_ln]
-            stack.append((np.repeat(kb[s], 2)[ok], np.repeat(b[s], 2, axis=0)[ok], c_ln[ok], c_nj[ok]))
+            c_kb, c_b, c_ln, c_nj = np.repeat(kb[s], 2)[ok], np.repeat(b[s], 2, axis=0)[ok], c_ln[ok], c_nj[ok]
+            handled += _exact_leaves(est, err, touched, tris, grid, c_kb, c_b, c_ln, c_nj)
+            keep = (c_kb > 0) | (c_ln > 0)
+            stack.append((c_kb[keep], c_b[keep], c_ln[keep], c_nj[keep]))
         if brick.any():  # eight sub-bricks (those inside the grid)
             s = np.flatnonzero(brick)
             child = (2 * b[s])[:, None, :] + _OCTANTS[None]
@@ -598,8 +609,27 @@ def cap_winding(grid, tris, active, theta=THETA, eps=EPS, budget=None):
             child = child.reshape(-1, 3)
             ok = np.all(child * (1 << c_kb)[:, None] < shape, axis=1)
             ok[ok] = _lookup(active, c_kb[ok], child[ok])
-            stack.append((c_kb[ok], child[ok], np.repeat(ln[s], 8)[ok], np.repeat(nj[s], 8)[ok]))
+            c_kb, child, c_ln, c_nj = c_kb[ok], child[ok], np.repeat(ln[s], 8)[ok], np.repeat(nj[s], 8)[ok]
+            handled += _exact_leaves(est, err, touched, tris, grid, c_kb, child, c_ln, c_nj)
+            keep = (c_kb > 0) | (c_ln > 0)
+            stack.append((c_kb[keep], child[keep], c_ln[keep], c_nj[keep]))
     return est, err, np.concatenate(touched) if touched else np.zeros((0, 3), np.int64)
+
+
+def _exact_leaves(est, err, touched, tris, grid, kb, b, ln, nj) -> int:
+    """Sum the pairs of one voxel and one triangle exactly, at once; return how many.
+
+    Such a pair is always a leaf of :func:`cap_winding` (exact, no error), so
+    it skips the traversal's tests: most pairs are of this kind where large
+    cap triangles pass near many voxels.
+    """
+    sel = np.flatnonzero((kb == 0) & (ln == 0))
+    for s in range(0, len(sel), PAIR_CHUNK):
+        f = sel[s:s + PAIR_CHUNK]
+        p = grid.lo + (b[f] + 0.5) * grid.spacing
+        _scatter(est, err, kb[f], b[f], _triangle_angles(tris[nj[f]], p), np.zeros(len(f)))
+        touched.append(b[f])
+    return len(sel)
 
 
 _OCTANTS = np.array([[i, j, k] for k in (0, 1) for j in (0, 1) for i in (0, 1)], dtype=np.int64)
