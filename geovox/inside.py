@@ -533,6 +533,8 @@ def cap_winding(grid, tris, active, theta=THETA, eps=EPS, budget=None):
     shape = np.asarray(grid.shape, dtype=np.int64)
     level0 = len(active) - 1
     start = np.argwhere(active[level0])
+    # Levels where every brick is active need no look-up (the whole first pass).
+    full = [bool(a.all()) for a in active]
     d = grid.spacing
     lo = grid.lo
     est = [np.zeros(tuple(-(-shape // (1 << k))), dtype=np.float32 if k == 0 else np.float64)
@@ -563,13 +565,14 @@ def cap_winding(grid, tris, active, theta=THETA, eps=EPS, budget=None):
         reach = R[node] + rb
         single = ln == 0
         with np.errstate(divide="ignore", invalid="ignore"):
+            g3 = 2 * np.pi * gap * gap * gap
             # A group's dipole at the brick's centre, or one triangle's exact
             # value there: the first errs by moving both ends (r + rb), the
             # second by moving the brick's end only (rb; and the kernel's
             # integral over a triangle at least g away is at most 2 pi / g).
             bound = np.where(single,
-                             np.minimum(A[node] * rb / (2 * np.pi * gap ** 3), rb / gap),
-                             A[node] * reach / (2 * np.pi * gap ** 3))
+                             np.minimum(A[node] * rb / g3, rb / gap),
+                             A[node] * reach / g3)
         # A single triangle's bound at a brick (up to rb / g) shrinks only
         # linearly with the brick: it must also be small in absolute terms,
         # or large triangles next to many voxels leave them all undecided.
@@ -608,7 +611,7 @@ def cap_winding(grid, tris, active, theta=THETA, eps=EPS, budget=None):
             c_kb = np.repeat(kb[s] - 1, 8)
             child = child.reshape(-1, 3)
             ok = np.all(child * (1 << c_kb)[:, None] < shape, axis=1)
-            ok[ok] = _lookup(active, c_kb[ok], child[ok])
+            ok[ok] = _lookup(active, full, c_kb[ok], child[ok])
             c_kb, child, c_ln, c_nj = c_kb[ok], child[ok], np.repeat(ln[s], 8)[ok], np.repeat(nj[s], 8)[ok]
             handled += _exact_leaves(est, err, touched, tris, grid, c_kb, child, c_ln, c_nj)
             keep = (c_kb > 0) | (c_ln > 0)
@@ -635,11 +638,17 @@ def _exact_leaves(est, err, touched, tris, grid, kb, b, ln, nj) -> int:
 _OCTANTS = np.array([[i, j, k] for k in (0, 1) for j in (0, 1) for i in (0, 1)], dtype=np.int64)
 
 
-def _lookup(active, kb, b):
-    out = np.zeros(len(kb), dtype=bool)
+def _lookup(active, full, kb, b):
+    """Whether brick ``b[i]`` of level ``kb[i]`` is active; ``full[k]``: all of level ``k`` are."""
+    out = np.ones(len(kb), dtype=bool)
     for k in np.flatnonzero(np.bincount(kb)):
+        if full[k]:
+            continue
         sel = kb == k
-        out[sel] = active[k][tuple(b[sel].T)]
+        a = active[k]
+        bs = b[sel]
+        # One flat index, not three index arrays: fancy indexing by a tuple is slower.
+        out[sel] = a.reshape(-1)[(bs[:, 0] * a.shape[1] + bs[:, 1]) * a.shape[2] + bs[:, 2]]
     return out
 
 
