@@ -532,7 +532,7 @@ def cap_winding(grid, tris, active, theta=THETA, eps=EPS, budget=None):
     top = len(size) - 1
     shape = np.asarray(grid.shape, dtype=np.int64)
     level0 = len(active) - 1
-    start = np.argwhere(active[level0])
+    start = _argwhere(active[level0])
     # Levels where every brick is active need no look-up (the whole first pass).
     full = [bool(a.all()) for a in active]
     d = grid.spacing
@@ -635,6 +635,15 @@ def _exact_leaves(est, err, touched, tris, grid, kb, b, ln, nj) -> int:
     return len(sel)
 
 
+def _argwhere(mask: np.ndarray) -> np.ndarray:
+    """``np.argwhere(mask)`` (same rows, same order) for a 3-D bool array, faster.
+
+    np.argwhere of a large, sparse 3-D array costs about 25 times as much as
+    a flat search and an unravel (0.28 s against 0.011 s at 256³).
+    """
+    return np.stack(np.unravel_index(np.flatnonzero(mask), mask.shape), axis=1).astype(np.int64)
+
+
 _OCTANTS = np.array([[i, j, k] for k in (0, 1) for j in (0, 1) for i in (0, 1)], dtype=np.int64)
 
 
@@ -662,7 +671,7 @@ def _pyramid(mask, levels):
         shape = np.asarray(mask)
         return [np.ones(tuple(-(-shape // (1 << k))), dtype=bool) for k in range(levels + 1)]
     shape = np.asarray(mask.shape)
-    idx = np.argwhere(mask)
+    idx = _argwhere(mask)
     out = [mask]
     for k in range(1, levels + 1):
         m = np.zeros(tuple(-(-shape // (1 << k))), dtype=bool)
@@ -720,11 +729,11 @@ def _correct_caps(occ, w, grid, cap_tris) -> None:
             loose[tuple((touched >> 1).T)] = True
             if not first:
                 loose &= active[1]
-            bricks = np.argwhere(loose)
+            bricks = _argwhere(loose)
             vox = ((2 * bricks)[:, None, :] + _OCTANTS[None]).reshape(-1, 3)
             vox = vox[np.all(vox < shape, axis=1)]
         else:
-            vox = np.argwhere(active[0])
+            vox = _argwhere(active[0])
         if not first:
             vox = vox[active[0][tuple(vox.T)]]
         ii = tuple(vox.T)
@@ -754,7 +763,7 @@ def _correct_caps(occ, w, grid, cap_tris) -> None:
             return
         active = _pyramid(unsure, top)
     # The last few: the exact sum over every cap triangle.
-    idx = np.argwhere(active[0])
+    idx = _argwhere(active[0])
     if len(idx) * len(cap_tris) > 4 * PAIR_BUDGET:
         _estimated(active[0], grid)
         return

@@ -173,3 +173,13 @@ def test_winding_of_a_triangle_soup_matches_brute_force():
         vol = geovox.voxelize(mesh, resolution=14, inside="winding")
         ref = brute_winding(geovox.inside.target(mesh)[0], vol.grid)
     np.testing.assert_array_equal(vol.occupancy, ref)
+
+
+def test_argwhere_helper_matches_numpy():
+    from geovox.inside import _argwhere
+
+    rng = np.random.default_rng(2)
+    for shape in [(1, 1, 1), (5, 7, 3), (16, 9, 33)]:
+        for m in (rng.random(shape) < 0.1, np.zeros(shape, bool), np.ones(shape, bool)):
+            for a in (m, np.asfortranarray(m)):
+                np.testing.assert_array_equal(_argwhere(a), np.argwhere(a))
