@@ -616,6 +616,10 @@ def cap_winding(grid, tris, active, theta=THETA, eps=EPS, budget=None):
             handled += _exact_leaves(est, err, touched, tris, grid, c_kb, child, c_ln, c_nj)
             keep = (c_kb > 0) | (c_ln > 0)
             stack.append((c_kb[keep], child[keep], c_ln[keep], c_nj[keep]))
+    # Pairs summed straight away (_exact_leaves) after the last check count too:
+    # a pass gives up exactly when it handles more than the budget.
+    if budget is not None and handled > budget:
+        return None
     return est, err, np.concatenate(touched) if touched else np.zeros((0, 3), np.int64)
 
 
