@@ -476,11 +476,19 @@ def _cap_tree(tris):
 
 def _triangle_angles(tris: np.ndarray, points: np.ndarray) -> np.ndarray:
     """Signed solid angle over 4 pi of triangle ``i`` at point ``i`` (both ``(n, 3[, 3])``)."""
-    A, B, C = tris[:, 0] - points, tris[:, 1] - points, tris[:, 2] - points
-    la, lb, lc = (np.sqrt(np.einsum("ij,ij->i", x, x)) for x in (A, B, C))
-    num = np.einsum("ij,ij->i", A, np.cross(B, C))
-    den = (la * lb * lc + np.einsum("ij,ij->i", A, B) * lc
-           + np.einsum("ij,ij->i", A, C) * lb + np.einsum("ij,ij->i", B, C) * la)
+    # Component by component: about 2.5 times faster than einsum and
+    # np.cross on (n, 3) rows, which copy and stride; the same formula.
+    t = tris.reshape(len(tris), 9)
+    px, py, pz = points[:, 0], points[:, 1], points[:, 2]
+    ax, ay, az = t[:, 0] - px, t[:, 1] - py, t[:, 2] - pz
+    bx, by, bz = t[:, 3] - px, t[:, 4] - py, t[:, 5] - pz
+    cx, cy, cz = t[:, 6] - px, t[:, 7] - py, t[:, 8] - pz
+    la = np.sqrt(ax * ax + ay * ay + az * az)
+    lb = np.sqrt(bx * bx + by * by + bz * bz)
+    lc = np.sqrt(cx * cx + cy * cy + cz * cz)
+    num = ax * (by * cz - bz * cy) + ay * (bz * cx - bx * cz) + az * (bx * cy - by * cx)
+    den = (la * lb * lc + (ax * bx + ay * by + az * bz) * lc
+           + (ax * cx + ay * cy + az * cz) * lb + (bx * cx + by * cy + bz * cz) * la)
     return np.arctan2(num, den) / (2.0 * np.pi)
 
 
@@ -524,7 +532,9 @@ def cap_winding(grid, tris, active, theta=THETA, eps=EPS, budget=None):
     top = len(size) - 1
     shape = np.asarray(grid.shape, dtype=np.int64)
     level0 = len(active) - 1
-    start = np.argwhere(active[level0])
+    start = _argwhere(active[level0])
+    # Levels where every brick is active need no look-up (the whole first pass).
+    full = [bool(a.all()) for a in active]
     d = grid.spacing
     lo = grid.lo
     est = [np.zeros(tuple(-(-shape // (1 << k))), dtype=np.float32 if k == 0 else np.float64)
@@ -555,13 +565,14 @@ def cap_winding(grid, tris, active, theta=THETA, eps=EPS, budget=None):
         reach = R[node] + rb
         single = ln == 0
         with np.errstate(divide="ignore", invalid="ignore"):
+            g3 = 2 * np.pi * gap * gap * gap
             # A group's dipole at the brick's centre, or one triangle's exact
             # value there: the first errs by moving both ends (r + rb), the
             # second by moving the brick's end only (rb; and the kernel's
             # integral over a triangle at least g away is at most 2 pi / g).
             bound = np.where(single,
-                             np.minimum(A[node] * rb / (2 * np.pi * gap ** 3), rb / gap),
-                             A[node] * reach / (2 * np.pi * gap ** 3))
+                             np.minimum(A[node] * rb / g3, rb / gap),
+                             A[node] * reach / g3)
         # A single triangle's bound at a brick (up to rb / g) shrinks only
         # linearly with the brick: it must also be small in absolute terms,
         # or large triangles next to many voxels leave them all undecided.
@@ -590,26 +601,67 @@ def cap_winding(grid, tris, active, theta=THETA, eps=EPS, budget=None):
             c_nj = (2 * nj[s])[:, None] + np.arange(2)
             c_nj = c_nj.reshape(-1)
             ok = c_nj < size[c_ln]
-            stack.append((np.repeat(kb[s], 2)[ok], np.repeat(b[s], 2, axis=0)[ok], c_ln[ok], c_nj[ok]))
+            c_kb, c_b, c_ln, c_nj = np.repeat(kb[s], 2)[ok], np.repeat(b[s], 2, axis=0)[ok], c_ln[ok], c_nj[ok]
+            handled += _exact_leaves(est, err, touched, tris, grid, c_kb, c_b, c_ln, c_nj)
+            keep = (c_kb > 0) | (c_ln > 0)
+            stack.append((c_kb[keep], c_b[keep], c_ln[keep], c_nj[keep]))
         if brick.any():  # eight sub-bricks (those inside the grid)
             s = np.flatnonzero(brick)
             child = (2 * b[s])[:, None, :] + _OCTANTS[None]
             c_kb = np.repeat(kb[s] - 1, 8)
             child = child.reshape(-1, 3)
             ok = np.all(child * (1 << c_kb)[:, None] < shape, axis=1)
-            ok[ok] = _lookup(active, c_kb[ok], child[ok])
-            stack.append((c_kb[ok], child[ok], np.repeat(ln[s], 8)[ok], np.repeat(nj[s], 8)[ok]))
+            ok[ok] = _lookup(active, full, c_kb[ok], child[ok])
+            c_kb, child, c_ln, c_nj = c_kb[ok], child[ok], np.repeat(ln[s], 8)[ok], np.repeat(nj[s], 8)[ok]
+            handled += _exact_leaves(est, err, touched, tris, grid, c_kb, child, c_ln, c_nj)
+            keep = (c_kb > 0) | (c_ln > 0)
+            stack.append((c_kb[keep], child[keep], c_ln[keep], c_nj[keep]))
+    # Pairs summed straight away (_exact_leaves) after the last check count too:
+    # a pass gives up exactly when it handles more than the budget.
+    if budget is not None and handled > budget:
+        return None
     return est, err, np.concatenate(touched) if touched else np.zeros((0, 3), np.int64)
+
+
+def _exact_leaves(est, err, touched, tris, grid, kb, b, ln, nj) -> int:
+    """Sum the pairs of one voxel and one triangle exactly, at once; return how many.
+
+    Such a pair is always a leaf of :func:`cap_winding` (exact, no error), so
+    it skips the traversal's tests: most pairs are of this kind where large
+    cap triangles pass near many voxels.
+    """
+    sel = np.flatnonzero((kb == 0) & (ln == 0))
+    for s in range(0, len(sel), PAIR_CHUNK):
+        f = sel[s:s + PAIR_CHUNK]
+        p = grid.lo + (b[f] + 0.5) * grid.spacing
+        _scatter(est, err, kb[f], b[f], _triangle_angles(tris[nj[f]], p), np.zeros(len(f)))
+        touched.append(b[f])
+    return len(sel)
+
+
+def _argwhere(mask: np.ndarray) -> np.ndarray:
+    """``np.argwhere(mask)`` (same rows, same order) for a 3-D bool array, faster.
+
+    np.argwhere of a large, sparse 3-D array costs about 25 times as much as
+    a flat search and an unravel (0.28 s against 0.011 s at 256³).
+    """
+    return np.stack(np.unravel_index(np.flatnonzero(mask), mask.shape), axis=1).astype(np.int64)
 
 
 _OCTANTS = np.array([[i, j, k] for k in (0, 1) for j in (0, 1) for i in (0, 1)], dtype=np.int64)
 
 
-def _lookup(active, kb, b):
-    out = np.zeros(len(kb), dtype=bool)
+def _lookup(active, full, kb, b):
+    """Whether brick ``b[i]`` of level ``kb[i]`` is active; ``full[k]``: all of level ``k`` are."""
+    out = np.ones(len(kb), dtype=bool)
     for k in np.flatnonzero(np.bincount(kb)):
+        if full[k]:
+            continue
         sel = kb == k
-        out[sel] = active[k][tuple(b[sel].T)]
+        a = active[k]
+        bs = b[sel]
+        # One flat index, not three index arrays: fancy indexing by a tuple is slower.
+        out[sel] = a.reshape(-1)[(bs[:, 0] * a.shape[1] + bs[:, 1]) * a.shape[2] + bs[:, 2]]
     return out
 
 
@@ -623,7 +675,7 @@ def _pyramid(mask, levels):
         shape = np.asarray(mask)
         return [np.ones(tuple(-(-shape // (1 << k))), dtype=bool) for k in range(levels + 1)]
     shape = np.asarray(mask.shape)
-    idx = np.argwhere(mask)
+    idx = _argwhere(mask)
     out = [mask]
     for k in range(1, levels + 1):
         m = np.zeros(tuple(-(-shape // (1 << k))), dtype=bool)
@@ -681,11 +733,11 @@ def _correct_caps(occ, w, grid, cap_tris) -> None:
             loose[tuple((touched >> 1).T)] = True
             if not first:
                 loose &= active[1]
-            bricks = np.argwhere(loose)
+            bricks = _argwhere(loose)
             vox = ((2 * bricks)[:, None, :] + _OCTANTS[None]).reshape(-1, 3)
             vox = vox[np.all(vox < shape, axis=1)]
         else:
-            vox = np.argwhere(active[0])
+            vox = _argwhere(active[0])
         if not first:
             vox = vox[active[0][tuple(vox.T)]]
         ii = tuple(vox.T)
@@ -704,9 +756,18 @@ def _correct_caps(occ, w, grid, cap_tris) -> None:
         first = False
         if not unsure.any():
             return
+        # The next pass, with a tighter opening ratio over the bricks that
+        # hold unsure voxels, reaches every pair this pass ended at in such a
+        # brick (a pair that was split here is split there too), so it
+        # handles at least as many pairs as this pass ended at on unsure
+        # voxels. Past the budget that pass would give up anyway: give up
+        # now, with the same result, without spending the budget first.
+        if len(touched) and np.count_nonzero(unsure[tuple(touched.T)]) > PAIR_BUDGET:
+            _estimated(unsure, grid)
+            return
         active = _pyramid(unsure, top)
     # The last few: the exact sum over every cap triangle.
-    idx = np.argwhere(active[0])
+    idx = _argwhere(active[0])
     if len(idx) * len(cap_tris) > 4 * PAIR_BUDGET:
         _estimated(active[0], grid)
         return

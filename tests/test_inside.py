@@ -144,3 +144,42 @@ def test_info_command(capsys):
     assert main(["info", SPOT]) == 0
     out = capsys.readouterr().out
     assert "closed: yes" in out and "texture found" in out and "duplicate faces: 0" in out
+
+
+def test_triangle_angles_componentwise_match_the_vector_formula():
+    # _triangle_angles is written component by component for speed; it must
+    # give what the einsum/np.cross form of the same formula gives,
+    # including at a triangle's own vertices and in its plane.
+    from geovox.inside import _triangle_angles
+
+    rng = np.random.default_rng(5)
+    tris = rng.normal(size=(300, 3, 3))
+    pts = np.concatenate([rng.normal(size=(297, 3)), tris[:3, 0]])
+    pts[:4] = tris[:4].mean(axis=1)  # centroids: in the plane, on the triangle
+    got = _triangle_angles(tris, pts)
+    ref = np.array([solid_angles(t[None], p[None])[0] for t, p in zip(tris, pts)])
+    np.testing.assert_allclose(got, ref, rtol=0, atol=1e-12)
+
+
+def test_winding_of_a_triangle_soup_matches_brute_force():
+    # Loose, large triangles (each its own piece, three open edges): the caps
+    # pass near most voxels, so most pairs are one voxel and one triangle,
+    # summed by the shortcut past the traversal's tests.
+    rng = np.random.default_rng(11)
+    v = rng.random((24, 3))
+    mesh = geovox.Mesh(v, np.arange(24).reshape(8, 3), source="soup")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", GeovoxWarning)
+        vol = geovox.voxelize(mesh, resolution=14, inside="winding")
+        ref = brute_winding(geovox.inside.target(mesh)[0], vol.grid)
+    np.testing.assert_array_equal(vol.occupancy, ref)
+
+
+def test_argwhere_helper_matches_numpy():
+    from geovox.inside import _argwhere
+
+    rng = np.random.default_rng(2)
+    for shape in [(1, 1, 1), (5, 7, 3), (16, 9, 33)]:
+        for m in (rng.random(shape) < 0.1, np.zeros(shape, bool), np.ones(shape, bool)):
+            for a in (m, np.asfortranarray(m)):
+                np.testing.assert_array_equal(_argwhere(a), np.argwhere(a))

@@ -285,3 +285,17 @@ def test_vertex_connectivity_without_scipy_matches_csgraph(sub):
              f[rng.permutation(len(f))], np.vstack([f, f[:1] + n])]
     for g in cases:
         assert _vertex_connected(g) == one_component(g)
+
+
+def test_a_refining_pass_sure_to_pass_the_budget_is_not_started(monkeypatch):
+    # The pairs the first pass ended at on unsure voxels are a lower bound on
+    # the next pass's work: past the budget, it is skipped (same result).
+    mesh = open_boxes(40)
+    calls = []
+    real = inside.cap_winding
+    monkeypatch.setattr(inside, "cap_winding", lambda *a, **k: calls.append(k) or real(*a, **k))
+    monkeypatch.setattr(inside, "PAIR_BUDGET", 1)
+    with pytest.warns(GeovoxWarning) as record:
+        geovox.voxelize(mesh, resolution=22)
+    assert len(calls) == 1
+    assert any("work budget" in str(r.message) for r in record)
