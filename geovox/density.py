@@ -28,7 +28,7 @@ from __future__ import annotations
 import numpy as np
 
 from .grid import Columns
-from .parallel import for_blocks, scan_along
+from .parallel import scan_along
 
 #: Default half-width of the exact band of the signed distance, in voxels.
 BAND = 3.0

@@ -36,7 +36,7 @@ import numpy as np
 from .backends.base import Hits
 from .errors import GeovoxWarning, ParameterError
 from .mesh import Mesh
-from .parallel import for_blocks, scan_along
+from .parallel import scan_along
 
 METHODS = ("auto", "parity", "vote", "winding")
 
@@ -783,9 +783,12 @@ def _correct_caps(occ, w, grid, cap_tris) -> None:
 
 def _estimated(unsure, grid) -> None:
     n = int(np.count_nonzero(unsure))
+    share = 100.0 * n / grid.size
+    # "99.6 %" or "0.0031 %", never "1e+02 %"
+    share = f"{share:.1f}" if share >= 1 else f"{share:.2g}"
     warnings.warn(
         f"the holes' caps are too many and too large to settle every voxel exactly within the "
-        f"work budget: {n:,} of {grid.size:,} voxels ({100.0 * n / grid.size:.2g} %) were decided "
+        f"work budget: {n:,} of {grid.size:,} voxels ({share} %) were decided "
         f"by an estimate of the winding number whose proven error bound reaches 1/2 "
         f"(--inside vote or parity are the fast alternatives)", GeovoxWarning, stacklevel=4)
 
