@@ -49,25 +49,51 @@ def load_textures(mesh) -> None:
     """Read each material's texture once; warn about what is missing or unreadable."""
     from PIL import Image
 
+    from .surface import texels
+
     for m in mesh.materials:
         if m.image is not None or not m.texture_file or getattr(m, "_tried", False):
             continue
         m._tried = True
         try:
             with Image.open(m.texture_file) as im:
-                m.image = np.asarray(im.convert("RGB"))
+                m.image = texels(im)
         except Exception as exc:  # Pillow raises several types for bad files
             warnings.warn(f"cannot read texture {m.texture_file} (material {m.name!r}): "
                           f"{exc}; using its Kd colour", GeovoxWarning, stacklevel=3)
 
 
-def sample_bilinear(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
-    """Bilinear texture lookup with wrapping; OBJ's V points up, image rows down.
+def _texel_axis(t: np.ndarray, n: int, mode: str) -> tuple:
+    """Texels ``i0``, ``i1`` (int64) and the weight of ``i1`` along one texture axis.
+
+    ``t`` runs along the image's rows or columns (0 at the first texel's outer
+    edge, 1 at the last's); wrap modes act on texel indices as OpenGL's do.
+    """
+    # Reduce t first (exact for each mode) so huge UVs keep their fraction.
+    t = np.clip(t, 0.0, 1.0) if mode == "clamp" else np.mod(t, 2.0 if mode == "mirror" else 1.0)
+    x = t * n - 0.5
+    x0 = np.floor(x)
+    f = x - x0
+    i0 = x0.astype(np.int64)
+    i1 = i0 + 1
+    if mode == "clamp":
+        return np.clip(i0, 0, n - 1), np.clip(i1, 0, n - 1), f
+    if mode == "mirror":
+        i0, i1 = np.mod(i0, 2 * n), np.mod(i1, 2 * n)
+        return np.where(i0 >= n, 2 * n - 1 - i0, i0), np.where(i1 >= n, 2 * n - 1 - i1, i1), f
+    return np.mod(i0, n), np.mod(i1, n), f
+
+
+def sample_bilinear(image: np.ndarray, uv: np.ndarray, wrap=("repeat", "repeat")) -> np.ndarray:
+    """Bilinear texture lookup; V points up (OBJ, and glTF's as trimesh flips it), rows down.
 
     Parameters
     ----------
     image : (h, w, 3) uint8
     uv : (n, 2) float64
+    wrap : (str, str)
+        Wrap mode along u and along v: ``"repeat"``, ``"mirror"`` or
+        ``"clamp"`` (see :attr:`geovox.surface.Material.wrap`).
 
     Returns
     -------
@@ -75,17 +101,13 @@ def sample_bilinear(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
     """
     h, w = image.shape[:2]
     flat = image.reshape(h * w, -1)
-    x = np.mod(uv[:, 0], 1.0) * w - 0.5
-    y = (1.0 - np.mod(uv[:, 1], 1.0)) * h - 0.5
-    x0 = np.floor(x)
-    y0 = np.floor(y)
-    fx = (x - x0)[:, None]
-    fy = (y - y0)[:, None]
-    x0 = x0.astype(np.int64) % w
-    y0 = y0.astype(np.int64) % h
-    x1 = (x0 + 1) % w
+    x0, x1, fx = _texel_axis(uv[:, 0], w, wrap[0])
+    # Rows run down the image: row coordinate 1 - v (glTF's own V).
+    y0, y1, fy = _texel_axis(1.0 - uv[:, 1], h, wrap[1])
+    fx = fx[:, None]
+    fy = fy[:, None]
     r0 = y0 * w
-    r1 = ((y0 + 1) % h) * w
+    r1 = y1 * w
     top = flat[r0 + x0] * (1 - fx) + flat[r0 + x1] * fx
     bottom = flat[r1 + x0] * (1 - fx) + flat[r1 + x1] * fx
     return (top * (1 - fy) + bottom * fy) / 255.0
@@ -121,7 +143,9 @@ def shade(mesh, tri: np.ndarray, bary: np.ndarray, *, diffuse=True, ambient=Fals
         if m.image is not None and mesh.corner_uv is not None:
             uv = np.einsum("nk,nkc->nc", w[sel], mesh.corner_uv[tri[sel]])
             ok = np.isfinite(uv).all(axis=1)
-            base[sel[ok]] = sample_bilinear(m.image, uv[ok])
+            texel = sample_bilinear(m.image, uv[ok], m.wrap)
+            # glTF's COLOR_0 multiplies the texture; OBJ's vertex colours give way to it.
+            base[sel[ok]] = texel * base[sel[ok]] if m.vertex_tint else texel
         if diffuse:
             factor[sel] = m.diffuse()
         if ambient:

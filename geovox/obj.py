@@ -40,7 +40,7 @@ import os
 import numpy as np
 
 from .errors import MeshError
-from .mesh import Material, Mesh
+from .surface import Material, Mesh
 
 # map_Kd options and how many arguments each takes (at most).
 _MAP_OPTIONS = {"-blendu": 1, "-blendv": 1, "-bm": 1, "-boost": 1, "-cc": 1, "-clamp": 1,
