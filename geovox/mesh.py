@@ -2,15 +2,18 @@
 
 from __future__ import annotations
 
+import json
 import os
 import re
+import struct
+import urllib.parse
 import warnings
 
 import numpy as np
 
 from .errors import InputNotFoundError, MeshError
 # Mesh, Material and check_mesh are also public here, where they used to live.
-from .surface import Material, Mesh, build_mesh, check_mesh  # noqa: F401
+from .surface import WRAP_MODES, Material, Mesh, build_mesh, check_mesh, texels  # noqa: F401
 
 
 #: The diffuse colour trimesh gives a material the file does not colour.
@@ -19,14 +22,66 @@ TRIMESH_DEFAULT = np.array([102, 102, 102, 255])
 TRIMESH_PLACEHOLDER = np.array([100, 100, 100, 255])
 
 
-def _visual_parts(g, nfaces, materials):
-    """Per-face material, corner UVs and vertex colours of one trimesh geometry."""
+def _unit_colours(colours, n: int):
+    """(n, 3) float64 in [0, 1] from per-vertex colours as stored, or None.
+
+    Floats are taken as they are; integers are normalised by their type's
+    maximum (glTF's normalised 8- and 16-bit ``COLOR_0``; trimesh's uint8).
+    """
+    if colours is None:
+        return None
+    c = np.asarray(colours)
+    if c.ndim != 2 or c.shape[1] < 3 or len(c) != n or c.dtype.kind not in "fui":
+        return None
+    scale = 1.0 if c.dtype.kind == "f" else float(np.iinfo(c.dtype).max)
+    out = c[:, :3].astype(np.float64) / scale
+    return np.clip(np.nan_to_num(out, nan=1.0), 0.0, 1.0)
+
+
+def _visual_parts(g, nfaces, materials, gltf=None, made=None, original=None):
+    """Per-face material, corner UVs and vertex colours of one trimesh geometry.
+
+    ``original`` is the scene's geometry ``g`` was copied from: trimesh's
+    copies of textured visuals drop their vertex colours (glTF ``COLOR_0``).
+
+    ``gltf`` holds what :func:`_gltf_rewrite` found for each material tag of
+    a glTF file; ``made`` maps a tag to its :class:`Material`'s index in
+    ``materials``, so primitives sharing a material share its texture.
+    """
     visual = getattr(g, "visual", None)
     kind = getattr(visual, "kind", None)
     fm = np.full(nfaces, -1, dtype=np.int64)
     uv = vc = None
-    if kind == "texture":
-        mat = getattr(visual, "material", None)
+    mat = getattr(visual, "material", None) if kind == "texture" else None
+    fact = gltf["materials"].get(getattr(mat, "name", None)) if gltf and mat is not None else None
+    if fact is not None:
+        tag = mat.name
+        if tag not in made:
+            m = Material(name=fact["name"], kd=fact["kd"], wrap=fact["wrap"], vertex_tint=True)
+            image = getattr(mat, "baseColorTexture", None)
+            if image is not None:
+                try:
+                    m.image = texels(image)
+                except Exception as exc:  # Pillow raises several types for bad images
+                    gltf["problems"].append(_no_texture(fact, f"{type(exc).__name__}: {exc}"))
+            elif fact["texture"] is not None:
+                gltf["problems"].append(_no_texture(fact, "it could not be loaded"))
+            made[tag] = len(materials)
+            materials.append(m)
+        fm[:] = made[tag]
+        if visual.uv is not None and len(visual.uv) == len(g.vertices):
+            uv = np.asarray(visual.uv, dtype=np.float64)
+            if fact["transform"] is not None:
+                # KHR_texture_transform acts on glTF's UVs (V down); trimesh
+                # has flipped V. Affine, so applying it to the corners is
+                # the same as applying it to interpolated UVs.
+                t = fact["transform"]
+                gu, gv = uv[:, 0], 1.0 - uv[:, 1]
+                uv = np.stack([t[0, 0] * gu + t[0, 1] * gv + t[0, 2],
+                               1.0 - (t[1, 0] * gu + t[1, 1] * gv + t[1, 2])], axis=1)
+            uv = uv[g.faces]
+        vc = _unit_colours(_vertex_attribute(g if original is None else original, "color"), len(g.vertices))
+    elif kind == "texture":
         m = Material(name=getattr(mat, "name", None) or "material")
         image = getattr(mat, "image", None) or getattr(mat, "baseColorTexture", None)
         if image is not None and image.size == (2, 2) and np.all(
@@ -35,15 +90,16 @@ def _visual_parts(g, nfaces, materials):
             # texture the file does not have (a PLY with UVs only)
             image = None
         if image is not None:
-            # sRGB texels as stored (no linearisation), alpha dropped
-            m.image = np.asarray(image.convert("RGB"))
+            m.image = texels(image)
         if hasattr(mat, "baseColorFactor"):
-            # glTF (metallic-roughness, or specular-glossiness converted by
-            # trimesh): base colour = factor x texture; the factor's default
-            # in the glTF specification is white.
+            # A trimesh PBR material (glTF's model) made in Python: base colour
+            # = factor x texture x vertex colour; the factor's default in the
+            # glTF specification is white.
             factor = mat.baseColorFactor
             m.kd = (np.ones(3) if factor is None
                     else np.asarray(factor, dtype=np.float64)[:3] / 255.0)
+            m.vertex_tint = True
+            vc = _unit_colours(_vertex_attribute(g if original is None else original, "color"), len(g.vertices))
         else:
             colour = getattr(mat, "diffuse", None)
             # trimesh gives materials it makes up (a PLY's texture, UVs
@@ -64,6 +120,208 @@ def _visual_parts(g, nfaces, materials):
             materials.append(Material(name="face colour", kd=colour))
         fm[:] = len(materials) - len(uniq) + inverse.reshape(-1)
     return fm, uv, vc
+
+
+def _vertex_attribute(g, key: str):
+    """A geometry's textured-visual vertex attribute, or None."""
+    store = getattr(getattr(g, "visual", None), "vertex_attributes", None)
+    return store.get(key) if store is not None else None
+
+
+def _no_texture(fact, why: str) -> str:
+    return (f"cannot read the base colour texture {fact['texture']} of material "
+            f"{fact['name']!r} ({why}); using its base colour factor")
+
+
+# ---------------------------------------------------------------------------
+# glTF materials.
+#
+# trimesh reads glTF geometry well but keeps only part of a material: the
+# first texture coordinate set whatever `texCoord` says, no sampler (every
+# texture would repeat), no KHR_texture_transform, the base colour factor
+# rounded to 8 bits, specular-glossiness converted to metallic-roughness
+# (which changes the diffuse colour), COLOR_0 without a material squeezed into
+# 8 bits, and percent-escaped file names (`my%20map.png`) not found. So
+# before trimesh parses a glTF file, geovox reads its JSON and rewrites it:
+# each material is renamed to a tag looked up afterwards (with its factor,
+# wrap modes and texture transform), a primitive's TEXCOORD_0 is pointed at
+# the set its base colour texture uses, a specular-glossiness material's
+# diffuse becomes its base colour, a primitive with COLOR_0 but no material
+# gets glTF's default material (base colour factor white), and escaped URIs
+# are unescaped where that names a file that exists.
+
+_GLTF_TAG = "geovox-gltf-material-"
+
+
+def _numbers(value, n: int):
+    """``value`` as n floats if it is a list of n finite numbers, else None."""
+    if not isinstance(value, list) or len(value) != n:
+        return None
+    if not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in value):
+        return None
+    out = np.asarray(value, dtype=np.float64)
+    return out if np.all(np.isfinite(out)) else None
+
+
+def _uv_transform(tt: dict) -> np.ndarray:
+    """(3, 3) float64: KHR_texture_transform's offset x rotation x scale."""
+    offset = _numbers(tt.get("offset"), 2)
+    scale = _numbers(tt.get("scale"), 2)
+    rotation = tt.get("rotation", 0.0)
+    ox, oy = offset if offset is not None else (0.0, 0.0)
+    sx, sy = scale if scale is not None else (1.0, 1.0)
+    r = float(rotation) if isinstance(rotation, (int, float)) and np.isfinite(rotation) else 0.0
+    c, s = np.cos(r), np.sin(r)
+    translate = np.array([[1, 0, ox], [0, 1, oy], [0, 0, 1.0]])
+    rotate = np.array([[c, s, 0], [-s, c, 0], [0, 0, 1.0]])
+    return translate @ rotate @ np.diag([sx, sy, 1.0])
+
+
+def _gltf_rewrite(header: dict, path: str) -> dict:
+    """Rewrite a glTF JSON header in place for trimesh (see above).
+
+    Returns
+    -------
+    dict
+        ``materials``: tag -> facts of that material (``name``, ``kd`` (3,)
+        float64, ``wrap``, ``transform`` (3, 3) float64 or None, ``texture``:
+        a description of its base colour image, or None); ``problems``: lines
+        for the mesh's problems.
+    """
+    folder = os.path.dirname(os.path.abspath(path))
+    problems: list = []
+
+    def listed(key):
+        value = header.get(key)
+        return [x if isinstance(x, dict) else {} for x in value] if isinstance(value, list) else []
+
+    textures, samplers, images = listed("textures"), listed("samplers"), listed("images")
+    for entry in images + listed("buffers"):
+        uri = entry.get("uri")
+        if isinstance(uri, str) and not uri.startswith("data:"):
+            plain = urllib.parse.unquote(uri)
+            if (plain != uri and not os.path.exists(os.path.join(folder, uri))
+                    and os.path.exists(os.path.join(folder, plain))):
+                entry["uri"] = plain
+    materials = header.get("materials") if isinstance(header.get("materials"), list) else []
+    primitives = [p for m in listed("meshes") if isinstance(m.get("primitives"), list)
+                  for p in m["primitives"] if isinstance(p, dict)
+                  and isinstance(p.get("attributes"), dict)]
+    default = None
+    for p in primitives:
+        if "material" not in p and "COLOR_0" in p["attributes"]:
+            if default is None:
+                default = len(materials)
+                materials.append({"name": "glTF default material"})
+                header["materials"] = materials
+            p["material"] = default
+    facts, texcoord = {}, {}
+    for i, mat in enumerate(materials):
+        if not isinstance(mat, dict):
+            continue
+        name = mat.get("name") if isinstance(mat.get("name"), str) else f"material {i}"
+        ext = mat.get("extensions")
+        sg = ext.get("KHR_materials_pbrSpecularGlossiness") if isinstance(ext, dict) else None
+        if isinstance(sg, dict):
+            # The diffuse colour is this model's base colour; trimesh's
+            # conversion to metallic-roughness would change it.
+            pbr = {"baseColorFactor": sg.get("diffuseFactor", [1, 1, 1, 1])}
+            if "diffuseTexture" in sg:
+                pbr["baseColorTexture"] = sg["diffuseTexture"]
+            mat["pbrMetallicRoughness"] = pbr
+            del ext["KHR_materials_pbrSpecularGlossiness"]
+        pbr = mat.get("pbrMetallicRoughness")
+        pbr = pbr if isinstance(pbr, dict) else {}
+        factor = _numbers(pbr.get("baseColorFactor", [1, 1, 1, 1]), 4)
+        if factor is None:
+            problems.append(f"material {name!r} has a baseColorFactor that is not 4 numbers "
+                            f"({pbr.get('baseColorFactor')!r}); using white")
+            factor = np.ones(4)
+        fact = {"name": name, "kd": np.clip(factor[:3], 0.0, 1.0), "wrap": ("repeat", "repeat"),
+                "transform": None, "texture": None}
+        ref = pbr.get("baseColorTexture")
+        index = ref.get("index") if isinstance(ref, dict) else None
+        if isinstance(index, int) and 0 <= index < len(textures):
+            tex = textures[index]
+            sampler = tex.get("sampler")
+            if isinstance(sampler, int) and 0 <= sampler < len(samplers):
+                codes = (samplers[sampler].get(k, 10497) for k in ("wrapS", "wrapT"))
+                fact["wrap"] = tuple(WRAP_MODES.get(c, "repeat") if isinstance(c, int)
+                                     else "repeat" for c in codes)
+            source = tex.get("source")
+            for e in (tex.get("extensions") or {}).values():
+                if source is None and isinstance(e, dict):
+                    source = e.get("source")
+            uri = (images[source].get("uri") if isinstance(source, int)
+                   and 0 <= source < len(images) else None)
+            fact["texture"] = (repr(uri) if isinstance(uri, str) and not uri.startswith("data:")
+                               else f"(image {source}, embedded)")
+            n = ref.get("texCoord", 0)
+            tt = (ref.get("extensions") or {}).get("KHR_texture_transform")
+            if isinstance(tt, dict):
+                fact["transform"] = _uv_transform(tt)
+                n = tt.get("texCoord", n)
+            texcoord[i] = n if isinstance(n, int) else 0
+        tag = _GLTF_TAG + str(i)
+        mat["name"] = tag
+        facts[tag] = fact
+    missing = set()
+    for p in primitives:
+        n = texcoord.get(p.get("material"), 0)
+        if n:
+            attrs = p["attributes"]
+            if f"TEXCOORD_{n}" in attrs:
+                attrs["TEXCOORD_0"] = attrs[f"TEXCOORD_{n}"]
+            else:
+                # No such set: no UVs, so the texture cannot be placed.
+                attrs.pop("TEXCOORD_0", None)
+                missing.add((p["material"], n))
+    for i, n in sorted(missing):
+        problems.append(f"material {facts[_GLTF_TAG + str(i)]['name']!r} takes its base colour "
+                        f"texture's coordinates from TEXCOORD_{n}, which a primitive using it "
+                        f"does not have; those faces take the base colour factor")
+    return {"materials": facts, "problems": problems}
+
+
+def _gltf_file(path: str):
+    """A glTF file with its JSON rewritten by :func:`_gltf_rewrite`.
+
+    Returns
+    -------
+    (bytes, dict) or None
+        The rewritten file and what :func:`_gltf_rewrite` returned; None for
+        a file whose JSON cannot be read (trimesh then reads it as it is and
+        says what is wrong).
+    """
+    with open(path, "rb") as f:
+        data = f.read()
+    glb = data[:4] == b"glTF"
+    if glb:
+        if len(data) < 20:
+            return None
+        version, _, n, kind = struct.unpack_from("<IIII", data, 4)
+        if kind != 0x4E4F534A:  # "JSON"
+            return None
+        raw, tail = data[20:20 + n], memoryview(data)[20 + n:]
+    else:
+        raw, tail = data, None
+    try:
+        header = json.loads(raw.decode("utf-8-sig"))
+    except (UnicodeDecodeError, ValueError, RecursionError):
+        return None
+    if not isinstance(header, dict):
+        return None
+    try:
+        facts = _gltf_rewrite(header, path)
+    except (TypeError, AttributeError, KeyError, ValueError, IndexError):
+        return None  # a header too odd to rewrite safely: trimesh reads the file as it is
+    text = json.dumps(header, separators=(",", ":")).encode("utf-8")
+    if not glb:
+        return text, facts
+    text += b" " * (-len(text) % 4)  # chunks are 4-byte aligned, JSON padded with spaces
+    head = b"glTF" + struct.pack("<IIII", version, 20 + len(text) + len(tail), len(text),
+                                 0x4E4F534A)
+    return b"".join([head, text, tail]), facts
 
 
 #: What a file type is, for messages ("cannot be read as glTF binary (.glb)").
@@ -166,12 +424,13 @@ def _no_faces(source: str, parts) -> str:
             f"triangle surface")
 
 
-def from_trimesh(obj, source: str = "<trimesh>") -> Mesh:
+def from_trimesh(obj, source: str = "<trimesh>", *, _gltf=None) -> Mesh:
     """Convert a ``trimesh.Trimesh`` or ``trimesh.Scene`` (transforms applied),
     keeping each geometry's material, UVs and vertex colours.
 
     Point clouds and lines in a scene are skipped; a scene with no faces at
-    all is a :class:`MeshError` that says what it holds instead.
+    all is a :class:`MeshError` that says what it holds instead. (``_gltf``:
+    what :func:`_gltf_rewrite` found in the file trimesh read.)
     """
     import trimesh
 
@@ -180,32 +439,50 @@ def from_trimesh(obj, source: str = "<trimesh>") -> Mesh:
         parts = [g for g in every if isinstance(g, trimesh.Trimesh) and len(g.faces)]
         if not parts:
             raise MeshError(_no_faces(source, every))
+        originals = [obj.geometry.get(g.metadata.get("name")) for g in parts]
     elif isinstance(obj, trimesh.Trimesh):
-        parts = [obj]
+        parts, originals = [obj], [obj]
     elif isinstance(obj, trimesh.parent.Geometry):
         raise MeshError(_no_faces(source, [obj]))
     else:
         raise MeshError(f"{source}: contains no triangle mesh (got {type(obj).__name__})")
-    verts, faces, fms, uvs, vcs, materials, offset = [], [], [], [], [], [], 0
-    have_uv, have_vc = False, False
-    for g in parts:
+    verts, faces, fms, uvs, vcs, materials, offset, made = [], [], [], [], [], [], 0, {}
+    have_uv = False
+    for g, original in zip(parts, originals):
         f = np.asarray(g.faces, dtype=np.int64).reshape(-1, 3)
         verts.append(np.asarray(g.vertices, dtype=np.float64).reshape(-1, 3))
         faces.append(f + offset)
         offset += len(g.vertices)
-        fm, uv, vc = _visual_parts(g, len(f), materials)
+        fm, uv, vc = _visual_parts(g, len(f), materials, _gltf, made, original)
         fms.append(fm)
         uvs.append(uv if uv is not None else np.full((len(f), 3, 2), np.nan))
-        vcs.append(vc if vc is not None else np.ones((len(verts[-1]), 3)))
+        vcs.append(vc)
         have_uv |= uv is not None
-        have_vc |= vc is not None
-    return build_mesh(
+    vertex_colors = None
+    if any(vc is not None for vc in vcs):
+        # White where a part has none: neutral under a material (glTF's
+        # COLOR_0 default). A part with neither colours nor a material
+        # states no colour: it gets geovox's default, not that white.
+        plain = None
+        for i, vc in enumerate(vcs):
+            if vc is None:
+                vcs[i] = np.ones((len(verts[i]), 3))
+                if np.any(fms[i] < 0):
+                    if plain is None:
+                        plain = len(materials)
+                        materials.append(Material(name="default"))
+                    fms[i] = np.where(fms[i] < 0, plain, fms[i])
+        vertex_colors = np.concatenate(vcs)
+    mesh = build_mesh(
         np.concatenate(verts), np.concatenate(faces), source,
         face_material=np.concatenate(fms),
         materials=materials,
         corner_uv=np.concatenate(uvs) if have_uv else None,
-        vertex_colors=np.concatenate(vcs) if have_vc else None,
+        vertex_colors=vertex_colors,
     )
+    if _gltf is not None:
+        mesh.problems.extend(f"{source}: {p}" for p in _gltf["problems"])
+    return mesh
 
 
 def _trimesh_load(path: str) -> Mesh:
@@ -242,7 +519,14 @@ def _trimesh_load(path: str) -> Mesh:
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # NumPy noise from trimesh's parsers
-            loaded = trimesh.load(path, process=False)
+            gltf = _gltf_file(path) if ext in (".gltf", ".glb") else None
+            if gltf is None:
+                loaded = trimesh.load(path, process=False)
+            else:
+                import io
+
+                loaded = trimesh.load(io.BytesIO(gltf[0]), file_type=ext[1:], process=False,
+                                      resolver=trimesh.resolvers.FilePathResolver(path))
     except Exception as exc:  # trimesh raises many types for unreadable files
         raise MeshError(_load_failure(path, exc)) from exc
     finally:
@@ -260,7 +544,7 @@ def _trimesh_load(path: str) -> Mesh:
         raise MeshError(f"{path}: part of the geometry could not be read, so the volume would "
                         f"be incomplete (trimesh: {'; '.join(dict.fromkeys(lost))})")
     try:
-        mesh = from_trimesh(loaded, source=path)
+        mesh = from_trimesh(loaded, source=path, _gltf=gltf[1] if gltf else None)
     except MeshError:
         raise
     except Exception as exc:  # odd visuals or arrays trimesh accepted
