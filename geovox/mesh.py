@@ -324,6 +324,88 @@ def _gltf_file(path: str):
     return b"".join([head, text, tail]), facts
 
 
+_OFF_HEADER = re.compile(r"(ST)?(C)?(N)?(4)?(n)?OFF")
+
+
+def _off_colours(path: str, mesh: Mesh) -> Mesh:
+    """``mesh`` (read from an OFF file by trimesh) with the file's colours.
+
+    trimesh's OFF reader skips colours: vertex colours (``COFF``: ``x y z
+    [nx ny nz] r g b [a]``) and face colours (``n i1 ... in r g b [a]``),
+    each as integers 0-255 or as numbers 0-1 (0-255 when any exceeds 1).
+    With face colours the faces are fanned here, so each triangle knows its
+    polygon; a face without a colour in such a file takes the default. Face
+    colours are looked for when the first face has one.
+    """
+    with open(path, "rb") as f:
+        text = f.read().decode("utf-8", errors="replace")
+    lines = [ln.split() for ln in re.sub(r"#[^\n]*", "", text).splitlines()]
+    lines = [ln for ln in lines if ln]
+    head = _OFF_HEADER.fullmatch(lines[0][0]) if lines else None
+    if head is None:
+        return mesh
+    start = 1 if len(lines[0]) > 1 else 2
+    try:
+        counts = (lines[0][1:] if start == 1 else lines[1])[:2]
+        nv, nf = int(counts[0]), int(counts[1])
+    except (IndexError, ValueError):
+        return mesh
+    vlines = lines[start:start + nv]
+    flines = lines[start + nv:start + nv + nf]
+    if len(vlines) != nv or len(mesh.vertices) != nv:
+        return mesh
+
+    def unit(rows):
+        c = np.asarray(rows, dtype=np.float64)
+        return np.clip(c / 255.0 if c.size and c.max() > 1.0 else c, 0.0, 1.0)
+
+    vc = fm = materials = faces = None
+    if head.group(2):
+        at = 3 + (1 if head.group(4) else 0) + (3 if head.group(3) else 0)
+        try:
+            vc = unit([ln[at:at + 3] for ln in vlines])
+        except ValueError:  # missing or unreadable colours: none
+            vc = None
+        if vc is not None and vc.shape != (nv, 3):
+            vc = None
+    first_face = flines[0] if flines else ["0"]
+    if first_face[0].isdigit() and len(first_face) >= 4 + int(first_face[0]):
+        try:
+            faces, fm, materials = _off_face_colours(flines, unit)
+        except ValueError:  # an unreadable face: trimesh's faces, no face colours
+            faces = None
+    if vc is None and faces is None:
+        return mesh
+    return build_mesh(mesh.vertices, mesh.faces if faces is None else faces, mesh.source,
+                      face_material=fm, materials=materials or [], vertex_colors=vc,
+                      problems=mesh.problems)
+
+
+def _off_face_colours(flines, unit):
+    """Fanned faces (m, 3), face materials (m,) and materials of OFF face lines with colours."""
+    polys, colours, coloured = [], [], []
+    for ln in flines:
+        k = int(ln[0])
+        polys.append(ln[1:1 + k])
+        rest = ln[1 + k:1 + k + 3]
+        coloured.append(len(rest) == 3)
+        colours.append(rest if len(rest) == 3 else ["0", "0", "0"])
+    fc = unit(colours)
+    sizes = np.array([len(p) for p in polys])
+    keep = sizes >= 3
+    corners = np.array([int(i) for p, ok in zip(polys, keep) if ok for i in p], dtype=np.int64)
+    first = np.r_[0, np.cumsum(sizes[keep])[:-1]]
+    n_tri = sizes[keep] - 2
+    poly = np.repeat(np.arange(len(first)), n_tri)
+    j = np.arange(len(poly)) - np.repeat(np.cumsum(n_tri) - n_tri, n_tri) + 1
+    c0 = first[poly]
+    faces = corners[np.stack([c0, c0 + j, c0 + j + 1], axis=1)]
+    fc, has = fc[keep][poly], np.asarray(coloured)[keep][poly]
+    uniq, inverse = np.unique(fc, axis=0, return_inverse=True)
+    materials = [Material(name="face colour", kd=c) for c in uniq]
+    return faces, np.where(has, inverse.reshape(-1), -1), materials
+
+
 #: What a file type is, for messages ("cannot be read as glTF binary (.glb)").
 FORMAT_NAMES = {
     ".glb": "glTF binary", ".gltf": "glTF", ".stl": "STL", ".ply": "PLY", ".off": "OFF",
@@ -545,6 +627,8 @@ def _trimesh_load(path: str) -> Mesh:
                         f"be incomplete (trimesh: {'; '.join(dict.fromkeys(lost))})")
     try:
         mesh = from_trimesh(loaded, source=path, _gltf=gltf[1] if gltf else None)
+        if ext == ".off":
+            mesh = _off_colours(path, mesh)
     except MeshError:
         raise
     except Exception as exc:  # odd visuals or arrays trimesh accepted
