@@ -1,0 +1,504 @@
+"""Materials as other formats state them (glTF/GLB, PLY, OFF), on small files made here.
+
+Every case goes through ``geovox.voxelize`` (the Python API); a sample of them
+also through ``geovox convert ... --color`` (the CLI, in process). The boxes
+carry one UV (or colour) on every vertex, so every inside voxel must have
+exactly one colour, whatever the nearest point. Texel centres are at
+(i + 0.5) / 4 of a 4 x 4 texture, where bilinear sampling returns the texel
+itself: the expected colours are exact. A colour the file does not state is
+never taken for one it does: each default path has its own test.
+"""
+
+from __future__ import annotations
+
+import base64
+import io
+import json
+import struct
+import warnings
+
+import numpy as np
+import pytest
+import trimesh
+from PIL import Image
+
+import geovox
+from geovox.cli import main
+from geovox.errors import GeovoxWarning
+
+from conftest import corpus
+
+REPEAT, MIRROR, CLAMP = 10497, 33648, 33071
+
+
+def texel(col, row):
+    """Colour of texel (col, row) of the test texture (row 0 is the image's top)."""
+    return (60 * col + 10, 60 * row + 10, 77)
+
+
+def texture_png(size=4) -> bytes:
+    img = np.array([[texel(c, r) for c in range(size)] for r in range(size)], np.uint8)
+    out = io.BytesIO()
+    Image.fromarray(img).save(out, format="PNG")
+    return out.getvalue()
+
+
+def centre(i):
+    """glTF texture coordinate of the centre of texel i (of 4)."""
+    return (i + 0.5) / 4
+
+
+def box(offset=(0.0, 0.0, 0.0)):
+    m = trimesh.creation.box(extents=(2, 2, 2))
+    return (np.asarray(m.vertices) + 1 + np.asarray(offset)).astype(np.float32), \
+        np.asarray(m.faces, dtype=np.uint32)
+
+
+def write_gltf(path, primitives, materials=(), textures=(), samplers=(), images=(),
+               extensions_used=()):
+    """A glTF (``.gltf`` with an embedded buffer, or ``.glb``) of one mesh.
+
+    ``primitives``: dicts with ``vertices`` (n, 3) float32, ``faces`` (m, 3)
+    uint32, optional ``material`` index and ``attributes``: name -> array
+    (float32 unless uint8/uint16, which are written normalised). ``images``:
+    dicts as in glTF, or ``{"png": bytes}`` to embed in a buffer view (GLB)
+    or a data URI (.gltf).
+    """
+    blob = bytearray()
+    views, accessors = [], []
+
+    def add(data: bytes) -> int:
+        blob.extend(b"\0" * (-len(blob) % 4))
+        views.append({"buffer": 0, "byteOffset": len(blob), "byteLength": len(data)})
+        blob.extend(data)
+        return len(views) - 1
+
+    def accessor(a, kind) -> int:
+        a = np.ascontiguousarray(a)
+        comp = {np.float32: 5126, np.uint8: 5121, np.uint16: 5123, np.uint32: 5125}[a.dtype.type]
+        acc = {"bufferView": add(a.tobytes()), "componentType": comp, "count": len(a),
+               "type": kind}
+        if kind == "VEC3" and a.dtype == np.float32 and a.shape[1] == 3:
+            acc["min"], acc["max"] = a.min(axis=0).tolist(), a.max(axis=0).tolist()
+        if a.dtype in (np.uint8, np.uint16) and kind != "SCALAR":
+            acc["normalized"] = True
+        accessors.append(acc)
+        return len(accessors) - 1
+
+    glb = str(path).endswith(".glb")
+    prims = []
+    for p in primitives:
+        attrs = {"POSITION": accessor(p["vertices"], "VEC3")}
+        for name, a in p.get("attributes", {}).items():
+            attrs[name] = accessor(a, {2: "VEC2", 3: "VEC3", 4: "VEC4"}[a.shape[1]])
+        prim = {"attributes": attrs, "indices": accessor(p["faces"].reshape(-1), "SCALAR")}
+        if "material" in p:
+            prim["material"] = p["material"]
+        prims.append(prim)
+    imgs = []
+    for im in images:
+        if "png" in im:
+            if glb:
+                imgs.append({"bufferView": add(im["png"]), "mimeType": "image/png"})
+            else:
+                imgs.append({"uri": "data:image/png;base64,"
+                             + base64.b64encode(im["png"]).decode()})
+        else:
+            imgs.append(im)
+    header = {"asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0]}],
+              "nodes": [{"mesh": 0}], "meshes": [{"primitives": prims}],
+              "accessors": accessors, "bufferViews": views}
+    for key, value in (("materials", materials), ("textures", textures),
+                       ("samplers", samplers), ("images", imgs)):
+        if value:
+            header[key] = list(value)
+    if extensions_used:
+        header["extensionsUsed"] = list(extensions_used)
+    blob.extend(b"\0" * (-len(blob) % 4))
+    if glb:
+        header["buffers"] = [{"byteLength": len(blob)}]
+        text = json.dumps(header).encode()
+        text += b" " * (-len(text) % 4)
+        data = (b"glTF" + struct.pack("<II", 2, 28 + len(text) + len(blob))
+                + struct.pack("<I", len(text)) + b"JSON" + text
+                + struct.pack("<I", len(blob)) + b"BIN\0" + bytes(blob))
+        path.write_bytes(data)
+    else:
+        header["buffers"] = [{"byteLength": len(blob), "uri": "data:application/octet-stream;"
+                              "base64," + base64.b64encode(bytes(blob)).decode()}]
+        path.write_text(json.dumps(header))
+    return path
+
+
+def uv_box(u, v, **extra):
+    """A box primitive whose every vertex has texture coordinates (u, v) (glTF's V, down)."""
+    vert, faces = box()
+    attrs = {"TEXCOORD_0": np.tile(np.float32([u, v]), (len(vert), 1))}
+    attrs.update(extra.pop("attributes", {}))
+    return dict(vertices=vert, faces=faces, attributes=attrs, **extra)
+
+
+def textured(sampler=None, factor=None, tex_extra=None):
+    """One material with the test texture (embedded PNG), and its texture tables."""
+    ref = {"index": 0, **(tex_extra or {})}
+    pbr = {"baseColorTexture": ref}
+    if factor is not None:
+        pbr["baseColorFactor"] = factor
+    tex = {"source": 0}
+    samplers = []
+    if sampler is not None:
+        tex["sampler"] = 0
+        samplers = [sampler]
+    return dict(materials=[{"name": "tex", "pbrMetallicRoughness": pbr}], textures=[tex],
+                samplers=samplers, images=[{"png": texture_png()}])
+
+
+def colours_of(path, res=10, **kw):
+    """The distinct RGB colours of the inside voxels, through the Python API."""
+    vol = geovox.voxelize(path, resolution=res, color=True, **kw)
+    assert vol.inside_count > 0
+    return {tuple(int(x) for x in c) for c in vol.colors[vol.occupancy, :3]}
+
+
+def cli_colours(path, tmp_path, res=10):
+    """The same through ``geovox convert PATH -o OUT.npz --color`` (in process)."""
+    out = tmp_path / "out.npz"
+    assert main(["convert", str(path), "-o", str(out), "-r", str(res), "--color"]) == 0
+    d = np.load(out)
+    inside = d["occupancy"] > 0
+    return {tuple(int(x) for x in c) for c in d["colors"][inside, :3]}
+
+
+# glTF: base colour texture, its coordinate set, wrap modes, V's direction.
+
+@pytest.mark.parametrize("ext", [".gltf", ".glb"])
+def test_texture_is_sampled_with_v_down_and_values_as_stored(tmp_path, ext):
+    # glTF's V points down: (u, v) = texel (1, 2)'s centre is column 1, row 2
+    # of the image as stored (row 0 on top). The texels' sRGB values come out
+    # unchanged (no linearisation).
+    path = write_gltf(tmp_path / f"t{ext}", [uv_box(centre(1), centre(2), material=0)],
+                      **textured())
+    assert colours_of(path) == {texel(1, 2)}
+    assert cli_colours(path, tmp_path) == {texel(1, 2)}
+
+
+@pytest.mark.parametrize("wrap_s,wrap_t,col,row", [
+    (REPEAT, REPEAT, 1, 1),    # 1.375 -> 0.375
+    (MIRROR, MIRROR, 2, 2),    # 1.375 -> 2 - 1.375 = 0.625
+    (CLAMP, CLAMP, 3, 3),      # past the edge: the last texel
+    (REPEAT, MIRROR, 1, 2),    # each axis its own mode
+    (CLAMP, REPEAT, 3, 1),
+])
+def test_sampler_wrap_modes_per_axis(tmp_path, wrap_s, wrap_t, col, row):
+    sampler = {"wrapS": wrap_s, "wrapT": wrap_t}
+    path = write_gltf(tmp_path / "w.glb", [uv_box(1.375, 1.375, material=0)],
+                      **textured(sampler=sampler))
+    assert colours_of(path) == {texel(col, row)}
+
+
+def test_wrap_below_zero(tmp_path):
+    # u = -0.375: repeat -> 0.625 (col 2); mirror -> 0.375 (col 1); clamp -> col 0
+    for (s, col) in ((REPEAT, 2), (MIRROR, 1), (CLAMP, 0)):
+        path = write_gltf(tmp_path / f"n{s}.glb", [uv_box(-0.375, centre(0), material=0)],
+                          **textured(sampler={"wrapS": s}))
+        assert colours_of(path) == {texel(col, 0)}, s
+
+
+def test_sampler_without_wrap_repeats(tmp_path):
+    path = write_gltf(tmp_path / "d.glb", [uv_box(1.375, centre(0), material=0)],
+                      **textured(sampler={"magFilter": 9729}))
+    assert colours_of(path) == {texel(1, 0)}
+
+
+def test_texcoord_1_is_used_when_the_texture_names_it(tmp_path):
+    vert, _ = box()
+    uv1 = np.tile(np.float32([centre(3), centre(2)]), (len(vert), 1))
+    path = write_gltf(tmp_path / "t1.gltf",
+                      [uv_box(centre(0), centre(0), material=0, attributes={"TEXCOORD_1": uv1})],
+                      **textured(tex_extra={"texCoord": 1}))
+    assert colours_of(path) == {texel(3, 2)}
+    assert cli_colours(path, tmp_path) == {texel(3, 2)}
+    # the same file naming set 0 takes set 0
+    path = write_gltf(tmp_path / "t0.gltf",
+                      [uv_box(centre(0), centre(0), material=0, attributes={"TEXCOORD_1": uv1})],
+                      **textured(tex_extra={"texCoord": 0}))
+    assert colours_of(path) == {texel(0, 0)}
+
+
+def test_texcoord_set_the_primitive_lacks_warns_and_takes_the_factor(tmp_path):
+    path = write_gltf(tmp_path / "t2.glb", [uv_box(centre(0), centre(0), material=0)],
+                      **textured(factor=[0.2, 0.4, 0.6, 1], tex_extra={"texCoord": 1}))
+    with pytest.warns(GeovoxWarning, match="TEXCOORD_1"):
+        assert colours_of(path) == {(51, 102, 153)}
+
+
+def test_khr_texture_transform_offset_and_scale(tmp_path):
+    # (0.125, 0.125) scaled by 2, then moved by (0.375, 0.125): (0.625, 0.375), texel (2, 1)
+    tt = {"extensions": {"KHR_texture_transform": {"offset": [0.375, 0.125], "scale": [2, 2]}}}
+    path = write_gltf(tmp_path / "tt.glb", [uv_box(centre(0), centre(0), material=0)],
+                      extensions_used=["KHR_texture_transform"], **textured(tex_extra=tt))
+    assert colours_of(path) == {texel(2, 1)}
+
+
+# glTF: factors and vertex colours.
+
+def test_base_colour_factor_exact_and_times_texture(tmp_path):
+    path = write_gltf(tmp_path / "f.glb", [uv_box(centre(1), centre(2), material=0)],
+                      **textured(factor=[0.5, 1.0, 0.25, 1.0]))
+    r, g, b = texel(1, 2)
+    assert colours_of(path) == {(round(r * 0.5), g, round(b * 0.25))}
+    # the factor alone
+    vert, faces = box()
+    path = write_gltf(tmp_path / "g.glb", [dict(vertices=vert, faces=faces, material=0)],
+                      materials=[{"pbrMetallicRoughness": {"baseColorFactor": [0.2, 0.502, 1, 1]}}])
+    assert colours_of(path) == {(51, 128, 255)}
+
+
+@pytest.mark.parametrize("dtype,value", [
+    (np.float32, [0.2, 0.4, 0.6]),
+    (np.uint8, [51, 102, 153, 255]),
+    (np.uint16, [13107, 26214, 39321]),
+])
+def test_color_0_without_material_in_every_encoding(tmp_path, dtype, value):
+    vert, faces = box()
+    colour = np.tile(np.asarray(value, dtype), (len(vert), 1))
+    path = write_gltf(tmp_path / "c.glb", [dict(vertices=vert, faces=faces,
+                                                attributes={"COLOR_0": colour})])
+    assert colours_of(path) == {(51, 102, 153)}
+
+
+def test_color_0_times_factor_and_times_texture(tmp_path):
+    vert, faces = box()
+    # (products away from a half level, where rounding would depend on noise)
+    colour = np.tile(np.float32([0.4, 1.0, 1.0]), (len(vert), 1))
+    materials = [{"pbrMetallicRoughness": {"baseColorFactor": [1, 0.4, 1, 1]}}]
+    path = write_gltf(tmp_path / "cf.glb", [dict(vertices=vert, faces=faces, material=0,
+                                                 attributes={"COLOR_0": colour})],
+                      materials=materials)
+    assert colours_of(path) == {(102, 102, 255)}
+    # COLOR_0 x factor x texture, as glTF's base colour is
+    path = write_gltf(tmp_path / "cft.glb",
+                      [uv_box(centre(1), centre(2), material=0, attributes={"COLOR_0": colour})],
+                      **textured(factor=[1, 0.4, 1, 1]))
+    r, g, b = texel(1, 2)
+    assert colours_of(path) == {(round(r * 0.4), round(g * 0.4), b)}
+    assert cli_colours(path, tmp_path) == {(round(r * 0.4), round(g * 0.4), b)}
+
+
+def test_specular_glossiness_diffuse_factor_and_texture(tmp_path):
+    sg = {"KHR_materials_pbrSpecularGlossiness": {"diffuseFactor": [0.2, 0.4, 0.6, 1.0],
+                                                  "specularFactor": [1, 1, 1],
+                                                  "glossinessFactor": 0.2}}
+    vert, faces = box()
+    path = write_gltf(tmp_path / "sg.glb", [dict(vertices=vert, faces=faces, material=0)],
+                      materials=[{"name": "sg", "extensions": sg}],
+                      extensions_used=["KHR_materials_pbrSpecularGlossiness"])
+    assert colours_of(path) == {(51, 102, 153)}
+    sg = {"KHR_materials_pbrSpecularGlossiness": {"diffuseFactor": [1, 0.5, 1, 1],
+                                                  "diffuseTexture": {"index": 0}}}
+    path = write_gltf(tmp_path / "sgt.gltf", [uv_box(centre(2), centre(1), material=0)],
+                      materials=[{"name": "sg", "extensions": sg}], textures=[{"source": 0}],
+                      images=[{"png": texture_png()}],
+                      extensions_used=["KHR_materials_pbrSpecularGlossiness"])
+    r, g, b = texel(2, 1)
+    assert colours_of(path) == {(r, round(g * 0.5), b)}
+
+
+# glTF: where images live, and several primitives.
+
+def test_external_images_plain_and_percent_escaped(tmp_path):
+    (tmp_path / "maps").mkdir()
+    (tmp_path / "maps" / "my tex.png").write_bytes(texture_png())
+    for uri in ("maps/my tex.png", "maps/my%20tex.png"):
+        t = textured()
+        t["images"] = [{"uri": uri}]
+        path = write_gltf(tmp_path / "ext.gltf", [uv_box(centre(3), centre(0), material=0)], **t)
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            assert colours_of(path) == {texel(3, 0)}, uri
+
+
+def test_missing_external_image_warns_and_takes_the_factor(tmp_path):
+    t = textured(factor=[0.2, 0.4, 0.6, 1.0])
+    t["images"] = [{"uri": "gone.png"}]
+    path = write_gltf(tmp_path / "gone.gltf", [uv_box(centre(3), centre(0), material=0)], **t)
+    with pytest.warns(GeovoxWarning, match="gone.png"):
+        assert colours_of(path) == {(51, 102, 153)}
+
+
+def test_primitives_each_with_their_own_material(tmp_path):
+    va, fa = box()
+    vb, fb = box(offset=(2, 0, 0))
+    uv = np.tile(np.float32([centre(2), centre(3)]), (len(vb), 1))
+    t = textured()
+    t["materials"] = [{"pbrMetallicRoughness": {"baseColorFactor": [1, 0, 0, 1]}}] + t["materials"]
+    t["materials"][1]["pbrMetallicRoughness"]["baseColorTexture"]["index"] = 0
+    path = write_gltf(tmp_path / "two.glb", [
+        dict(vertices=va, faces=fa, material=0),
+        dict(vertices=vb, faces=fb, material=1, attributes={"TEXCOORD_0": uv})], **t)
+    vol = geovox.voxelize(path, shape=(16, 8, 8), color=True)
+    assert {tuple(c) for c in vol.colors[1:3, 3:5, 3:5, :3].reshape(-1, 3)} == {(255, 0, 0)}
+    assert {tuple(c) for c in vol.colors[13:15, 3:5, 3:5, :3].reshape(-1, 3)} == {texel(2, 3)}
+
+
+def test_primitives_sharing_a_material_share_its_texture(tmp_path):
+    va, fa = box()
+    vb, fb = box(offset=(2, 0, 0))
+    uv = np.float32([centre(0), centre(0)])
+    path = write_gltf(tmp_path / "shared.glb", [
+        dict(vertices=va, faces=fa, material=0, attributes={"TEXCOORD_0": np.tile(uv, (24, 1))}),
+        dict(vertices=vb, faces=fb, material=0, attributes={"TEXCOORD_0": np.tile(uv, (24, 1))})],
+        **textured())
+    mesh = geovox.load_mesh(path)
+    assert len(mesh.materials) == 1 and mesh.materials[0].name == "tex"
+
+
+# Default paths: what the file does not state.
+
+def test_gltf_primitive_without_material_or_colours_is_the_default_grey(tmp_path):
+    vert, faces = box()
+    path = write_gltf(tmp_path / "none.glb", [dict(vertices=vert, faces=faces)])
+    assert colours_of(path) == {(204, 204, 204)}
+    assert cli_colours(path, tmp_path) == {(204, 204, 204)}
+
+
+def test_gltf_material_without_factor_is_white_as_the_specification_says(tmp_path):
+    vert, faces = box()
+    path = write_gltf(tmp_path / "white.glb", [dict(vertices=vert, faces=faces, material=0)],
+                      materials=[{"name": "plain"}])
+    assert colours_of(path) == {(255, 255, 255)}
+
+
+def test_uncoloured_part_beside_a_coloured_one_keeps_the_default(tmp_path):
+    # One primitive with COLOR_0, one with nothing: the second must not take
+    # the white that stands in for "no vertex colour" under a material.
+    va, fa = box()
+    vb, fb = box(offset=(2, 0, 0))
+    red = np.tile(np.uint8([255, 0, 0, 255]), (len(va), 1))
+    path = write_gltf(tmp_path / "mixed.glb", [
+        dict(vertices=va, faces=fa, attributes={"COLOR_0": red}),
+        dict(vertices=vb, faces=fb)])
+    vol = geovox.voxelize(path, shape=(16, 8, 8), color=True)
+    assert {tuple(c) for c in vol.colors[1:3, 3:5, 3:5, :3].reshape(-1, 3)} == {(255, 0, 0)}
+    assert {tuple(c) for c in vol.colors[13:15, 3:5, 3:5, :3].reshape(-1, 3)} == {(204, 204, 204)}
+
+
+def test_sixteen_bit_grey_texture_is_not_clipped_to_white(tmp_path):
+    grey = np.full((4, 4), 257 * 100, np.uint16)  # 100 of 255
+    out = io.BytesIO()
+    Image.fromarray(grey).save(out, format="PNG")
+    t = textured()
+    t["images"] = [{"png": out.getvalue()}]
+    path = write_gltf(tmp_path / "g16.glb", [uv_box(centre(1), centre(1), material=0)], **t)
+    assert colours_of(path) == {(100, 100, 100)}
+
+
+# PLY and OFF.
+
+def _trimesh_box():
+    m = trimesh.creation.box(extents=(2, 2, 2))
+    m.apply_translation((1, 1, 1))
+    return m
+
+
+def test_ply_without_colours_uvs_only_vertex_and_face_colours(tmp_path):
+    m = _trimesh_box()
+    m.export(tmp_path / "plain.ply")
+    assert colours_of(tmp_path / "plain.ply") == {(204, 204, 204)}
+    m = _trimesh_box()
+    m.visual = trimesh.visual.TextureVisuals(uv=m.vertices[:, :2] / 2)
+    m.export(tmp_path / "uv.ply")
+    assert colours_of(tmp_path / "uv.ply") == {(204, 204, 204)}
+    assert cli_colours(tmp_path / "uv.ply", tmp_path) == {(204, 204, 204)}
+    m = _trimesh_box()
+    m.visual.vertex_colors = np.tile([10, 200, 30, 255], (len(m.vertices), 1))
+    m.export(tmp_path / "vc.ply")
+    assert colours_of(tmp_path / "vc.ply") == {(10, 200, 30)}
+    m = _trimesh_box()
+    m.visual.face_colors = np.tile([250, 5, 60, 255], (len(m.faces), 1))
+    m.export(tmp_path / "fc.ply")
+    assert cli_colours(tmp_path / "fc.ply", tmp_path) == {(250, 5, 60)}
+
+
+BOX8 = np.array([[0, 0, 0], [2, 0, 0], [2, 2, 0], [0, 2, 0],
+                 [0, 0, 2], [2, 0, 2], [2, 2, 2], [0, 2, 2.0]])
+QUADS = [(0, 3, 2, 1), (4, 5, 6, 7), (0, 1, 5, 4), (2, 3, 7, 6), (1, 2, 6, 5), (0, 4, 7, 3)]
+
+
+def write_off(path, header="OFF", vertex_extra="", face_extra=lambda i: ""):
+    lines = [header, "# a comment", f"{len(BOX8)} {len(QUADS)} 0"]
+    lines += [f"{x} {y} {z}{vertex_extra}" for x, y, z in BOX8]
+    lines += ["4 " + " ".join(map(str, q)) + face_extra(i) for i, q in enumerate(QUADS)]
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def test_off_vertex_colours_integer_and_float(tmp_path):
+    path = write_off(tmp_path / "vc.off", "COFF", " 10 200 30 255")
+    assert colours_of(path) == {(10, 200, 30)}
+    assert cli_colours(path, tmp_path) == {(10, 200, 30)}
+    path = write_off(tmp_path / "vcf.off", "COFF", " 0.2 0.4 0.6 1.0")
+    assert colours_of(path) == {(51, 102, 153)}
+    path = write_off(tmp_path / "nvc.off", "CNOFF", " 0 0 1 0.2 0.4 0.6 1.0")
+    assert colours_of(path) == {(51, 102, 153)}
+
+
+def test_off_face_colours_each_face_its_own(tmp_path):
+    # the top face (z = 2, quad 1) red, the rest blue
+    path = write_off(tmp_path / "fc.off",
+                     face_extra=lambda i: " 255 0 0" if i == 1 else " 0 0 255")
+    vol = geovox.voxelize(path, resolution=10, color=True)
+    assert vol.inside_count == 1000
+    assert np.all(vol.colors[2:8, 2:8, 9, :3] == (255, 0, 0))
+    assert np.all(vol.colors[:, :, 0, :3] == (0, 0, 255))
+
+
+def test_off_without_colours_is_the_default_grey(tmp_path):
+    path = write_off(tmp_path / "plain.off")
+    assert colours_of(path) == {(204, 204, 204)}
+    # a colour-map index (one number) is not a colour
+    path = write_off(tmp_path / "index.off", face_extra=lambda i: " 3")
+    assert colours_of(path) == {(204, 204, 204)}
+
+
+def test_fuze_ply_has_the_colours_of_fuze_obj():
+    # The PLY names the same texture and states no material colour: trimesh's
+    # made-up 0.4 grey must not darken it.
+    a = geovox.voxelize(corpus("fuze", "fuze.obj"), resolution=24, color=True)
+    b = geovox.voxelize(corpus("fuze", "fuze.ply"), resolution=24, color=True)
+    np.testing.assert_array_equal(a.occupancy, b.occupancy)
+    diff = np.abs(a.colors.astype(int) - b.colors.astype(int))
+    assert np.mean(diff[a.occupancy].max(axis=1) <= 2) > 0.99
+
+
+def test_trimesh_objects_in_python_keep_their_pbr_colours():
+    from trimesh.visual.material import PBRMaterial
+
+    m = _trimesh_box()
+    m.visual = trimesh.visual.TextureVisuals(material=PBRMaterial(baseColorFactor=[255, 128, 0, 255]))
+    vol = geovox.voxelize(m, resolution=8, color=True)
+    assert {tuple(c) for c in vol.colors[vol.occupancy, :3]} == {(255, 128, 0)}
+
+
+def test_glb_written_by_trimesh(tmp_path):
+    from trimesh.visual.material import PBRMaterial
+
+    m = _trimesh_box()
+    m.visual.vertex_colors = np.tile([40, 80, 160, 255], (len(m.vertices), 1))
+    m.export(tmp_path / "vc.glb")
+    assert colours_of(tmp_path / "vc.glb") == {(40, 80, 160)}
+    tex = Image.fromarray(np.full((8, 8, 3), (200, 100, 50), np.uint8))
+    m = _trimesh_box()
+    m.visual = trimesh.visual.TextureVisuals(
+        uv=np.full((len(m.vertices), 2), 0.5),
+        material=PBRMaterial(baseColorTexture=tex, baseColorFactor=[255, 51, 255, 255]))
+    m.export(tmp_path / "tex.glb")
+    assert colours_of(tmp_path / "tex.glb") == {(200, 20, 50)}
+    a, b = _trimesh_box(), _trimesh_box()
+    b.apply_translation((2, 0, 0))
+    a.visual = trimesh.visual.TextureVisuals(material=PBRMaterial(baseColorFactor=[255, 0, 0, 255]))
+    b.visual = trimesh.visual.TextureVisuals(material=PBRMaterial(baseColorFactor=[0, 0, 255, 255]))
+    trimesh.Scene([a, b]).export(tmp_path / "two.glb")
+    vol = geovox.voxelize(tmp_path / "two.glb", shape=(16, 8, 8), color=True)
+    assert np.all(vol.colors[1:3, 3:5, 3:5, :3] == (255, 0, 0))
+    assert np.all(vol.colors[13:15, 3:5, 3:5, :3] == (0, 0, 255))
