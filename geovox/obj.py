@@ -127,7 +127,12 @@ def read_mtl(path: str, problems: list) -> dict:
             else:
                 cur.ka = np.array(rgb, dtype=np.float64)
         elif key.lower() == "map_kd":
-            name = _texture_name(_rest(line, key))
+            args = _rest(line, key)
+            name = _texture_name(args)
+            options = args.split()[:len(args.split()) - len(name.split())]
+            if any(a == "-clamp" and b.lower() == "on" for a, b in zip(options, options[1:])):
+                # "-clamp on": one copy of the texture, its edge texels beyond [0, 1]
+                cur.wrap = ("clamp", "clamp")
             found = resolve_path(name, folder) if name else None
             if found is None:
                 problems.append(f"texture not found: {name!r} (material {cur.name!r} in {path}); "

@@ -502,3 +502,21 @@ def test_glb_written_by_trimesh(tmp_path):
     vol = geovox.voxelize(tmp_path / "two.glb", shape=(16, 8, 8), color=True)
     assert np.all(vol.colors[1:3, 3:5, 3:5, :3] == (255, 0, 0))
     assert np.all(vol.colors[13:15, 3:5, 3:5, :3] == (0, 0, 255))
+
+
+def test_obj_map_kd_clamp_on_clamps(tmp_path):
+    from geovox.obj import read_mtl
+
+    (tmp_path / "t.png").write_bytes(texture_png())
+    (tmp_path / "a.mtl").write_text("newmtl c\nmap_Kd -clamp on -s 1 1 1 t.png\n"
+                                    "newmtl r\nmap_Kd -clamp off t.png\nnewmtl p\nmap_Kd t.png\n")
+    mats = read_mtl(str(tmp_path / "a.mtl"), [])
+    assert mats["c"].wrap == ("clamp", "clamp") and mats["c"].texture_file.endswith("t.png")
+    assert mats["r"].wrap == mats["p"].wrap == ("repeat", "repeat")
+    # end to end: a box whose every corner has u = v = 1.375 takes the corner texel
+    m = _trimesh_box()
+    lines = ["mtllib a.mtl", "vt 1.375 1.375"] + [f"v {x} {y} {z}" for x, y, z in m.vertices]
+    lines += ["usemtl c"] + [f"f {a + 1}/1 {b + 1}/1 {c + 1}/1" for a, b, c in m.faces]
+    (tmp_path / "c.obj").write_text("\n".join(lines) + "\n")
+    # V up in OBJ: v = 1.375 clamps to 1, the image's top row; u clamps to its last column
+    assert colours_of(tmp_path / "c.obj") == {texel(3, 0)}
