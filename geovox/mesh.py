@@ -267,15 +267,16 @@ def _gltf_rewrite(header: dict, path: str) -> dict:
         facts[tag] = fact
     missing = set()
     for p in primitives:
-        n = texcoord.get(p.get("material"), 0)
-        if n:
-            attrs = p["attributes"]
-            if f"TEXCOORD_{n}" in attrs:
-                attrs["TEXCOORD_0"] = attrs[f"TEXCOORD_{n}"]
-            else:
-                # No such set: no UVs, so the texture cannot be placed.
-                attrs.pop("TEXCOORD_0", None)
-                missing.add((p["material"], n))
+        n = texcoord.get(p.get("material"))
+        if n is None or p.get("mode", 4) not in (4, 5):  # no texture, or not triangles
+            continue
+        attrs = p["attributes"]
+        if f"TEXCOORD_{n}" in attrs:
+            attrs["TEXCOORD_0"] = attrs[f"TEXCOORD_{n}"]
+        else:
+            # No such set: no UVs, so the texture cannot be placed.
+            attrs.pop("TEXCOORD_0", None)
+            missing.add((p["material"], n))
     for i, n in sorted(missing):
         problems.append(f"material {facts[_GLTF_TAG + str(i)]['name']!r} takes its base colour "
                         f"texture's coordinates from TEXCOORD_{n}, which a primitive using it "

@@ -230,6 +230,12 @@ def test_texcoord_set_the_primitive_lacks_warns_and_takes_the_factor(tmp_path):
                       **textured(factor=[0.2, 0.4, 0.6, 1], tex_extra={"texCoord": 1}))
     with pytest.warns(GeovoxWarning, match="TEXCOORD_1"):
         assert colours_of(path) == {(51, 102, 153)}
+    # and a textured primitive without any coordinates
+    vert, faces = box()
+    path = write_gltf(tmp_path / "t3.glb", [dict(vertices=vert, faces=faces, material=0)],
+                      **textured(factor=[0.2, 0.4, 0.6, 1]))
+    with pytest.warns(GeovoxWarning, match="TEXCOORD_0"):
+        assert colours_of(path) == {(51, 102, 153)}
 
 
 def test_khr_texture_transform_offset_and_scale(tmp_path):
