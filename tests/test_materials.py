@@ -526,3 +526,50 @@ def test_obj_map_kd_clamp_on_clamps(tmp_path):
     (tmp_path / "c.obj").write_text("\n".join(lines) + "\n")
     # V up in OBJ: v = 1.375 clamps to 1, the image's top row; u clamps to its last column
     assert colours_of(tmp_path / "c.obj") == {texel(3, 0)}
+
+
+@pytest.mark.parametrize("typ,value", [("float", "0.2 0.4 0.6"), ("uchar", "51 102 153"),
+                                       ("ushort", "13107 26214 39321")])
+def test_ply_vertex_colour_encodings(tmp_path, typ, value):
+    m = _trimesh_box()
+    head = (f"ply\nformat ascii 1.0\nelement vertex {len(m.vertices)}\nproperty float x\n"
+            f"property float y\nproperty float z\nproperty {typ} red\nproperty {typ} green\n"
+            f"property {typ} blue\nelement face {len(m.faces)}\n"
+            f"property list uchar int vertex_indices\nend_header\n")
+    body = "".join(f"{x} {y} {z} {value}\n" for x, y, z in m.vertices)
+    body += "".join(f"3 {a} {b} {c}\n" for a, b, c in m.faces)
+    (tmp_path / "c.ply").write_text(head + body)
+    assert colours_of(tmp_path / "c.ply") == {(51, 102, 153)}
+
+
+def test_mirror_wrap_is_repeat_over_the_unfolded_image():
+    # Mirrored repeat over an image is plain repeat over the image unfolded
+    # into its 2 x 2 mirror tile (period 2 in u and v): an independent check of
+    # the texel arithmetic, off texel centres and across the folds.
+    from geovox.colour import sample_bilinear
+
+    rng = np.random.default_rng(5)
+    img = rng.integers(0, 256, (5, 7, 3)).astype(np.uint8)
+    # rows run along glTF's V (down), which is 1 - v here
+    unfolded = np.concatenate([img, img[::-1]], axis=0)
+    unfolded = np.concatenate([unfolded, unfolded[:, ::-1]], axis=1)
+    uv = rng.uniform(-4, 4, (20000, 2))
+    uv[:200] = np.round(uv[:200] * 14) / 14  # on texel edges and centres too
+    got = sample_bilinear(img, uv, ("mirror", "mirror"))
+    # repeat over the unfolded image: u / 2 and glTF's V (1 - v) / 2
+    want = sample_bilinear(unfolded, np.stack([uv[:, 0] / 2, 1 - (1 - uv[:, 1]) / 2], axis=1))
+    np.testing.assert_allclose(got, want, atol=1e-9)
+
+
+def test_clamp_wrap_holds_the_edge_texels():
+    from geovox.colour import sample_bilinear
+
+    rng = np.random.default_rng(6)
+    img = rng.integers(0, 256, (4, 6, 3)).astype(np.uint8)
+    v = 1 - (2 + 0.5) / 4  # centre of row 2 (glTF's V down)
+    for u, col in ((-7.0, 0), (0.5 / 6, 0), (1.0, 5), (3.3, 5)):
+        got = sample_bilinear(img, np.array([[u, v]]), ("clamp", "clamp"))
+        np.testing.assert_allclose(got[0] * 255, img[2, col], atol=1e-9)
+    # the other axis keeps repeating when only u clamps
+    got = sample_bilinear(img, np.array([[-7.0, v - 3.0]]), ("clamp", "repeat"))
+    np.testing.assert_allclose(got[0] * 255, img[2, 0], atol=1e-9)
