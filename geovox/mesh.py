@@ -52,6 +52,7 @@ def _visual_parts(g, nfaces, materials, gltf=None, made=None, original=None):
     kind = getattr(visual, "kind", None)
     fm = np.full(nfaces, -1, dtype=np.int64)
     uv = vc = None
+    source = g if original is None else original
     mat = getattr(visual, "material", None) if kind == "texture" else None
     fact = gltf["materials"].get(getattr(mat, "name", None)) if gltf and mat is not None else None
     if fact is not None:
@@ -80,7 +81,7 @@ def _visual_parts(g, nfaces, materials, gltf=None, made=None, original=None):
                 uv = np.stack([t[0, 0] * gu + t[0, 1] * gv + t[0, 2],
                                1.0 - (t[1, 0] * gu + t[1, 1] * gv + t[1, 2])], axis=1)
             uv = uv[g.faces]
-        vc = _unit_colours(_vertex_attribute(g if original is None else original, "color"), len(g.vertices))
+        vc = _unit_colours(_vertex_attribute(source, "color"), len(g.vertices))
     elif kind == "texture":
         m = Material(name=getattr(mat, "name", None) or "material")
         image = getattr(mat, "image", None) or getattr(mat, "baseColorTexture", None)
@@ -99,7 +100,7 @@ def _visual_parts(g, nfaces, materials, gltf=None, made=None, original=None):
             m.kd = (np.ones(3) if factor is None
                     else np.asarray(factor, dtype=np.float64)[:3] / 255.0)
             m.vertex_tint = True
-            vc = _unit_colours(_vertex_attribute(g if original is None else original, "color"), len(g.vertices))
+            vc = _unit_colours(_vertex_attribute(source, "color"), len(g.vertices))
         else:
             colour = getattr(mat, "diffuse", None)
             # trimesh gives materials it makes up (a PLY's texture, UVs

@@ -481,7 +481,8 @@ def test_trimesh_objects_in_python_keep_their_pbr_colours():
     from trimesh.visual.material import PBRMaterial
 
     m = _trimesh_box()
-    m.visual = trimesh.visual.TextureVisuals(material=PBRMaterial(baseColorFactor=[255, 128, 0, 255]))
+    m.visual = trimesh.visual.TextureVisuals(
+        material=PBRMaterial(baseColorFactor=[255, 128, 0, 255]))
     vol = geovox.voxelize(m, resolution=8, color=True)
     assert {tuple(c) for c in vol.colors[vol.occupancy, :3]} == {(255, 128, 0)}
 
