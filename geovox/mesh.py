@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import json
 import os
 import re
@@ -329,39 +330,67 @@ def _gltf_file(path: str):
 _OFF_HEADER = re.compile(r"(ST)?(C)?(N)?(4)?(n)?OFF")
 
 
-def _off_colours(path: str, mesh: Mesh) -> Mesh:
-    """``mesh`` (read from an OFF file by trimesh) with the file's colours.
+def _read_off(path: str, mesh: Mesh | None) -> Mesh | None:
+    """An OFF file's colours, which trimesh's reader skips, and its polygons.
 
-    trimesh's OFF reader skips colours: vertex colours (``COFF``: ``x y z
-    [nx ny nz] r g b [a]``) and face colours (``n i1 ... in r g b [a]``),
-    each as integers 0-255 or as numbers 0-1 (0-255 when any exceeds 1).
-    With face colours the faces are fanned here, so each triangle knows its
-    polygon; a face without a colour in such a file takes the default. Face
-    colours are looked for when the first face has one.
+    ``mesh`` is what trimesh read from the file, returned as it is when the
+    file has no colours; None where trimesh failed (its OFF reader stops on
+    polygons of more than four corners), and then the file is read here.
+    Colours: ``COFF`` vertex colours (``x y z [nx ny nz] r g b [a]``) and
+    face colours (``n i1 ... in r g b [a]``), each as integers 0-255 or as
+    numbers 0-1 (0-255 when any exceeds 1). Polygons are fanned here, so
+    each triangle knows its face; a face without a colour in a file with
+    face colours takes the default. Face colours are looked for when the
+    first face has one. Returns None when the file cannot be read here either.
     """
     with open(path, "rb") as f:
         text = f.read().decode("utf-8", errors="replace")
-    lines = [ln.split() for ln in re.sub(r"#[^\n]*", "", text).splitlines()]
-    lines = [ln for ln in lines if ln]
-    head = _OFF_HEADER.fullmatch(lines[0][0]) if lines else None
+    if "#" in text:
+        text = re.sub(r"#[^\n]*", "", text)
+    # Non-blank lines, as an iterator (C-level: an uncoloured file costs one
+    # pass over its lines, not a split of each).
+    content = filter(None, map(str.strip, text.splitlines()))
+    first = next(content, "").split()
+    head = _OFF_HEADER.fullmatch(first[0]) if first else None
     if head is None:
         return mesh
-    start = 1 if len(lines[0]) > 1 else 2
     try:
-        counts = (lines[0][1:] if start == 1 else lines[1])[:2]
+        counts = first[1:3] if len(first) > 1 else next(content, "").split()[:2]
         nv, nf = int(counts[0]), int(counts[1])
     except (IndexError, ValueError):
         return mesh
-    vlines = lines[start:start + nv]
-    flines = lines[start + nv:start + nv + nf]
-    if len(vlines) != nv or len(mesh.vertices) != nv:
+    if mesh is not None and len(mesh.vertices) != nv:
         return mesh
+    if head.group(2) or mesh is None:
+        vlines = [ln.split() for ln in itertools.islice(content, nv)]
+    else:
+        vlines = None
+        next(itertools.islice(content, nv, nv), None)  # skip the vertices
+    face = next(content, "").split()
+    face_colours = bool(face) and face[0].isdigit() and len(face) >= 4 + int(face[0])
+    if mesh is not None and vlines is None and not face_colours:
+        return mesh
+    flines = [face] + [ln.split() for ln in itertools.islice(content, nf - 1)] if face else []
+    if mesh is None and (len(vlines) != nv or len(flines) != nf):
+        raise MeshError(f"{path}: the OFF header announces {nv:,} vertices and {nf:,} faces, "
+                        f"but the file has {len(vlines):,} and {len(flines):,}; it is cut short")
 
     def unit(rows):
         c = np.asarray(rows, dtype=np.float64)
         return np.clip(c / 255.0 if c.size and c.max() > 1.0 else c, 0.0, 1.0)
 
-    vc = fm = materials = faces = None
+    try:
+        if mesh is None:
+            vertices = np.array([ln[:3] for ln in vlines], dtype=np.float64).reshape(nv, 3)
+        else:
+            vertices = mesh.vertices
+        faces = fm = None
+        materials = []
+        if mesh is None or face_colours:
+            faces, fm, materials = _off_faces(flines, unit, face_colours)
+    except ValueError:  # what cannot be read here: trimesh's result or its error
+        return mesh
+    vc = None
     if head.group(2):
         at = 3 + (1 if head.group(4) else 0) + (3 if head.group(3) else 0)
         try:
@@ -370,39 +399,39 @@ def _off_colours(path: str, mesh: Mesh) -> Mesh:
             vc = None
         if vc is not None and vc.shape != (nv, 3):
             vc = None
-    first_face = flines[0] if flines else ["0"]
-    if first_face[0].isdigit() and len(first_face) >= 4 + int(first_face[0]):
-        try:
-            faces, fm, materials = _off_face_colours(flines, unit)
-        except ValueError:  # an unreadable face: trimesh's faces, no face colours
-            faces = None
-    if vc is None and faces is None:
+    if mesh is not None and vc is None and faces is None:
         return mesh
-    return build_mesh(mesh.vertices, mesh.faces if faces is None else faces, mesh.source,
-                      face_material=fm, materials=materials or [], vertex_colors=vc,
-                      problems=mesh.problems)
+    return build_mesh(vertices, mesh.faces if faces is None else faces, path,
+                      face_material=fm, materials=materials, vertex_colors=vc,
+                      problems=mesh.problems if mesh is not None else [])
 
 
-def _off_face_colours(flines, unit):
-    """Fanned faces (m, 3), face materials (m,) and materials of OFF face lines with colours."""
-    polys, colours, coloured = [], [], []
-    for ln in flines:
-        k = int(ln[0])
-        polys.append(ln[1:1 + k])
-        rest = ln[1 + k:1 + k + 3]
-        coloured.append(len(rest) == 3)
-        colours.append(rest if len(rest) == 3 else ["0", "0", "0"])
-    fc = unit(colours)
-    sizes = np.array([len(p) for p in polys])
+def _off_faces(flines, unit, coloured_file: bool):
+    """Fanned faces (m, 3) of OFF face lines, face materials (m,) and their materials.
+
+    Raises
+    ------
+    ValueError
+        A face line that cannot be read.
+    """
+    sizes = np.array([int(ln[0]) for ln in flines], dtype=np.int64)
+    if np.any(sizes < 0) or any(len(ln) < 1 + k for ln, k in zip(flines, sizes.tolist())):
+        raise ValueError("a face with fewer indices than it says")
     keep = sizes >= 3
-    corners = np.array([int(i) for p, ok in zip(polys, keep) if ok for i in p], dtype=np.int64)
+    corners = np.array([int(i) for ln, k, ok in zip(flines, sizes.tolist(), keep) if ok
+                        for i in ln[1:1 + k]], dtype=np.int64)
     first = np.r_[0, np.cumsum(sizes[keep])[:-1]]
     n_tri = sizes[keep] - 2
     poly = np.repeat(np.arange(len(first)), n_tri)
     j = np.arange(len(poly)) - np.repeat(np.cumsum(n_tri) - n_tri, n_tri) + 1
     c0 = first[poly]
     faces = corners[np.stack([c0, c0 + j, c0 + j + 1], axis=1)]
-    fc, has = fc[keep][poly], np.asarray(coloured)[keep][poly]
+    if not coloured_file:
+        return faces, None, []
+    rest = [ln[1 + k:1 + k + 3] for ln, k in zip(flines, sizes.tolist())]
+    has = np.array([len(r) == 3 for r in rest])
+    fc = unit([r if len(r) == 3 else ["0", "0", "0"] for r in rest])
+    fc, has = fc[keep][poly], has[keep][poly]
     uniq, inverse = np.unique(fc, axis=0, return_inverse=True)
     materials = [Material(name="face colour", kd=c) for c in uniq]
     return faces, np.where(has, inverse.reshape(-1), -1), materials
@@ -612,6 +641,9 @@ def _trimesh_load(path: str) -> Mesh:
                 loaded = trimesh.load(io.BytesIO(gltf[0]), file_type=ext[1:], process=False,
                                       resolver=trimesh.resolvers.FilePathResolver(path))
     except Exception as exc:  # trimesh raises many types for unreadable files
+        own = _read_off(path, None) if ext == ".off" else None
+        if own is not None:
+            return own  # e.g. polygons of five corners or more, which trimesh cannot fan
         raise MeshError(_load_failure(path, exc)) from exc
     finally:
         logger.removeHandler(collect)
@@ -630,7 +662,7 @@ def _trimesh_load(path: str) -> Mesh:
     try:
         mesh = from_trimesh(loaded, source=path, _gltf=gltf[1] if gltf else None)
         if ext == ".off":
-            mesh = _off_colours(path, mesh)
+            mesh = _read_off(path, mesh)
     except MeshError:
         raise
     except Exception as exc:  # odd visuals or arrays trimesh accepted

@@ -574,3 +574,43 @@ def test_clamp_wrap_holds_the_edge_texels():
     # the other axis keeps repeating when only u clamps
     got = sample_bilinear(img, np.array([[-7.0, v - 3.0]]), ("clamp", "repeat"))
     np.testing.assert_allclose(got[0] * 255, img[2, 0], atol=1e-9)
+
+
+def test_off_pentagons_with_and_without_face_colours(tmp_path):
+    # A pentagonal prism: two 5-gons and five quads, each face its colour.
+    # trimesh's OFF reader stops on polygons of five corners; geovox reads
+    # them, fanned so each triangle knows its face, and gets the volume of
+    # the same prism triangulated by trimesh.
+    ang = 2 * np.pi * np.arange(5) / 5
+    ring = np.stack([1 + np.cos(ang), 1 + np.sin(ang)], axis=1)
+    v = np.concatenate([np.c_[ring, np.zeros(5)], np.c_[ring, np.full(5, 2.0)]])
+    polys = [list(range(4, -1, -1)), list(range(5, 10))]
+    polys += [[i, (i + 1) % 5, (i + 1) % 5 + 5, i + 5] for i in range(5)]
+    colours = [(255, 0, 0), (0, 255, 0)] + [(0, 0, 40 * (i + 1)) for i in range(5)]
+    prism = trimesh.Trimesh(v, trimesh.geometry.triangulate_quads(polys), process=False)
+    want = geovox.voxelize(prism, resolution=12)
+
+    def write(name, coloured):
+        lines = ["OFF", f"{len(v)} {len(polys)} 0"] + [f"{x} {y} {z}" for x, y, z in v]
+        lines += [f"{len(p)} " + " ".join(map(str, p))
+                  + (" %d %d %d" % colours[i] if coloured else "") for i, p in enumerate(polys)]
+        (tmp_path / name).write_text("\n".join(lines) + "\n")
+        return geovox.voxelize(tmp_path / name, resolution=12, color=True)
+
+    coloured, plain = write("c.off", True), write("p.off", False)
+    np.testing.assert_array_equal(coloured.occupancy, want.occupancy)
+    np.testing.assert_array_equal(plain.occupancy, want.occupancy)
+    assert np.all(plain.colors[plain.occupancy, :3] == 204)
+    got = {tuple(int(x) for x in c) for c in coloured.colors[coloured.occupancy, :3]}
+    assert got <= set(colours) and (0, 255, 0) in got and (255, 0, 0) in got
+    top = coloured.colors[:, :, -1][coloured.occupancy[:, :, -1]]
+    assert np.mean(np.all(top[:, :3] == (0, 255, 0), axis=1)) > 0.5
+
+
+def test_truncated_off_is_still_an_error(tmp_path):
+    # a five-corner face next to a quad (which trimesh cannot read) and five faces missing
+    path = tmp_path / "cut.off"
+    path.write_text("OFF\n10 7 0\n" + "".join(f"{i % 3} {i // 3} {i % 2}\n" for i in range(10))
+                    + "5 0 1 2 3 4\n4 0 1 6 5\n")
+    with pytest.raises(geovox.MeshError, match="announces 10 vertices and 7 faces.*has 10 and 2"):
+        geovox.load_mesh(path)
