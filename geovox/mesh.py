@@ -64,6 +64,7 @@ def _visual_parts(g, nfaces, materials, gltf=None, made=None, original=None):
             if image is not None:
                 try:
                     m.image = texels(image)
+                    m.texture_file = fact["file"]
                 except Exception as exc:  # Pillow raises several types for bad images
                     gltf["problems"].append(_no_texture(fact, f"{type(exc).__name__}: {exc}"))
             elif fact["texture"] is not None:
@@ -240,7 +241,7 @@ def _gltf_rewrite(header: dict, path: str) -> dict:
                             f"({pbr.get('baseColorFactor')!r}); using white")
             factor = np.ones(4)
         fact = {"name": name, "kd": np.clip(factor[:3], 0.0, 1.0), "wrap": ("repeat", "repeat"),
-                "transform": None, "texture": None}
+                "transform": None, "texture": None, "file": None}
         ref = pbr.get("baseColorTexture")
         index = ref.get("index") if isinstance(ref, dict) else None
         if isinstance(index, int) and 0 <= index < len(textures):
@@ -256,8 +257,10 @@ def _gltf_rewrite(header: dict, path: str) -> dict:
                     source = e.get("source")
             uri = (images[source].get("uri") if isinstance(source, int)
                    and 0 <= source < len(images) else None)
-            fact["texture"] = (repr(uri) if isinstance(uri, str) and not uri.startswith("data:")
-                               else f"(image {source}, embedded)")
+            external = isinstance(uri, str) and not uri.startswith("data:")
+            fact["texture"] = repr(uri) if external else f"(image {source}, embedded)"
+            if external and os.path.isfile(os.path.join(folder, uri)):
+                fact["file"] = os.path.join(folder, uri)
             n = ref.get("texCoord", 0)
             tt = (ref.get("extensions") or {}).get("KHR_texture_transform")
             if isinstance(tt, dict):

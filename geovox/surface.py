@@ -33,7 +33,7 @@ class Material:
     ka : (3,) float64
         Ambient colour ``Ka`` (black when absent).
     texture_file : str or None
-        Resolved path of ``map_Kd``.
+        Resolved path of ``map_Kd``, or of a glTF material's external image.
     defined : bool
         False for a ``usemtl`` name no material file defines.
     image : (h, w, 3) uint8 or None

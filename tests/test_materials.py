@@ -322,6 +322,8 @@ def test_external_images_plain_and_percent_escaped(tmp_path):
         with warnings.catch_warnings():
             warnings.simplefilter("error")
             assert colours_of(path) == {texel(3, 0)}, uri
+        (material,) = geovox.load_mesh(path).materials
+        assert material.texture_file.endswith("my tex.png")  # `geovox info`: texture found
 
 
 def test_missing_external_image_warns_and_takes_the_factor(tmp_path):
