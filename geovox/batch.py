@@ -116,6 +116,21 @@ def _output_exists(target) -> bool:
     return os.path.exists(target)
 
 
+def _written_since(target, started) -> bool:
+    """Whether the local file ``target`` was written after the wall-clock time ``started``.
+
+    Only the word in the summary depends on it ("ok" rather than "skipped"
+    for a task the scheduler ran twice), so clocks a few milliseconds apart
+    across a cluster, or a file system that stores whole seconds, do no harm.
+    """
+    if started is None or is_url(target):
+        return False
+    try:
+        return os.stat(target).st_mtime >= started
+    except OSError:
+        return False
+
+
 def _upload(local_files, main, folder) -> list:
     """Copy files written locally into the URL ``folder``; the volume ``main`` last.
 
@@ -139,7 +154,7 @@ def _upload(local_files, main, folder) -> list:
             fs.mv(part, target)
         else:
             fs.put_file(f, target)
-        urls[f] = fs.unstrip_protocol(target)
+        urls[f] = folder.rstrip("/") + "/" + name  # as the user spelt the folder
     return [urls[f] for f in local_files]
 
 
@@ -181,6 +196,11 @@ def _convert_one(task) -> Result:
             name = default_name(task["stem"], grid.shape, "uint8", task["ext"])
             target = out_dir.rstrip("/") + "/" + name if remote else os.path.join(out_dir, name)
             if not task["overwrite"] and _output_exists(target):
+                if _written_since(target, task.get("started")):
+                    # Written by this very run: its result was lost with the worker
+                    # that held it, and the scheduler ran the task again.
+                    return Result(path, "ok", [target], "", time.perf_counter() - t0,
+                                  "written earlier in this run")
                 return Result(path, "skipped", [target], "", time.perf_counter() - t0,
                               "output exists (use --overwrite)")
             with contextlib_tempdir(remote) as tmp:
@@ -292,7 +312,7 @@ def _submit_dask(client, tasks, retries, on_result):
         meta[f.key] = (i, attempt)
         return f
 
-    ac = as_completed([submit(i, 0) for i in range(len(tasks))])
+    ac = as_completed([submit(i, 0) for i in range(len(tasks))], loop=client.loop)
     for f in ac:
         i, attempt = meta.pop(f.key)
         if f.status == "finished":
@@ -414,7 +434,7 @@ def convert_many(inputs, out, *, client=None, fmt=None, overwrite=False, jobs=1,
     tasks = [dict(input=os.path.abspath(found[i]) if not is_url(found[i]) else found[i],
                   shown=found[i], stem=stems[i], out=out, options=dict(options), ext=ext,
                   overwrite=bool(overwrite), write_options=dict(write_options or {}),
-                  versions=versions) for i in picked]
+                  versions=versions, started=time.time()) for i in picked]
     recorded = _canonical(dict(options=options, format=ext.lstrip("."),
                                write_options=write_options or {}))
 
@@ -437,6 +457,11 @@ def convert_many(inputs, out, *, client=None, fmt=None, overwrite=False, jobs=1,
     if manifest is not None:
         try:
             log = open(manifest, "a", encoding="utf-8")
+            if log.tell() > 0:
+                with open(manifest, "rb") as f:
+                    f.seek(-1, os.SEEK_END)
+                    if f.read(1) != b"\n":  # a run killed mid-line: start a fresh line
+                        log.write("\n")
         except OSError as exc:
             raise OutputError(f"cannot write the manifest {manifest}: {exc.strerror or exc}") from None
 

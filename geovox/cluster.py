@@ -74,6 +74,58 @@ def _scheduler_file_address(path) -> str:
     return address
 
 
+def _probe(distributed, address: str, where: str) -> None:
+    """Ask ``address`` who it is, within ``CONNECT_TIMEOUT``; a ClusterError unless a scheduler.
+
+    Done before making a Client: a Client whose connection failed still
+    tries to close itself when collected, and waits twice its timeout to do
+    so; and a port that answers with something other than Dask (a proxy, a
+    web server) would otherwise fail deep inside the protocol.
+    """
+    import asyncio
+
+    async def ask():
+        comm = await distributed.comm.connect(address, timeout=CONNECT_TIMEOUT)
+        try:
+            await comm.write({"op": "identity", "n_workers": 0, "reply": True})
+            return await comm.read()
+        finally:
+            comm.abort()
+
+    import socket
+
+    try:
+        scheme, location = distributed.comm.parse_address(address)
+        if scheme == "tcp":
+            host, port = distributed.comm.parse_host_port(location)
+    except ValueError as exc:
+        raise ClusterError(f"not a scheduler address: {where} ({exc})") from None
+    if scheme == "tcp":
+        # A refused port or an unknown host is known at once; Dask's own
+        # connect would retry both until its timeout.
+        try:
+            socket.create_connection((host, port), timeout=CONNECT_TIMEOUT).close()
+        except socket.gaierror as exc:
+            raise ClusterError(f"no Dask scheduler answered at {where} (unknown host {host!r}: "
+                               f"{exc.strerror or exc})") from None
+        except socket.timeout:
+            raise ClusterError(f"no Dask scheduler answered at {where} (no answer in "
+                               f"{CONNECT_TIMEOUT:g} s)") from None
+        except OSError as exc:
+            raise ClusterError(f"no Dask scheduler answered at {where} "
+                               f"({exc.strerror or exc})") from None
+    try:
+        reply = asyncio.run(asyncio.wait_for(ask(), CONNECT_TIMEOUT))
+    except (OSError, asyncio.TimeoutError) as exc:
+        why = f"no answer in {CONNECT_TIMEOUT:g} s" if isinstance(exc, asyncio.TimeoutError) \
+            else _one_line(exc)
+        raise ClusterError(f"no Dask scheduler answered at {where} ({why})") from None
+    except Exception:  # e.g. a web server's reply read as a Dask frame length
+        reply = None
+    if not (isinstance(reply, dict) and reply.get("type") == "Scheduler"):
+        raise ClusterError(f"{where} answered, but not as a Dask scheduler")
+
+
 def _versions() -> dict:
     """Run on each worker (and here): the versions that must agree."""
     import numpy
@@ -193,16 +245,16 @@ def client_from_options(scheduler=None, scheduler_file=None, local_cluster=None)
             with dask.config.set(LOCAL_CLUSTER_CONFIG):
                 cluster = stack.enter_context(distributed.LocalCluster(
                     n_workers=local_cluster, threads_per_worker=1, processes=True,
-                    dashboard_address=None, silence_logs=logging.CRITICAL))
+                    dashboard_address=":0", silence_logs=logging.CRITICAL))
             client = stack.enter_context(distributed.Client(cluster))
         else:
             where = scheduler + (f" (from {os.fspath(scheduler_file)})" if scheduler_file else "")
+            _probe(distributed, scheduler, where)
             try:
-                client = distributed.Client(scheduler, timeout=CONNECT_TIMEOUT,
-                                            set_as_default=False)
-            except Exception as exc:  # refused, timed out, unresolvable, malformed
-                raise ClusterError(f"no Dask scheduler answered at {where} within "
-                                   f"{CONNECT_TIMEOUT:g} s ({_one_line(exc)})") from None
+                client = distributed.Client(scheduler, timeout=CONNECT_TIMEOUT)
+            except Exception as exc:  # it answered a moment ago; say what went wrong
+                raise ClusterError(f"cannot open a client of the Dask scheduler at {where} "
+                                   f"({_one_line(exc)})") from None
             stack.enter_context(client)
         check_versions(client)
         yield client
