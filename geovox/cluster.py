@@ -33,11 +33,16 @@ EXTRA_HINT = "pip install 'geovox[distributed]'"
 
 #: Dask settings for a cluster geovox starts itself (``local_cluster``):
 #: a dead worker fails its task at once (geovox's own ``retries`` then
-#: decide, so they count exactly), and a worker holds only the tasks it is
-#: running, so a worker that dies takes no queued model down with it.
+#: decide, so they count exactly); a worker holds only the tasks it is
+#: running, so a worker that dies takes no queued model down with it; and
+#: workers start without Dask's ``MALLOC_TRIM_THRESHOLD_=65536``, which
+#: returns freed memory to the system so eagerly that the corpus's slow
+#: models took twice the wall time (5.7 s of system time instead of 1.2 s,
+#: measured; see benchmarks/README.md).
 LOCAL_CLUSTER_CONFIG = {
     "distributed.scheduler.allowed-failures": 0,
     "distributed.scheduler.worker-saturation": 1.0,
+    "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None,
 }
 
 

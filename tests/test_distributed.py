@@ -309,3 +309,17 @@ def test_one_cluster_option_at_a_time():
     with pytest.raises(geovox.ParameterError, match="local_cluster"):
         with cluster_mod.client_from_options(local_cluster=0):
             pass
+
+
+def test_a_task_on_a_worker_with_other_versions_fails_its_model(tmp_path):
+    # Workers that join after the check at connection: each task checks too.
+    from geovox.batch import _convert_one
+    from geovox.cluster import _versions
+
+    task = dict(input=SPOT, stem="spot", out=str(tmp_path), options={"resolution": 8}, ext=".raw",
+                overwrite=False, write_options={}, versions=dict(_versions(), geovox="0.0.1"))
+    r = _convert_one(task)
+    assert r.status == "failed" and "the client geovox 0.0.1" in r.error
+    assert os.listdir(tmp_path) == []
+    task["versions"] = _versions()
+    assert _convert_one(task).status == "ok"
