@@ -177,7 +177,9 @@ def _convert_one(task) -> Result:
 
         mine = _versions()
         if task.get("versions") and mine != task["versions"]:
-            raise OutputError(f"this worker has geovox {mine['geovox']} and NumPy {mine['numpy']}, "
+            from .errors import ClusterError
+
+            raise ClusterError(f"this worker has geovox {mine['geovox']} and NumPy {mine['numpy']}, "
                               f"the client geovox {task['versions']['geovox']} and NumPy "
                               f"{task['versions']['numpy']}")
         from .formats import format_for, write
@@ -340,7 +342,7 @@ def convert_many(inputs, out, *, client=None, fmt=None, overwrite=False, jobs=1,
 
     Parameters
     ----------
-    inputs : list of paths
+    inputs : path or list of paths
         Mesh files, or folders searched (sorted, with subfolders) for them.
     out : path or URL
         Output folder, created if needed; or an fsspec URL (``s3://bucket/x``,
@@ -401,6 +403,8 @@ def convert_many(inputs, out, *, client=None, fmt=None, overwrite=False, jobs=1,
         raise ParameterError(f"`retries` must be a non-negative integer, got {retries!r}")
     shard = parse_shard(shard)
     ext = format_for("x.raw", fmt).extensions[0]
+    if isinstance(inputs, (str, os.PathLike)):
+        inputs = [inputs]  # one file or folder, not a list of characters
     found = find_inputs(inputs)
     out = os.fspath(out)
     if is_url(out):
