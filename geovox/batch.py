@@ -301,21 +301,49 @@ def _submit_dask(client, tasks, retries, on_result):
     Dask's own ``retries`` covers a task that raises, which ours never does;
     a worker that dies instead ends in ``KilledWorker`` once the scheduler's
     ``allowed-failures`` are spent, and is resubmitted here.
+
+    Only as many tasks as the cluster has threads are out at a time (the
+    count is refreshed as workers come and go). A worker that dies then
+    takes down only the model it was running: had the scheduler handed it
+    more, they would be blamed too (Dask queues only large groups of tasks
+    on its side). It also keeps a run of 100,000 models from putting them
+    all on the scheduler at once; the cost is one message round trip between
+    two models on a thread (a few ms, see benchmarks/README.md).
     """
+    from collections import deque
+
     from distributed import as_completed
+
+    if not tasks:
+        return
 
     from .cluster import _one_line
 
     meta = {}
+    queue = deque((i, 0) for i in range(len(tasks)))
+    ac = as_completed([], loop=client.loop)
 
-    def submit(i, attempt):
-        f = client.submit(_convert_one, tasks[i], pure=False,
-                          key=f"geovox-{tasks[i]['stem']}-{i}-{attempt}-{os.urandom(4).hex()}")
-        meta[f.key] = (i, attempt)
-        return f
+    def threads():
+        try:
+            return max(1, sum(client.nthreads().values()))
+        except Exception:  # the scheduler is busy or gone; the futures will say so
+            return 1
 
-    ac = as_completed([submit(i, 0) for i in range(len(tasks))], loop=client.loop)
+    limit, checked, out = threads(), time.monotonic(), 0
+
+    def fill():
+        nonlocal out
+        while queue and out < limit:
+            i, attempt = queue.popleft()
+            f = client.submit(_convert_one, tasks[i], pure=False,
+                              key=f"geovox_convert-{i}-{attempt}-{os.urandom(4).hex()}")
+            meta[f.key] = (i, attempt)
+            ac.add(f)
+            out += 1
+
+    fill()
     for f in ac:
+        out -= 1
         i, attempt = meta.pop(f.key)
         if f.status == "finished":
             r = f.result()
@@ -325,15 +353,20 @@ def _submit_dask(client, tasks, retries, on_result):
             except BaseException as e:  # cancelled: the scheduler forgot it
                 exc = e
             if attempt < retries:
-                ac.add(submit(i, attempt + 1))
-                f.release()
-                continue
-            worker = getattr(getattr(exc, "last_worker", None), "address", None)
-            why = (f"its worker died ({worker})" if worker else f"its task was lost ({_one_line(exc)})")
-            r = Result(tasks[i]["input"], "failed", [], f"{why}; tried {attempt + 1} time"
-                       f"{'s' if attempt else ''} (retries={retries})")
+                queue.appendleft((i, attempt + 1))
+                r = None
+            else:
+                worker = getattr(getattr(exc, "last_worker", None), "address", None)
+                why = (f"its worker died ({worker})" if worker else
+                       f"its task was lost ({_one_line(exc)})")
+                r = Result(tasks[i]["input"], "failed", [], f"{why}; tried {attempt + 1} time"
+                           f"{'s' if attempt else ''} (retries={retries})")
         f.release()
-        on_result(i, r)
+        if r is not None:
+            on_result(i, r)
+        if time.monotonic() - checked > 2.0:
+            limit, checked = threads(), time.monotonic()
+        fill()
 
 
 def convert_many(inputs, out, *, client=None, fmt=None, overwrite=False, jobs=1, retries=2,
