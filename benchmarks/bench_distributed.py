@@ -78,7 +78,7 @@ def fresh(args, repeat) -> tuple:
     return statistics.median(times), rc, p.stderr.strip().splitlines()
 
 
-def warm_rows(corpus, res, out):
+def warm_rows(corpus, res, out, n_tiny, tiny_only=False):
     import dask
     import distributed
 
@@ -99,9 +99,14 @@ def warm_rows(corpus, res, out):
                          ok=sum(r.status == "ok" for r in results)))
         return results
 
+    tiny = [os.path.join(corpus, "trimesh_edge_cases", "box.obj")] * n_tiny
     for jobs in (1, 2):
-        row(f"local pool, jobs={jobs}", jobs,
-            lambda: geovox.convert_many([corpus], out, overwrite=True, jobs=jobs, resolution=res))
+        if not tiny_only:
+            row(f"local pool, jobs={jobs}", jobs,
+                lambda: geovox.convert_many([corpus], out, overwrite=True, jobs=jobs,
+                                            resolution=res))
+        row(f"tiny: local pool, jobs={jobs}", jobs,
+            lambda: geovox.convert_many(tiny, out, overwrite=True, jobs=jobs, resolution=8))
     noop = {}
     for workers in (1, 2):
         with dask.config.set(LOCAL_CLUSTER_CONFIG), \
@@ -109,9 +114,14 @@ def warm_rows(corpus, res, out):
                                          dashboard_address=":0", silence_logs=50) as cl, \
                 distributed.Client(cl) as client:
             client.run(_warm)  # imports paid once, as on a cluster that is already up
-            row(f"Dask LocalCluster, {workers} worker{'s' if workers > 1 else ''}", workers,
-                lambda: geovox.convert_many([corpus], out, client=client, overwrite=True,
-                                            resolution=res))
+            label = f"{workers} worker{'s' if workers > 1 else ''}"
+            if not tiny_only:
+                row(f"Dask LocalCluster, {label}", workers,
+                    lambda: geovox.convert_many([corpus], out, client=client, overwrite=True,
+                                                resolution=res))
+            row(f"tiny: Dask LocalCluster, {label}", workers,
+                lambda: geovox.convert_many(tiny, out, client=client, overwrite=True,
+                                            resolution=8))
             client.gather(client.map(_noop, range(50), pure=False))  # warm-up
             t0 = time.perf_counter()
             client.gather(client.map(_noop, range(2000), pure=False))
@@ -167,6 +177,10 @@ def main():
     ap.add_argument("--res", type=int, default=128)
     ap.add_argument("--repeat", type=int, default=1)
     ap.add_argument("--skip-fresh", action="store_true")
+    ap.add_argument("--tiny", type=int, default=300,
+                    help="copies of box.obj (12 triangles) at 8³ for the overhead rows")
+    ap.add_argument("--tiny-only", action="store_true",
+                    help="only the overhead rows (tiny models) and the no-op tasks")
     a = ap.parse_args()
     print(f"load average before: {load()}  ({time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())})")
     with tempfile.TemporaryDirectory() as tmp:
@@ -182,8 +196,8 @@ def main():
                 fresh_times[" ".join(extra)] = t
                 print(f"| `geovox convert CORPUS -o OUT -r {a.res} {' '.join(extra)}` | {t:.2f} |"
                       + ("" if rc == 0 else f" (exit {rc})"))
-        rows, noop = warm_rows(a.corpus, a.res, out)
-        print(f"\n| warm, in one process (corpus at {a.res}³) | models | wall s | models/s | "
+        rows, noop = warm_rows(a.corpus, a.res, out, a.tiny, a.tiny_only)
+        print(f"\n| warm, in one process (corpus at {a.res}³; tiny: box.obj x {a.tiny} at 8³) | models | wall s | models/s | "
               "sum of model times s | per-model overhead ms |")
         print("|---|---:|---:|---:|---:|---:|")
         for r in rows:
@@ -196,9 +210,13 @@ def main():
         print("\n| bad set-up (fresh process) | seconds to the error | exit | stderr |\n|---|---:|---:|---|")
         for name, (t, rc, line) in bad.items():
             print(f"| {name} | {t:.2f} | {rc} | `{line}` |")
+    if a.tiny_only:
+        print(f"\nload average after: {load()}")
+        return
     one = [r for r in rows if r["label"].startswith("Dask") and r["workers"] == 1][0]
+    o_tiny = [r for r in rows if r["label"].startswith("tiny: Dask") and r["workers"] == 1][0]
     t_mean = one["own"] / one["n"]
-    o = max(0.0, one["overhead"])
+    o = max(0.0, o_tiny["overhead"])  # tiny models: the overhead with no tail to hide in
     c = 1 / noop[1]
     print(f"\nmodel inputs: t = {t_mean * 1000:.0f} ms a model (mean), o = {o * 1000:.1f} ms, "
           f"c = {c * 1000:.2f} ms a task; N* = (t + o) / c = {(t_mean + o) / c:.0f} workers "

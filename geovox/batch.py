@@ -295,6 +295,10 @@ def _submit_local(tasks, jobs, on_result):
             on_result(i, _convert_one(t))
 
 
+#: Tasks out per worker thread on a cluster (see :func:`_submit_dask`).
+IN_FLIGHT_PER_THREAD = 1
+
+
 def _submit_dask(client, tasks, retries, on_result):
     """One task per model; a task lost with its worker is sent again up to ``retries`` times.
 
@@ -325,7 +329,7 @@ def _submit_dask(client, tasks, retries, on_result):
 
     def threads():
         try:
-            return max(1, sum(client.nthreads().values()))
+            return max(1, IN_FLIGHT_PER_THREAD * sum(client.nthreads().values()))
         except Exception:  # the scheduler is busy or gone; the futures will say so
             return 1
 
