@@ -66,16 +66,22 @@ def fresh(args, repeat) -> tuple:
     """Median wall seconds of a fresh ``geovox`` process, and its exit status."""
     env = dict(os.environ, PYTHONPATH=ROOT + os.pathsep + os.environ.get("PYTHONPATH", ""))
     env.pop("DASK_SCHEDULER_ADDRESS", None)
-    times, rc = [], None
+    times, cpus, rc = [], [], None
     for _ in range(repeat):
         t0 = time.perf_counter()
-        p = subprocess.run([sys.executable, "-m", "geovox", *args], env=env,
-                           capture_output=True, text=True)
+        p = subprocess.Popen([sys.executable, "-m", "geovox", *args], env=env,
+                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+        err = p.stderr.read()
+        _, status, ru = os.wait4(p.pid, 0)
+        p.returncode = os.waitstatus_to_exitcode(status)
         times.append(time.perf_counter() - t0)
+        # CPU time of the process and every process it waited for (Dask's
+        # workers are reaped by their nanny, which runs in the CLI process).
+        cpus.append(ru.ru_utime + ru.ru_stime)
         rc = p.returncode
         if rc not in (0, 2):
-            raise RuntimeError(p.stderr)
-    return statistics.median(times), rc, p.stderr.strip().splitlines()
+            raise RuntimeError(err)
+    return statistics.median(times), rc, err.strip().splitlines(), statistics.median(cpus)
 
 
 def warm_rows(corpus, res, out, n_tiny, tiny_only=False):
@@ -87,13 +93,27 @@ def warm_rows(corpus, res, out, n_tiny, tiny_only=False):
 
     rows = []
 
-    def row(label, workers, fn):
+    def cpu(client=None):
+        """CPU seconds so far of this process, its reaped children, and the client's workers."""
+        import resource
+
+        own = resource.getrusage(resource.RUSAGE_SELF)
+        kids = resource.getrusage(resource.RUSAGE_CHILDREN)
+        total = own.ru_utime + own.ru_stime + kids.ru_utime + kids.ru_stime
+        if client is not None:
+            total += sum(client.run(_cpu_seconds).values())
+        return total
+
+    def row(label, workers, fn, client=None):
+        c0 = cpu(client)
         t0 = time.perf_counter()
         results = fn()
         wall = time.perf_counter() - t0
+        cpu_s = cpu(client) - c0
         own = sum(r.seconds for r in results)
         n = len(results)
         rows.append(dict(label=label, workers=workers, n=n, wall=wall, rate=n / wall, own=own,
+                         cpu=cpu_s,
                          longest=max(r.seconds for r in results),
                          overhead=(wall * workers - own) / n,
                          ok=sum(r.status == "ok" for r in results)))
@@ -118,10 +138,10 @@ def warm_rows(corpus, res, out, n_tiny, tiny_only=False):
             if not tiny_only:
                 row(f"Dask LocalCluster, {label}", workers,
                     lambda: geovox.convert_many([corpus], out, client=client, overwrite=True,
-                                                resolution=res))
+                                                resolution=res), client)
             row(f"tiny: Dask LocalCluster, {label}", workers,
                 lambda: geovox.convert_many(tiny, out, client=client, overwrite=True,
-                                            resolution=8))
+                                            resolution=8), client)
             client.gather(client.map(_noop, range(50), pure=False))  # warm-up
             t0 = time.perf_counter()
             client.gather(client.map(_noop, range(2000), pure=False))
@@ -131,6 +151,13 @@ def warm_rows(corpus, res, out, n_tiny, tiny_only=False):
 
 def _noop(x):
     return x
+
+
+def _cpu_seconds():
+    import resource
+
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return r.ru_utime + r.ru_stime
 
 
 def _warm():
@@ -150,8 +177,8 @@ def bad_setups(tmp):
              "missing scheduler file": ["--scheduler-file", os.path.join(tmp, "nope.json")]}
     out = {}
     for name, extra in cases.items():
-        t, rc, err = fresh(["convert", spot, spot, "-o", os.path.join(tmp, "bad"), "-r", "8",
-                            *extra], 1)
+        t, rc, err, _ = fresh(["convert", spot, spot, "-o", os.path.join(tmp, "bad"), "-r", "8",
+                               *extra], 1)
         out[name] = (t, rc, err[0] if len(err) == 1 else f"{len(err)} lines")
     s.close()
     return out
@@ -187,22 +214,23 @@ def main():
         out = os.path.join(tmp, "out")
         fresh_times = {}
         if not a.skip_fresh:
-            print("\n| command (fresh process, corpus at %d³) | wall s |" % a.res)
-            print("|---|---:|")
+            print("\n| command (fresh process, corpus at %d³) | wall s | CPU s |" % a.res)
+            print("|---|---:|---:|")
             for extra in (["-j", "1"], ["-j", "2"], ["--local-cluster", "1"],
                           ["--local-cluster", "2"]):
-                t, rc, _ = fresh(["convert", a.corpus, "-o", out, "-r", str(a.res), "-q",
-                                  "--overwrite", *extra], a.repeat)
+                t, rc, _, c = fresh(["convert", a.corpus, "-o", out, "-r", str(a.res), "-q",
+                                     "--overwrite", *extra], a.repeat)
                 fresh_times[" ".join(extra)] = t
-                print(f"| `geovox convert CORPUS -o OUT -r {a.res} {' '.join(extra)}` | {t:.2f} |"
+                print(f"| `geovox convert CORPUS -o OUT -r {a.res} {' '.join(extra)}` | {t:.2f} | "
+                      f"{c:.2f} |"
                       + ("" if rc == 0 else f" (exit {rc})"))
         rows, noop = warm_rows(a.corpus, a.res, out, a.tiny, a.tiny_only)
         print(f"\n| warm, in one process (corpus at {a.res}³; tiny: box.obj x {a.tiny} at 8³) | models | wall s | models/s | "
-              "sum of model times s | per-model overhead ms |")
-        print("|---|---:|---:|---:|---:|---:|")
+              "sum of model times s | per-model overhead ms | CPU s |")
+        print("|---|---:|---:|---:|---:|---:|---:|")
         for r in rows:
             print(f"| {r['label']} | {r['n']} ({r['ok']} ok) | {r['wall']:.2f} | {r['rate']:.2f} | "
-                  f"{r['own']:.2f} | {1000 * r['overhead']:.0f} |")
+                  f"{r['own']:.2f} | {1000 * r['overhead']:.0f} | {r['cpu']:.2f} |")
         print("\n| no-op tasks (client.map over 2000) | tasks/s |\n|---|---:|")
         for w, rate in noop.items():
             print(f"| {w} worker{'s' if w > 1 else ''} | {rate:.0f} |")

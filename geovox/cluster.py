@@ -119,8 +119,13 @@ def _probe(distributed, address: str, where: str) -> None:
         except OSError as exc:
             raise ClusterError(f"no Dask scheduler answered at {where} "
                                f"({exc.strerror or exc})") from None
+    from concurrent.futures import ThreadPoolExecutor
+
     try:
-        reply = asyncio.run(asyncio.wait_for(ask(), CONNECT_TIMEOUT))
+        # In a thread of its own: the caller may be running an event loop
+        # (Jupyter), where asyncio.run cannot start another.
+        with ThreadPoolExecutor(1) as pool:
+            reply = pool.submit(asyncio.run, asyncio.wait_for(ask(), CONNECT_TIMEOUT)).result()
     except (OSError, asyncio.TimeoutError) as exc:
         why = f"no answer in {CONNECT_TIMEOUT:g} s" if isinstance(exc, asyncio.TimeoutError) \
             else _one_line(exc)
@@ -247,10 +252,14 @@ def client_from_options(scheduler=None, scheduler_file=None, local_cluster=None)
 
     with _quiet_dask_logs(), contextlib.ExitStack() as stack:
         if local_cluster is not None:
-            with dask.config.set(LOCAL_CLUSTER_CONFIG):
-                cluster = stack.enter_context(distributed.LocalCluster(
-                    n_workers=local_cluster, threads_per_worker=1, processes=True,
-                    dashboard_address=":0", silence_logs=logging.CRITICAL))
+            try:
+                with dask.config.set(LOCAL_CLUSTER_CONFIG):
+                    cluster = stack.enter_context(distributed.LocalCluster(
+                        n_workers=local_cluster, threads_per_worker=1, processes=True,
+                        dashboard_address=":0", silence_logs=logging.CRITICAL))
+            except Exception as exc:  # e.g. a script without `if __name__ == "__main__":`
+                raise ClusterError(f"cannot start a local Dask cluster of {local_cluster} "
+                                   f"workers ({_one_line(exc)})") from None
             client = stack.enter_context(distributed.Client(cluster))
         else:
             where = scheduler + (f" (from {os.fspath(scheduler_file)})" if scheduler_file else "")
