@@ -205,7 +205,7 @@ def _convert_one(task) -> Result:
                                   "written earlier in this run")
                 return Result(path, "skipped", [target], "", time.perf_counter() - t0,
                               "output exists (use --overwrite)")
-            with contextlib_tempdir(remote) as tmp:
+            with _scratch(remote) as tmp:
                 if remote:
                     local = os.path.join(tmp, name)
                 else:
@@ -235,7 +235,7 @@ def _convert_one(task) -> Result:
                       time.perf_counter() - t0)
 
 
-def contextlib_tempdir(wanted: bool):
+def _scratch(wanted: bool):
     """A temporary folder (removed afterwards) where ``wanted``, else a null context."""
     import contextlib
 
