@@ -467,24 +467,28 @@ def convert_many(inputs, out, *, client=None, fmt=None, overwrite=False, jobs=1,
         seen[stem] = seen.get(stem, 0) + 1
         stems.append(stem if seen[stem] == 1 else f"{stem}_{seen[stem]}")
     picked = range(len(found)) if shard is None else range(shard[0] - 1, len(found), shard[1])
-    versions = None
+    versions, task_out = None, out
     if client is not None:
         from .cluster import _versions
 
         versions = _versions()
+        # A worker's working folder is not ours: it gets the absolute path.
+        task_out = out if is_url(out) else os.path.abspath(out)
     tasks = [dict(input=os.path.abspath(found[i]) if not is_url(found[i]) else found[i],
-                  shown=found[i], stem=stems[i], out=out, options=dict(options), ext=ext,
+                  shown=found[i], stem=stems[i], out=task_out, options=dict(options), ext=ext,
                   overwrite=bool(overwrite), write_options=dict(write_options or {}),
                   versions=versions, started=time.time()) for i in picked]
     recorded = _canonical(dict(options=options, format=ext.lstrip("."),
                                write_options=write_options or {}))
 
+    # The manifest holds absolute paths: a re-run from another folder still matches.
+    out_key = out if is_url(out) else os.path.abspath(out)
     results = [None] * len(tasks)
     todo = []
     done = {} if overwrite else _read_manifest(manifest)
     for i, t in enumerate(tasks):
         rec = done.get(t["input"])
-        if (rec and rec.get("status") in ("ok", "skipped") and rec.get("out") == out
+        if (rec and rec.get("status") in ("ok", "skipped") and rec.get("out") == out_key
                 and rec.get("options") == recorded and rec.get("outputs")
                 and all(_output_exists(o) for o in rec["outputs"][:1])):
             results[i] = Result(t["shown"], "skipped", list(rec["outputs"]), "", 0.0,
@@ -512,8 +516,8 @@ def convert_many(inputs, out, *, client=None, fmt=None, overwrite=False, jobs=1,
         results[i] = r
         if log is not None:
             log.write(json.dumps(dict(
-                input=tasks[i]["input"], out=out, options=recorded, status=r.status,
-                outputs=r.outputs, error=r.error, seconds=round(r.seconds, 4),
+                input=tasks[i]["input"], out=out_key, options=recorded, status=r.status,
+                outputs=[o if is_url(o) else os.path.abspath(o) for o in r.outputs], error=r.error, seconds=round(r.seconds, 4),
                 time=datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")))
                 + "\n")
             log.flush()  # the record survives the run being killed

@@ -327,3 +327,17 @@ def test_a_task_on_a_worker_with_other_versions_fails_its_model(tmp_path):
     assert os.listdir(tmp_path) == []
     task["versions"] = _versions()
     assert _convert_one(task).status == "ok"
+
+
+def test_manifest_holds_absolute_paths(models, tmp_path, monkeypatch):
+    (models / "broken.obj").unlink()
+    monkeypatch.chdir(tmp_path)
+    first = convert_many(["models"], "out", manifest="run.jsonl", resolution=8)
+    assert [r.status for r in first] == ["ok"] * 3
+    rec = json.loads((tmp_path / "run.jsonl").read_text().splitlines()[0])
+    assert rec["out"] == str(tmp_path / "out") and os.path.isabs(rec["outputs"][0])
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    monkeypatch.chdir(elsewhere)
+    again = convert_many([models], tmp_path / "out", manifest=tmp_path / "run.jsonl", resolution=8)
+    assert [r.note for r in again] == ["done (manifest)"] * 3
