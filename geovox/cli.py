@@ -275,7 +275,8 @@ def _batch(args) -> int:
         args.output = os.getcwd()
     if not (is_url(args.output) or os.path.isdir(args.output)
             or args.output.endswith(("/", os.sep)) or not os.path.splitext(args.output)[1]):
-        raise ParameterError(f"with several inputs, -o must be a folder; got {args.output!r}")
+        raise ParameterError(f"with several inputs (or --manifest, --shard), -o must be a folder; "
+                             f"got {args.output!r}")
     if args.preview:
         raise ParameterError("--preview takes one input; run geovox preview on each output instead")
     fmt = formats.format_for("x.raw", args.fmt)
