@@ -314,6 +314,7 @@ def _submit_dask(client, tasks, retries, on_result):
     all on the scheduler at once; the cost is one message round trip between
     two models on a thread (a few ms, see benchmarks/README.md).
     """
+    from asyncio import CancelledError
     from collections import deque
 
     from distributed import as_completed
@@ -349,16 +350,16 @@ def _submit_dask(client, tasks, retries, on_result):
     for f in ac:
         out -= 1
         i, attempt = meta.pop(f.key)
-        if f.status == "finished":
-            r = f.result()
-        else:
-            try:
-                exc = f.exception()
-            except BaseException as e:  # cancelled: the scheduler forgot it
-                exc = e
+        try:
+            # A finished task's result can still be lost with its worker before
+            # it is fetched; then result() raises like a task that erred.
+            r = f.result() if f.status == "finished" else None
+            exc = None if r is not None else f.exception()
+        except (Exception, CancelledError) as e:  # lost, or cancelled by the scheduler
+            r, exc = None, e
+        if r is None:
             if attempt < retries:
                 queue.appendleft((i, attempt + 1))
-                r = None
             else:
                 worker = getattr(getattr(exc, "last_worker", None), "address", None)
                 why = (f"its worker died ({worker})" if worker else
