@@ -11,6 +11,7 @@ something needs them.
 
 from .errors import (
     BackendUnavailableError,
+    ClusterError,
     GeovoxError,
     GridTooLargeError,
     InputNotFoundError,
@@ -26,6 +27,7 @@ _LAZY = {
     "voxelize": "pipeline",
     "Volume": "volume",
     "convert_to": "stream",
+    "convert_many": "batch",
     "Grid": "grid",
     "Mesh": "mesh",
     "load_mesh": "mesh",
@@ -35,6 +37,7 @@ _LAZY = {
 __all__ = [
     "voxelize",
     "convert_to",
+    "convert_many",
     "Volume",
     "Grid",
     "Mesh",
@@ -45,6 +48,7 @@ __all__ = [
     "MeshError",
     "ParameterError",
     "BackendUnavailableError",
+    "ClusterError",
     "OutputError",
     "GridTooLargeError",
 ]

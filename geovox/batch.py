@@ -1,30 +1,58 @@
-"""Converting many models in one command: folders searched, jobs in parallel,
-existing outputs skipped, failures reported without stopping the rest."""
+"""Converting many models in one command: folders searched, one task per model
+on local processes or on a Dask cluster, existing outputs skipped, failures
+reported without stopping the rest, a manifest to resume from.
+
+Every model runs the same function, :func:`_convert_one`, single-threaded,
+whether in this process, a local process pool or a Dask worker; so the files
+are the same byte for byte however the run is spread. Dask is imported only
+when a client is given, fsspec only when the output is a URL.
+"""
 
 from __future__ import annotations
 
+import datetime
+import json
 import os
+import tempfile
 import time
-from concurrent.futures import ProcessPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
-import numpy as np
-
-from .errors import GeovoxError, InputNotFoundError, OutputError
+from .errors import GeovoxError, InputNotFoundError, OutputError, ParameterError
 
 #: File types searched for in folders. Archives (.zip, .tar.gz) are read when
 #: named, but not searched for: a downloaded zip often holds several models or
 #: none, and would be voxelised as one scene.
 MESH_EXTENSIONS = (".obj", ".stl", ".ply", ".off", ".glb", ".gltf", ".3mf", ".dae", ".zae")
 
+#: The keyword options of :func:`geovox.voxelize` a batch passes on to each model
+#: (``jobs`` and ``progress`` belong to the batch, not to one model).
+MODEL_OPTIONS = ("resolution", "bounds", "backend", "shape", "voxel_size", "axis", "color",
+                 "diffuse", "ambient", "inside", "density", "supersample", "density_dtype",
+                 "sdf", "band")
+
 
 @dataclass
 class Result:
+    """What became of one input.
+
+    ``status`` is ``"ok"`` (converted), ``"skipped"`` (its output existed, or
+    the manifest says it was done) or ``"failed"`` (``error`` says why, in
+    one line). ``outputs`` lists every file written, the volume first (local
+    paths, or URLs where the output folder is one). ``seconds`` is the time
+    the model took where it ran; ``note`` the inside count and any warning.
+    """
+
     input: str
-    output: str | None
-    status: str  # "converted", "skipped", "failed"
-    message: str = ""
+    status: str
+    outputs: list = field(default_factory=list)
+    error: str = ""
     seconds: float = 0.0
+    note: str = ""
+
+    @property
+    def output(self):
+        """The volume file (the first of ``outputs``), or None."""
+        return self.outputs[0] if self.outputs else None
 
 
 def find_inputs(paths) -> list:
@@ -37,6 +65,7 @@ def find_inputs(paths) -> list:
     """
     found = []
     for p in paths:
+        p = os.fspath(p)
         if os.path.isdir(p):
             before = len(found)
             for root, dirs, files in os.walk(p):
@@ -54,96 +83,471 @@ def find_inputs(paths) -> list:
     return found
 
 
-def _convert_one(task):
-    """Run in a worker process: returns a Result (never raises for bad models)."""
-    path, stem, out_dir, options, ext, overwrite, write_options = task
-    from .formats import write
-    from .formats.headers import default_name
-    from .grid import make_grid
-    from .mesh import load_mesh
-    from .pipeline import voxelize
+def parse_shard(shard):
+    """``"K/N"`` or ``(K, N)`` -> ``(K, N)`` with ``1 <= K <= N`` (K counts from 1).
 
-    t0 = time.perf_counter()
+    Raises
+    ------
+    ParameterError
+        Anything else.
+    """
+    if shard is None:
+        return None
+    try:
+        k, n = (int(x) for x in (shard.split("/") if isinstance(shard, str) else shard))
+    except (ValueError, TypeError, AttributeError):
+        raise ParameterError(f"`shard` must be K/N with 1 <= K <= N, got {shard!r}") from None
+    if not 1 <= k <= n:
+        raise ParameterError(f"`shard` must be K/N with 1 <= K <= N, got {shard!r}")
+    return k, n
+
+
+def is_url(path) -> bool:
+    """Whether ``path`` names a place through fsspec (``s3://``, ``memory://``, ...)."""
+    return isinstance(path, str) and "://" in path
+
+
+def _output_exists(target) -> bool:
+    if is_url(target):
+        import fsspec
+
+        fs, p = fsspec.core.url_to_fs(target)
+        return fs.exists(p)
+    return os.path.exists(target)
+
+
+def _written_since(target, started) -> bool:
+    """Whether the local file ``target`` was written after the wall-clock time ``started``.
+
+    Only the word in the summary depends on it ("ok" rather than "skipped"
+    for a task the scheduler ran twice), so clocks a few milliseconds apart
+    across a cluster, or a file system that stores whole seconds, do no harm.
+    """
+    if started is None or is_url(target):
+        return False
+    try:
+        return os.stat(target).st_mtime >= started
+    except OSError:
+        return False
+
+
+def _upload(local_files, main, folder) -> list:
+    """Copy files written locally into the URL ``folder``; the volume ``main`` last.
+
+    An object store shows an object only once its upload is complete; on a
+    plain file system each file goes to a temporary name first and is then
+    renamed. The volume is copied last, so its presence (what skipping and
+    resuming look at) means its side files are there too.
+    """
+    import fsspec
+
+    fs, base = fsspec.core.url_to_fs(folder)
+    order = [f for f in local_files if f != main] + [main]
+    atomic_rename = "file" in (fs.protocol if isinstance(fs.protocol, tuple) else (fs.protocol,))
+    urls = {}
+    for f in order:
+        name = os.path.basename(f)
+        target = base.rstrip("/") + "/" + name
+        if atomic_rename:
+            part = base.rstrip("/") + f"/.{name}.{os.getpid()}.part"
+            fs.put_file(f, part)
+            fs.mv(part, target)
+        else:
+            fs.put_file(f, target)
+        urls[f] = folder.rstrip("/") + "/" + name  # as the user spelt the folder
+    return [urls[f] for f in local_files]
+
+
+def _convert_one(task) -> Result:
+    """Convert one model; the unit of work of every batch (never raises for a bad model).
+
+    ``task`` is a dict: ``input``, ``stem``, ``out`` (folder or URL),
+    ``options`` (for :func:`geovox.voxelize`), ``ext``, ``overwrite``,
+    ``write_options`` and ``versions`` (the client's geovox and NumPy, which
+    a worker that joined a cluster late must match).
+    """
     import warnings
 
     from .errors import GeovoxWarning
-    from .stream import convert_to, streams
 
+    t0 = time.perf_counter()
+    path, out_dir, options = task["input"], task["out"], task["options"]
     try:
+        from .cluster import _versions
+
+        mine = _versions()
+        if task.get("versions") and mine != task["versions"]:
+            from .errors import ClusterError
+
+            raise ClusterError(f"this worker has geovox {mine['geovox']} and NumPy {mine['numpy']}, "
+                              f"the client geovox {task['versions']['geovox']} and NumPy "
+                              f"{task['versions']['numpy']}")
+        from .formats import format_for, write
+        from .formats.headers import default_name
+        from .grid import make_grid
+        from .mesh import load_mesh
+        from .stream import convert_to, streams
+
+        remote = is_url(out_dir)
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", GeovoxWarning)
             mesh = load_mesh(path)
             grid = make_grid(mesh.bounds, bounds=options.get("bounds"),
                              resolution=options.get("resolution"), shape=options.get("shape"),
                              voxel_size=options.get("voxel_size"))
-            out = os.path.join(out_dir, default_name(stem, grid.shape, "uint8", ext))
-            if os.path.exists(out) and not overwrite:
-                return Result(path, out, "skipped", "output exists (use --overwrite)",
-                              time.perf_counter() - t0)
-            from .formats import format_for
+            name = default_name(task["stem"], grid.shape, "uint8", task["ext"])
+            target = out_dir.rstrip("/") + "/" + name if remote else os.path.join(out_dir, name)
+            if not task["overwrite"] and _output_exists(target):
+                if _written_since(target, task.get("started")):
+                    # Written by this very run: its result was lost with the worker
+                    # that held it, and the scheduler ran the task again.
+                    return Result(path, "ok", [target], "", time.perf_counter() - t0,
+                                  "written earlier in this run")
+                return Result(path, "skipped", [target], "", time.perf_counter() - t0,
+                              "output exists (use --overwrite)")
+            with _scratch(remote) as tmp:
+                if remote:
+                    local = os.path.join(tmp, name)
+                else:
+                    os.makedirs(out_dir, exist_ok=True)  # a worker of a shared file system
+                    local = target
+                if streams(grid, format_for(local).name, options.get("color"),
+                           options.get("density"), options.get("sdf")):
+                    opts = {k: v for k, v in options.items() if k not in ("resolution", "shape",
+                                                                           "voxel_size", "bounds")}
+                    info = convert_to(mesh, local, shape=grid.shape,
+                                      bounds=[*grid.lo, *grid.hi], jobs=1, **opts)
+                    written, inside = info["files"], info["inside"]
+                else:
+                    from .pipeline import voxelize
 
-            if streams(grid, format_for(out).name, options.get("color"), options.get("density"),
-                       options.get("sdf")):
-                opts = {k: v for k, v in options.items() if k not in ("resolution", "shape",
-                                                                       "voxel_size", "bounds")}
-                info = convert_to(mesh, out, shape=grid.shape, bounds=np.r_[grid.lo, grid.hi], **opts)
-                inside = info["inside"]
-            else:
-                vol = voxelize(mesh, **options)
-                write(vol, out, **write_options)
-                inside = vol.inside_count
+                    vol = voxelize(mesh, jobs=1, **options)
+                    written, inside = write(vol, local, **task["write_options"]), vol.inside_count
+                written = [local] + [f for f in written if f != local]
+                outputs = _upload(written, local, out_dir) if remote else written
         said = [str(w.message) for w in caught if issubclass(w.category, GeovoxWarning)]
         note = f"{inside:,} inside" + (f"; warning: {'; '.join(said)}" if said else "")
-        return Result(path, out, "converted", note, time.perf_counter() - t0)
+        return Result(path, "ok", outputs, "", time.perf_counter() - t0, note)
     except (GeovoxError, MemoryError) as exc:
-        return Result(path, None, "failed", str(exc), time.perf_counter() - t0)
+        return Result(path, "failed", [], _line(str(exc)), time.perf_counter() - t0)
     except Exception as exc:  # a model must not stop the batch; say what happened
-        return Result(path, None, "failed", f"{type(exc).__name__}: {exc}", time.perf_counter() - t0)
+        return Result(path, "failed", [], _line(f"{type(exc).__name__}: {exc}"),
+                      time.perf_counter() - t0)
 
 
-def convert_many(paths, out_dir, options: dict, ext: str = ".raw", overwrite: bool = False,
-                 jobs: int = 1, progress=None, write_options=None) -> list:
-    """Convert every model into ``out_dir``; returns one Result per model, in input order.
+def _scratch(wanted: bool):
+    """A temporary folder (removed afterwards) where ``wanted``, else a null context."""
+    import contextlib
 
-    Models run in ``jobs`` processes, each single-threaded, so the outputs are
-    the same whatever ``jobs`` is.
-    """
-    inputs = find_inputs(paths)
+    if not wanted:
+        return contextlib.nullcontext(None)
+    return tempfile.TemporaryDirectory(prefix="geovox-")
+
+
+def _line(text: str) -> str:
+    """One line: errors go into a table row and a JSONL record."""
+    return " ".join(str(text).split())
+
+
+def _canonical(value):
+    """JSON-ready copy of an options dict (tuples and arrays as lists)."""
+    if isinstance(value, dict):
+        return {k: _canonical(v) for k, v in sorted(value.items())}
+    if isinstance(value, (list, tuple)):
+        return [_canonical(v) for v in value]
+    if hasattr(value, "tolist"):
+        return value.tolist()
+    return value
+
+
+def _read_manifest(path) -> dict:
+    """The last record of each input in a JSONL manifest ({} if there is none)."""
+    done = {}
+    if path is None or not os.path.exists(path):
+        return done
     try:
-        os.makedirs(out_dir, exist_ok=True)
+        with open(path, encoding="utf-8") as f:
+            for n, line in enumerate(f, 1):
+                if not line.strip():
+                    continue
+                try:
+                    rec = json.loads(line)
+                    done[rec["input"]] = rec
+                except (ValueError, KeyError, TypeError):
+                    # A run killed while writing leaves a cut last line: ignore it,
+                    # that model is simply done again.
+                    continue
     except OSError as exc:
-        raise OutputError(f"cannot create output folder {out_dir}: {exc.strerror or exc}") from None
-    options = dict(options, jobs=1)
-    # Models with the same file name get _2, _3, ... in input order.
+        raise OutputError(f"cannot read the manifest {path}: {exc.strerror or exc}") from None
+    return done
+
+
+def _submit_local(tasks, jobs, on_result):
+    if jobs > 1 and len(tasks) > 1:
+        from concurrent.futures import ProcessPoolExecutor, as_completed
+
+        with ProcessPoolExecutor(max_workers=min(jobs, len(tasks))) as pool:
+            futures = {pool.submit(_convert_one, t): i for i, t in enumerate(tasks)}
+            for f in as_completed(futures):
+                on_result(futures[f], f.result())
+    else:
+        for i, t in enumerate(tasks):
+            on_result(i, _convert_one(t))
+
+
+#: Tasks out per worker thread on a cluster (see :func:`_submit_dask`).
+IN_FLIGHT_PER_THREAD = 1
+
+
+def _submit_dask(client, tasks, retries, on_result):
+    """One task per model; a task lost with its worker is sent again up to ``retries`` times.
+
+    Dask's own ``retries`` covers a task that raises, which ours never does;
+    a worker that dies instead ends in ``KilledWorker`` once the scheduler's
+    ``allowed-failures`` are spent, and is resubmitted here.
+
+    Only as many tasks as the cluster has threads are out at a time (the
+    count is refreshed as workers come and go). A worker that dies then
+    takes down only the model it was running: had the scheduler handed it
+    more, they would be blamed too (Dask queues only large groups of tasks
+    on its side). It also keeps a run of 100,000 models from putting them
+    all on the scheduler at once; the cost is one message round trip between
+    two models on a thread (a few ms, see benchmarks/README.md).
+    """
+    from asyncio import CancelledError
+    from collections import deque
+
+    from distributed import as_completed
+
+    if not tasks:
+        return
+
+    from .cluster import _one_line
+
+    meta = {}
+    queue = deque((i, 0) for i in range(len(tasks)))
+    ac = as_completed([], loop=client.loop)
+
+    def threads():
+        try:
+            return max(1, IN_FLIGHT_PER_THREAD * sum(client.nthreads().values()))
+        except Exception:  # the scheduler is busy or gone; the futures will say so
+            return 1
+
+    limit, checked, out = threads(), time.monotonic(), 0
+
+    def fill():
+        nonlocal out
+        while queue and out < limit:
+            i, attempt = queue.popleft()
+            f = client.submit(_convert_one, tasks[i], pure=False,
+                              key=f"geovox_convert-{i}-{attempt}-{os.urandom(4).hex()}")
+            meta[f.key] = (i, attempt)
+            ac.add(f)
+            out += 1
+
+    fill()
+    for f in ac:
+        out -= 1
+        i, attempt = meta.pop(f.key)
+        try:
+            # A finished task's result can still be lost with its worker before
+            # it is fetched; then result() raises like a task that erred.
+            r = f.result() if f.status == "finished" else None
+            exc = None if r is not None else f.exception()
+        except (Exception, CancelledError) as e:  # lost, or cancelled by the scheduler
+            r, exc = None, e
+        if r is None:
+            if attempt < retries:
+                queue.appendleft((i, attempt + 1))
+            else:
+                worker = getattr(getattr(exc, "last_worker", None), "address", None)
+                why = (f"its worker died ({worker})" if worker else
+                       f"its task was lost ({_one_line(exc)})")
+                r = Result(tasks[i]["input"], "failed", [], f"{why}; tried {attempt + 1} time"
+                           f"{'s' if attempt else ''} (retries={retries})")
+        f.release()
+        if r is not None:
+            on_result(i, r)
+        if time.monotonic() - checked > 2.0:
+            limit, checked = threads(), time.monotonic()
+        fill()
+
+
+def convert_many(inputs, out, *, client=None, fmt=None, overwrite=False, jobs=1, retries=2,
+                 manifest=None, shard=None, progress=None, write_options=None, **options) -> list:
+    """Convert every model into the folder ``out``; one :class:`Result` per model, in input order.
+
+    Parameters
+    ----------
+    inputs : path or list of paths
+        Mesh files, or folders searched (sorted, with subfolders) for them.
+    out : path or URL
+        Output folder, created if needed; or an fsspec URL (``s3://bucket/x``,
+        ``gs://``, ``file://``, ``memory://``): each file is written locally
+        and copied up complete.
+    client : distributed.Client, optional
+        Run one task per model on this Dask cluster; without it, ``jobs``
+        local processes (Dask is not imported).
+    fmt : str, optional
+        Output format name (``"raw"``, ``"h5"``, ...; default ``"raw"``).
+        Files are named like ``spot_128x128x128_uint8.raw``; models with the
+        same file name get ``_2``, ``_3``, ... in input order.
+    overwrite : bool
+        Convert even where the output exists (otherwise ``"skipped"``), and
+        ignore what ``manifest`` says was done.
+    jobs : int
+        Local processes (no client). Each model runs single-threaded, so the
+        files never depend on ``jobs`` nor on the cluster.
+    retries : int
+        With a client: times a model is sent again after its worker died
+        under it (a model that fails by itself is not retried: it would fail
+        again).
+    manifest : path, optional
+        JSONL file; one record per finished model (``input``, ``options``,
+        ``status``, ``outputs``, ``error``, ``seconds``, ``time``) is
+        appended as it arrives. Inputs it records as done with the same
+        options and output folder, whose files still exist, are not
+        submitted again (they come back ``"skipped"``).
+    shard : "K/N" or (K, N), optional
+        Convert only the K-th of N parts (K from 1 to N) of the inputs, for
+        array jobs: input ``i`` (0-based, in the order found) belongs to part
+        ``i % N + 1``. Every part must be given the same inputs.
+    progress : callable, optional
+        Called with each :class:`Result` as it arrives (any order).
+    write_options : dict, optional
+        Passed to the writer (``shell`` for ``.vox``, ``pack_bits`` for ``.npz``).
+    **options
+        As for :func:`geovox.voxelize`: resolution, shape, voxel_size, bounds,
+        backend, inside, color, density, sdf, ...
+
+    Returns
+    -------
+    list of Result
+        In the order of the inputs (of this shard).
+
+    Raises
+    ------
+    InputNotFoundError, ParameterError, OutputError
+        Before any model runs; a model's own failure is its Result.
+    """
+    from .formats import format_for
+
+    unknown = sorted(set(options) - set(MODEL_OPTIONS))
+    if unknown:
+        raise ParameterError(f"convert_many got unknown options {', '.join(unknown)}; "
+                             f"known: {', '.join(MODEL_OPTIONS)}")
+    if isinstance(retries, bool) or not isinstance(retries, int) or retries < 0:
+        raise ParameterError(f"`retries` must be a non-negative integer, got {retries!r}")
+    shard = parse_shard(shard)
+    ext = format_for("x.raw", fmt).extensions[0]
+    if isinstance(inputs, (str, os.PathLike)):
+        inputs = [inputs]  # one file or folder, not a list of characters
+    found = find_inputs(inputs)
+    out = os.fspath(out)
+    if is_url(out):
+        import fsspec
+
+        try:
+            fs, base = fsspec.core.url_to_fs(out)
+            fs.makedirs(base, exist_ok=True)
+        except ImportError as exc:
+            raise OutputError(f"cannot write to {out}: {exc} (pip install 'geovox[cloud]')") from None
+        except (OSError, ValueError) as exc:
+            raise OutputError(f"cannot write to {out}: {type(exc).__name__}: {exc}") from None
+    else:
+        try:
+            os.makedirs(out, exist_ok=True)
+        except OSError as exc:
+            raise OutputError(f"cannot create output folder {out}: {exc.strerror or exc}") from None
+    # Names are given over all inputs before sharding, so every part names a
+    # model as the whole run would.
     stems, seen = [], {}
-    for p in inputs:
+    for p in found:
         stem = os.path.splitext(os.path.basename(p))[0]
         seen[stem] = seen.get(stem, 0) + 1
         stems.append(stem if seen[stem] == 1 else f"{stem}_{seen[stem]}")
-    tasks = [(p, s, out_dir, options, ext, overwrite, write_options or {})
-             for p, s in zip(inputs, stems)]
-    results = []
-    if jobs > 1 and len(tasks) > 1:
-        with ProcessPoolExecutor(max_workers=jobs) as pool:
-            for r in pool.map(_convert_one, tasks):
-                results.append(r)
-                if progress:
-                    progress(r)
-    else:
-        for t in tasks:
-            r = _convert_one(t)
-            results.append(r)
+    picked = range(len(found)) if shard is None else range(shard[0] - 1, len(found), shard[1])
+    versions, task_out = None, out
+    if client is not None:
+        from .cluster import _versions
+
+        versions = _versions()
+        # A worker's working folder is not ours: it gets the absolute path.
+        task_out = out if is_url(out) else os.path.abspath(out)
+    tasks = [dict(input=os.path.abspath(found[i]) if not is_url(found[i]) else found[i],
+                  shown=found[i], stem=stems[i], out=task_out, options=dict(options), ext=ext,
+                  overwrite=bool(overwrite), write_options=dict(write_options or {}),
+                  versions=versions, started=time.time()) for i in picked]
+    recorded = _canonical(dict(options=options, format=ext.lstrip("."),
+                               write_options=write_options or {}))
+
+    # The manifest holds absolute paths: a re-run from another folder still matches.
+    out_key = out if is_url(out) else os.path.abspath(out)
+    results = [None] * len(tasks)
+    todo = []
+    done = {} if overwrite else _read_manifest(manifest)
+    for i, t in enumerate(tasks):
+        rec = done.get(t["input"])
+        if (rec and rec.get("status") in ("ok", "skipped") and rec.get("out") == out_key
+                and rec.get("options") == recorded and rec.get("outputs")
+                and all(_output_exists(o) for o in rec["outputs"][:1])):
+            results[i] = Result(t["shown"], "skipped", list(rec["outputs"]), "", 0.0,
+                                "done (manifest)")
             if progress:
-                progress(r)
+                progress(results[i])
+        else:
+            todo.append(i)
+
+    log = None
+    if manifest is not None:
+        try:
+            log = open(manifest, "a", encoding="utf-8")
+            if log.tell() > 0:
+                with open(manifest, "rb") as f:
+                    f.seek(-1, os.SEEK_END)
+                    if f.read(1) != b"\n":  # a run killed mid-line: start a fresh line
+                        log.write("\n")
+        except OSError as exc:
+            raise OutputError(f"cannot write the manifest {manifest}: {exc.strerror or exc}") from None
+
+    def on_result(j, r):
+        i = todo[j]
+        r.input = tasks[i]["shown"]
+        results[i] = r
+        if log is not None:
+            log.write(json.dumps(dict(
+                input=tasks[i]["input"], out=out_key, options=recorded, status=r.status,
+                outputs=[o if is_url(o) else os.path.abspath(o) for o in r.outputs], error=r.error, seconds=round(r.seconds, 4),
+                time=datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")))
+                + "\n")
+            log.flush()  # the record survives the run being killed
+        if progress:
+            progress(r)
+
+    try:
+        sub = [tasks[i] for i in todo]
+        if client is not None:
+            _submit_dask(client, sub, retries, on_result)
+        else:
+            _submit_local(sub, jobs, on_result)
+    finally:
+        if log is not None:
+            log.close()
     return results
 
 
 def summary_table(results) -> str:
+    """The table the CLI prints: model, status, time, output or error; counts at the end."""
     width = max([len(os.path.basename(r.input)) for r in results] + [5])
-    lines = [f"{'model':<{width}}  {'status':<9}  {'time':>7}  details"]
+    lines = [f"{'model':<{width}}  {'status':<7}  {'time':>7}  details"]
     for r in results:
-        detail = r.message if r.status != "converted" else f"{r.output} ({r.message})"
-        lines.append(f"{os.path.basename(r.input):<{width}}  {r.status:<9}  {r.seconds:6.2f}s  {detail}")
-    n = {s: sum(r.status == s for r in results) for s in ("converted", "skipped", "failed")}
-    lines.append(f"{n['converted']} converted, {n['skipped']} skipped, {n['failed']} failed")
+        detail = (f"{r.output} ({r.note})" if r.status == "ok" else
+                  r.error if r.status == "failed" else f"{r.note}: {r.output}")
+        lines.append(f"{os.path.basename(r.input):<{width}}  {r.status:<7}  {r.seconds:6.2f}s  {detail}")
+    n = {s: sum(r.status == s for r in results) for s in ("ok", "skipped", "failed")}
+    lines.append(f"{n['ok']} converted, {n['skipped']} skipped, {n['failed']} failed")
     return "\n".join(lines)
+
+
+__all__ = ["Result", "convert_many", "find_inputs", "parse_shard", "summary_table"]

@@ -35,6 +35,16 @@ def _positive_int(text):
     return value
 
 
+def _non_negative_int(text):
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a non-negative integer, got {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be a non-negative integer, got {text!r}")
+    return value
+
+
 def _number(positive: bool):
     """argparse type: a finite float, positive if asked."""
     what = "a positive number" if positive else "a finite number"
@@ -77,7 +87,26 @@ def build_parser() -> argparse.ArgumentParser:
                    help=".npz: store occupancy as np.packbits bits (occupancy_bits, shape)")
     c.add_argument("--preview", metavar="PNG", help="also write a preview picture")
     c.add_argument("--overwrite", action="store_true",
-                   help="with several inputs: convert even where the output exists")
+                   help="with several inputs: convert even where the output exists (and "
+                        "whatever --manifest says was done)")
+    many = c.add_argument_group("many models (a folder, or several inputs, into -o FOLDER or URL)")
+    where = many.add_mutually_exclusive_group()
+    where.add_argument("--scheduler", metavar="ADDRESS",
+                       help="run one task per model on this Dask scheduler (tcp://HOST:8786; "
+                            "default: $DASK_SCHEDULER_ADDRESS if set); needs geovox[distributed]")
+    where.add_argument("--scheduler-file", metavar="FILE",
+                       help="the scheduler's address from the JSON file `dask scheduler "
+                            "--scheduler-file` (or dask-jobqueue) wrote")
+    where.add_argument("--local-cluster", type=_positive_int, metavar="N",
+                       help="start a Dask cluster of N worker processes here, to try it out")
+    many.add_argument("--retries", type=_non_negative_int, default=2, metavar="N",
+                      help="on a cluster: send a model again up to N times when its worker "
+                           "dies (default 2)")
+    many.add_argument("--manifest", metavar="FILE",
+                      help="append one JSON line per finished model; a re-run converts only "
+                           "what it does not list as done")
+    many.add_argument("--shard", metavar="K/N",
+                      help="convert only part K of N (K from 1) of the inputs, for array jobs")
     c.add_argument("-q", "--quiet", action="store_true", help="print nothing on success")
 
     pv = sub.add_parser("preview", help="write a PNG picture of a volume (or of a mesh, voxelised)")
@@ -235,37 +264,51 @@ def _write_options(args, fmt) -> dict:
 
 def _batch(args) -> int:
     from . import formats
-    from .batch import convert_many, find_inputs, summary_table
+    from .batch import convert_many, find_inputs, is_url, parse_shard, summary_table
+    from .cluster import client_from_options
+    from .errors import ParameterError
     from .parallel import resolve_jobs
 
-    from .errors import ParameterError
-
-    find_inputs(args.input)  # a missing input or an empty folder says so before anything else
+    inputs = find_inputs(args.input)  # a missing input or an empty folder says so before anything else
+    parse_shard(args.shard)
     if args.output is None:
         args.output = os.getcwd()
-    if not (os.path.isdir(args.output) or args.output.endswith(("/", os.sep))
-            or not os.path.splitext(args.output)[1]):
-        raise ParameterError(f"with several inputs, -o must be a folder; got {args.output!r}")
+    if not (is_url(args.output) or os.path.isdir(args.output)
+            or args.output.endswith(("/", os.sep)) or not os.path.splitext(args.output)[1]):
+        raise ParameterError(f"with several inputs (or --manifest, --shard), -o must be a folder; "
+                             f"got {args.output!r}")
     if args.preview:
         raise ParameterError("--preview takes one input; run geovox preview on each output instead")
     fmt = formats.format_for("x.raw", args.fmt)
-    options = _options(args)
-    bar = None
-    if not args.quiet and sys.stderr.isatty():
-        from .batch import find_inputs
+    write_options = _write_options(args, fmt)
+    with client_from_options(args.scheduler, args.scheduler_file, args.local_cluster) as client:
+        bar = None
+        if not args.quiet and sys.stderr.isatty():
+            try:
+                from tqdm import tqdm
+
+                shard = parse_shard(args.shard)
+                total = len(inputs) if shard is None else len(range(shard[0] - 1, len(inputs),
+                                                                    shard[1]))
+                bar = tqdm(total=total, unit="model", file=sys.stderr)
+            except ImportError:
+                bar = None
+        failed = []
+
+        def progress(r):
+            failed.append(r.status == "failed")
+            bar.update(1)
+            bar.set_postfix_str(f"{sum(failed)} failed")
 
         try:
-            from tqdm import tqdm
-
-            bar = tqdm(total=len(find_inputs(args.input)), unit="model", file=sys.stderr)
-        except ImportError:
-            bar = None
-    results = convert_many(args.input, args.output, options, ext=fmt.extensions[0],
-                           overwrite=args.overwrite, jobs=resolve_jobs(args.jobs),
-                           progress=(lambda r: bar.update(1)) if bar else None,
-                           write_options=_write_options(args, fmt))
-    if bar:
-        bar.close()
+            results = convert_many(args.input, args.output, client=client, fmt=fmt.name,
+                                   overwrite=args.overwrite, jobs=resolve_jobs(args.jobs),
+                                   retries=args.retries, manifest=args.manifest, shard=args.shard,
+                                   progress=progress if bar else None,
+                                   write_options=write_options, **_options(args))
+        finally:
+            if bar:
+                bar.close()
     if not args.quiet or any(r.status == "failed" for r in results):
         print(summary_table(results))
     return EXIT_ERROR if any(r.status == "failed" for r in results) else EXIT_OK
@@ -331,8 +374,12 @@ def _convert_streaming(args, mesh, output, t0, t_read=0.0) -> int:
 def _convert(args) -> int:
     from . import formats
 
-    if len(args.input) > 1 or os.path.isdir(args.input[0]):
-        return _batch(args)
+    if (len(args.input) > 1 or os.path.isdir(args.input[0]) or args.manifest or args.shard
+            or ((args.scheduler or args.scheduler_file or args.local_cluster)
+                and (args.output is None or os.path.isdir(args.output)
+                     or args.output.endswith(("/", os.sep))))
+            or (args.output and "://" in args.output and not args.output.endswith(".zarr"))):
+        return _batch(args)  # many models, or one sent as a batch of one to a cluster
     args.input = args.input[0]
     t0 = time.perf_counter()
     default_out = args.output is None or os.path.isdir(args.output) or args.output.endswith(("/", os.sep))
@@ -354,6 +401,11 @@ def _convert(args) -> int:
     output = _output_path(args, args.input, grid.shape)
     fmt = formats.format_for(output, args.fmt)
     write_options = _write_options(args, fmt)  # a bad combination fails before any work
+    if (args.scheduler or args.scheduler_file or args.local_cluster) and fmt.name != "zarr":
+        from .errors import ParameterError
+
+        raise ParameterError(f"a cluster writes one volume only into .zarr, not {fmt.name}; "
+                             f"give -o a folder to send models to it as tasks")
     if fmt.check is not None:
         fmt.check(grid)  # e.g. binvox needs cubic voxels
     if streams(grid, fmt.name, args.color, args.density, args.sdf):

@@ -34,6 +34,10 @@ class OutputError(GeovoxError, OSError):
     """The output cannot be written (missing folder, no permission, disk full)."""
 
 
+class ClusterError(GeovoxError, ConnectionError):
+    """A Dask cluster cannot be used: nobody answers, or its workers differ from the client."""
+
+
 class GridTooLargeError(GeovoxError, MemoryError):
     """The requested grid would not fit in memory; raised before allocating."""
 

@@ -68,15 +68,15 @@ def test_batch_streams_by_the_cli_rule(tmp_path, monkeypatch):
     real = stream.convert_to
     monkeypatch.setattr(stream, "convert_to", lambda *a, **k: calls.append(a) or real(*a, **k))
     opts = dict(shape=(16, 16, 150))
-    [r] = convert_many([SPOT], tmp_path / "mem", opts)  # one slab: in memory
-    assert r.status == "converted" and calls == []
+    [r] = convert_many([SPOT], tmp_path / "mem", **opts)  # one slab: in memory
+    assert r.status == "ok" and calls == []
     monkeypatch.setattr(stream, "SLAB_BUDGET", 16 * 16 * 64)  # three slabs: streamed
-    [s] = convert_many([SPOT], tmp_path / "slabs", opts)
-    assert s.status == "converted" and len(calls) == 1
+    [s] = convert_many([SPOT], tmp_path / "slabs", **opts)
+    assert s.status == "ok" and len(calls) == 1
     ref = geovox.voxelize(SPOT, axis=1, **opts)  # several slabs cast along y
     np.testing.assert_array_equal(F.read(s.output).occupancy, ref.occupancy)
     monkeypatch.setattr(stream, "SLAB_BUDGET", 1 << 30)
     monkeypatch.setattr(stream, "streams_whole", lambda grid, *a: True)  # one piece, streamed
-    [w] = convert_many([SPOT], tmp_path / "whole", opts)
+    [w] = convert_many([SPOT], tmp_path / "whole", **opts)
     assert len(calls) == 2
     assert Path(w.output).read_bytes() == Path(r.output).read_bytes()
