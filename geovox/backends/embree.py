@@ -234,7 +234,8 @@ def _plane_neighbours(t, unit, length, mesh, plane) -> np.ndarray:
     side = points @ PLANE_SIDE
     points[side < 0] *= -1.0
     mirror = (np.abs(side) <= radius) & ~wild
-    tree = cKDTree(np.concatenate([points, -points[mirror]]))
+    # Sliding-midpoint splits: half the build time, the same answers.
+    tree = cKDTree(np.concatenate([points, -points[mirror]]), balanced_tree=False)
     # The nearest other point (the first found is itself; its mirror is
     # 2 away), searched only as far as the largest radius: a search that
     # may give up early is much faster.
@@ -308,6 +309,14 @@ def _clean_vertices(t, unit, g) -> np.ndarray:
     return ~dirty
 
 
+def _normals(mesh) -> np.ndarray:
+    """(m, 3) float64: ``(v1 - v0) x (v2 - v0)`` per face, kept with the mesh."""
+    if "normals" not in mesh._cache:
+        t = mesh.triangles
+        mesh._cache["normals"] = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
+    return mesh._cache["normals"]
+
+
 def coplanar_overlaps(mesh) -> np.ndarray:
     """(m,) bool: triangles that a restart past another, coplanar one could hide.
 
@@ -326,7 +335,7 @@ def coplanar_overlaps(mesh) -> np.ndarray:
     if "coplanar" in mesh._cache:
         return mesh._cache["coplanar"]
     t = mesh.triangles
-    n = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
+    n = _normals(mesh)
     length = np.sqrt(np.einsum("ij,ij->i", n, n))
     unit = n / np.where(length > 0, length, 1.0)[:, None]
     flags = np.zeros(len(t), dtype=bool)
@@ -420,9 +429,10 @@ class EmbreeBackend(Backend):
             local = trimesh.Trimesh(
                 (mesh.vertices - centre) * factor, mesh.faces, process=False, validate=False
             )
-            tris = (mesh.triangles - centre) * factor
-            v0 = tris[:, 0]
-            normal = np.cross(tris[:, 1] - v0, tris[:, 2] - v0)
+            v0 = (mesh.triangles[:, 0] - centre) * factor
+            # Depths along a ray use only ratios of the normal's components,
+            # so the unscaled normal (shared with the coplanar check) serves.
+            normal = _normals(mesh)
             cache["embree"] = (self._ray_pyembree.RayMeshIntersector(local, scale_to_box=False),
                                centre, factor, v0, normal)
         return cache["embree"]
