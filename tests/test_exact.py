@@ -265,3 +265,30 @@ def test_coplanar_filters_lose_no_pair(monkeypatch):
         np.testing.assert_array_equal(got, want)
         flagged += want.any()
     assert flagged > 20
+
+
+def test_plane_filter_passes_flat_patch_meshes_whole(monkeypatch):
+    # A subdivided box (every face has coplanar siblings) passes whole, by a
+    # sample, without a search per face; the flags are those of the full
+    # search. A smooth sphere is filtered face by face.
+    from geovox.backends import embree as E
+
+    box = trimesh.creation.box((1, 1, 1))
+    for _ in range(5):
+        box = box.subdivide()
+    faces = np.concatenate([box.faces, box.faces[:40], box.faces[100:120, ::-1]])
+    mesh = geovox.Mesh(np.asarray(box.vertices), faces)
+    sphere = from_tm(trimesh.creation.icosphere(subdivisions=4), "sphere")
+    assert len(mesh.faces) > 4096 and len(sphere.faces) > 4096
+    for m, whole in ((mesh, True), (sphere, False)):
+        t = m.triangles
+        n = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
+        length = np.linalg.norm(n, axis=1)
+        found = E._plane_neighbours(t, n / length[:, None], length, m, 2 * E.STEP * m.scale)
+        assert found.all() if whole else found.mean() < 0.01
+    monkeypatch.setattr(E, "MAX_RUN", 10**9)  # no cell flagged wholesale: exact flags
+    got = E.coplanar_overlaps(mesh)
+    mesh._cache.pop("coplanar")
+    monkeypatch.setattr(E, "PASS_ALL", 2.0)  # never pass whole
+    np.testing.assert_array_equal(E.coplanar_overlaps(mesh), got)
+    assert got.sum() == 120  # the duplicated faces and their originals

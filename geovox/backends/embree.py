@@ -195,6 +195,11 @@ def _separation(p: np.ndarray, q: np.ndarray) -> np.ndarray:
 PLANE_SIDE = np.array([0.38, 0.55, 0.71, 0.23]) / np.linalg.norm([0.38, 0.55, 0.71, 0.23])
 
 
+#: Share of a sample of triangles with a plane neighbour above which the
+#: plane filter passes every triangle without searching for the rest.
+PASS_ALL = 0.9
+
+
 def _plane_neighbours(t, unit, length, mesh, plane) -> np.ndarray:
     """(n,) bool: triangles with some other triangle in nearly the same plane.
 
@@ -240,8 +245,18 @@ def _plane_neighbours(t, unit, length, mesh, plane) -> np.ndarray:
     # 2 away), searched only as far as the largest radius: a search that
     # may give up early is much faster.
     bound = float(radius[~wild].max()) if (~wild).any() else 0.0
-    found = tree.query(points, k=[2], distance_upper_bound=bound, workers=-1)[0][:, 0]
-    return wild | (found <= radius)
+
+    def search(sel):
+        return tree.query(points[sel], k=[2], distance_upper_bound=bound, workers=-1)[0][:, 0]
+
+    # A mesh of flat patches (a subdivided one: every triangle has coplanar
+    # siblings) passes nearly whole, and then the search only costs time: a
+    # sample of 512 decides whether to pass every triangle instead (more
+    # than the filter's answer is always safe, as the exact tests follow).
+    sample = np.arange(0, len(t), max(1, len(t) // 512))
+    if len(t) > 4096 and np.mean(wild[sample] | (search(sample) <= radius[sample])) >= PASS_ALL:
+        return np.ones(len(t), dtype=bool)
+    return wild | (search(slice(None)) <= radius)
 
 
 def _clean_vertices(t, unit, g) -> np.ndarray:
