@@ -136,7 +136,9 @@ def box_pair_chunks(lo: np.ndarray, hi: np.ndarray, tol: float = 0.0, chunk: int
     if int(dims.prod()) < 2**31:
         key = key.astype(np.int32)
     order = np.argsort(key, kind="stable")
-    key, box, begins = key[order], box[order], begins[order]
+    # 32-bit entry and box numbers where they fit: less memory to stream.
+    idx = np.int32 if len(key) < 2**31 - chunk else np.int64
+    key, box, begins = key[order], box[order].astype(idx), begins[order]
     # All pairs within each cell: entry p pairs with the later entries of its run.
     start = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
     run = np.diff(np.r_[start, len(key)])
@@ -153,8 +155,9 @@ def box_pair_chunks(lo: np.ndarray, hi: np.ndarray, tol: float = 0.0, chunk: int
         # Entries e0 .. e1 give at most `chunk` pairs (or one entry's worth).
         e1 = max(e0 + 1, int(np.searchsorted(ends, (ends[e0 - 1] if e0 else 0) + chunk, "right")))
         lat = later[e0:e1]
-        first = np.repeat(np.arange(e0, e1), lat)
-        second = np.arange(int(lat.sum())) - np.repeat(np.cumsum(lat) - lat - np.arange(e0 + 1, e1 + 1), lat)
+        first = np.repeat(np.arange(e0, e1, dtype=idx), lat)
+        second = np.arange(int(lat.sum()), dtype=idx) - np.repeat(
+            (np.cumsum(lat) - lat - np.arange(e0 + 1, e1 + 1)).astype(idx), lat)
         e0 = e1
         once = (begins[first] | begins[second]) == 7
         a, b = box[first[once]], box[second[once]]
