@@ -331,11 +331,6 @@ if mode == "embree-setup":
     out["coplanar"] = time.perf_counter() - t
     out["cpu"] = time.process_time()
 else:
-    if mode == "embree-serial":
-        # The coplanar check on the calling thread, after the restart loop,
-        # instead of beside the scene build and the loop (what it saves).
-        from geovox.backends import embree as E
-        E._coplanar_beside = lambda mesh: None
     t = time.perf_counter()
     geovox.voxelize(mesh, resolution=n, backend=backend)
     out["first"] = time.perf_counter() - t
@@ -349,16 +344,13 @@ print(json.dumps(out))
 def bench_setup(args, tmp) -> None:
     """Embree's per-mesh set-up (scene with its BVH, coplanar check) against
     the NumPy backend's whole first call, each in its own fresh process with
-    the imports warmed on spot first; default options (``inside="auto"``,
-    ``jobs`` = all cores). The Embree first call is timed twice: as it runs
-    (the coplanar check on a thread beside the scene build and the restart
-    loop) and with the check on the calling thread."""
+    the imports warmed on spot first; default options (``inside="auto"``)."""
     paths = model_paths(args.models, tmp)
-    modes = ("numpy", "embree-setup", "embree", "embree-serial")
+    modes = ("numpy", "embree-setup", "embree")
     print(f"| model | triangles | grid | NumPy first call (s) | NumPy warm (s) | Embree scene + BVH (s) "
           f"| Embree coplanar check (s) | Embree set-up (s) | set-up / NumPy first call "
-          f"| Embree first call (s) | same, check not overlapped (s) | Embree warm (s) |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+          f"| Embree first call (s) | Embree warm (s) |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
     for name, path in paths.items():
         tri = None
         for res in args.res:
@@ -386,8 +378,7 @@ def bench_setup(args, tmp) -> None:
                   f"{cell('embree-setup', 'scene')[1]} | {cell('embree-setup', 'coplanar')[1]} | "
                   f"{statistics.median(setup):.3f} ({setup[0]:.3f}-{setup[-1]:.3f}) | "
                   f"{statistics.median(setup) / numpy_first:.2f} | "
-                  f"{cell('embree', 'first')[1]} | {cell('embree-serial', 'first')[1]} | "
-                  f"{cell('embree', 'warm')[1]} |", flush=True)
+                  f"{cell('embree', 'first')[1]} | {cell('embree', 'warm')[1]} |", flush=True)
 
 
 def main() -> None:
