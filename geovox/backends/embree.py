@@ -425,26 +425,6 @@ def coplanar_overlaps(mesh) -> np.ndarray:
     return flags
 
 
-def _coplanar_beside(mesh):
-    """Start :func:`coplanar_overlaps` on a thread of its own, or None if it is done.
-
-    The check needs only the mesh, and the scene build and the restart loop
-    do not need its answer: on a first call it runs beside them (its large
-    NumPy steps, and Embree's traversal, release the GIL). What both threads
-    read from the mesh's cache is made here first, so that neither fills an
-    entry the other is filling.
-    """
-    if "coplanar" in mesh._cache:
-        return None
-    from concurrent.futures import ThreadPoolExecutor
-
-    mesh.triangles, mesh.bounds, mesh.geometric_faces, _normals(mesh)
-    pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="geovox-coplanar")
-    pending = pool.submit(coplanar_overlaps, mesh)
-    pool.shutdown(wait=False)
-    return pending
-
-
 class EmbreeBackend(Backend):
     """Embree (embreex, via trimesh.ray.ray_pyembree) with exact verification."""
 
@@ -479,7 +459,6 @@ class EmbreeBackend(Backend):
         proj = Projection(mesh.triangles, columns)
         if len(proj) == 0:
             return Hits.empty()
-        pending = _coplanar_beside(mesh) if jobs > 1 else None
         intersector, centre, factor, v0, normal = self._intersector(mesh)
         nu = columns.nu
         ax, ua, va = columns.axis, columns.u_axis, columns.v_axis
@@ -523,7 +502,7 @@ class EmbreeBackend(Backend):
             recheck[r[3]] = True
         hits = self._verify(mesh, proj, columns, ray, tri, recheck)
         # Coplanar overlapping triangles: found exactly, by scanning.
-        flagged = pending.result() if pending is not None else coplanar_overlaps(mesh)
+        flagged = coplanar_overlaps(mesh)
         if flagged.any():
             hits = hits.take(~flagged[hits.triangle])
             hits = Hits.concatenate([hits, rasterise(proj, triangle_mask=flagged[proj.tri],
