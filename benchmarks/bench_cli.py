@@ -319,24 +319,26 @@ backend = "numpy" if mode == "numpy" else "embree"
 geovox.voxelize(geovox.load_mesh(warm), resolution=16, backend=backend)
 mesh = geovox.load_mesh(path)
 out = {}
+def timed(name, f):
+    # Wall and CPU (all threads of the process: user + system) of one step.
+    t, c = time.perf_counter(), time.process_time()
+    f()
+    out[name], out[name + "_cpu"] = time.perf_counter() - t, time.process_time() - c
+
+
 if mode == "embree-setup":
     from geovox.backends import embree as E
-    t = time.perf_counter()
-    intersector = E.EmbreeBackend()._intersector(mesh)[0]
-    # Embree builds its BVH on the first query: one ray, so it counts here.
-    intersector.intersects_first(np.zeros((1, 3)), np.array([[0.0, 0.0, 1.0]]))
-    out["scene"] = time.perf_counter() - t
-    t = time.perf_counter()
-    E.coplanar_overlaps(mesh)
-    out["coplanar"] = time.perf_counter() - t
-    out["cpu"] = time.process_time()
+
+    def scene():
+        intersector = E.EmbreeBackend()._intersector(mesh)[0]
+        # Embree builds its BVH on the first query: one ray, so it counts here.
+        intersector.intersects_first(np.zeros((1, 3)), np.array([[0.0, 0.0, 1.0]]))
+
+    timed("scene", scene)
+    timed("coplanar", lambda: E.coplanar_overlaps(mesh))
 else:
-    t = time.perf_counter()
-    geovox.voxelize(mesh, resolution=n, backend=backend)
-    out["first"] = time.perf_counter() - t
-    t = time.perf_counter()
-    geovox.voxelize(mesh, resolution=n, backend=backend)
-    out["warm"] = time.perf_counter() - t
+    timed("first", lambda: geovox.voxelize(mesh, resolution=n, backend=backend))
+    timed("warm", lambda: geovox.voxelize(mesh, resolution=n, backend=backend))
 print(json.dumps(out))
 """
 
@@ -344,13 +346,15 @@ print(json.dumps(out))
 def bench_setup(args, tmp) -> None:
     """Embree's per-mesh set-up (scene with its BVH, coplanar check) against
     the NumPy backend's whole first call, each in its own fresh process with
-    the imports warmed on spot first; default options (``inside="auto"``)."""
+    the imports warmed on spot first; default options (``inside="auto"``).
+    Medians (range) of wall and of CPU time (user + system, all threads),
+    which a loaded machine inflates far less."""
     paths = model_paths(args.models, tmp)
     modes = ("numpy", "embree-setup", "embree")
-    print(f"| model | triangles | grid | NumPy first call (s) | NumPy warm (s) | Embree scene + BVH (s) "
+    print(f"| model | triangles | grid | time | NumPy first call (s) | NumPy warm (s) | Embree scene + BVH (s) "
           f"| Embree coplanar check (s) | Embree set-up (s) | set-up / NumPy first call "
           f"| Embree first call (s) | Embree warm (s) |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for name, path in paths.items():
         tri = None
         for res in args.res:
@@ -372,13 +376,18 @@ def bench_setup(args, tmp) -> None:
                 v = sorted(x[key] for x in got[mode])
                 return statistics.median(v), f"{statistics.median(v):.3f} ({v[0]:.3f}-{v[-1]:.3f})"
 
-            setup = sorted(x["scene"] + x["coplanar"] for x in got["embree-setup"])
-            numpy_first = cell("numpy", "first")[0]
-            print(f"| {name} | {tri:,} | {res}³ | {cell('numpy', 'first')[1]} | {cell('numpy', 'warm')[1]} | "
-                  f"{cell('embree-setup', 'scene')[1]} | {cell('embree-setup', 'coplanar')[1]} | "
-                  f"{statistics.median(setup):.3f} ({setup[0]:.3f}-{setup[-1]:.3f}) | "
-                  f"{statistics.median(setup) / numpy_first:.2f} | "
-                  f"{cell('embree', 'first')[1]} | {cell('embree', 'warm')[1]} |", flush=True)
+            for x in got["embree-setup"]:
+                x["setup"] = x["scene"] + x["coplanar"]
+                x["setup_cpu"] = x["scene_cpu"] + x["coplanar_cpu"]
+            for unit in ("", "_cpu"):
+                print(f"| {name} | {tri:,} | {res}³ | {'CPU' if unit else 'wall'} | "
+                      f"{cell('numpy', 'first' + unit)[1]} | {cell('numpy', 'warm' + unit)[1]} | "
+                      f"{cell('embree-setup', 'scene' + unit)[1]} | "
+                      f"{cell('embree-setup', 'coplanar' + unit)[1]} | "
+                      f"{cell('embree-setup', 'setup' + unit)[1]} | "
+                      f"{cell('embree-setup', 'setup' + unit)[0] / cell('numpy', 'first' + unit)[0]:.2f} | "
+                      f"{cell('embree', 'first' + unit)[1]} | {cell('embree', 'warm' + unit)[1]} |",
+                      flush=True)
 
 
 def main() -> None:
