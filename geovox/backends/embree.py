@@ -302,14 +302,14 @@ def _clean_vertices(t, unit, g) -> np.ndarray:
     a1, a2 = np.arctan2(y1, x1), np.arctan2(y2, x2)
     ccw = x1 * y2 - y1 * x2 > 0
     start, end = np.where(ccw, a1, a2), np.where(ccw, a2, a1)
-    width = np.mod(end - start, 2 * np.pi)
     bad = np.abs(unit.reshape(-1)[face * 3 + drop]) < 0.1
     # By vertex, then by first direction: one sort of a float key (not a
     # stable one: faster, and ties need no order). Ties within its rounding
     # may come out of order; an out-of-order pair only ever fails the test
     # below (never passes it wrongly).
     order = np.argsort(vert * 8.0 + (start + np.pi))
-    v, s, e, w = vert[order], start[order], end[order], width[order]
+    v, s, e = vert[order], start[order], end[order]
+    w = np.mod(e - s, 2 * np.pi)  # = width[order], without a fourth gather
     # Next wedge round the same vertex (the first one again after the last).
     first = np.r_[True, v[1:] != v[:-1]]
     head = np.maximum.accumulate(np.where(first, np.arange(len(v)), 0))
