@@ -380,7 +380,8 @@ def bench_setup(args, tmp) -> None:
                 x["setup"] = x["scene"] + x["coplanar"]
                 x["setup_cpu"] = x["scene_cpu"] + x["coplanar_cpu"]
             for unit in ("", "_cpu"):
-                label = os.path.relpath(name, CORPUS) if name.startswith(CORPUS) else name
+                corpus = os.path.realpath(CORPUS) + os.sep
+            label = os.path.relpath(os.path.realpath(name), corpus) if os.path.realpath(name).startswith(corpus) else name
             print(f"| {label} | {tri:,} | {res}³ | {'CPU' if unit else 'wall'} | "
                       f"{cell('numpy', 'first' + unit)[1]} | {cell('numpy', 'warm' + unit)[1]} | "
                       f"{cell('embree-setup', 'scene' + unit)[1]} | "
