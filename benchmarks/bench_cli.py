@@ -379,10 +379,11 @@ def bench_setup(args, tmp) -> None:
             for x in got["embree-setup"]:
                 x["setup"] = x["scene"] + x["coplanar"]
                 x["setup_cpu"] = x["scene_cpu"] + x["coplanar_cpu"]
+            corpus = os.path.realpath(CORPUS) + os.sep
+            real = os.path.realpath(path)
+            label = os.path.relpath(real, corpus) if real.startswith(corpus) else name
             for unit in ("", "_cpu"):
-                corpus = os.path.realpath(CORPUS) + os.sep
-            label = os.path.relpath(os.path.realpath(name), corpus) if os.path.realpath(name).startswith(corpus) else name
-            print(f"| {label} | {tri:,} | {res}³ | {'CPU' if unit else 'wall'} | "
+                print(f"| {label} | {tri:,} | {res}³ | {'CPU' if unit else 'wall'} | "
                       f"{cell('numpy', 'first' + unit)[1]} | {cell('numpy', 'warm' + unit)[1]} | "
                       f"{cell('embree-setup', 'scene' + unit)[1]} | "
                       f"{cell('embree-setup', 'coplanar' + unit)[1]} | "
