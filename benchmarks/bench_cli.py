@@ -351,9 +351,9 @@ def bench_setup(args, tmp) -> None:
     which a loaded machine inflates far less."""
     paths = model_paths(args.models, tmp)
     modes = ("numpy", "embree-setup", "embree")
-    print(f"| model | triangles | grid | time | NumPy first call (s) | NumPy warm (s) | Embree scene + BVH (s) "
-          f"| Embree coplanar check (s) | Embree set-up (s) | set-up / NumPy first call "
-          f"| Embree first call (s) | Embree warm (s) |")
+    print("| model | triangles | grid | time | NumPy first call (s) | NumPy warm (s) "
+          "| Embree scene + BVH (s) | Embree coplanar check (s) | Embree set-up (s) "
+          "| set-up / NumPy first call | Embree first call (s) | Embree warm (s) |")
     print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for name, path in paths.items():
         tri = None
