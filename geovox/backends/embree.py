@@ -219,11 +219,14 @@ def _plane_neighbours(t, unit, length, mesh, plane) -> np.ndarray:
     always pass.
 
     A plane has two such points, ``p`` and ``-p``. Each triangle is entered
-    once, as the one on the positive side of the fixed direction
-    ``PLANE_SIDE`` (``q``); a pair within ``r`` of each other whose ``q``
-    are on opposite sides of ``p``'s sign flip are both within ``r`` of that
-    side's boundary (``PLANE_SIDE . q <= r``), so such triangles are also
-    entered as ``-q``. One search then finds every neighbour.
+    once, by the one on the positive side of the fixed direction
+    ``PLANE_SIDE``: ``q = +-p`` with ``PLANE_SIDE . q >= 0``. Two triangles
+    whose planes are within ``r`` (``|p_x -+ p_y| <= r``, ``r`` the smaller
+    radius) either have their ``q`` within ``r`` of each other, or have
+    ``|q_x + q_y| <= r``; then ``PLANE_SIDE . q_x + PLANE_SIDE . q_y <= r``
+    with both terms >= 0, so each lies within its own radius of the split.
+    Such triangles are also entered as ``-q``, and each is then within ``r``
+    of the other's mirror: one search finds every neighbour.
     """
     from scipy.spatial import cKDTree
 
