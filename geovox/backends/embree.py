@@ -367,6 +367,11 @@ def coplanar_overlaps(mesh) -> np.ndarray:
     g = mesh.geometric_faces
     clean = _clean_vertices(t[ok], unit[ok], g[ok]) if len(ok) else np.zeros(0, dtype=bool)
     g_cols = [np.ascontiguousarray(g[:, i]) for i in range(3)]
+    # Each face's clean vertices, -1 in place of the others (no vertex's
+    # number): a pair shares a clean vertex when one of a's equals one of b's.
+    is_clean = np.zeros(int(g.max()) + 1 if g.size else 0, dtype=bool)
+    is_clean[:len(clean)] = clean
+    clean_cols = [np.where(is_clean[gc], gc, -1) for gc in g_cols]
 
     def near(x, y):  # every vertex of x within `plane` of y's plane
         u, o = unit[y], t[y, 0]
@@ -385,9 +390,9 @@ def coplanar_overlaps(mesh) -> np.ndarray:
         # are apart), nor hide each other: drop them before any geometry.
         gb = [gc[b] for gc in g_cols]
         apart = np.zeros(len(a), dtype=bool)
-        for gc in g_cols:
-            vi = gc[a]
-            apart |= clean[vi] & ((vi == gb[0]) | (vi == gb[1]) | (vi == gb[2]))
+        for cc in clean_cols:
+            vi = cc[a]
+            apart |= (vi == gb[0]) | (vi == gb[1]) | (vi == gb[2])
         a, b = a[~apart], b[~apart]
         same = near(a, b)
         same[same] = near(b[same], a[same])
