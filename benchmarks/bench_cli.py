@@ -16,7 +16,11 @@ points there, by its 512³ figures).
 Also: import times (``python -c "import geovox"``, ``geovox --help``), and
 ``--auto-rule``: every corpus model at 64³-1024³, first call of
 ``geovox.voxelize`` on a loaded mesh in a fresh process for each backend,
-backend imports and set-up included (the measurement behind ``auto``).
+backend imports and set-up included (the measurement behind ``auto``); and
+``--only setup``: the Embree backend's per-mesh set-up (scene with its BVH,
+coplanar check) against the NumPy backend's whole first call, in fresh
+processes whose imports were warmed on spot, with both backends' warm calls
+beside them.
 
 Usage (each part prints a Markdown table; the load average is printed
 before and after, as the machine is shared)::
@@ -25,6 +29,7 @@ before and after, as the machine is shared)::
     python benchmarks/bench_cli.py --models spot --res 256 --colour off --no-open3d
     python benchmarks/bench_cli.py --only imports
     python benchmarks/bench_cli.py --only auto-rule --res 64,256,1024
+    python benchmarks/bench_cli.py --only setup --models bunny105k,spot --res 256 --repeat 5
 
 The full default run (imports and e2e, 3 runs a cell) took about 20 minutes
 under load average 8-10 on 2 cores; pick a subset with the options above.
@@ -302,9 +307,95 @@ def bench_auto_rule(args, tmp) -> None:
     print(f"\nworst auto / fastest: {worst:.2f}")
 
 
+# --- Embree set-up against NumPy's whole first call (issue 11) ----------------------------
+
+SETUP_WORKER = r"""
+import sys, time, json
+import numpy as np
+import geovox
+path, n, mode, warm = sys.argv[1], int(sys.argv[2]), sys.argv[3], sys.argv[4]
+backend = "numpy" if mode == "numpy" else "embree"
+# Imports warmed on another mesh, so the timed calls pay only for this one.
+geovox.voxelize(geovox.load_mesh(warm), resolution=16, backend=backend)
+mesh = geovox.load_mesh(path)
+out = {}
+def timed(name, f):
+    # Wall and CPU (all threads of the process: user + system) of one step.
+    t, c = time.perf_counter(), time.process_time()
+    f()
+    out[name], out[name + "_cpu"] = time.perf_counter() - t, time.process_time() - c
+
+
+if mode == "embree-setup":
+    from geovox.backends import embree as E
+
+    def scene():
+        intersector = E.EmbreeBackend()._intersector(mesh)[0]
+        # Embree builds its BVH on the first query: one ray, so it counts here.
+        intersector.intersects_first(np.zeros((1, 3)), np.array([[0.0, 0.0, 1.0]]))
+
+    timed("scene", scene)
+    timed("coplanar", lambda: E.coplanar_overlaps(mesh))
+else:
+    timed("first", lambda: geovox.voxelize(mesh, resolution=n, backend=backend))
+    timed("warm", lambda: geovox.voxelize(mesh, resolution=n, backend=backend))
+print(json.dumps(out))
+"""
+
+
+def bench_setup(args, tmp) -> None:
+    """Embree's per-mesh set-up (scene with its BVH, coplanar check) against
+    the NumPy backend's whole first call, each in its own fresh process with
+    the imports warmed on spot first; default options (``inside="auto"``).
+    Medians (range) of wall and of CPU time (user + system, all threads),
+    which a loaded machine inflates far less."""
+    paths = model_paths(args.models, tmp)
+    modes = ("numpy", "embree-setup", "embree")
+    print("| model | triangles | grid | time | NumPy first call (s) | NumPy warm (s) "
+          "| Embree scene + BVH (s) | Embree coplanar check (s) | Embree set-up (s) "
+          "| set-up / NumPy first call | Embree first call (s) | Embree warm (s) |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+    for name, path in paths.items():
+        tri = None
+        for res in args.res:
+            got = {m: [] for m in modes}
+            for _ in range(args.repeat):  # interleaved, so load hits all alike
+                for mode in modes:
+                    r = run_timed([sys.executable, "-c", SETUP_WORKER, path, str(res), mode, SPOT])
+                    if r["rc"] != 0:
+                        print(f"FAILED {name} {res} {mode}: {r['err'][-300:]}", file=sys.stderr)
+                        continue
+                    got[mode].append(json.loads(r["out"].strip().splitlines()[-1]))
+            if not all(got.values()):
+                continue
+            if tri is None:
+                code = "import geovox, sys; print(len(geovox.load_mesh(sys.argv[1]).faces))"
+                tri = int(run_timed([sys.executable, "-c", code, path])["out"])
+
+            def cell(mode, key):
+                v = sorted(x[key] for x in got[mode])
+                return statistics.median(v), f"{statistics.median(v):.3f} ({v[0]:.3f}-{v[-1]:.3f})"
+
+            for x in got["embree-setup"]:
+                x["setup"] = x["scene"] + x["coplanar"]
+                x["setup_cpu"] = x["scene_cpu"] + x["coplanar_cpu"]
+            corpus = os.path.realpath(CORPUS) + os.sep
+            real = os.path.realpath(path)
+            label = os.path.relpath(real, corpus) if real.startswith(corpus) else name
+            for unit in ("", "_cpu"):
+                print(f"| {label} | {tri:,} | {res}³ | {'CPU' if unit else 'wall'} | "
+                      f"{cell('numpy', 'first' + unit)[1]} | {cell('numpy', 'warm' + unit)[1]} | "
+                      f"{cell('embree-setup', 'scene' + unit)[1]} | "
+                      f"{cell('embree-setup', 'coplanar' + unit)[1]} | "
+                      f"{cell('embree-setup', 'setup' + unit)[1]} | "
+                      f"{cell('embree-setup', 'setup' + unit)[0] / cell('numpy', 'first' + unit)[0]:.2f} | "
+                      f"{cell('embree', 'first' + unit)[1]} | {cell('embree', 'warm' + unit)[1]} |",
+                      flush=True)
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("--only", choices=["e2e", "imports", "auto-rule"], action="append",
+    p.add_argument("--only", choices=["e2e", "imports", "auto-rule", "setup"], action="append",
                    help="run only these parts (repeatable); default: e2e and imports")
     p.add_argument("--models", default="spot,bunny105k", type=lambda s: s.split(","))
     p.add_argument("--res", default=None, type=lambda s: [int(x) for x in s.split(",")],
@@ -331,6 +422,11 @@ def main() -> None:
             if args.res is None:
                 args.res = [128, 256, 512, 1024]
             bench_e2e(args, tmp)
+            print()
+        if "setup" in parts:
+            if args.res is None:
+                args.res = [256]
+            bench_setup(args, tmp)
             print()
         if "auto-rule" in parts:
             if args.res is None or ("e2e" in parts and args.res == [128, 256, 512, 1024]):

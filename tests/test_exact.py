@@ -139,3 +139,156 @@ def test_snapping_keeps_far_away_mesh_exact(backend):
     mesh = box_mesh(off + (1.5, 2.5, 0.5), off + (5.5, 4.5, 6.5))
     vol = geovox.voxelize(mesh, resolution=8, bounds=np.r_[off, off + 8], backend=backend)
     assert vol.inside_count == 4 * 2 * 6
+
+
+# --- The Embree backend's coplanar check: its filters drop no pair the exact
+# tests would flag (the check decides which triangles the exact rasteriser
+# takes over, so a lost pair is a lost crossing).
+
+def _tilted_pairs(rng, side, count, size=0.5):
+    """Pairs of triangles in (nearly) one plane, each plane's 4-D point
+    ``(normal, offset / 20 sqrt 3)`` within a hair of the hyperplane
+    ``side . p = 0`` that splits the two orientations, every other pair wound
+    the other way; in a cube of side 20 centred on the origin (whose corners
+    the caller adds, to fix the mesh's centre and size)."""
+    from geovox.backends.embree import STEP
+
+    s3, s4 = side[:3], side[3]
+    hat = s3 / np.linalg.norm(s3)
+    tris = []
+    for k in range(count):
+        offset = rng.uniform(-0.2, 0.2)
+        # side . (n, offset) = 0 up to noise of 1e-5, by n's part along s3.
+        along = (-offset * s4 + rng.normal() * 1e-5) / np.linalg.norm(s3)
+        perp = np.cross(hat, rng.normal(size=3))
+        perp /= np.linalg.norm(perp)
+        n = along * hat + np.sqrt(1 - along**2) * perp
+        u = np.cross(n, rng.normal(size=3))
+        u /= np.linalg.norm(u)
+        w = np.cross(n, u)
+        centre = offset * 20 * np.sqrt(3) * n + rng.uniform(-1, 1) * u
+        for j in range(2):
+            p = rng.uniform(-size, size, (3, 2))
+            tri = centre + p[:, :1] * u + p[:, 1:] * w + rng.uniform(-1, 1, (3, 1)) * 10 * STEP * n
+            tris.append(tri[::-1] if (j and k % 2) else tri)
+    return np.array(tris)
+
+
+def _with_corners(t):
+    """A soup mesh of triangles ``t`` plus one whose box spans the cube [-10, 10]³."""
+    from geovox.mesh import Mesh
+
+    t = np.concatenate([t, np.array([[[-10, -10, -10], [10, 10, 10], [10, -10, -10.0]]])])
+    return Mesh(t.reshape(-1, 3), np.arange(len(t) * 3).reshape(-1, 3)), t
+
+
+def test_plane_filter_finds_neighbours_across_the_orientation_split():
+    # Each triangle is entered in the k-d search on one side of PLANE_SIDE;
+    # a neighbour whose point lies on the other side (the same plane wound the
+    # other way, or a normal tilted across the split) is reached through its
+    # mirror. Without the mirrors, some of these pairs are lost.
+    from geovox.backends import embree as E
+
+    rng = np.random.default_rng(3)
+    mesh, t = _with_corners(_tilted_pairs(rng, E.PLANE_SIDE, 300))
+    assert np.allclose(mesh.bounds, [[-10] * 3, [10] * 3]) and np.isclose(mesh.scale, 20 * np.sqrt(3))
+    plane = 2 * E.STEP * mesh.scale
+    n = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
+    length = np.linalg.norm(n, axis=1)
+    unit = n / length[:, None]
+    pairs = np.arange(len(t) - 1).reshape(-1, 2)
+
+    def near(x, y):
+        return all(abs(np.dot(t[x, v] - t[y, 0], unit[y])) <= plane for v in range(3))
+
+    pairs = np.array([(a, b) for a, b in pairs if near(a, b) and near(b, a)])
+    assert len(pairs) > 150  # most constructed pairs pass the exact test
+    found = E._plane_neighbours(t, unit, length, mesh, plane)
+    assert found[pairs].all()
+    # Many pairs have their points on opposite sides of the split (so their
+    # entered points are about 2 apart): only the mirrors bring them together.
+    p = np.column_stack([unit, np.einsum("ij,ij->i", unit, t[:, 0]) / mesh.scale])
+    q = p * np.where(p @ E.PLANE_SIDE < 0, -1.0, 1.0)[:, None]
+    assert (np.linalg.norm(q[pairs[:, 0]] - q[pairs[:, 1]], axis=1) > 1).sum() > 50
+
+
+def _flags_without_filters(mesh, monkeypatch):
+    """coplanar_overlaps with every pair of triangles settled by the exact
+    tests: no plane filter, no box hash, no clean vertex."""
+    from geovox.backends import embree as E
+
+    with monkeypatch.context() as m:
+        m.setattr(E, "_plane_neighbours", lambda t, *a: np.ones(len(t), bool))
+        m.setattr(E, "_clean_vertices", lambda t, unit, g: np.zeros(int(g.max()) + 1, bool))
+        m.setattr(E, "box_pair_chunks",
+                  lambda lo, hi, *a, **k: iter([np.argwhere(np.triu(np.ones((len(lo),) * 2, bool), 1))]))
+        mesh._cache.pop("coplanar", None)
+        flags = E.coplanar_overlaps(mesh)
+        mesh._cache.pop("coplanar", None)
+    return flags
+
+
+def test_coplanar_filters_lose_no_pair(monkeypatch):
+    # Small meshes of flat patches, folds, duplicates, T-junctions and
+    # reversed copies, some with planes at the orientation split: the filters
+    # (plane search, box hash kept once per pair, clean vertices) must give
+    # exactly the flags of settling every pair.
+    from geovox.backends import embree as E
+    from geovox.mesh import Mesh
+
+    rng = np.random.default_rng(7)
+    cases = []
+    for k in range(60):
+        if k % 3 == 0:
+            mesh = _with_corners(_tilted_pairs(rng, E.PLANE_SIDE, 20, size=3.0))[0]
+        else:
+            # A flat triangulated grid patch, some faces duplicated, reversed
+            # or folded over, a second patch laid on part of it.
+            nx = int(rng.integers(2, 5))
+            xy = np.stack(np.meshgrid(np.arange(nx + 1), np.arange(nx + 1), indexing="ij"), -1).reshape(-1, 2)
+            v = np.c_[xy + rng.normal(size=xy.shape) * 0.1, np.zeros(len(xy))]
+            q = np.arange(nx * (nx + 1)).reshape(nx, nx + 1)[:, :nx].reshape(-1)
+            f = np.r_[np.c_[q, q + nx + 1, q + 1], np.c_[q + 1, q + nx + 1, q + nx + 2]]
+            extra = f[rng.choice(len(f), int(rng.integers(0, 4)))]
+            f = np.r_[f, extra[:, ::-1] if k % 2 else extra]
+            shifted = v[:, :2] * rng.uniform(0.3, 1.0) + rng.uniform(0, nx / 2, 2)
+            v = np.r_[v, np.c_[shifted, np.zeros(len(v))]]
+            f = np.r_[f, f[: int(rng.integers(0, len(f)))] + len(xy)]
+            # Tilt and place the whole thing anywhere.
+            rot, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+            mesh = Mesh(v @ rot.T + rng.normal(size=3), f)
+        cases.append(mesh)
+    flagged = 0
+    for mesh in cases:
+        got = E.coplanar_overlaps(mesh)
+        want = _flags_without_filters(mesh, monkeypatch)
+        np.testing.assert_array_equal(got, want)
+        flagged += want.any()
+    assert flagged > 20
+
+
+def test_plane_filter_passes_flat_patch_meshes_whole(monkeypatch):
+    # A subdivided box (every face has coplanar siblings) passes whole, by a
+    # sample, without a search per face; the flags are those of the full
+    # search. A smooth sphere is filtered face by face.
+    from geovox.backends import embree as E
+
+    box = trimesh.creation.box((1, 1, 1))
+    for _ in range(5):
+        box = box.subdivide()
+    faces = np.concatenate([box.faces, box.faces[:40], box.faces[100:120, ::-1]])
+    mesh = geovox.Mesh(np.asarray(box.vertices), faces)
+    sphere = from_tm(trimesh.creation.icosphere(subdivisions=4), "sphere")
+    assert len(mesh.faces) > 4096 and len(sphere.faces) > 4096
+    for m, whole in ((mesh, True), (sphere, False)):
+        t = m.triangles
+        n = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
+        length = np.linalg.norm(n, axis=1)
+        found = E._plane_neighbours(t, n / length[:, None], length, m, 2 * E.STEP * m.scale)
+        assert found.all() if whole else found.mean() < 0.01
+    monkeypatch.setattr(E, "MAX_RUN", 10**9)  # no cell flagged wholesale: exact flags
+    got = E.coplanar_overlaps(mesh)
+    mesh._cache.pop("coplanar")
+    monkeypatch.setattr(E, "PASS_ALL", 2.0)  # never pass whole
+    np.testing.assert_array_equal(E.coplanar_overlaps(mesh), got)
+    assert got.sum() == 120  # the duplicated faces and their originals
