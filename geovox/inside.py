@@ -492,7 +492,7 @@ def _triangle_angles(tris: np.ndarray, points: np.ndarray) -> np.ndarray:
     return np.arctan2(num, den) / (2.0 * np.pi)
 
 
-def cap_winding(grid, tris, active, theta=THETA, eps=EPS, budget=None):
+def cap_winding(grid, tris, active, theta=THETA, eps=EPS, budget=None, then=None):
     """The caps' winding number ``w_K`` over bricks of voxels, hierarchically, with a bound.
 
     A dual-tree traversal in whole arrays. Voxels are grouped in cubic
@@ -519,6 +519,9 @@ def cap_winding(grid, tris, active, theta=THETA, eps=EPS, budget=None):
 
     budget : int, optional
         Give up (return None) once this many pairs have been handled.
+    then : (theta, eps), optional
+        The next pass's opening ratio and tolerance: count, per brick, the
+        pairs the next pass is sure to visit (see ``visits``).
 
     Returns
     -------
@@ -527,6 +530,15 @@ def cap_winding(grid, tris, active, theta=THETA, eps=EPS, budget=None):
     err : list of arrays of the same shapes: the bounds, added the same way.
     touched : (m, 3) int64
         The voxels that got a value of their own (level 0), with repeats.
+    work : (visits, splits), lists of float64 arrays, one per brick level (None on level 0)
+        Per brick of level >= 1: ``visits``, the pairs with it that this
+        pass visited, plus the node's children for each of them that was far
+        here but that the next pass (``then``) splits by its node;
+        ``splits``, those the next pass splits by the brick instead. A
+        tighter pass visits every pair a looser one visited on the bricks it
+        enters (what was not far here is not far there), and the children of
+        each such split, so these give a lower bound on its work (see
+        :func:`_sure_work`). Zeros without ``then``.
     """
     tris, nodes, offset, size = _cap_tree(tris)
     top = len(size) - 1
@@ -540,6 +552,8 @@ def cap_winding(grid, tris, active, theta=THETA, eps=EPS, budget=None):
     est = [np.zeros(tuple(-(-shape // (1 << k))), dtype=np.float32 if k == 0 else np.float64)
            for k in range(level0 + 1)]
     err = [np.zeros_like(e) for e in est]
+    visits = [None] + [np.zeros(e.shape) for e in est[1:]]
+    splits = [None] + [np.zeros(e.shape) for e in est[1:]]
     S, A, C, R, H = nodes["S"], nodes["A"], nodes["c"], nodes["r"], nodes["h"]
     stack = [(np.full(len(start), level0, np.int64), start.astype(np.int64),
               np.full(len(start), top, np.int64), np.zeros(len(start), np.int64))]
@@ -579,6 +593,19 @@ def cap_winding(grid, tris, active, theta=THETA, eps=EPS, budget=None):
         far = (gap > 0) & (((reach <= theta * gap) & ~single)
                            | ((rb <= theta * gap) & (bound <= theta * SINGLE)) | (bound <= eps))
         leaf = single & (far | (kb == 0))
+        if then is not None:
+            t2, e2 = then
+            far2 = (gap > 0) & (((reach <= t2 * gap) & ~single)
+                                | ((rb <= t2 * gap) & (bound <= t2 * SINGLE)) | (bound <= e2))
+            # Split next time: a far pair the next pass does not take as far
+            # (a voxel and one triangle is always a leaf). Its children there
+            # are the node's (1 or 2) or the brick's active sub-bricks (known
+            # only after this pass: counted per brick in ``splits``).
+            again = far & ~far2 & ~(single & (kb == 0))
+            by_brick = again & (kb > 0) & (single | (0.5 * (side - 1) * np.linalg.norm(d) > R[node]))
+            kids = 1 + (2 * nj + 1 < size[np.maximum(ln - 1, 0)])
+            _count(visits, kb, b, 1.0 + np.where(again & ~by_brick, kids, 0))
+            _count(splits, kb, b, by_brick.astype(np.float64))
         far &= ~single
         if far.any():
             f = np.flatnonzero(far)
@@ -620,7 +647,44 @@ def cap_winding(grid, tris, active, theta=THETA, eps=EPS, budget=None):
     # a pass gives up exactly when it handles more than the budget.
     if budget is not None and handled > budget:
         return None
-    return est, err, np.concatenate(touched) if touched else np.zeros((0, 3), np.int64)
+    return (est, err, np.concatenate(touched) if touched else np.zeros((0, 3), np.int64),
+            (visits, splits))
+
+
+def _sure_work(unsure, touched, work, active) -> float:
+    """A lower bound on the pairs the next pass will handle over the ``unsure`` voxels.
+
+    The pairs this pass ended at on unsure voxels (level 0, ``touched``),
+    and on every brick of a coarser level that holds an unsure voxel
+    (``active``, the next pass's pyramid) the pairs of :func:`cap_winding`'s
+    ``work``: the visits and node children counted there, and for each pair
+    the next pass splits by its brick, the active sub-bricks it splits into.
+    """
+    visits, splits = work
+    n = float(np.count_nonzero(unsure[tuple(touched.T)])) if len(touched) else 0.0
+    for k in range(1, len(active)):
+        n += float(visits[k][active[k]].sum())
+        idx = _argwhere(splits[k] > 0)
+        if len(idx) == 0:
+            continue
+        kids = np.zeros(len(idx))
+        fine = active[k - 1]
+        for o in _OCTANTS:
+            c = 2 * idx + o
+            ok = np.all(c < fine.shape, axis=1)
+            kids[ok] += fine[tuple(c[ok].T)]
+        n += float(np.dot(splits[k][tuple(idx.T)], kids))
+    return n
+
+
+def _count(visits, kb, b, weight) -> None:
+    """Add ``weight`` to the visit count of each pair's brick (levels >= 1)."""
+    for k in np.flatnonzero(np.bincount(kb)):
+        if k == 0:
+            continue
+        sel = kb == k
+        lin = np.ravel_multi_index(tuple(b[sel].T), visits[k].shape)
+        np.add.at(visits[k].reshape(-1), lin, weight[sel])
 
 
 def _exact_leaves(est, err, touched, tris, grid, kb, b, ln, nj) -> int:
@@ -706,13 +770,14 @@ def _correct_caps(occ, w, grid, cap_tris) -> None:
     top = max(0, int(np.ceil(np.log2(max(1, int(shape.max()) / 16)))))
     active = _pyramid(grid.shape, top)
     first = True
-    for theta, eps in PASSES:
+    for i, (theta, eps) in enumerate(PASSES):
         got = cap_winding(grid, cap_tris, active, theta=theta, eps=eps,
-                          budget=None if first else PAIR_BUDGET)
+                          budget=None if first else PAIR_BUDGET,
+                          then=PASSES[i + 1] if i + 1 < len(PASSES) else None)
         if got is None:
             _estimated(active[0], grid)
             return
-        est, err, touched = got
+        est, err, touched, work = got
         # Every coarse level's sums, pushed down to bricks of 2³ voxels.
         for k in range(len(est) - 1, 1, -1):
             for arrays in (est, err):
@@ -757,15 +822,17 @@ def _correct_caps(occ, w, grid, cap_tris) -> None:
         if not unsure.any():
             return
         # The next pass, with a tighter opening ratio over the bricks that
-        # hold unsure voxels, reaches every pair this pass ended at in such a
-        # brick (a pair that was split here is split there too), so it
-        # handles at least as many pairs as this pass ended at on unsure
-        # voxels. Past the budget that pass would give up anyway: give up
-        # now, with the same result, without spending the budget first.
-        if len(touched) and np.count_nonzero(unsure[tuple(touched.T)]) > PAIR_BUDGET:
+        # hold unsure voxels, visits every pair this pass visited on such a
+        # brick (a pair that was split here is split there too), and at least
+        # one child of each pair that was far here but not there: a lower
+        # bound on its work (see cap_winding's ``visits``). Past the budget
+        # that pass would give up anyway: give up now, with the same result,
+        # without spending the budget first.
+        active = _pyramid(unsure, top)
+        if i + 1 < len(PASSES) and _sure_work(unsure, touched, work, active) > PAIR_BUDGET:
             _estimated(unsure, grid)
             return
-        active = _pyramid(unsure, top)
+        del work
     # The last few: the exact sum over every cap triangle.
     idx = _argwhere(active[0])
     if len(idx) * len(cap_tris) > 4 * PAIR_BUDGET:

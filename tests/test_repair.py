@@ -299,3 +299,26 @@ def test_a_refining_pass_sure_to_pass_the_budget_is_not_started(monkeypatch):
         geovox.voxelize(mesh, resolution=22)
     assert len(calls) == 1
     assert any("work budget" in str(r.message) for r in record)
+
+
+@pytest.mark.parametrize("mesh,res", [(open_boxes(40), 22), (open_boxes(12, seed=2), 30)])
+def test_the_next_pass_handles_at_least_the_work_bound(mesh, res, monkeypatch):
+    # _sure_work is a lower bound on the next pass's pairs: given a budget
+    # one below it, that pass must give up (cap_winding gives up exactly when
+    # it handles more than its budget), and given the bound it may not.
+    seen = []
+    real = inside._sure_work
+    monkeypatch.setattr(inside, "_sure_work", lambda *a: seen.append((real(*a), a[3])) or 0.0)
+    monkeypatch.setattr(inside, "PASSES", inside.PASSES[:2])  # stop after the second pass
+    calls = []
+    real_cw = inside.cap_winding
+    monkeypatch.setattr(inside, "cap_winding", lambda *a, **k: calls.append(a) or real_cw(*a, **k))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        geovox.voxelize(mesh, resolution=res)
+    bound, active = seen[0]
+    grid, tris = calls[0][0], calls[0][1]
+    theta, eps = inside.PASSES[1]
+    assert bound > 1000  # the bound says something
+    assert real_cw(grid, tris, active, theta=theta, eps=eps, budget=int(np.ceil(bound)) - 1) is None
+    assert real_cw(grid, tris, active, theta=theta, eps=eps, budget=None) is not None
