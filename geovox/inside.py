@@ -115,8 +115,7 @@ def caps(mesh: Mesh, edges: np.ndarray) -> np.ndarray:
     piece : (k,) int64
         The boundary piece each belongs to.
     """
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
+    from .repair import components
 
     if len(edges) == 0:
         return np.zeros((0, 3, 3)), np.zeros(0, np.int64)
@@ -125,8 +124,7 @@ def caps(mesh: Mesh, edges: np.ndarray) -> np.ndarray:
     _, vid = np.unique(pos[edges.reshape(-1)], axis=0, return_inverse=True)
     vid = vid.reshape(-1, 2)
     nv = int(vid.max()) + 1
-    graph = coo_matrix((np.ones(len(vid)), (vid[:, 0], vid[:, 1])), shape=(nv, nv))
-    _, label = connected_components(graph, directed=False)
+    _, label, _ = components(nv, vid[:, 0], vid[:, 1])
     piece = label[vid[:, 0]]
     npieces = int(piece.max()) + 1
     mid = (pos[edges[:, 0]] + pos[edges[:, 1]]) / 2
