@@ -521,7 +521,7 @@ def cap_winding(grid, tris, active, theta=THETA, eps=EPS, budget=None, then=None
         Give up (return None) once this many pairs have been handled.
     then : (theta, eps), optional
         The next pass's opening ratio and tolerance: count, per brick, the
-        pairs the next pass is sure to visit (see ``visits``).
+        pairs the next pass is sure to visit (see ``work``).
 
     Returns
     -------
@@ -533,15 +533,16 @@ def cap_winding(grid, tris, active, theta=THETA, eps=EPS, budget=None, then=None
         each such voxel (int64, sorted, unique), its sum and its bound's sum
         (float64), and how many pairs ended at it (int64).
     err : list: the bounds of levels ``l >= 1``, added the same way (None on level 0).
-    work : (visits, splits), lists of float64 arrays, one per brick level (None on level 0)
-        Per brick of level >= 1: ``visits``, the pairs with it that this
-        pass visited, plus the node's children for each of them that was far
-        here but that the next pass (``then``) splits by its node;
-        ``splits``, those the next pass splits by the brick instead. A
+    work : list of int32 arrays ``(..., 2)``, one per brick level (None on level 0)
+        Per brick of level >= 1: ``[..., 0]`` (visits), the pairs with it
+        that this pass visited, plus the node's children for each of them
+        that was far here but that the next pass (``then``) splits by its
+        node; ``[..., 1]`` (splits), those the next pass splits by the brick
+        instead. A
         tighter pass visits every pair a looser one visited on the bricks it
         enters (what was not far here is not far there), and the children of
         each such split, so these give a lower bound on its work (see
-        :func:`_sure_work`). Zeros without ``then``.
+        :func:`_sure_work`). None without ``then``.
     """
     tris, nodes, offset, size = _cap_tree(tris)
     top = len(size) - 1
@@ -557,8 +558,9 @@ def cap_winding(grid, tris, active, theta=THETA, eps=EPS, budget=None, then=None
     # sums (0.14 s for 64 MB in a fresh process here).
     est = [[]] + [np.zeros(tuple(-(-shape // (1 << k)))) for k in range(1, level0 + 1)]
     err = [None] + [np.zeros(e.shape) for e in est[1:]]
-    visits = [None] + [np.zeros(e.shape) if then is not None else None for e in est[1:]]
-    splits = [None] + [np.zeros(e.shape) if then is not None else None for e in est[1:]]
+    # Per brick: [visits, splits] (see ``work``), one array so one scatter.
+    work = [None] + [np.zeros(e.shape + (2,), np.int32) if then is not None else None
+                     for e in est[1:]]
     S, A, C, R, H = nodes["S"], nodes["A"], nodes["c"], nodes["r"], nodes["h"]
     stack = [(np.full(len(start), level0, np.int64), start.astype(np.int64),
               np.full(len(start), top, np.int64), np.zeros(len(start), np.int64))]
@@ -608,8 +610,7 @@ def cap_winding(grid, tris, active, theta=THETA, eps=EPS, budget=None, then=None
             again = far & ~far2 & ~(single & (kb == 0))
             by_brick = again & (kb > 0) & (single | (0.5 * (side - 1) * np.linalg.norm(d) > R[node]))
             kids = 1 + (2 * nj + 1 < size[np.maximum(ln - 1, 0)])
-            _count(visits, kb, b, 1.0 + np.where(again & ~by_brick, kids, 0))
-            _count(splits, kb, b, by_brick.astype(np.float64))
+            _count(work, kb, b, 1 + np.where(again & ~by_brick, kids, 0), by_brick)
         far &= ~single
         if far.any():
             f = np.flatnonzero(far)
@@ -650,7 +651,7 @@ def cap_winding(grid, tris, active, theta=THETA, eps=EPS, budget=None, then=None
     if budget is not None and handled > budget:
         return None
     est[0] = _merge(est[0])
-    return est, err, (visits, splits)
+    return est, err, work
 
 
 def _sure_work(unsure, level0, work, active) -> float:
@@ -663,32 +664,35 @@ def _sure_work(unsure, level0, work, active) -> float:
     ``work``: the visits and node children counted there, and for each pair
     the next pass splits by its brick, the active sub-bricks it splits into.
     """
-    visits, splits = work
     lin, _, _, count = level0
     n = float(count[unsure.reshape(-1)[lin]].sum())
     for k in range(1, len(active)):
-        n += float(visits[k][active[k]].sum())
-        idx = _argwhere(splits[k] > 0)
+        visits, splits = work[k][..., 0], work[k][..., 1]
+        n += float(np.sum(visits, where=active[k], dtype=np.int64))
+        idx = np.flatnonzero(splits)
         if len(idx) == 0:
             continue
-        kids = np.zeros(len(idx))
+        idx = np.stack(np.unravel_index(idx, splits.shape), axis=1)
+        kids = np.zeros(len(idx), np.int64)
         fine = active[k - 1]
         for o in _OCTANTS:
             c = 2 * idx + o
             ok = np.all(c < fine.shape, axis=1)
             kids[ok] += fine[tuple(c[ok].T)]
-        n += float(np.dot(splits[k][tuple(idx.T)], kids))
+        n += float(np.dot(splits[tuple(idx.T)].astype(np.int64), kids))
     return n
 
 
-def _count(visits, kb, b, weight) -> None:
-    """Add ``weight`` to the visit count of each pair's brick (levels >= 1)."""
+def _count(work, kb, b, visits, splits) -> None:
+    """Add each pair's ``visits`` and ``splits`` to its brick's counts (levels >= 1)."""
     for k in np.flatnonzero(np.bincount(kb)):
         if k == 0:
             continue
         sel = kb == k
-        lin = np.ravel_multi_index(tuple(b[sel].T), visits[k].shape)
-        np.add.at(visits[k].reshape(-1), lin, weight[sel])
+        lin = 2 * np.ravel_multi_index(tuple(b[sel].T), work[k].shape[:3])
+        s = splits[sel]
+        np.add.at(work[k].reshape(-1), np.r_[lin, lin[s] + 1],
+                  np.r_[visits[sel], np.ones(np.count_nonzero(s), np.int64)].astype(np.int32))
 
 
 def _exact_leaves(est, err, tris, grid, kb, b, ln, nj) -> int:
@@ -855,7 +859,7 @@ def _correct_caps(occ, w, grid, cap_tris) -> None:
         # hold unsure voxels, visits every pair this pass visited on such a
         # brick (a pair that was split here is split there too), and at least
         # one child of each pair that was far here but not there: a lower
-        # bound on its work (see cap_winding's ``visits``). Past the budget
+        # bound on its work (see cap_winding's ``work``). Past the budget
         # that pass would give up anyway: give up now, with the same result,
         # without spending the budget first.
         active = _pyramid(unsure, top)
