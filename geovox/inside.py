@@ -425,6 +425,9 @@ PASSES = ((1.0, 1e-3), (0.3, 1e-5), (0.1, 1e-6))
 PAIR_BUDGET = 10_000_000
 #: (brick, cap group) pairs handled at once: bounds the traversal's memory.
 PAIR_CHUNK = 1 << 17
+#: Undecided voxels times cap triangles up to which they are summed exactly
+#: straight away, without another pass.
+DIRECT = 1 << 22
 #: Voxel-level sums kept as separate parts until this many, then summed per voxel.
 MERGE_AT = 1 << 20
 
@@ -529,10 +532,12 @@ def cap_winding(grid, tris, active, theta=THETA, eps=EPS, budget=None, then=None
         Sums to add up, each voxel taking its bricks' values on every level:
         on levels ``l >= 1`` float64 arrays of shape ``ceil(shape / 2^l)``; on
         level 0 (single voxels) the voxels that got a value of their own,
-        sparse: ``(lin, value, bound, count)``, the flat (C-order) index of
-        each such voxel (int64, sorted, unique), its sum and its bound's sum
-        (float64), and how many pairs ended at it (int64).
-    err : list: the bounds of levels ``l >= 1``, added the same way (None on level 0).
+        sparse: ``(lin, value, below, above, count)``, the flat (C-order)
+        index of each such voxel (int64, sorted, unique), its sum and its
+        bounds' sums (float64), and how many pairs ended at it (int64).
+    err : list: the bounds of levels ``l >= 1``, added the same way (None on level 0):
+        float64 ``(..., 2)``, how far below and above the sum the true value
+        may lie (the bounds need not be symmetric: see :func:`_clamp`).
     work : list of int32 arrays ``(..., 2)``, one per brick level (None on level 0)
         Per brick of level >= 1: ``[..., 0]`` (visits), the pairs with it
         that this pass visited, plus the node's children for each of them
@@ -557,7 +562,7 @@ def cap_winding(grid, tris, active, theta=THETA, eps=EPS, budget=None, then=None
     # this step's memory, and first touching fresh pages costs more than the
     # sums (0.14 s for 64 MB in a fresh process here).
     est = [[]] + [np.zeros(tuple(-(-shape // (1 << k)))) for k in range(1, level0 + 1)]
-    err = [None] + [np.zeros(e.shape) for e in est[1:]]
+    err = [None] + [np.zeros(e.shape + (2,)) for e in est[1:]]
     # Per brick: [visits, splits] (see ``work``), one array so one scatter.
     work = [None] + [np.zeros(e.shape + (2,), np.int32) if then is not None else None
                      for e in est[1:]]
@@ -615,11 +620,17 @@ def cap_winding(grid, tris, active, theta=THETA, eps=EPS, budget=None, then=None
         if far.any():
             f = np.flatnonzero(far)
             val = np.einsum("ij,ij->i", S[node[f]], vec[f]) / (4 * np.pi * dist[f] ** 3)
-            _scatter(est, err, kb[f], b[f], val, bound[f], grid.shape)
+            _scatter(est, err, kb[f], b[f], val, *_clamp(val, bound[f], A[node[f]], gap[f]),
+                     grid.shape)
         if leaf.any():
             f = np.flatnonzero(leaf)
             val = _triangle_angles(tris[nj[f]], p[f])
-            _scatter(est, err, kb[f], b[f], val, np.where(kb[f] == 0, 0.0, bound[f]), grid.shape)
+            brick = kb[f] > 0
+            below, above = np.zeros(len(f)), np.zeros(len(f))
+            if brick.any():
+                g = f[brick]
+                below[brick], above[brick] = _clamp(val[brick], bound[g], A[node[g]], gap[g])
+            _scatter(est, err, kb[f], b[f], val, below, above, grid.shape)
         split = np.flatnonzero(~far & ~leaf)
         if len(split) == 0:
             continue
@@ -654,6 +665,28 @@ def cap_winding(grid, tris, active, theta=THETA, eps=EPS, budget=None, then=None
     return est, err, work
 
 
+def _clamp(val, bound, area, gap):
+    """Narrow ``val`` +- ``bound`` to where the true value must also lie: within +- area / (4 pi gap²).
+
+    A surface of area ``A`` whose every point is at least ``g`` from ``p``
+    has a winding number at ``p`` of at most ``A / (4 pi g²)`` in size (the
+    kernel ``n.(x - p) / |x - p|³`` is at most ``1 / g²``). Where the
+    dipole's error bound is first order in the opening ratio, this one can be
+    tighter (by up to 3 times at an opening ratio of 1). The value stays the
+    estimate (the best guess where the bounds decide nothing and the work
+    budget runs out); the bounds become the overlap of the two intervals,
+    measured from it (``above`` may be negative, where the estimate lies
+    beyond what is possible).
+
+    Returns
+    -------
+    below, above : (n,) float64
+        The true value lies in ``[val - below, val + above]``.
+    """
+    m = area / (4 * np.pi * gap * gap)
+    return val - np.maximum(val - bound, -m), np.minimum(val + bound, m) - val
+
+
 def _sure_work(unsure, level0, work, active) -> float:
     """A lower bound on the pairs the next pass will handle over the ``unsure`` voxels.
 
@@ -664,7 +697,7 @@ def _sure_work(unsure, level0, work, active) -> float:
     ``work``: the visits and node children counted there, and for each pair
     the next pass splits by its brick, the active sub-bricks it splits into.
     """
-    lin, _, _, count = level0
+    lin, _, _, _, count = level0
     n = float(count[unsure.reshape(-1)[lin]].sum())
     for k in range(1, len(active)):
         visits, splits = work[k][..., 0], work[k][..., 1]
@@ -707,7 +740,7 @@ def _exact_leaves(est, err, tris, grid, kb, b, ln, nj) -> int:
         f = sel[s:s + PAIR_CHUNK]
         p = grid.lo + (b[f] + 0.5) * grid.spacing
         _scatter(est, err, kb[f], b[f], _triangle_angles(tris[nj[f]], p), np.zeros(len(f)),
-                 grid.shape)
+                 np.zeros(len(f)), grid.shape)
     return len(sel)
 
 
@@ -756,33 +789,33 @@ def _pyramid(mask, levels):
     return out
 
 
-def _scatter(est, err, kb, b, val, bound, shape):
-    """Add each pair's value and bound to its brick, level by level (level 0: sparse)."""
+def _scatter(est, err, kb, b, val, below, above, shape):
+    """Add each pair's value and bounds to its brick, level by level (level 0: sparse)."""
     for k in np.flatnonzero(np.bincount(kb)):
         sel = kb == k
         if k == 0:
             lin = np.ravel_multi_index(tuple(b[sel].T), shape)
-            est[0].append((lin, val[sel].astype(np.float64), bound[sel].astype(np.float64), None))
+            est[0].append((lin, val[sel], below[sel], above[sel], None))
             if sum(len(e[0]) for e in est[0]) > MERGE_AT:
                 est[0][:] = [_merge(est[0])]
             continue
         lin = np.ravel_multi_index(tuple(b[sel].T), est[k].shape)
         np.add.at(est[k].reshape(-1), lin, val[sel])
-        np.add.at(err[k].reshape(-1), lin, bound[sel])
+        np.add.at(err[k].reshape(-1), np.r_[2 * lin, 2 * lin + 1], np.r_[below[sel], above[sel]])
 
 
 def _merge(parts):
-    """``(lin, value, bound, count)`` parts (count None: 1 each) summed per voxel, ``lin`` sorted."""
+    """``(lin, value, below, above, count)`` parts (count None: 1 each) summed per voxel, ``lin`` sorted."""
     if not parts:
-        return np.zeros(0, np.int64), np.zeros(0), np.zeros(0), np.zeros(0, np.int64)
+        return np.zeros(0, np.int64), np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0, np.int64)
     lin = np.concatenate([p[0] for p in parts])
     order = np.argsort(lin, kind="stable")
     lin = lin[order]
     starts = np.flatnonzero(np.r_[True, lin[1:] != lin[:-1]])
-    val, bound = (np.add.reduceat(np.concatenate([p[i] for p in parts])[order], starts)
-                  for i in (1, 2))
-    count = np.concatenate([np.ones(len(p[0]), np.int64) if p[3] is None else p[3] for p in parts])
-    return lin[starts], val, bound, np.add.reduceat(count[order], starts)
+    val, below, above = (np.add.reduceat(np.concatenate([p[i] for p in parts])[order], starts)
+                         for i in (1, 2, 3))
+    count = np.concatenate([np.ones(len(p[0]), np.int64) if p[4] is None else p[4] for p in parts])
+    return lin[starts], val, below, above, np.add.reduceat(count[order], starts)
 
 
 def _correct_caps(occ, w, grid, cap_tris) -> None:
@@ -792,7 +825,7 @@ def _correct_caps(occ, w, grid, cap_tris) -> None:
     on its error; the voxels whose estimate is not decisive (within the bound
     of 1/2) get a second pass with a tighter opening ratio, over only the
     bricks that hold them, and any still undecided are summed exactly over
-    every cap triangle.
+    every cap triangle (straight away, once they are few: see ``DIRECT``).
     """
     shape = np.asarray(grid.shape)
     top = max(0, int(np.ceil(np.log2(max(1, int(shape.max()) / 16)))))
@@ -807,7 +840,7 @@ def _correct_caps(occ, w, grid, cap_tris) -> None:
             return
         est, err, work = got
         level0 = est[0]
-        lin0, val0, bound0, _ = level0
+        lin0, val0, below0, above0, _ = level0
         # Every coarse level's sums, pushed down to bricks of 2³ voxels.
         for k in range(len(est) - 1, 1, -1):
             for arrays in (est, err):
@@ -824,7 +857,8 @@ def _correct_caps(occ, w, grid, cap_tris) -> None:
         # w_{M+K} decided as it is (w >= 1, set above); only the other
         # bricks' voxels are looked at one by one.
         if len(est) > 1:
-            loose = np.abs(est[1]) + err[1] >= 0.5 - 1e-4
+            # |w_K| may reach 1/2 - margin on either side.
+            loose = np.maximum(est[1] + err[1][..., 1], err[1][..., 0] - est[1]) >= 0.5 - 1e-4
             loose[tuple((np.stack(np.unravel_index(lin0, grid.shape), axis=1) >> 1).T)] = True
             if not first:
                 loose &= active[1]
@@ -840,21 +874,29 @@ def _correct_caps(occ, w, grid, cap_tris) -> None:
         vlin = np.ravel_multi_index(ii, grid.shape)
         at = np.minimum(np.searchsorted(lin0, vlin), max(len(lin0) - 1, 0))
         own = (lin0[at] == vlin) if len(lin0) else np.zeros(len(vlin), bool)
-        wk = np.where(own, val0[at], 0.0) if len(lin0) else np.zeros(len(vlin))
-        bound = np.where(own, bound0[at], 0.0) if len(lin0) else np.zeros(len(vlin))
+        wk, below, above = ((np.where(own, a[at], 0.0) if len(lin0) else np.zeros(len(vlin)))
+                            for a in (val0, below0, above0))
         if len(est) > 1:
             jj = tuple((vox >> 1).T)
             wk += est[1][jj]
-            bound += err[1][jj]
+            below += err[1][jj + (0,)]
+            above += err[1][jj + (1,)]
         del est, err
         v = w[ii] - wk
         occ[ii] = v > 0.5
+        # w_K in [wk - below, wk + above]: w_{M+K} - w_K in [v - above, v + below].
         # Rounding of the float64 sums is far below this margin.
         unsure = np.zeros(grid.shape, dtype=bool)
-        unsure[ii] = np.abs(v - 0.5) <= bound + 1e-4
+        unsure[ii] = (v - above <= 0.5 + 1e-4) & (v + below >= 0.5 - 1e-4)
         first = False
-        if not unsure.any():
+        n_unsure = int(np.count_nonzero(unsure))
+        if n_unsure == 0:
             return
+        if n_unsure * len(cap_tris) <= DIRECT:
+            # So few left that summing every cap triangle at each costs less
+            # than a pass's set-up over the whole grid.
+            active = [unsure]
+            break
         # The next pass, with a tighter opening ratio over the bricks that
         # hold unsure voxels, visits every pair this pass visited on such a
         # brick (a pair that was split here is split there too), and at least
@@ -866,7 +908,7 @@ def _correct_caps(occ, w, grid, cap_tris) -> None:
         if i + 1 < len(PASSES) and _sure_work(unsure, level0, work, active) > PAIR_BUDGET:
             _estimated(unsure, grid)
             return
-        del work, level0, lin0, val0, bound0
+        del work, level0, lin0, val0, below0, above0
     # The last few: the exact sum over every cap triangle.
     idx = _argwhere(active[0])
     if len(idx) * len(cap_tris) > 4 * PAIR_BUDGET:

@@ -167,7 +167,12 @@ def test_many_small_holes_match_brute_force(backend):
     assert rep.pieces > 1 and np.all(size[rep.piece[wrong]] <= 2)
 
 
-def test_many_piece_open_assembly_matches_brute_force_of_the_repaired_copy(backend):
+@pytest.mark.parametrize("direct", [True, False], ids=["direct", "passes"])
+def test_many_piece_open_assembly_matches_brute_force_of_the_repaired_copy(backend, direct,
+                                                                           monkeypatch):
+    # "passes": no shortcut to the exact sum, so every refining pass runs.
+    if not direct:
+        monkeypatch.setattr(inside, "DIRECT", 0)
     mesh = open_boxes(40)
     with pytest.warns(GeovoxWarning, match="40 pieces"):
         vol = geovox.voxelize(mesh, resolution=22, backend=backend)
@@ -310,6 +315,7 @@ def test_the_next_pass_handles_at_least_the_work_bound(mesh, res, monkeypatch):
     real = inside._sure_work
     monkeypatch.setattr(inside, "_sure_work", lambda *a: seen.append((real(*a), a[3])) or 0.0)
     monkeypatch.setattr(inside, "PASSES", inside.PASSES[:2])  # stop after the second pass
+    monkeypatch.setattr(inside, "DIRECT", 0)  # no shortcut to the exact sum
     calls = []
     real_cw = inside.cap_winding
     monkeypatch.setattr(inside, "cap_winding", lambda *a, **k: calls.append(a) or real_cw(*a, **k))
