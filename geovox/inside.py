@@ -535,6 +535,7 @@ def cap_winding(grid, tris, active, theta=THETA, eps=EPS, budget=None, then=None
         sparse: ``(lin, value, below, above, count)``, the flat (C-order)
         index of each such voxel (int64, sorted, unique), its sum and its
         bounds' sums (float64), and how many pairs ended at it (int64).
+        (The arrays may extend past ``ceil(shape / 2^l)``, with zeros.)
     err : list: the bounds of levels ``l >= 1``, added the same way (None on level 0):
         float64 ``(..., 2)``, how far below and above the sum the true value
         may lie (the bounds need not be symmetric: see :func:`_clamp`).
@@ -561,7 +562,10 @@ def cap_winding(grid, tris, active, theta=THETA, eps=EPS, budget=None, then=None
     # Level 0 is kept sparse: dense, its two grid-sized arrays were most of
     # this step's memory, and first touching fresh pages costs more than the
     # sums (0.14 s for 64 MB in a fresh process here).
-    est = [[]] + [np.zeros(tuple(-(-shape // (1 << k)))) for k in range(1, level0 + 1)]
+    # Each level exactly twice the next one up (bricks past the grid stay 0),
+    # so sums push down in place (see _push_down).
+    top_shape = -(-shape // (1 << level0))
+    est = [[]] + [np.zeros(tuple(top_shape << (level0 - k))) for k in range(1, level0 + 1)]
     err = [None] + [np.zeros(e.shape + (2,)) for e in est[1:]]
     # Per brick: [visits, splits] (see ``work``), one array so one scatter.
     work = [None] + [np.zeros(e.shape + (2,), np.int32) if then is not None else None
@@ -700,7 +704,8 @@ def _sure_work(unsure, level0, work, active) -> float:
     lin, _, _, _, count = level0
     n = float(count[unsure.reshape(-1)[lin]].sum())
     for k in range(1, len(active)):
-        visits, splits = work[k][..., 0], work[k][..., 1]
+        n0, n1, n2 = active[k].shape
+        visits, splits = work[k][:n0, :n1, :n2, 0], work[k][:n0, :n1, :n2, 1]
         n += float(np.sum(visits, where=active[k], dtype=np.int64))
         idx = np.flatnonzero(splits)
         if len(idx) == 0:
@@ -770,6 +775,17 @@ def _lookup(active, full, kb, b):
     return out
 
 
+def _push_down(fine, coarse) -> None:
+    """Add each brick's value to its 2³ sub-bricks, in place (``fine`` twice ``coarse`` a side).
+
+    ``fine`` (2a, 2b, 2c, ...), ``coarse`` (a, b, c, ...): no temporary of ``fine``'s size.
+    """
+    a, b, c = coarse.shape[:3]
+    rest = coarse.shape[3:]
+    view = fine.reshape((a, 2, b, 2, c, 2) + rest)
+    view += coarse.reshape((a, 1, b, 1, c, 1) + rest)
+
+
 def _pyramid(mask, levels):
     """``[mask, any over 2³ blocks of it, ...]``: ``levels + 1`` arrays.
 
@@ -777,8 +793,9 @@ def _pyramid(mask, levels):
     True voxels' indices: the masks after the first pass are sparse.
     """
     if not isinstance(mask, np.ndarray):
+        # Read-only views of one True: nothing allocated or touched.
         shape = np.asarray(mask)
-        return [np.ones(tuple(-(-shape // (1 << k))), dtype=bool) for k in range(levels + 1)]
+        return [np.broadcast_to(np.True_, tuple(-(-shape // (1 << k)))) for k in range(levels + 1)]
     shape = np.asarray(mask.shape)
     idx = _argwhere(mask)
     out = [mask]
@@ -844,11 +861,7 @@ def _correct_caps(occ, w, grid, cap_tris) -> None:
         # Every coarse level's sums, pushed down to bricks of 2³ voxels.
         for k in range(len(est) - 1, 1, -1):
             for arrays in (est, err):
-                fine = arrays[k - 1]
-                up = arrays[k]
-                for a in range(3):
-                    up = np.repeat(up, 2, axis=a)
-                fine += up[: fine.shape[0], : fine.shape[1], : fine.shape[2]]
+                _push_down(arrays[k - 1], arrays[k])
                 arrays[k] = None
         if first:
             np.greater_equal(w, 1, out=occ)
@@ -858,7 +871,9 @@ def _correct_caps(occ, w, grid, cap_tris) -> None:
         # bricks' voxels are looked at one by one.
         if len(est) > 1:
             # |w_K| may reach 1/2 - margin on either side.
-            loose = np.maximum(est[1] + err[1][..., 1], err[1][..., 0] - est[1]) >= 0.5 - 1e-4
+            n1 = tuple(-(-shape // 2))
+            e1, r1 = est[1][: n1[0], : n1[1], : n1[2]], err[1][: n1[0], : n1[1], : n1[2]]
+            loose = np.maximum(e1 + r1[..., 1], r1[..., 0] - e1) >= 0.5 - 1e-4
             loose[tuple((np.stack(np.unravel_index(lin0, grid.shape), axis=1) >> 1).T)] = True
             if not first:
                 loose &= active[1]
