@@ -872,8 +872,10 @@ def _correct_caps(occ, w, grid, cap_tris) -> None:
         if len(est) > 1:
             # |w_K| may reach 1/2 - margin on either side.
             n1 = tuple(-(-shape // 2))
-            e1, r1 = est[1][: n1[0], : n1[1], : n1[2]], err[1][: n1[0], : n1[1], : n1[2]]
-            loose = np.maximum(e1 + r1[..., 1], r1[..., 0] - e1) >= 0.5 - 1e-4
+            loose = np.empty(n1, dtype=bool)
+            for z in range(0, n1[0], 8):  # in slabs: no grid-sized temporaries
+                e1, r1 = est[1][z:z + 8, : n1[1], : n1[2]], err[1][z:z + 8, : n1[1], : n1[2]]
+                loose[z:z + 8] = np.maximum(e1 + r1[..., 1], r1[..., 0] - e1) >= 0.5 - 1e-4
             loose[tuple((np.stack(np.unravel_index(lin0, grid.shape), axis=1) >> 1).T)] = True
             if not first:
                 loose &= active[1]
@@ -930,7 +932,7 @@ def _correct_caps(occ, w, grid, cap_tris) -> None:
         _estimated(active[0], grid)
         return
     centres = [grid.centres(a) for a in range(3)]
-    block = max(1, (1 << 20) // len(cap_tris))
+    block = max(1, (1 << 16) // len(cap_tris))
     for s in range(0, len(idx), block):
         ii = tuple(idx[s:s + block].T)
         p = np.stack([centres[a][ii[a]] for a in range(3)], axis=1)
