@@ -63,6 +63,10 @@ class Repair:
         Faces dropped as exact duplicates (same vertices, same winding).
     opposite : int
         Faces dropped as the reversed side of another (double-sided faces).
+    inner : int
+        Of the faces left after that, those dropped as the kept side of an
+        inner wall between closed parts (see :func:`_inner_walls`); with
+        their reversed sides (counted in ``opposite``) nothing of the wall is left.
     flipped : int
         Faces of the copy wound the other way from the original.
     pieces : int
@@ -82,6 +86,7 @@ class Repair:
     degenerate: int = 0
     duplicates: int = 0
     opposite: int = 0
+    inner: int = 0
     flipped: int = 0
     pieces: int = 0
     closed_pieces: int = 0
@@ -91,7 +96,7 @@ class Repair:
     def changed(self) -> bool:
         """Whether the copy differs from the original in anything but vertex numbering."""
         return bool(self.degenerate or self.duplicates or self.opposite or self.flipped
-                    or self.welded)
+                    or self.welded or self.inner)
 
     def describe(self) -> str:
         """One phrase saying what was repaired, for warnings and ``geovox info``."""
@@ -99,6 +104,9 @@ class Repair:
         if self.duplicates or self.opposite:
             parts.append(f"{self.duplicates + self.opposite:,} duplicate faces dropped "
                          f"({self.opposite:,} of them the reversed side of a double-sided face)")
+        if self.inner:
+            parts.append(f"{self.inner:,} double-sided faces dropped on both sides as inner walls "
+                         f"between closed parts")
         if self.welded:
             parts.append(f"{self.welded:,} vertices welded to a neighbour closer than "
                          f"{WELD:g} of the model's size")
@@ -320,6 +328,57 @@ def _weld(g, pos, tol):
     return label[g], pos[first], n - k
 
 
+def _inner_walls(faces: np.ndarray, both: np.ndarray, nv: int) -> np.ndarray:
+    """Which faces stored both ways round are inner walls between closed parts.
+
+    Two closed parts that share a face (two halves of a die, each closed by
+    its own copy of the cut) store it twice, once each way round. Collapsed
+    to one side, as for a double-sided shell, it would leave a single sheet
+    inside the solid whose solid angle (up to 1/2) is added to every point
+    near it; on both sides the two copies cancel in the winding number, and
+    the parts join into one closed surface. A wall (the two-sided faces
+    connected through their edges) is dropped on both sides when every edge
+    it shares with the other faces is used by at least two of them (the rest
+    stays closed along the wall's rim) and there is such an edge (a wall
+    with none is a double-sided shell or sheet of its own: one side stays).
+
+    Parameters
+    ----------
+    faces : (k, 3) int64
+        Faces without duplicates, over merged vertex ids ``< nv``.
+    both : (k,) bool
+        The face was also stored the other way round.
+
+    Returns
+    -------
+    (k,) bool
+        Faces of walls to drop.
+    """
+    drop = np.zeros(len(faces), dtype=bool)
+    if not both.any():
+        return drop
+    edge, count, _ = edge_table(faces, nv)
+    slot_face = np.repeat(np.arange(len(faces)), 3)
+    two = both[slot_face]
+    # Per edge: the faces outside any wall that use it.
+    outside = np.bincount(edge[~two], minlength=len(count))
+    # Walls: two-sided faces joined through shared edges.
+    w_slots = np.flatnonzero(two)
+    order = w_slots[np.argsort(edge[w_slots], kind="stable")]
+    e = edge[order]
+    link = np.flatnonzero(e[1:] == e[:-1])
+    idx = np.flatnonzero(both)
+    local = np.full(len(faces), -1)
+    local[idx] = np.arange(len(idx))
+    n, wall, _ = components(len(idx), local[slot_face[order[link]]], local[slot_face[order[link + 1]]])
+    w_of_slot = wall[local[slot_face[w_slots]]]
+    o = outside[edge[w_slots]]
+    bad = np.bincount(w_of_slot, weights=o == 1, minlength=n) > 0
+    rim = np.bincount(w_of_slot, weights=o >= 2, minlength=n) > 0
+    drop[idx] = (rim & ~bad)[wall]
+    return drop
+
+
 def repair(mesh: Mesh) -> Repair:
     """A consistently oriented, outward-facing copy of ``mesh`` (see the module notes).
 
@@ -366,7 +425,15 @@ def repair(mesh: Mesh) -> Repair:
     same = parity == parity[first[inverse]]
     duplicates = int(np.count_nonzero(dropped & same))
     opposite = int(np.count_nonzero(dropped & ~same))
-    first = np.sort(first)
+    # Vertex sets stored both ways round: one side kept, unless they make up
+    # an inner wall (see _inner_walls), which goes on both sides.
+    both = np.zeros(len(first), dtype=bool)
+    both[inverse[~same]] = True
+    order = np.argsort(first)
+    first, both = first[order], both[order]
+    wall = _inner_walls(g[keep[first]], both, nv)
+    inner = int(np.count_nonzero(wall))
+    first = first[~wall]
     face = keep[first]
     f = g[face]
     nf = len(f)
@@ -405,7 +472,7 @@ def repair(mesh: Mesh) -> Repair:
     swapped = flip ^ turn[label]
     out = Mesh(pos, f, source=mesh.source)
     return Repair(mesh=out, face=face, swapped=swapped, piece=label, merged_vertices=int(merged), welded=int(welded),
-                  degenerate=int(degenerate), duplicates=duplicates, opposite=opposite,
+                  degenerate=int(degenerate), duplicates=duplicates, opposite=opposite, inner=inner,
                   flipped=int(np.count_nonzero(swapped)), pieces=npieces,
                   closed_pieces=int(np.count_nonzero(closed_piece)),
                   outward=int(np.count_nonzero(turn)))

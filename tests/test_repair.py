@@ -373,3 +373,55 @@ def test_close_pairs_match_a_kd_tree(seed):
     ref = np.sort(cKDTree(p).query_pairs(tol, output_type="ndarray"), axis=1)
     assert len(got) > 40
     assert sorted(map(tuple, got)) == sorted(map(tuple, ref))
+
+
+def _pyramid_halves(gap=0.0):
+    """Two closed square pyramids sharing their base (apexes up and down), each with its own base."""
+    base = np.array([[1, 0, 0], [0, 1, 0], [-1, 0, 0], [0, -1, 0.0]])
+    up = np.vstack([base, [[0, 0, 1.0]]])
+    down = np.vstack([base + [0, 0, -gap], [[0, 0, -1.0]]])
+    sides = np.array([[0, 1, 4], [1, 2, 4], [2, 3, 4], [3, 0, 4]])
+    top = from_tm(trimesh.Trimesh(up, np.vstack([sides, [[0, 3, 2], [0, 2, 1]]])), "top")
+    bottom = from_tm(trimesh.Trimesh(down, np.vstack([sides[:, ::-1], [[0, 1, 2], [0, 2, 3]]])),
+                     "bottom")
+    for m in (top, bottom):
+        assert inside.consistent(m)
+    return geovox.Mesh(np.concatenate([top.vertices, bottom.vertices]),
+                       np.concatenate([top.faces, bottom.faces + len(top.vertices)]), source="die")
+
+
+def test_an_inner_wall_between_two_closed_parts_goes_on_both_sides(backend):
+    # Found by bench_wild (trimesh's TestScene.gltf): a die made of two closed
+    # halves, each with its own copy of the cut. Keeping one copy left a sheet
+    # inside the solid, and with a ground plane beside it the die came out empty.
+    die = _pyramid_halves()
+    rep = inside.target(die)[1]
+    assert (rep.opposite, rep.inner, rep.pieces, rep.closed_pieces) == (2, 2, 1, 1)
+    octahedron = from_tm(trimesh.Trimesh(
+        np.r_[die.vertices[:4], [[0, 0, 1.0], [0, 0, -1.0]]],
+        [[0, 1, 4], [1, 2, 4], [2, 3, 4], [3, 0, 4], [1, 0, 5], [2, 1, 5], [3, 2, 5], [0, 3, 5]]),
+        "octahedron")
+    assert inside.consistent(octahedron)
+    kw = dict(resolution=20, backend=backend, bounds=(-1.1, -1.1, -1.1, 1.1, 1.1, 1.1))
+    with pytest.warns(GeovoxWarning, match="inner walls"):
+        vol = geovox.voxelize(die, **kw)
+    np.testing.assert_array_equal(vol.occupancy, geovox.voxelize(octahedron, **kw).occupancy)
+    # With a ground sheet under it (facing up), as in the scene, a wall left
+    # inside would take voxels out of the die.
+    plane = np.array([[-9, -9, -1.02], [9, -9, -1.02], [9, 9, -1.02], [-9, 9, -1.02]])
+    scene = geovox.Mesh(np.r_[die.vertices, plane],
+                        np.r_[die.faces, len(die.vertices) + np.array([[0, 1, 2], [0, 2, 3]])])
+    with pytest.warns(GeovoxWarning, match="inner walls"):
+        vol = geovox.voxelize(scene, **kw)
+    sheet = geovox.Mesh(plane, np.array([[0, 1, 2], [0, 2, 3]]))
+    ref = brute_winding(geovox.Mesh(np.r_[octahedron.vertices, plane], np.r_[
+        octahedron.faces, len(octahedron.vertices) + sheet.faces]), vol.grid)
+    np.testing.assert_array_equal(vol.occupancy, ref)
+    wall = die.faces[4:6]  # the top half's copy of the cut, kept alone
+    leaky = brute_winding(geovox.Mesh(np.r_[octahedron.vertices, plane, die.vertices], np.r_[
+        octahedron.faces, 6 + sheet.faces, 10 + wall]), vol.grid)
+    assert np.count_nonzero(leaky != ref) > 0
+    # A double-sided shell or sheet has no such rim: one side stays.
+    doubled = geovox.Mesh(die.vertices[:5], np.r_[die.faces[:6], die.faces[:6, ::-1]])
+    rep = inside.target(doubled)[1]
+    assert (rep.opposite, rep.inner, len(rep.mesh.faces)) == (6, 0, 6)
