@@ -161,9 +161,7 @@ def signed_counts(mesh: Mesh, hits: Hits, columns, grid, jobs: int = 1) -> np.nd
     (nx, ny, nz) int16, Fortran order.
     """
     axis = columns.axis
-    t = mesh.triangles[hits.triangle]
-    n_axis = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])[:, axis]
-    sigma = np.sign(n_axis).astype(np.int64)
+    sigma = crossing_signs(mesh, hits, axis)
     total = np.bincount(hits.ray, weights=sigma, minlength=columns.count).astype(np.int64)
     centres = (np.arange(grid.shape[axis]) + 0.5) * grid.spacing[axis]  # from the low face
     k = np.searchsorted(centres, hits.depth, side="left")
@@ -187,6 +185,13 @@ def signed_counts(mesh: Mesh, hits: Hits, columns, grid, jobs: int = 1) -> np.nd
     tot = total.reshape(columns.nv, columns.nu).T  # [i, j]; u_axis < v_axis always
     np.subtract(tot.reshape(shape).astype(np.int16), w, out=w)
     return w
+
+
+def crossing_signs(mesh: Mesh, hits: Hits, axis: int) -> np.ndarray:
+    """(m,) int64: +1 where the crossed triangle faces along the ray (``axis``), -1 against it."""
+    t = mesh.triangles[hits.triangle]
+    n_axis = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])[:, axis]
+    return np.sign(n_axis).astype(np.int64)
 
 
 def capped(mesh: Mesh):

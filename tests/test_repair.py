@@ -8,6 +8,7 @@ import warnings
 import numpy as np
 import pytest
 import trimesh
+from scipy import ndimage
 
 import geovox
 from geovox import inside
@@ -425,3 +426,31 @@ def test_an_inner_wall_between_two_closed_parts_goes_on_both_sides(backend):
     doubled = geovox.Mesh(die.vertices[:5], np.r_[die.faces[:6], die.faces[:6, ::-1]])
     rep = inside.target(doubled)[1]
     assert (rep.opposite, rep.inner, len(rep.mesh.faces)) == (6, 0, 6)
+
+
+def test_coverage_of_overlapping_parts_follows_the_winding_number(backend):
+    # Two overlapping spheres: the density counts their shared space as the
+    # occupancy does (the winding number, 2 there), not parity (outside).
+    two = trimesh.util.concatenate([trimesh.creation.icosphere(3),
+                                    trimesh.creation.icosphere(3).apply_translation((0.8, 0.1, 0))])
+    mesh = from_tm(two, "overlap")
+    vol = geovox.voxelize(mesh, resolution=24, backend=backend, density="coverage",
+                          density_dtype="float32", supersample=2)
+    assert vol.inside == "winding"
+    # Voxels deep inside (no surface within them) are full, and those well
+    # outside empty, in the shared space too.
+    deep = ndimage.binary_erosion(vol.occupancy, iterations=2)
+    assert np.count_nonzero(deep) > 1000
+    assert np.all(vol.density[deep] >= 1 - 1e-5)  # float32 running sums
+    assert np.all(vol.density[~ndimage.binary_dilation(vol.occupancy, iterations=2)] <= 1e-5)
+    # The shared space alone: the middle of the overlap.
+    g = vol.grid
+    i, j, k = (np.searchsorted(g.centres(a), c) for a, c in enumerate((0.4, 0.05, 0.0)))
+    assert vol.occupancy[i, j, k] and vol.density[i, j, k] >= 1 - 1e-5
+    # Parity along the rays (the signs left out) has it empty.
+    from geovox.density import coverage, sub_columns
+    from geovox.pipeline import ray_start
+
+    sub = sub_columns(g.columns(2, start=ray_start(mesh, g, 2)), 2)
+    hits = geovox.backends.get_backend(backend).cast(mesh, sub)
+    assert coverage(hits, sub, g, 2)[i, j, k] <= 1e-5
