@@ -802,6 +802,16 @@ def _pyramid(mask, levels):
         shape = np.asarray(mask)
         return [np.broadcast_to(np.True_, tuple(-(-shape // (1 << k)))) for k in range(levels + 1)]
     shape = np.asarray(mask.shape)
+    if np.count_nonzero(mask) > mask.size // 64:
+        # Dense: any over 2³ blocks, level by level, costs less than indices.
+        out = [mask]
+        for _ in range(levels):
+            m = out[-1]
+            a, b, c = (-(-n // 2) for n in m.shape)
+            pad = np.zeros((2 * a, 2 * b, 2 * c), dtype=bool)
+            pad[: m.shape[0], : m.shape[1], : m.shape[2]] = m
+            out.append(pad.reshape(a, 2, b, 2, c, 2).any(axis=(1, 3, 5)))
+        return out
     idx = _argwhere(mask)
     out = [mask]
     for k in range(1, levels + 1):

@@ -234,3 +234,19 @@ def test_far_field_bounds_hold_the_exact_value():
         below, above = _clamp(np.array([val]), np.array([bound]), np.array([area]), np.array([gap]))
         assert val - below[0] - 1e-12 <= exact <= val + above[0] + 1e-12
         assert below[0] + above[0] <= 2 * bound + 1e-12
+
+
+def test_brick_pyramid_is_the_same_dense_or_sparse():
+    # _pyramid builds coarse levels from indices when the mask is sparse and
+    # by any over 2³ blocks when it is dense: both must give the same levels.
+    from geovox.inside import _pyramid
+
+    rng = np.random.default_rng(0)
+    for shape in [(5, 7, 3), (16, 9, 33), (40, 33, 17)]:
+        for share in (0.001, 0.05, 0.5):
+            m = rng.random(shape) < share
+            idx = np.argwhere(m)
+            for k, level in enumerate(_pyramid(m, 4)):
+                ref = np.zeros(tuple(-(-np.array(shape) // (1 << k))), bool)
+                ref[tuple((idx >> k).T)] = True
+                np.testing.assert_array_equal(level, ref)
