@@ -396,7 +396,8 @@ def repair(mesh: Mesh) -> Repair:
     pos[g.reshape(-1)] = mesh.vertices[mesh.faces.reshape(-1)]
     g, pos, welded = _weld(g, pos, WELD * mesh.scale)
     nv = len(pos)
-    merged = len(np.unique(mesh.faces)) - len(np.unique(g))
+    # Every merged vertex is used (pos holds only those): a count, not a sort.
+    merged = int(np.count_nonzero(np.bincount(mesh.faces.reshape(-1)))) - nv
 
     # Degenerate: a repeated vertex, or zero area (the cross product is exactly 0).
     t = pos[g]
@@ -412,7 +413,11 @@ def repair(mesh: Mesh) -> Repair:
 
     # Duplicates: the same vertex set; the first face of each set stays.
     s = np.sort(g[keep], axis=1)
-    _, first, inverse = np.unique(s, axis=0, return_index=True, return_inverse=True)
+    if nv < (1 << 21):  # three ids in one int64 key: a flat unique, far faster than by rows
+        key = (s[:, 0] * np.int64(nv) + s[:, 1]) * np.int64(nv) + s[:, 2]
+        _, first, inverse = np.unique(key, return_index=True, return_inverse=True)
+    else:
+        _, first, inverse = np.unique(s, axis=0, return_index=True, return_inverse=True)
     inverse = inverse.reshape(-1)
     # Winding of each face relative to its sorted vertex order (even or odd permutation).
     w = g[keep]
