@@ -889,8 +889,9 @@ def _correct_caps(occ, w, grid, cap_tris) -> None:
             n1 = tuple(-(-shape // 2))
             loose = np.empty(n1, dtype=bool)
             for z in range(0, n1[0], 8):  # in slabs: no grid-sized temporaries
-                e1, r1 = est[1][z:z + 8, : n1[1], : n1[2]], err[1][z:z + 8, : n1[1], : n1[2]]
-                loose[z:z + 8] = np.maximum(e1 + r1[..., 1], r1[..., 0] - e1) >= 0.5 - 1e-4
+                z1 = min(z + 8, n1[0])  # est[1] may extend past n1 (zeros)
+                e1, r1 = est[1][z:z1, : n1[1], : n1[2]], err[1][z:z1, : n1[1], : n1[2]]
+                loose[z:z1] = np.maximum(e1 + r1[..., 1], r1[..., 0] - e1) >= 0.5 - 1e-4
             loose[tuple((np.stack(np.unravel_index(lin0, grid.shape), axis=1) >> 1).T)] = True
             if not first:
                 loose &= active[1]
