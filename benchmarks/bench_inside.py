@@ -12,8 +12,18 @@ voxel for voxel with the clean model under parity.
 Time: each method on a fresh copy of the loaded mesh (so the first-call work,
 Embree's scene and checks, and the repair, is counted; imports warm).
 
+The speed targets (``--targets``): the user's path, ``geovox convert FILE -r N
+-o out.npy`` with default options in a fresh process each run (the console
+script; ``/usr/bin/time -v`` gives the same wall time), against ``--inside
+parity`` on the same file, the runs taken in turn (auto, parity, auto, ...)
+so that a drifting load hits both alike; medians. Beside it, warm in-process
+``geovox.voxelize`` of a fresh copy of the loaded mesh (imports and first
+allocations warm). Models: an icosphere of 20,480 faces with 10 and with 200
+one-triangle holes at 256³ (issue 12: at most twice parity), and the 86-part
+cracked assembly below at 128³ (at most 5 s).
+
 Usage: python benchmarks/bench_inside.py [--res 64] [--samples 4000] [--times 64,128,256]
-       [--skip-agreement]
+       [--skip-agreement] [--targets [--runs 5]]
 """
 
 from __future__ import annotations
@@ -161,13 +171,65 @@ def timed(mesh, res, method):
     return time.perf_counter() - t, vol
 
 
+def targets(runs):
+    """The speed targets' rows: whole process and warm in-process (see the module notes)."""
+    import statistics
+    import subprocess
+    import tempfile
+
+    import trimesh
+
+    tmp = tempfile.mkdtemp(prefix="bench_inside_")
+    ico = trimesh.creation.icosphere(subdivisions=5)
+    sphere = mesh_of(ico.vertices, ico.faces, "icosphere(5)")
+    assembly = cracked_assembly()
+    exe = os.path.join(os.path.dirname(sys.executable), "geovox")
+    cmd = [exe] if os.path.exists(exe) else [sys.executable, "-m", "geovox"]
+    env = dict(os.environ, PYTHONPATH=os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    print(f"# bench_inside --targets {datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC,"
+          f" load average {os.getloadavg()[0]:.1f}, {runs} runs each")
+    print("| model | grid | auto, whole process (s) | parity, whole process (s) | ratio | "
+          "auto, warm in process (s) | parity, warm in process (s) | auto ran |")
+    print("|---|---|---|---|---|---|---|---|")
+    for name, m, res in [("icosphere(5), 10 one-triangle holes", holes(sphere, 10), 256),
+                         ("icosphere(5), 200 one-triangle holes", holes(sphere, 200), 256),
+                         ("86-part cracked assembly", assembly, 128)]:
+        path = os.path.join(tmp, "model.obj")
+        trimesh.Trimesh(m.vertices, m.faces, process=False).export(path)
+        whole = {"auto": [], "parity": []}
+        for _ in range(runs):
+            for meth in whole:
+                extra = [] if meth == "auto" else ["--inside", "parity"]
+                t = time.perf_counter()
+                subprocess.run(cmd + ["convert", path, "-r", str(res), "-o",
+                                      os.path.join(tmp, "out.npy")] + extra,
+                               env=env, check=True, capture_output=True)
+                whole[meth].append(time.perf_counter() - t)
+        warm, ran = {}, ""
+        for meth in ("auto", "parity"):
+            got = [timed(m, res, meth) for _ in range(runs + 1)][1:]  # the first warms up
+            warm[meth] = statistics.median(g[0] for g in got)
+            ran = ran or got[-1][1].inside
+        a, b = statistics.median(whole["auto"]), statistics.median(whole["parity"])
+        print(f"| {name} | {res}³ | {a:.2f} | {b:.2f} | {a / b:.2f} | {warm['auto']:.2f} | "
+              f"{warm['parity']:.2f} | {ran} |", flush=True)
+    print(f"# load average after: {os.getloadavg()[0]:.1f}")
+
+
 def main():
     p = argparse.ArgumentParser()
     p.add_argument("--res", type=int, default=64)
     p.add_argument("--samples", type=int, default=4000)
     p.add_argument("--times", default="64,128,256")
     p.add_argument("--skip-agreement", action="store_true", help="print the times only")
+    p.add_argument("--targets", action="store_true",
+                   help="only the speed targets: whole process and warm in process")
+    p.add_argument("--runs", type=int, default=5)
     args = p.parse_args()
+    if args.targets:
+        warnings.simplefilter("ignore")
+        targets(args.runs)
+        return
     warnings.simplefilter("ignore")
     rng = np.random.default_rng(0)
     bunny = geovox.load_mesh(os.path.join(CORPUS, "bunny_watertight", "bunny_oded.obj"))

@@ -22,7 +22,11 @@ process each with a time-out:
   ``merge_vertices()`` (by position), ``update_faces(nondegenerate_faces())``,
   ``update_faces(unique_faces())`` (which also collapses the two sides of a
   double-sided face) and ``trimesh.repair.fix_normals(multibody=True)``
-  (faces wound consistently across each body, each body turned outward). The
+  (faces wound consistently across each body, each closed body turned
+  outward); vertices are merged by position alone (``merge_tex=True,
+  merge_norm=True``), and each open body is turned to the side that most
+  rays from outside enter (:func:`orient_open_bodies`, the rule issue 12
+  gives for open pieces; geovox uses its capped volume's sign instead). The
   repaired mesh is a *solid* when every connected piece of it is watertight
   and consistently wound (``mesh.split(only_watertight=False)``): closed
   parts may touch or overlap, as in CAD assemblies, and their union is the
@@ -150,13 +154,64 @@ def repaired(path):
     if not isinstance(m, trimesh.Trimesh) or len(m.faces) == 0:
         return None
     m = trimesh.Trimesh(m.vertices, m.faces, process=False)
-    m.merge_vertices()
+    # By position only: vertices that differ in normal or texture coordinate
+    # are one vertex of the shape (else the two sides of a double-sided face
+    # are not seen as duplicates, and they cancel in the winding number).
+    m.merge_vertices(merge_tex=True, merge_norm=True)
     m.update_faces(m.nondegenerate_faces())
     m.update_faces(m.unique_faces())
     m.remove_unreferenced_vertices()
     if len(m.faces):
         trimesh.repair.fix_normals(m, multibody=True)
+        orient_open_bodies(m)
     return m
+
+
+def orient_open_bodies(m, rays=20000, seed=0):
+    """Turn each open body of ``m`` (in place) to the side that most rays from outside enter.
+
+    trimesh's ``fix_normals`` turns only closed bodies outward. For an open
+    one, issue 12's rule: cast ``rays`` rays from outside (directions uniform
+    on the sphere, origins uniform on a disk that covers the bounding sphere),
+    take each ray's first hit on the whole model, and count, per body, the hits
+    that enter the outward side (the face's normal against the ray); a body
+    that most of its hits leave is turned over. A body no ray hits, or one with
+    as many of each, stays as it is. Independent of geovox, which orients open
+    pieces by the sign of their capped volume instead: this checks that rule.
+    """
+    import trimesh
+
+    label = trimesh.graph.connected_component_labels(m.face_adjacency, node_count=len(m.faces))
+    edges = m.edges_sorted
+    key = edges[:, 0].astype(np.int64) * (len(m.vertices) + 1) + edges[:, 1]
+    _, inv, count = np.unique(key, return_inverse=True, return_counts=True)
+    open_face = np.zeros(len(m.faces), bool)
+    open_face[m.edges_face[count[inv.reshape(-1)] == 1]] = True
+    open_body = np.unique(label[open_face])
+    if len(open_body) == 0:
+        return
+    rng = np.random.default_rng(seed)
+    centre = m.bounds.mean(axis=0)
+    radius = max(float(np.linalg.norm(m.extents)) / 2, 1e-12) * 1.01
+    d = rng.normal(size=(rays, 3))
+    d /= np.linalg.norm(d, axis=1)[:, None]
+    u = np.cross(d, rng.normal(size=(rays, 3)))
+    u /= np.linalg.norm(u, axis=1)[:, None]
+    v = np.cross(d, u)
+    r = radius * np.sqrt(rng.random(rays))
+    a = 2 * np.pi * rng.random(rays)
+    origin = centre - 2 * radius * d + (r * np.cos(a))[:, None] * u + (r * np.sin(a))[:, None] * v
+    tri = m.ray.intersects_first(origin, d)
+    hit = tri >= 0
+    vote = np.where((m.face_normals[tri[hit]] * d[hit]).sum(axis=1) < 0, 1, -1)
+    total = np.bincount(label[tri[hit]], weights=vote, minlength=int(label.max()) + 1)
+    turn = np.zeros(len(total), bool)
+    turn[open_body] = total[open_body] < 0
+    if turn.any():
+        f = m.faces.copy()
+        sel = turn[label]
+        f[sel] = f[sel][:, ::-1]
+        m.faces = f
 
 
 def iou(path, npz, budget, seed=0):

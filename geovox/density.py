@@ -10,8 +10,11 @@ ray exactly, so no sampling is needed along the ray: a crossing at depth
 voxel ``k`` and ``s`` to every voxel past it (``s = +1`` entering, ``-1``
 leaving, by the parity of the crossing along its ray). Two scatter-adds and a
 running sum along the axis evaluate that for every ray at once. Inside is the
-parity rule along the ray axis, on the mesh with its holes capped when the
-inside test is ``winding`` (see :mod:`geovox.inside`).
+parity rule along the ray axis; when the inside test is ``winding``, it is
+the winding number's rule on the mesh (repaired, its holes capped: see
+:mod:`geovox.inside`) instead, counted from the crossings' signs: inside
+where the winding number is not 0, so space that closed parts share counts,
+as it does in the occupancy.
 
 Signed distance
 ---------------
@@ -43,7 +46,7 @@ def sub_columns(columns: Columns, k: int) -> Columns:
                    nu=columns.nu * k, nv=columns.nv * k, start=columns.start, w0=columns.w0)
 
 
-def coverage(hits, sub: Columns, grid, k: int, jobs: int = 1) -> np.ndarray:
+def coverage(hits, sub: Columns, grid, k: int, jobs: int = 1, sign=None) -> np.ndarray:
     """Inside fraction of every voxel from the crossings of ``k x k`` rays per column.
 
     Parameters
@@ -52,6 +55,10 @@ def coverage(hits, sub: Columns, grid, k: int, jobs: int = 1) -> np.ndarray:
         Crossings of the ``sub`` lattice.
     sub : Columns
         ``sub_columns(grid.columns(axis), k)``.
+    sign : (m,) int, optional
+        Per crossing, +1 where the surface faces along the ray and -1 where
+        it faces against it: inside is then where the winding number (0
+        before a ray's first crossing) is not 0. Without it, parity.
 
     Returns
     -------
@@ -73,7 +80,15 @@ def coverage(hits, sub: Columns, grid, k: int, jobs: int = 1) -> np.ndarray:
         depth = hits.depth[order]
         first = np.r_[True, ray[1:] != ray[:-1]]
         start = np.maximum.accumulate(np.where(first, np.arange(len(ray)), 0))
-        s = np.where((np.arange(len(ray)) - start) % 2 == 0, 1.0, -1.0)
+        if sign is None:
+            s = np.where((np.arange(len(ray)) - start) % 2 == 0, 1.0, -1.0)
+        else:
+            # Passing a crossing that faces along the ray lowers the winding
+            # number by one; s is the change of "inside" (w != 0) there.
+            step = -np.asarray(sign, dtype=np.int64)[order]
+            run = np.cumsum(step)
+            after = run - (run[start] - step[start])
+            s = (after != 0).astype(np.float64) - ((after - step) != 0)
         kd = np.floor((depth - lo) / h).astype(np.int64)
         frac = (lo + (kd + 1) * h - depth) / h
         before = kd < 0

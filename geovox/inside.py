@@ -115,8 +115,7 @@ def caps(mesh: Mesh, edges: np.ndarray) -> np.ndarray:
     piece : (k,) int64
         The boundary piece each belongs to.
     """
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
+    from .repair import components
 
     if len(edges) == 0:
         return np.zeros((0, 3, 3)), np.zeros(0, np.int64)
@@ -125,8 +124,7 @@ def caps(mesh: Mesh, edges: np.ndarray) -> np.ndarray:
     _, vid = np.unique(pos[edges.reshape(-1)], axis=0, return_inverse=True)
     vid = vid.reshape(-1, 2)
     nv = int(vid.max()) + 1
-    graph = coo_matrix((np.ones(len(vid)), (vid[:, 0], vid[:, 1])), shape=(nv, nv))
-    _, label = connected_components(graph, directed=False)
+    _, label, _ = components(nv, vid[:, 0], vid[:, 1])
     piece = label[vid[:, 0]]
     npieces = int(piece.max()) + 1
     mid = (pos[edges[:, 0]] + pos[edges[:, 1]]) / 2
@@ -163,9 +161,7 @@ def signed_counts(mesh: Mesh, hits: Hits, columns, grid, jobs: int = 1) -> np.nd
     (nx, ny, nz) int16, Fortran order.
     """
     axis = columns.axis
-    t = mesh.triangles[hits.triangle]
-    n_axis = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])[:, axis]
-    sigma = np.sign(n_axis).astype(np.int64)
+    sigma = crossing_signs(mesh, hits, axis)
     total = np.bincount(hits.ray, weights=sigma, minlength=columns.count).astype(np.int64)
     centres = (np.arange(grid.shape[axis]) + 0.5) * grid.spacing[axis]  # from the low face
     k = np.searchsorted(centres, hits.depth, side="left")
@@ -189,6 +185,13 @@ def signed_counts(mesh: Mesh, hits: Hits, columns, grid, jobs: int = 1) -> np.nd
     tot = total.reshape(columns.nv, columns.nu).T  # [i, j]; u_axis < v_axis always
     np.subtract(tot.reshape(shape).astype(np.int16), w, out=w)
     return w
+
+
+def crossing_signs(mesh: Mesh, hits: Hits, axis: int) -> np.ndarray:
+    """(m,) int64: +1 where the crossed triangle faces along the ray (``axis``), -1 against it."""
+    t = mesh.triangles[hits.triangle]
+    n_axis = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])[:, axis]
+    return np.sign(n_axis).astype(np.int64)
 
 
 def capped(mesh: Mesh):
@@ -427,6 +430,11 @@ PASSES = ((1.0, 1e-3), (0.3, 1e-5), (0.1, 1e-6))
 PAIR_BUDGET = 10_000_000
 #: (brick, cap group) pairs handled at once: bounds the traversal's memory.
 PAIR_CHUNK = 1 << 17
+#: Undecided voxels times cap triangles up to which they are summed exactly
+#: straight away, without another pass.
+DIRECT = 1 << 22
+#: Voxel-level sums kept as separate parts until this many, then summed per voxel.
+MERGE_AT = 1 << 20
 
 
 def _cap_tree(tris):
@@ -492,7 +500,7 @@ def _triangle_angles(tris: np.ndarray, points: np.ndarray) -> np.ndarray:
     return np.arctan2(num, den) / (2.0 * np.pi)
 
 
-def cap_winding(grid, tris, active, theta=THETA, eps=EPS, budget=None):
+def cap_winding(grid, tris, active, theta=THETA, eps=EPS, budget=None, then=None):
     """The caps' winding number ``w_K`` over bricks of voxels, hierarchically, with a bound.
 
     A dual-tree traversal in whole arrays. Voxels are grouped in cubic
@@ -519,14 +527,33 @@ def cap_winding(grid, tris, active, theta=THETA, eps=EPS, budget=None):
 
     budget : int, optional
         Give up (return None) once this many pairs have been handled.
+    then : (theta, eps), optional
+        The next pass's opening ratio and tolerance: count, per brick, the
+        pairs the next pass is sure to visit (see ``work``).
 
     Returns
     -------
-    est : list of arrays, one per brick level ``l`` (shape ``ceil(shape / 2^l)``)
-        Sums to add up, each voxel taking its bricks' values on every level.
-    err : list of arrays of the same shapes: the bounds, added the same way.
-    touched : (m, 3) int64
-        The voxels that got a value of their own (level 0), with repeats.
+    est : list, one entry per brick level ``l``
+        Sums to add up, each voxel taking its bricks' values on every level:
+        on levels ``l >= 1`` float64 arrays of shape ``ceil(shape / 2^l)``; on
+        level 0 (single voxels) the voxels that got a value of their own,
+        sparse: ``(lin, value, below, above, count)``, the flat (C-order)
+        index of each such voxel (int64, sorted, unique), its sum and its
+        bounds' sums (float64), and how many pairs ended at it (int64).
+        (The arrays may extend past ``ceil(shape / 2^l)``, with zeros.)
+    err : list: the bounds of levels ``l >= 1``, added the same way (None on level 0):
+        float64 ``(..., 2)``, how far below and above the sum the true value
+        may lie (the bounds need not be symmetric: see :func:`_clamp`).
+    work : list of int32 arrays ``(..., 2)``, one per brick level (None on level 0)
+        Per brick of level >= 1: ``[..., 0]`` (visits), the pairs with it
+        that this pass visited, plus the node's children for each of them
+        that was far here but that the next pass (``then``) splits by its
+        node; ``[..., 1]`` (splits), those the next pass splits by the brick
+        instead. A
+        tighter pass visits every pair a looser one visited on the bricks it
+        enters (what was not far here is not far there), and the children of
+        each such split, so these give a lower bound on its work (see
+        :func:`_sure_work`). None without ``then``.
     """
     tris, nodes, offset, size = _cap_tree(tris)
     top = len(size) - 1
@@ -537,14 +564,21 @@ def cap_winding(grid, tris, active, theta=THETA, eps=EPS, budget=None):
     full = [bool(a.all()) for a in active]
     d = grid.spacing
     lo = grid.lo
-    est = [np.zeros(tuple(-(-shape // (1 << k))), dtype=np.float32 if k == 0 else np.float64)
-           for k in range(level0 + 1)]
-    err = [np.zeros_like(e) for e in est]
+    # Level 0 is kept sparse: dense, its two grid-sized arrays were most of
+    # this step's memory, and first touching fresh pages costs more than the
+    # sums (0.14 s for 64 MB in a fresh process here).
+    # Each level exactly twice the next one up (bricks past the grid stay 0),
+    # so sums push down in place (see _push_down).
+    top_shape = -(-shape // (1 << level0))
+    est = [[]] + [np.zeros(tuple(top_shape << (level0 - k))) for k in range(1, level0 + 1)]
+    err = [None] + [np.zeros(e.shape + (2,)) for e in est[1:]]
+    # Per brick: [visits, splits] (see ``work``), one array so one scatter.
+    work = [None] + [np.zeros(e.shape + (2,), np.int32) if then is not None else None
+                     for e in est[1:]]
     S, A, C, R, H = nodes["S"], nodes["A"], nodes["c"], nodes["r"], nodes["h"]
     stack = [(np.full(len(start), level0, np.int64), start.astype(np.int64),
               np.full(len(start), top, np.int64), np.zeros(len(start), np.int64))]
     handled = 0
-    touched = []
     while stack:
         kb, b, ln, nj = stack.pop()
         handled += min(len(kb), PAIR_CHUNK)
@@ -579,17 +613,33 @@ def cap_winding(grid, tris, active, theta=THETA, eps=EPS, budget=None):
         far = (gap > 0) & (((reach <= theta * gap) & ~single)
                            | ((rb <= theta * gap) & (bound <= theta * SINGLE)) | (bound <= eps))
         leaf = single & (far | (kb == 0))
+        if then is not None:
+            t2, e2 = then
+            far2 = (gap > 0) & (((reach <= t2 * gap) & ~single)
+                                | ((rb <= t2 * gap) & (bound <= t2 * SINGLE)) | (bound <= e2))
+            # Split next time: a far pair the next pass does not take as far
+            # (a voxel and one triangle is always a leaf). Its children there
+            # are the node's (1 or 2) or the brick's active sub-bricks (known
+            # only after this pass: counted per brick in ``splits``).
+            again = far & ~far2 & ~(single & (kb == 0))
+            by_brick = again & (kb > 0) & (single | (0.5 * (side - 1) * np.linalg.norm(d) > R[node]))
+            kids = 1 + (2 * nj + 1 < size[np.maximum(ln - 1, 0)])
+            _count(work, kb, b, 1 + np.where(again & ~by_brick, kids, 0), by_brick)
         far &= ~single
         if far.any():
             f = np.flatnonzero(far)
             val = np.einsum("ij,ij->i", S[node[f]], vec[f]) / (4 * np.pi * dist[f] ** 3)
-            _scatter(est, err, kb[f], b[f], val, bound[f])
-            touched.append(b[f][kb[f] == 0])
+            _scatter(est, err, kb[f], b[f], val, *_clamp(val, bound[f], A[node[f]], gap[f]),
+                     grid.shape)
         if leaf.any():
             f = np.flatnonzero(leaf)
             val = _triangle_angles(tris[nj[f]], p[f])
-            _scatter(est, err, kb[f], b[f], val, np.where(kb[f] == 0, 0.0, bound[f]))
-            touched.append(b[f][kb[f] == 0])
+            brick = kb[f] > 0
+            below, above = np.zeros(len(f)), np.zeros(len(f))
+            if brick.any():
+                g = f[brick]
+                below[brick], above[brick] = _clamp(val[brick], bound[g], A[node[g]], gap[g])
+            _scatter(est, err, kb[f], b[f], val, below, above, grid.shape)
         split = np.flatnonzero(~far & ~leaf)
         if len(split) == 0:
             continue
@@ -602,7 +652,7 @@ def cap_winding(grid, tris, active, theta=THETA, eps=EPS, budget=None):
             c_nj = c_nj.reshape(-1)
             ok = c_nj < size[c_ln]
             c_kb, c_b, c_ln, c_nj = np.repeat(kb[s], 2)[ok], np.repeat(b[s], 2, axis=0)[ok], c_ln[ok], c_nj[ok]
-            handled += _exact_leaves(est, err, touched, tris, grid, c_kb, c_b, c_ln, c_nj)
+            handled += _exact_leaves(est, err, tris, grid, c_kb, c_b, c_ln, c_nj)
             keep = (c_kb > 0) | (c_ln > 0)
             stack.append((c_kb[keep], c_b[keep], c_ln[keep], c_nj[keep]))
         if brick.any():  # eight sub-bricks (those inside the grid)
@@ -613,17 +663,82 @@ def cap_winding(grid, tris, active, theta=THETA, eps=EPS, budget=None):
             ok = np.all(child * (1 << c_kb)[:, None] < shape, axis=1)
             ok[ok] = _lookup(active, full, c_kb[ok], child[ok])
             c_kb, child, c_ln, c_nj = c_kb[ok], child[ok], np.repeat(ln[s], 8)[ok], np.repeat(nj[s], 8)[ok]
-            handled += _exact_leaves(est, err, touched, tris, grid, c_kb, child, c_ln, c_nj)
+            handled += _exact_leaves(est, err, tris, grid, c_kb, child, c_ln, c_nj)
             keep = (c_kb > 0) | (c_ln > 0)
             stack.append((c_kb[keep], child[keep], c_ln[keep], c_nj[keep]))
     # Pairs summed straight away (_exact_leaves) after the last check count too:
     # a pass gives up exactly when it handles more than the budget.
     if budget is not None and handled > budget:
         return None
-    return est, err, np.concatenate(touched) if touched else np.zeros((0, 3), np.int64)
+    est[0] = _merge(est[0])
+    return est, err, work
 
 
-def _exact_leaves(est, err, touched, tris, grid, kb, b, ln, nj) -> int:
+def _clamp(val, bound, area, gap):
+    """Narrow ``val`` +- ``bound`` to where the true value must also lie: within +- area / (4 pi gap²).
+
+    A surface of area ``A`` whose every point is at least ``g`` from ``p``
+    has a winding number at ``p`` of at most ``A / (4 pi g²)`` in size (the
+    kernel ``n.(x - p) / |x - p|³`` is at most ``1 / g²``). Where the
+    dipole's error bound is first order in the opening ratio, this one can be
+    tighter (by up to 3 times at an opening ratio of 1). The value stays the
+    estimate (the best guess where the bounds decide nothing and the work
+    budget runs out); the bounds become the overlap of the two intervals,
+    measured from it (``above`` may be negative, where the estimate lies
+    beyond what is possible).
+
+    Returns
+    -------
+    below, above : (n,) float64
+        The true value lies in ``[val - below, val + above]``.
+    """
+    m = area / (4 * np.pi * gap * gap)
+    return val - np.maximum(val - bound, -m), np.minimum(val + bound, m) - val
+
+
+def _sure_work(unsure, level0, work, active) -> float:
+    """A lower bound on the pairs the next pass will handle over the ``unsure`` voxels.
+
+    The pairs this pass ended at on unsure voxels (level 0, ``level0``: see
+    :func:`cap_winding`'s ``est[0]``),
+    and on every brick of a coarser level that holds an unsure voxel
+    (``active``, the next pass's pyramid) the pairs of :func:`cap_winding`'s
+    ``work``: the visits and node children counted there, and for each pair
+    the next pass splits by its brick, the active sub-bricks it splits into.
+    """
+    lin, _, _, _, count = level0
+    n = float(count[unsure.reshape(-1)[lin]].sum())
+    for k in range(1, len(active)):
+        n0, n1, n2 = active[k].shape
+        visits, splits = work[k][:n0, :n1, :n2, 0], work[k][:n0, :n1, :n2, 1]
+        n += float(np.sum(visits, where=active[k], dtype=np.int64))
+        idx = np.flatnonzero(splits)
+        if len(idx) == 0:
+            continue
+        idx = np.stack(np.unravel_index(idx, splits.shape), axis=1)
+        kids = np.zeros(len(idx), np.int64)
+        fine = active[k - 1]
+        for o in _OCTANTS:
+            c = 2 * idx + o
+            ok = np.all(c < fine.shape, axis=1)
+            kids[ok] += fine[tuple(c[ok].T)]
+        n += float(np.dot(splits[tuple(idx.T)].astype(np.int64), kids))
+    return n
+
+
+def _count(work, kb, b, visits, splits) -> None:
+    """Add each pair's ``visits`` and ``splits`` to its brick's counts (levels >= 1)."""
+    for k in np.flatnonzero(np.bincount(kb)):
+        if k == 0:
+            continue
+        sel = kb == k
+        lin = 2 * np.ravel_multi_index(tuple(b[sel].T), work[k].shape[:3])
+        s = splits[sel]
+        np.add.at(work[k].reshape(-1), np.r_[lin, lin[s] + 1],
+                  np.r_[visits[sel], np.ones(np.count_nonzero(s), np.int64)].astype(np.int32))
+
+
+def _exact_leaves(est, err, tris, grid, kb, b, ln, nj) -> int:
     """Sum the pairs of one voxel and one triangle exactly, at once; return how many.
 
     Such a pair is always a leaf of :func:`cap_winding` (exact, no error), so
@@ -634,8 +749,8 @@ def _exact_leaves(est, err, touched, tris, grid, kb, b, ln, nj) -> int:
     for s in range(0, len(sel), PAIR_CHUNK):
         f = sel[s:s + PAIR_CHUNK]
         p = grid.lo + (b[f] + 0.5) * grid.spacing
-        _scatter(est, err, kb[f], b[f], _triangle_angles(tris[nj[f]], p), np.zeros(len(f)))
-        touched.append(b[f])
+        _scatter(est, err, kb[f], b[f], _triangle_angles(tris[nj[f]], p), np.zeros(len(f)),
+                 np.zeros(len(f)), grid.shape)
     return len(sel)
 
 
@@ -665,6 +780,17 @@ def _lookup(active, full, kb, b):
     return out
 
 
+def _push_down(fine, coarse) -> None:
+    """Add each brick's value to its 2³ sub-bricks, in place (``fine`` twice ``coarse`` a side).
+
+    ``fine`` (2a, 2b, 2c, ...), ``coarse`` (a, b, c, ...): no temporary of ``fine``'s size.
+    """
+    a, b, c = coarse.shape[:3]
+    rest = coarse.shape[3:]
+    view = fine.reshape((a, 2, b, 2, c, 2) + rest)
+    view += coarse.reshape((a, 1, b, 1, c, 1) + rest)
+
+
 def _pyramid(mask, levels):
     """``[mask, any over 2³ blocks of it, ...]``: ``levels + 1`` arrays.
 
@@ -672,9 +798,20 @@ def _pyramid(mask, levels):
     True voxels' indices: the masks after the first pass are sparse.
     """
     if not isinstance(mask, np.ndarray):
+        # Read-only views of one True: nothing allocated or touched.
         shape = np.asarray(mask)
-        return [np.ones(tuple(-(-shape // (1 << k))), dtype=bool) for k in range(levels + 1)]
+        return [np.broadcast_to(np.True_, tuple(-(-shape // (1 << k)))) for k in range(levels + 1)]
     shape = np.asarray(mask.shape)
+    if np.count_nonzero(mask) > mask.size // 64:
+        # Dense: any over 2³ blocks, level by level, costs less than indices.
+        out = [mask]
+        for _ in range(levels):
+            m = out[-1]
+            a, b, c = (-(-n // 2) for n in m.shape)
+            pad = np.zeros((2 * a, 2 * b, 2 * c), dtype=bool)
+            pad[: m.shape[0], : m.shape[1], : m.shape[2]] = m
+            out.append(pad.reshape(a, 2, b, 2, c, 2).any(axis=(1, 3, 5)))
+        return out
     idx = _argwhere(mask)
     out = [mask]
     for k in range(1, levels + 1):
@@ -684,13 +821,33 @@ def _pyramid(mask, levels):
     return out
 
 
-def _scatter(est, err, kb, b, val, bound):
-    """Add each pair's value and bound to its brick, level by level."""
+def _scatter(est, err, kb, b, val, below, above, shape):
+    """Add each pair's value and bounds to its brick, level by level (level 0: sparse)."""
     for k in np.flatnonzero(np.bincount(kb)):
         sel = kb == k
+        if k == 0:
+            lin = np.ravel_multi_index(tuple(b[sel].T), shape)
+            est[0].append((lin, val[sel], below[sel], above[sel], None))
+            if sum(len(e[0]) for e in est[0]) > MERGE_AT:
+                est[0][:] = [_merge(est[0])]
+            continue
         lin = np.ravel_multi_index(tuple(b[sel].T), est[k].shape)
-        np.add.at(est[k].reshape(-1), lin, val[sel].astype(est[k].dtype))
-        np.add.at(err[k].reshape(-1), lin, bound[sel].astype(err[k].dtype))
+        np.add.at(est[k].reshape(-1), lin, val[sel])
+        np.add.at(err[k].reshape(-1), np.r_[2 * lin, 2 * lin + 1], np.r_[below[sel], above[sel]])
+
+
+def _merge(parts):
+    """``(lin, value, below, above, count)`` parts (count None: 1 each) summed per voxel, ``lin`` sorted."""
+    if not parts:
+        return np.zeros(0, np.int64), np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0, np.int64)
+    lin = np.concatenate([p[0] for p in parts])
+    order = np.argsort(lin, kind="stable")
+    lin = lin[order]
+    starts = np.flatnonzero(np.r_[True, lin[1:] != lin[:-1]])
+    val, below, above = (np.add.reduceat(np.concatenate([p[i] for p in parts])[order], starts)
+                         for i in (1, 2, 3))
+    count = np.concatenate([np.ones(len(p[0]), np.int64) if p[4] is None else p[4] for p in parts])
+    return lin[starts], val, below, above, np.add.reduceat(count[order], starts)
 
 
 def _correct_caps(occ, w, grid, cap_tris) -> None:
@@ -700,27 +857,26 @@ def _correct_caps(occ, w, grid, cap_tris) -> None:
     on its error; the voxels whose estimate is not decisive (within the bound
     of 1/2) get a second pass with a tighter opening ratio, over only the
     bricks that hold them, and any still undecided are summed exactly over
-    every cap triangle.
+    every cap triangle (straight away, once they are few: see ``DIRECT``).
     """
     shape = np.asarray(grid.shape)
     top = max(0, int(np.ceil(np.log2(max(1, int(shape.max()) / 16)))))
     active = _pyramid(grid.shape, top)
     first = True
-    for theta, eps in PASSES:
+    for i, (theta, eps) in enumerate(PASSES):
         got = cap_winding(grid, cap_tris, active, theta=theta, eps=eps,
-                          budget=None if first else PAIR_BUDGET)
+                          budget=None if first else PAIR_BUDGET,
+                          then=PASSES[i + 1] if i + 1 < len(PASSES) else None)
         if got is None:
             _estimated(active[0], grid)
             return
-        est, err, touched = got
+        est, err, work = got
+        level0 = est[0]
+        lin0, val0, below0, above0, _ = level0
         # Every coarse level's sums, pushed down to bricks of 2³ voxels.
         for k in range(len(est) - 1, 1, -1):
             for arrays in (est, err):
-                fine = arrays[k - 1]
-                up = arrays[k]
-                for a in range(3):
-                    up = np.repeat(up, 2, axis=a)
-                fine += up[: fine.shape[0], : fine.shape[1], : fine.shape[2]]
+                _push_down(arrays[k - 1], arrays[k])
                 arrays[k] = None
         if first:
             np.greater_equal(w, 1, out=occ)
@@ -729,8 +885,14 @@ def _correct_caps(occ, w, grid, cap_tris) -> None:
         # w_{M+K} decided as it is (w >= 1, set above); only the other
         # bricks' voxels are looked at one by one.
         if len(est) > 1:
-            loose = np.abs(est[1]) + err[1] >= 0.5 - 1e-4
-            loose[tuple((touched >> 1).T)] = True
+            # |w_K| may reach 1/2 - margin on either side.
+            n1 = tuple(-(-shape // 2))
+            loose = np.empty(n1, dtype=bool)
+            for z in range(0, n1[0], 8):  # in slabs: no grid-sized temporaries
+                z1 = min(z + 8, n1[0])  # est[1] may extend past n1 (zeros)
+                e1, r1 = est[1][z:z1, : n1[1], : n1[2]], err[1][z:z1, : n1[1], : n1[2]]
+                loose[z:z1] = np.maximum(e1 + r1[..., 1], r1[..., 0] - e1) >= 0.5 - 1e-4
+            loose[tuple((np.stack(np.unravel_index(lin0, grid.shape), axis=1) >> 1).T)] = True
             if not first:
                 loose &= active[1]
             bricks = _argwhere(loose)
@@ -741,38 +903,52 @@ def _correct_caps(occ, w, grid, cap_tris) -> None:
         if not first:
             vox = vox[active[0][tuple(vox.T)]]
         ii = tuple(vox.T)
-        wk = est[0][ii].astype(np.float64)
-        bound = err[0][ii].astype(np.float64)
+        # Each voxel's own sums, where it has any (lin0 is sorted).
+        vlin = np.ravel_multi_index(ii, grid.shape)
+        at = np.minimum(np.searchsorted(lin0, vlin), max(len(lin0) - 1, 0))
+        own = (lin0[at] == vlin) if len(lin0) else np.zeros(len(vlin), bool)
+        wk, below, above = ((np.where(own, a[at], 0.0) if len(lin0) else np.zeros(len(vlin)))
+                            for a in (val0, below0, above0))
         if len(est) > 1:
             jj = tuple((vox >> 1).T)
             wk += est[1][jj]
-            bound += err[1][jj]
+            below += err[1][jj + (0,)]
+            above += err[1][jj + (1,)]
         del est, err
         v = w[ii] - wk
         occ[ii] = v > 0.5
-        # float32 rounding of the voxel-level sums is far below this margin.
+        # w_K in [wk - below, wk + above]: w_{M+K} - w_K in [v - above, v + below].
+        # Rounding of the float64 sums is far below this margin.
         unsure = np.zeros(grid.shape, dtype=bool)
-        unsure[ii] = np.abs(v - 0.5) <= bound + 1e-4
+        unsure[ii] = (v - above <= 0.5 + 1e-4) & (v + below >= 0.5 - 1e-4)
         first = False
-        if not unsure.any():
+        n_unsure = int(np.count_nonzero(unsure))
+        if n_unsure == 0:
             return
+        if n_unsure * len(cap_tris) <= DIRECT:
+            # So few left that summing every cap triangle at each costs less
+            # than a pass's set-up over the whole grid.
+            active = [unsure]
+            break
         # The next pass, with a tighter opening ratio over the bricks that
-        # hold unsure voxels, reaches every pair this pass ended at in such a
-        # brick (a pair that was split here is split there too), so it
-        # handles at least as many pairs as this pass ended at on unsure
-        # voxels. Past the budget that pass would give up anyway: give up
-        # now, with the same result, without spending the budget first.
-        if len(touched) and np.count_nonzero(unsure[tuple(touched.T)]) > PAIR_BUDGET:
+        # hold unsure voxels, visits every pair this pass visited on such a
+        # brick (a pair that was split here is split there too), and at least
+        # one child of each pair that was far here but not there: a lower
+        # bound on its work (see cap_winding's ``work``). Past the budget
+        # that pass would give up anyway: give up now, with the same result,
+        # without spending the budget first.
+        active = _pyramid(unsure, top)
+        if i + 1 < len(PASSES) and _sure_work(unsure, level0, work, active) > PAIR_BUDGET:
             _estimated(unsure, grid)
             return
-        active = _pyramid(unsure, top)
+        del work, level0, lin0, val0, below0, above0
     # The last few: the exact sum over every cap triangle.
     idx = _argwhere(active[0])
     if len(idx) * len(cap_tris) > 4 * PAIR_BUDGET:
         _estimated(active[0], grid)
         return
     centres = [grid.centres(a) for a in range(3)]
-    block = max(1, (1 << 20) // len(cap_tris))
+    block = max(1, (1 << 16) // len(cap_tris))
     for s in range(0, len(idx), block):
         ii = tuple(idx[s:s + block].T)
         p = np.stack([centres[a][ii[a]] for a in range(3)], axis=1)

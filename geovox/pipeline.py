@@ -334,7 +334,10 @@ def voxelize_block(
         if method == "winding":
             target = inside_tests.capped(inside_tests.target(m)[0])[0]
         sub = sub_columns(grid.columns(axis, start=ray_start(target, grid, axis)), supersample)
-        frac = coverage(engine.cast(target, sub, jobs=jobs), sub, grid, supersample, jobs)
+        sub_hits = engine.cast(target, sub, jobs=jobs)
+        # The occupancy's rule: the winding number's, not parity (inside_tests.crossing_signs).
+        sign = inside_tests.crossing_signs(target, sub_hits, axis) if method == "winding" else None
+        frac = coverage(sub_hits, sub, grid, supersample, jobs, sign=sign)
         if density_dtype == "uint8":
             dens = np.asfortranarray(np.rint(frac * np.float32(255.0)).astype(np.uint8))
         else:

@@ -13,8 +13,9 @@ assumption, in whole-array steps (no loop per face or per piece):
 3. duplicates collapsed to the first one: the same three vertices in either
    order, so the two sides of a double-sided face become one face;
 4. faces turned to agree with their neighbours across every manifold edge
-   (an edge of exactly two faces): a spanning forest of the face graph, and
-   each face's flip relative to its tree's root by pointer doubling;
+   (an edge of exactly two faces): a spanning forest of the face graph,
+   built by hooking roots in whole-array rounds, carries each face's flip
+   relative to its piece's first face (:func:`components`);
 5. each piece (connected through manifold edges) turned outward: its signed
    volume measured about the centroid of its boundary edges' midpoints must
    be positive. For a closed piece that is its signed volume; for an open one
@@ -62,6 +63,10 @@ class Repair:
         Faces dropped as exact duplicates (same vertices, same winding).
     opposite : int
         Faces dropped as the reversed side of another (double-sided faces).
+    inner : int
+        Of the faces left after that, those dropped as the kept side of an
+        inner wall between closed parts (see :func:`_inner_walls`); with
+        their reversed sides (counted in ``opposite``) nothing of the wall is left.
     flipped : int
         Faces of the copy wound the other way from the original.
     pieces : int
@@ -81,6 +86,7 @@ class Repair:
     degenerate: int = 0
     duplicates: int = 0
     opposite: int = 0
+    inner: int = 0
     flipped: int = 0
     pieces: int = 0
     closed_pieces: int = 0
@@ -90,7 +96,7 @@ class Repair:
     def changed(self) -> bool:
         """Whether the copy differs from the original in anything but vertex numbering."""
         return bool(self.degenerate or self.duplicates or self.opposite or self.flipped
-                    or self.welded)
+                    or self.welded or self.inner)
 
     def describe(self) -> str:
         """One phrase saying what was repaired, for warnings and ``geovox info``."""
@@ -98,6 +104,9 @@ class Repair:
         if self.duplicates or self.opposite:
             parts.append(f"{self.duplicates + self.opposite:,} duplicate faces dropped "
                          f"({self.opposite:,} of them the reversed side of a double-sided face)")
+        if self.inner:
+            parts.append(f"{self.inner:,} double-sided faces dropped on both sides as inner walls "
+                         f"between closed parts")
         if self.welded:
             parts.append(f"{self.welded:,} vertices welded to a neighbour closer than "
                          f"{WELD:g} of the model's size")
@@ -176,61 +185,127 @@ def face_pieces(nf: int, pairs: np.ndarray):
     -------
     count : int
     label : (nf,) int64
+        Numbered in the order of each piece's first face.
     """
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
     f = pairs // 3
-    graph = coo_matrix((np.ones(len(f)), (f[:, 0], f[:, 1])), shape=(nf, nf))
-    n, label = connected_components(graph, directed=False)
-    return int(n), label.astype(np.int64)
+    n, label, _ = components(nf, f[:, 0], f[:, 1])
+    return n, label
 
 
-def _relative_flips(nf, pairs, forward, label, npieces):
-    """(nf,) bool: flip each face so that neighbours across manifold edges agree.
+def components(n: int, a: np.ndarray, b: np.ndarray, odd: np.ndarray | None = None):
+    """Connected components of a graph, in NumPy (no scipy: importing it costs 0.2-0.4 s).
 
-    Two faces agree across an edge when they run it in opposite directions.
-    A breadth-first spanning forest (one virtual root joined to the first face
-    of every piece) fixes each face's flip relative to its parent; pointer
-    doubling turns those into flips relative to the piece's first face in
-    ``log(depth)`` whole-array steps. Where a piece cannot be oriented (a
-    Moebius band), the tree's choice stands.
+    Union by hooking each root to the smallest root it has an edge to, then
+    pointer jumping to the roots, in whole-array rounds until no edge joins
+    two roots. With ``odd``, each edge also carries a parity (its two ends
+    disagree), and each node gets its parity relative to its component's
+    root along the forest that the hooking builds; an edge whose ends
+    already share a root is not used, so where the parities contradict (a
+    Moebius band) the forest's choice stands.
+
+    Parameters
+    ----------
+    n : int
+        Nodes ``0 .. n - 1``.
+    a, b : (e,) int64
+        Edges.
+    odd : (e,) bool, optional
+
+    Returns
+    -------
+    count : int
+    label : (n,) int64
+        Component of each node, numbered in the order of their smallest node
+        (as ``scipy.sparse.csgraph.connected_components`` numbers them).
+    parity : (n,) bool
+        Each node's parity relative to the smallest node of its component
+        (all False without ``odd``).
     """
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import breadth_first_order
-
-    f = pairs // 3
-    disagree = forward[pairs[:, 0]] == forward[pairs[:, 1]]
-    first = np.unique(label, return_index=True)[1]
-    root = nf
-    rows = np.r_[f[:, 0], np.full(npieces, root)]
-    cols = np.r_[f[:, 1], first]
-    graph = coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(nf + 1, nf + 1)).tocsr()
-    _, pred = breadth_first_order(graph, root, directed=False, return_predecessors=True)
-    pred = pred.astype(np.int64)
-    pred[root] = root
-    # The relation along each tree edge, looked up by the (smaller, larger) face pair.
-    lo, hi = np.minimum(f[:, 0], f[:, 1]), np.maximum(f[:, 0], f[:, 1])
-    key = lo * (nf + 1) + hi
-    order = np.argsort(key)
-    key, rel_sorted = key[order], disagree[order]
-    child = np.arange(nf)
-    parent = pred[:nf]
-    q = np.minimum(child, parent) * (nf + 1) + np.maximum(child, parent)
-    pos = np.minimum(np.searchsorted(key, q), max(len(key) - 1, 0))
-    x = np.zeros(nf + 1, dtype=bool)
-    if len(key):
-        x[:nf] = (parent != root) & (key[pos] == q) & rel_sorted[pos]
-    p = pred.copy()
-    while not np.all(p == root):
-        x ^= x[p]
-        p = p[p]
-    return x[:nf]
+    root = np.arange(n, dtype=np.int64)
+    x = np.zeros(n, dtype=bool)
+    a, b = np.asarray(a, np.int64), np.asarray(b, np.int64)
+    odd = np.zeros(len(a), dtype=bool) if odd is None else np.asarray(odd, bool)
+    while len(a):
+        ra, rb = root[a], root[b]
+        live = ra != rb
+        a, b, odd, ra, rb = a[live], b[live], odd[live], ra[live], rb[live]
+        if len(a) == 0:
+            break
+        lo, hi = np.minimum(ra, rb), np.maximum(ra, rb)
+        # One edge per hooked root: the one to its smallest neighbouring root.
+        # Roots only ever point to smaller ones, so no cycle can form.
+        order = np.lexsort((lo, hi))
+        first = order[np.r_[True, hi[order][1:] != hi[order][:-1]]]
+        x[hi[first]] = x[a[first]] ^ x[b[first]] ^ odd[first]
+        root[hi[first]] = lo[first]
+        # Every node to its root, carrying the parity along (a root points to
+        # itself with parity False: a fixed point).
+        while True:
+            up = root[root]
+            if np.array_equal(up, root):
+                break
+            x ^= x[root]
+            root = up
+    uniq, label = np.unique(root, return_inverse=True)
+    return len(uniq), label.reshape(-1).astype(np.int64), x
 
 
 #: Vertices closer than this fraction of the model's size are one vertex: seams
 #: left unwelded by float32 round-off (a crack no ray can pass) are closed.
 WELD = 1e-6
+
+
+def close_pairs(pos: np.ndarray, tol: float) -> np.ndarray:
+    """Pairs of points at most ``tol`` apart, each once (as scipy's ``query_pairs``).
+
+    A hash grid of cells ``tol`` wide, in NumPy: two such points lie in the
+    same cell or in neighbouring ones, so each point looks up its own cell
+    and 13 of its 26 neighbours (the other 13 look it up).
+
+    Parameters
+    ----------
+    pos : (n, 3) float64
+    tol : float, > 0
+
+    Returns
+    -------
+    (p, 2) int64
+        ``i < j`` in each row.
+    """
+    n = len(pos)
+    if n < 2 or not tol > 0:
+        return np.zeros((0, 2), np.int64)
+    q = np.floor((pos - pos.min(axis=0)) / tol).astype(np.int64) + 1  # >= 1: no wrap at -1
+    dims = q.max(axis=0) + 2
+    if float(dims[0]) * float(dims[1]) * float(dims[2]) >= 2.0 ** 62:  # one key would overflow
+        from scipy.spatial import cKDTree
+
+        return np.sort(cKDTree(pos).query_pairs(tol, output_type="ndarray").astype(np.int64), axis=1)
+    key = (q[:, 0] * dims[1] + q[:, 1]) * dims[2] + q[:, 2]
+    order = np.argsort(key, kind="stable")
+    sk = key[order]
+    offs = np.array([(i, j, k) for i in (-1, 0, 1) for j in (-1, 0, 1) for k in (-1, 0, 1)
+                     if (i, j, k) >= (0, 0, 0)], dtype=np.int64)
+    out = []
+    for o in (offs[:, 0] * dims[1] + offs[:, 1]) * dims[2] + offs[:, 2]:
+        t = key + o
+        lo = np.searchsorted(sk, t, "left")
+        cnt = np.searchsorted(sk, t, "right") - lo
+        # In its own cell a point finds itself: pairs there need two points.
+        i = np.flatnonzero(cnt > (1 if o == 0 else 0))
+        if len(i) == 0:
+            continue
+        c = cnt[i]
+        local = np.arange(int(c.sum())) - np.repeat(np.cumsum(c) - c, c)
+        ii, jj = np.repeat(i, c), order[np.repeat(lo[i], c) + local]
+        keep = ii < jj if o == 0 else np.ones(len(ii), bool)
+        out.append(np.stack([ii[keep], jj[keep]], axis=1))
+    if not out:
+        return np.zeros((0, 2), np.int64)
+    pairs = np.concatenate(out)
+    d = pos[pairs[:, 0]] - pos[pairs[:, 1]]
+    pairs = pairs[np.einsum("ij,ij->i", d, d) <= tol * tol]
+    return np.sort(pairs, axis=1)
 
 
 def _weld(g, pos, tol):
@@ -243,19 +318,65 @@ def _weld(g, pos, tol):
     welded : int
         Vertices merged away.
     """
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-    from scipy.spatial import cKDTree
-
-    pairs = cKDTree(pos).query_pairs(tol, output_type="ndarray")
+    pairs = close_pairs(pos, tol)
     if len(pairs) == 0:
         return g, pos, 0
     n = len(pos)
-    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
-    k, label = connected_components(graph, directed=False)
+    k, label, _ = components(n, pairs[:, 0], pairs[:, 1])
     first = np.zeros(k, dtype=np.int64)
     first[label[::-1]] = np.arange(n)[::-1]
     return label[g], pos[first], n - k
+
+
+def _inner_walls(faces: np.ndarray, both: np.ndarray, nv: int) -> np.ndarray:
+    """Which faces stored both ways round are inner walls between closed parts.
+
+    Two closed parts that share a face (two halves of a die, each closed by
+    its own copy of the cut) store it twice, once each way round. Collapsed
+    to one side, as for a double-sided shell, it would leave a single sheet
+    inside the solid whose solid angle (up to 1/2) is added to every point
+    near it; on both sides the two copies cancel in the winding number, and
+    the parts join into one closed surface. A wall (the two-sided faces
+    connected through their edges) is dropped on both sides when every edge
+    it shares with the other faces is used by at least two of them (the rest
+    stays closed along the wall's rim) and there is such an edge (a wall
+    with none is a double-sided shell or sheet of its own: one side stays).
+
+    Parameters
+    ----------
+    faces : (k, 3) int64
+        Faces without duplicates, over merged vertex ids ``< nv``.
+    both : (k,) bool
+        The face was also stored the other way round.
+
+    Returns
+    -------
+    (k,) bool
+        Faces of walls to drop.
+    """
+    drop = np.zeros(len(faces), dtype=bool)
+    if not both.any():
+        return drop
+    edge, count, _ = edge_table(faces, nv)
+    slot_face = np.repeat(np.arange(len(faces)), 3)
+    two = both[slot_face]
+    # Per edge: the faces outside any wall that use it.
+    outside = np.bincount(edge[~two], minlength=len(count))
+    # Walls: two-sided faces joined through shared edges.
+    w_slots = np.flatnonzero(two)
+    order = w_slots[np.argsort(edge[w_slots], kind="stable")]
+    e = edge[order]
+    link = np.flatnonzero(e[1:] == e[:-1])
+    idx = np.flatnonzero(both)
+    local = np.full(len(faces), -1)
+    local[idx] = np.arange(len(idx))
+    n, wall, _ = components(len(idx), local[slot_face[order[link]]], local[slot_face[order[link + 1]]])
+    w_of_slot = wall[local[slot_face[w_slots]]]
+    o = outside[edge[w_slots]]
+    bad = np.bincount(w_of_slot, weights=o == 1, minlength=n) > 0
+    rim = np.bincount(w_of_slot, weights=o >= 2, minlength=n) > 0
+    drop[idx] = (rim & ~bad)[wall]
+    return drop
 
 
 def repair(mesh: Mesh) -> Repair:
@@ -275,7 +396,8 @@ def repair(mesh: Mesh) -> Repair:
     pos[g.reshape(-1)] = mesh.vertices[mesh.faces.reshape(-1)]
     g, pos, welded = _weld(g, pos, WELD * mesh.scale)
     nv = len(pos)
-    merged = len(np.unique(mesh.faces)) - len(np.unique(g))
+    # Every merged vertex is used (pos holds only those): a count, not a sort.
+    merged = int(np.count_nonzero(np.bincount(mesh.faces.reshape(-1)))) - nv
 
     # Degenerate: a repeated vertex, or zero area (the cross product is exactly 0).
     t = pos[g]
@@ -291,7 +413,11 @@ def repair(mesh: Mesh) -> Repair:
 
     # Duplicates: the same vertex set; the first face of each set stays.
     s = np.sort(g[keep], axis=1)
-    _, first, inverse = np.unique(s, axis=0, return_index=True, return_inverse=True)
+    if nv < (1 << 21):  # three ids in one int64 key: a flat unique, far faster than by rows
+        key = (s[:, 0] * np.int64(nv) + s[:, 1]) * np.int64(nv) + s[:, 2]
+        _, first, inverse = np.unique(key, return_index=True, return_inverse=True)
+    else:
+        _, first, inverse = np.unique(s, axis=0, return_index=True, return_inverse=True)
     inverse = inverse.reshape(-1)
     # Winding of each face relative to its sorted vertex order (even or odd permutation).
     w = g[keep]
@@ -304,15 +430,25 @@ def repair(mesh: Mesh) -> Repair:
     same = parity == parity[first[inverse]]
     duplicates = int(np.count_nonzero(dropped & same))
     opposite = int(np.count_nonzero(dropped & ~same))
-    first = np.sort(first)
+    # Vertex sets stored both ways round: one side kept, unless they make up
+    # an inner wall (see _inner_walls), which goes on both sides.
+    both = np.zeros(len(first), dtype=bool)
+    both[inverse[~same]] = True
+    order = np.argsort(first)
+    first, both = first[order], both[order]
+    wall = _inner_walls(g[keep[first]], both, nv)
+    inner = int(np.count_nonzero(wall))
+    first = first[~wall]
     face = keep[first]
     f = g[face]
     nf = len(f)
 
     edge, count, forward = edge_table(f, nv)
     pairs = manifold_pairs(edge, count)
-    npieces, label = face_pieces(nf, pairs)
-    flip = _relative_flips(nf, pairs, forward, label, npieces)
+    # Two faces agree across an edge when they run it in opposite directions.
+    fp = pairs // 3
+    npieces, label, flip = components(nf, fp[:, 0], fp[:, 1],
+                                      forward[pairs[:, 0]] == forward[pairs[:, 1]])
     f = np.where(flip[:, None], f[:, [0, 2, 1]], f)
 
     # Outward: signed volume about the centroid of each piece's boundary
@@ -341,7 +477,7 @@ def repair(mesh: Mesh) -> Repair:
     swapped = flip ^ turn[label]
     out = Mesh(pos, f, source=mesh.source)
     return Repair(mesh=out, face=face, swapped=swapped, piece=label, merged_vertices=int(merged), welded=int(welded),
-                  degenerate=int(degenerate), duplicates=duplicates, opposite=opposite,
+                  degenerate=int(degenerate), duplicates=duplicates, opposite=opposite, inner=inner,
                   flipped=int(np.count_nonzero(swapped)), pieces=npieces,
                   closed_pieces=int(np.count_nonzero(closed_piece)),
                   outward=int(np.count_nonzero(turn)))

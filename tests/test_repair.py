@@ -8,6 +8,7 @@ import warnings
 import numpy as np
 import pytest
 import trimesh
+from scipy import ndimage
 
 import geovox
 from geovox import inside
@@ -167,7 +168,12 @@ def test_many_small_holes_match_brute_force(backend):
     assert rep.pieces > 1 and np.all(size[rep.piece[wrong]] <= 2)
 
 
-def test_many_piece_open_assembly_matches_brute_force_of_the_repaired_copy(backend):
+@pytest.mark.parametrize("direct", [True, False], ids=["direct", "passes"])
+def test_many_piece_open_assembly_matches_brute_force_of_the_repaired_copy(backend, direct,
+                                                                           monkeypatch):
+    # "passes": no shortcut to the exact sum, so every refining pass runs.
+    if not direct:
+        monkeypatch.setattr(inside, "DIRECT", 0)
     mesh = open_boxes(40)
     with pytest.warns(GeovoxWarning, match="40 pieces"):
         vol = geovox.voxelize(mesh, resolution=22, backend=backend)
@@ -299,3 +305,152 @@ def test_a_refining_pass_sure_to_pass_the_budget_is_not_started(monkeypatch):
         geovox.voxelize(mesh, resolution=22)
     assert len(calls) == 1
     assert any("work budget" in str(r.message) for r in record)
+
+
+@pytest.mark.parametrize("mesh,res", [(open_boxes(40), 22), (open_boxes(12, seed=2), 30)])
+def test_the_next_pass_handles_at_least_the_work_bound(mesh, res, monkeypatch):
+    # _sure_work is a lower bound on the next pass's pairs: given a budget
+    # one below it, that pass must give up (cap_winding gives up exactly when
+    # it handles more than its budget), and given the bound it may not.
+    seen = []
+    real = inside._sure_work
+    monkeypatch.setattr(inside, "_sure_work", lambda *a: seen.append((real(*a), a[3])) or 0.0)
+    monkeypatch.setattr(inside, "PASSES", inside.PASSES[:2])  # stop after the second pass
+    monkeypatch.setattr(inside, "DIRECT", 0)  # no shortcut to the exact sum
+    calls = []
+    real_cw = inside.cap_winding
+    monkeypatch.setattr(inside, "cap_winding", lambda *a, **k: calls.append(a) or real_cw(*a, **k))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        geovox.voxelize(mesh, resolution=res)
+    bound, active = seen[0]
+    grid, tris = calls[0][0], calls[0][1]
+    theta, eps = inside.PASSES[1]
+    assert bound > 1000  # the bound says something
+    assert real_cw(grid, tris, active, theta=theta, eps=eps, budget=int(np.ceil(bound)) - 1) is None
+    assert real_cw(grid, tris, active, theta=theta, eps=eps, budget=None) is not None
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_components_and_parities_without_scipy_match_csgraph(seed):
+    # repair.components replaces scipy's csgraph on the winding path (whose
+    # import alone costs 0.2-0.4 s): same pieces, numbered the same way, and
+    # parities that satisfy every edge of a consistent graph.
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    from geovox.repair import components
+
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(1, 400))
+    e = int(rng.integers(0, 2 * n))
+    a, b = rng.integers(0, n, e), rng.integers(0, n, e)
+    if seed == 0:  # a long path numbered at random: many hooking rounds
+        perm = rng.permutation(n)
+        a, b = perm[:-1], perm[1:]
+    flip = rng.random(n) < 0.5  # a hidden truth the edge parities come from
+    count, label, parity = components(n, a, b, flip[a] != flip[b])
+    ref_count, ref_label = connected_components(
+        coo_matrix((np.ones(len(a)), (a, b)), shape=(n, n)), directed=False)
+    assert count == ref_count
+    np.testing.assert_array_equal(label, ref_label)
+    first = np.unique(label, return_index=True)[1]
+    np.testing.assert_array_equal(parity, flip ^ flip[first[label]])
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_close_pairs_match_a_kd_tree(seed):
+    from scipy.spatial import cKDTree
+
+    from geovox.repair import close_pairs
+
+    rng = np.random.default_rng(seed)
+    tol = 0.05
+    # Clusters, points on cell boundaries, exact duplicates and far ones.
+    p = rng.random((300, 3))
+    p = np.concatenate([p, p[:40] + rng.normal(scale=tol / 2, size=(40, 3)),
+                        np.round(p[:30] / tol) * tol, p[:5], [[1e3, -2e3, 5.0]]])
+    got = close_pairs(p, tol)
+    ref = np.sort(cKDTree(p).query_pairs(tol, output_type="ndarray"), axis=1)
+    assert len(got) > 40
+    assert sorted(map(tuple, got)) == sorted(map(tuple, ref))
+
+
+def _pyramid_halves(gap=0.0):
+    """Two closed square pyramids sharing their base (apexes up and down), each with its own base."""
+    base = np.array([[1, 0, 0], [0, 1, 0], [-1, 0, 0], [0, -1, 0.0]])
+    up = np.vstack([base, [[0, 0, 1.0]]])
+    down = np.vstack([base + [0, 0, -gap], [[0, 0, -1.0]]])
+    sides = np.array([[0, 1, 4], [1, 2, 4], [2, 3, 4], [3, 0, 4]])
+    top = from_tm(trimesh.Trimesh(up, np.vstack([sides, [[0, 3, 2], [0, 2, 1]]])), "top")
+    bottom = from_tm(trimesh.Trimesh(down, np.vstack([sides[:, ::-1], [[0, 1, 2], [0, 2, 3]]])),
+                     "bottom")
+    for m in (top, bottom):
+        assert inside.consistent(m)
+    return geovox.Mesh(np.concatenate([top.vertices, bottom.vertices]),
+                       np.concatenate([top.faces, bottom.faces + len(top.vertices)]), source="die")
+
+
+def test_an_inner_wall_between_two_closed_parts_goes_on_both_sides(backend):
+    # Found by bench_wild (trimesh's TestScene.gltf): a die made of two closed
+    # halves, each with its own copy of the cut. Keeping one copy left a sheet
+    # inside the solid, and with a ground plane beside it the die came out empty.
+    die = _pyramid_halves()
+    rep = inside.target(die)[1]
+    assert (rep.opposite, rep.inner, rep.pieces, rep.closed_pieces) == (2, 2, 1, 1)
+    octahedron = from_tm(trimesh.Trimesh(
+        np.r_[die.vertices[:4], [[0, 0, 1.0], [0, 0, -1.0]]],
+        [[0, 1, 4], [1, 2, 4], [2, 3, 4], [3, 0, 4], [1, 0, 5], [2, 1, 5], [3, 2, 5], [0, 3, 5]]),
+        "octahedron")
+    assert inside.consistent(octahedron)
+    kw = dict(resolution=20, backend=backend, bounds=(-1.1, -1.1, -1.1, 1.1, 1.1, 1.1))
+    with pytest.warns(GeovoxWarning, match="inner walls"):
+        vol = geovox.voxelize(die, **kw)
+    np.testing.assert_array_equal(vol.occupancy, geovox.voxelize(octahedron, **kw).occupancy)
+    # With a ground sheet under it (facing up), as in the scene, a wall left
+    # inside would take voxels out of the die.
+    plane = np.array([[-9, -9, -1.02], [9, -9, -1.02], [9, 9, -1.02], [-9, 9, -1.02]])
+    scene = geovox.Mesh(np.r_[die.vertices, plane],
+                        np.r_[die.faces, len(die.vertices) + np.array([[0, 1, 2], [0, 2, 3]])])
+    with pytest.warns(GeovoxWarning, match="inner walls"):
+        vol = geovox.voxelize(scene, **kw)
+    sheet = geovox.Mesh(plane, np.array([[0, 1, 2], [0, 2, 3]]))
+    ref = brute_winding(geovox.Mesh(np.r_[octahedron.vertices, plane], np.r_[
+        octahedron.faces, len(octahedron.vertices) + sheet.faces]), vol.grid)
+    np.testing.assert_array_equal(vol.occupancy, ref)
+    wall = die.faces[4:6]  # the top half's copy of the cut, kept alone
+    leaky = brute_winding(geovox.Mesh(np.r_[octahedron.vertices, plane, die.vertices], np.r_[
+        octahedron.faces, 6 + sheet.faces, 10 + wall]), vol.grid)
+    assert np.count_nonzero(leaky != ref) > 0
+    # A double-sided shell or sheet has no such rim: one side stays.
+    doubled = geovox.Mesh(die.vertices[:5], np.r_[die.faces[:6], die.faces[:6, ::-1]])
+    rep = inside.target(doubled)[1]
+    assert (rep.opposite, rep.inner, len(rep.mesh.faces)) == (6, 0, 6)
+
+
+def test_coverage_of_overlapping_parts_follows_the_winding_number(backend):
+    # Two overlapping spheres: the density counts their shared space as the
+    # occupancy does (the winding number, 2 there), not parity (outside).
+    two = trimesh.util.concatenate([trimesh.creation.icosphere(3),
+                                    trimesh.creation.icosphere(3).apply_translation((0.8, 0.1, 0))])
+    mesh = from_tm(two, "overlap")
+    vol = geovox.voxelize(mesh, resolution=24, backend=backend, density="coverage",
+                          density_dtype="float32", supersample=2)
+    assert vol.inside == "winding"
+    # Voxels deep inside (no surface within them) are full, and those well
+    # outside empty, in the shared space too.
+    deep = ndimage.binary_erosion(vol.occupancy, iterations=2)
+    assert np.count_nonzero(deep) > 1000
+    assert np.all(vol.density[deep] >= 1 - 1e-5)  # float32 running sums
+    assert np.all(vol.density[~ndimage.binary_dilation(vol.occupancy, iterations=2)] <= 1e-5)
+    # The shared space alone: the middle of the overlap.
+    g = vol.grid
+    i, j, k = (np.searchsorted(g.centres(a), c) for a, c in enumerate((0.4, 0.05, 0.0)))
+    assert vol.occupancy[i, j, k] and vol.density[i, j, k] >= 1 - 1e-5
+    # Parity along the rays (the signs left out) has it empty.
+    from geovox.density import coverage, sub_columns
+    from geovox.pipeline import ray_start
+
+    sub = sub_columns(g.columns(2, start=ray_start(mesh, g, 2)), 2)
+    hits = geovox.backends.get_backend(backend).cast(mesh, sub)
+    assert coverage(hits, sub, g, 2)[i, j, k] <= 1e-5
