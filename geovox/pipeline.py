@@ -207,7 +207,6 @@ def voxelize_block(
     sdf=False,
     band=3.0,
     progress=None,
-    shared_crossings=None,
     _stacklevel=2,
 ) -> Volume:
     """Voxelise one block of a grid -- the whole grid or a slab along z -- with every option.
@@ -236,10 +235,6 @@ def voxelize_block(
     axis, jobs, color, diffuse, ambient, density, supersample, density_dtype, sdf, band, progress
         As for :func:`voxelize` (``jobs`` already resolved: an int >= 1;
         ``progress`` is not told "load").
-    shared_crossings : dict, optional
-        ``axis -> f(block_grid) -> (Hits, Columns)``: the colour step's
-        crossings along that axis, cast once for the whole grid by the
-        caller instead of again for every block.
 
     Returns
     -------
@@ -263,7 +258,7 @@ def voxelize_block(
         engine = get_backend(engine)
     m = load_mesh(mesh)
     step = progress or (lambda stage: None)
-    grid = block_grid(grid, block)
+    whole, grid = grid, block_grid(grid, block)
     supersample, band = _check_options(density, density_dtype, supersample, sdf, band)
     check_memory(grid, bytes_per_voxel(color, density, sdf))
 
@@ -308,21 +303,9 @@ def voxelize_block(
         from .colour import colour_volume
 
         step("colour")
-        for a, crossings_of in (shared_crossings or {}).items():
-            if a not in crossings:
-                crossings[a] = crossings_of(grid)
-        others = [a for a in range(3) if a not in crossings]
-        if jobs > 1 and len(others) > 1:
-            from concurrent.futures import ThreadPoolExecutor
-
-            with ThreadPoolExecutor(max_workers=2) as pool:
-                for a, result in zip(others, pool.map(cast, others)):
-                    crossings[a] = result
-        else:
-            for a in others:
-                crossings[a] = cast(a)
-        colors = colour_volume(m, grid, occ, crossings, diffuse=diffuse, ambient=ambient,
-                               jobs=jobs)
+        z0 = 0 if block is None else int(block[0])
+        colors = colour_volume(m, grid, occ, diffuse=diffuse, ambient=ambient, jobs=jobs,
+                               frame=(whole.lo, whole.spacing, z0))
         timings["colour"] = time.perf_counter() - t_fill
     dens = None
     if density == "coverage":
