@@ -13,14 +13,29 @@ The colour of a surface point on triangle ``t`` with barycentric weights
              use D = 0.8 grey, or 1 when the mesh has vertex colours)
     A      = the material's Ka if `ambient` else 0
 
-The nearest surface point is exact: the triangle at the smallest Euclidean
-distance from the voxel centre (ties within 1e-9 voxel sizes go to the
-smallest triangle index) and the closest point on it, found for every inside
-voxel by :func:`geovox.nearest.nearest_inside` (a branch and bound over
+Finding the nearest surface point is done in columns, from the ray hits
+themselves (every hit already carries its triangle and barycentric
+coordinates): rays are cast along all three axes, and for each inside voxel
+the crossings just before and just after it in its x, y and z columns are
+the candidates. The nearest of these six by distance to the crossing
+triangle's plane (see :func:`nearest_crossings`) is taken, and for voxels
+within ``REFINE`` voxels of the surface the exact closest point on that
+crossing's triangle replaces the crossing. Deeper voxels take the crossing's
+own colour. The result equals the brute-force nearest point wherever the
+nearest triangle is one of the six candidates (nearly always next to the
+surface; measured in tests/test_colour.py), and is otherwise a nearby point
+of the surface.
+
+With ``exact`` (``color="exact"``, ``--exact-color``) the nearest surface
+point is exact instead (:func:`exact_colours`): the triangle at the smallest
+Euclidean distance from the voxel centre (ties within 1e-9 voxel sizes go to
+the smallest triangle index) and the closest point on it, for every inside
+voxel, by :func:`geovox.nearest.nearest_inside` (a branch and bound over
 voxel cells that drops a triangle only where a valid bound proves it
 farther). Where every triangle still in the running for a block of voxels
 has the same constant colour (no texture, no vertex colours), that colour is
-used without finding which of them is nearest.
+used without finding which of them is nearest. It needs no rays, but it is
+several times slower (see benchmarks/README.md), so it is not the default.
 """
 
 from __future__ import annotations
@@ -30,7 +45,11 @@ import warnings
 import numpy as np
 
 from .errors import GeovoxWarning
+from .parallel import for_blocks, scan_along
 
+#: Voxels whose nearest axis crossing is closer than this many voxels get the
+#: exact closest point on that crossing's triangle.
+REFINE = 2.0
 #: Inside voxels processed per block (small enough to stay in cache).
 BLOCK = 1 << 19
 #: Colour of faces without any material (and no vertex colours).
@@ -183,6 +202,200 @@ def closest_on_triangles(p: np.ndarray, tris: np.ndarray) -> np.ndarray:
     return np.stack([u, v], axis=1)
 
 
+def _unit_normals(mesh) -> np.ndarray:
+    t = mesh.triangles
+    n = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
+    length = np.linalg.norm(n, axis=1, keepdims=True)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(length > 0, n / length, 0.0)
+
+
+def relevant_crossings(hits, k, n: int, rays: int):
+    """The crossings a grid of ``n`` voxels along the rays can need.
+
+    A voxel uses the deepest crossing at or before its centre and the one
+    after it, so of the crossings before the first centre (``k == 0``) only
+    the deepest on each ray matters, and of those past the last (``k == n``)
+    only the shallowest. Dropping the rest before sorting matters when the
+    grid is one slab of a long ray: most of its crossings lie outside.
+
+    Parameters
+    ----------
+    hits : Hits
+    k : (h,) int
+        Index of the first voxel centre at or past each crossing.
+    n : int
+        Voxels along the rays.
+    rays : int
+        Number of rays.
+    """
+    inner = (k > 0) & (k < n)
+    if inner.all():
+        return hits
+    if hits.ordered:
+        # In ray-then-depth order the ones to keep are where k changes side.
+        same_next = np.r_[hits.ray[1:] == hits.ray[:-1], False]
+        same_prev = np.r_[False, same_next[:-1]]
+        k_next = np.r_[k[1:], n + 1]
+        k_prev = np.r_[-1, k[:-1]]
+        keep = (inner | ((k == 0) & ~(same_next & (k_next == 0)))
+                | ((k == n) & ~(same_prev & (k_prev == n))))
+        out = hits.take(keep)
+        out.ordered = True
+        return out
+    keep = [np.flatnonzero(inner)]
+    for side, pick in ((0, np.maximum), (n, np.minimum)):
+        sub = np.flatnonzero(k == side)
+        if len(sub) == 0:
+            continue
+        ray, depth = hits.ray[sub], hits.depth[sub]
+        # The extreme depth per ray, then among equal depths the extreme
+        # triangle: the first or last of the ray in sorted (depth, triangle) order.
+        ext = np.full(rays, np.inf if pick is np.minimum else -np.inf)
+        pick.at(ext, ray, depth)
+        sub = sub[depth == ext[ray]]
+        tri = hits.triangle[sub]
+        ray = hits.ray[sub]
+        best = np.full(rays, np.iinfo(np.int64).max if pick is np.minimum else -1, dtype=np.int64)
+        pick.at(best, ray, tri)
+        keep.append(sub[tri == best[ray]])
+    return hits.take(np.sort(np.concatenate(keep)))
+
+
+def nearest_crossings(mesh, grid, occupancy, cast, jobs=1):
+    """For every inside voxel, the nearest crossing among its six axis neighbours.
+
+    Parameters
+    ----------
+    grid : Grid
+    occupancy : (nx, ny, nz) bool, Fortran order
+    cast : dict axis -> (Hits, Columns)
+        Crossings of the grid's column rays along each axis.
+
+    Returns
+    -------
+    inside : (k,) int64
+        F-order linear indices of the inside voxels.
+    hits : Hits
+        The crossings of all axes, concatenated (each axis sorted by ray,
+        then depth).
+    best : (k,) int64
+        Index into ``hits`` of each inside voxel's nearest crossing.
+    dist : (k,) float32
+        Estimated distance from the voxel centre to the surface there, in
+        voxels.
+
+    Notes
+    -----
+    A crossing at axis distance ``d`` on a triangle with unit normal ``n``
+    is ranked by ``d * max(|n_axis|, 1/sqrt(3))``: the distance to the
+    triangle's plane where that plane faces the axis, which is the true
+    distance for the axis that sees the nearest surface best (some axis has
+    ``|n_axis| >= 1/sqrt(3)``), while a crossing far along the axis cannot win
+    just because its plane happens to pass close by.
+    """
+    from .backends.base import Hits
+
+    nx, ny, nz = grid.shape
+    inside = np.flatnonzero(occupancy.reshape(-1, order="F"))
+    strides = (1, nx, nx * ny)
+
+    def coord(axis, vox):  # voxel coordinate along `axis` of F-order indices
+        c = vox // strides[axis] if axis else vox
+        return c % grid.shape[axis] if axis < 2 else c
+    best_d = np.full(len(inside), np.inf, dtype=np.float32)
+    best = np.zeros(len(inside), np.int64)
+    scale = grid.spacing.min()
+    normals = _unit_normals(mesh)
+    parts, offset = [], 0
+    g = None  # one int32 volume, refilled for each axis (its pages are touched once)
+    for axis in (2, 1, 0):  # ties go to z, then y, then x
+        if axis not in cast:
+            continue
+        hits, cols = cast[axis]
+        n_axis = grid.shape[axis]
+        centres = (np.arange(n_axis) + 0.5) * grid.spacing[axis]  # from the low face, like depths
+        hits = relevant_crossings(hits, np.searchsorted(centres, hits.depth, side="left"),
+                                  n_axis, cols.count).sorted()
+        parts.append(hits)
+        k = np.searchsorted(centres, hits.depth, side="left")
+        centres32 = centres.astype(np.float32)
+        idx = [None, None, None]
+        idx[cols.u_axis] = hits.ray % cols.nu
+        idx[cols.v_axis] = hits.ray // cols.nu
+        idx[axis] = k
+        # The deepest crossing at or before each voxel: a running maximum of
+        # hit numbers (sorted by ray, then depth, so deeper means larger).
+        if g is None:
+            g = np.full(grid.shape, -1, dtype=np.int32, order="F")
+        else:
+            g.fill(-1)
+        keep = k < n_axis
+        lin = (idx[0] + nx * (idx[1] + ny * idx[2]))[keep]
+        h = np.flatnonzero(keep).astype(np.int32)
+        if len(lin):
+            last = np.r_[lin[1:] != lin[:-1], True]
+            g.reshape(-1, order="F")[lin[last]] = h[last]
+        scan_along(np.maximum, g, axis, jobs)
+        # Depth of the crossing after each one on the same ray (inf if none),
+        # and a sentinel at index -1 for voxels before any crossing.
+        # Per crossing, one row gathered per voxel: its depth and facing, and
+        # the depth and facing of the next crossing on the same ray (inf if
+        # none); row -1 is a sentinel for voxels before any crossing. float32
+        # is plenty to choose the nearer crossing and halves the traffic.
+        same = np.r_[hits.ray[1:] == hits.ray[:-1], False]
+        facing = np.maximum(np.abs(normals[hits.triangle, axis]), 1 / np.sqrt(3))
+        table = np.empty((len(hits) + 1, 4), dtype=np.float32)
+        table[:-1, 0] = hits.depth
+        table[:-1, 1] = facing
+        table[:-1, 2] = np.where(same, np.r_[hits.depth[1:], 0.0], np.inf)
+        table[:-1, 3] = np.r_[facing[1:], 1.0]
+        table[-1] = (-np.inf, 1.0, np.inf, 1.0)
+        first = first_hit = None
+        if len(hits):
+            first = np.full(cols.count, np.inf)
+            starts = np.r_[True, ~same[:-1]]
+            first[hits.ray[starts]] = hits.depth[starts]
+            first_hit = np.full(cols.count, -1, dtype=np.int64)
+            first_hit[hits.ray[starts]] = np.flatnonzero(starts)
+        gflat = g.reshape(-1, order="F")
+        # Gathering whole 16-byte rows as one complex128 is several times
+        # faster than fancy-indexing rows of a (n, 4) float32 array.
+        rows = table.view(np.complex128).reshape(-1)
+        def block(s, e, axis=axis, cols=cols, hits=hits, rows=rows, table=table,
+                  gflat=gflat, centres32=centres32, offset=offset):
+            vox = inside[s:e]
+            prev = gflat[vox]
+            c = centres32[coord(axis, vox)]
+            row = rows[prev].view(np.float32).reshape(-1, 4)
+            d_prev = (c - row[:, 0]) * row[:, 1]
+            d_next = (row[:, 2] - c) * row[:, 3]
+            pick = prev + np.int32(1)
+            if len(hits) and prev.min(initial=0) < 0:
+                # Inside yet before every crossing of its column: only
+                # possible with inside tests other than this axis's parity.
+                before = np.flatnonzero(prev < 0)
+                ray = (coord(cols.u_axis, vox[before])
+                       + cols.nu * coord(cols.v_axis, vox[before]))
+                pick[before] = first_hit[ray]
+                d_next[before] = (first[ray] - c[before]) * table[pick[before], 1]
+            use_next = d_next < d_prev
+            d = np.where(use_next, d_next, d_prev)
+            d *= np.float32(1.0 / scale)
+            chosen = np.where(use_next, pick, prev).astype(np.int64)
+            chosen += offset
+            # Masked copies: much cheaper than gathering and scattering the winners.
+            better = d < best_d[s:e]
+            np.copyto(best_d[s:e], d, where=better)
+            np.copyto(best[s:e], chosen, where=better)
+
+        if len(hits):
+            for_blocks(block, len(inside), BLOCK, jobs)
+        offset += len(hits)
+        del gflat
+    return inside, Hits.concatenate(parts), best, best_d
+
+
 def constant_colours(mesh, *, diffuse=True, ambient=False):
     """Triangles whose whole face has one colour, keyed by that colour.
 
@@ -215,9 +428,9 @@ def constant_colours(mesh, *, diffuse=True, ambient=False):
     return key, values
 
 
-def colour_volume(mesh, grid, occupancy, *, diffuse=True, ambient=False, jobs=1,
+def exact_colours(mesh, grid, occupancy, *, diffuse=True, ambient=False, jobs=1,
                   frame=None) -> np.ndarray:
-    """RGBA colours of the inside voxels, from their exact nearest surface points; alpha 0 outside.
+    """RGBA colours of the inside voxels from their exact nearest surface points; alpha 0 outside.
 
     Parameters
     ----------
@@ -239,9 +452,6 @@ def colour_volume(mesh, grid, occupancy, *, diffuse=True, ambient=False, jobs=1,
     """
     from .nearest import nearest_inside
 
-    for problem in mesh.problems:
-        warnings.warn(problem, GeovoxWarning, stacklevel=3)
-    load_textures(mesh)
     nx, ny, nz = grid.shape
     base = np.zeros((nz, ny, nx, 4), dtype=np.uint8)
     colors = base.transpose(2, 1, 0, 3)
@@ -262,6 +472,81 @@ def colour_volume(mesh, grid, occupancy, *, diffuse=True, ambient=False, jobs=1,
 
     nearest_inside(mesh.triangles, occupancy, spacing, origin=lo, z0=z0, jobs=jobs, emit=emit,
                    same=key)
+    return colors
+
+
+def colour_volume(mesh, grid, occupancy, cast=None, *, diffuse=True, ambient=False, jobs=1,
+                  exact=False, frame=None) -> np.ndarray:
+    """RGBA colours of the inside voxels; alpha 0 outside.
+
+    Parameters
+    ----------
+    mesh : Mesh
+    grid : Grid
+    occupancy : (nx, ny, nz) bool
+    cast : dict axis -> (Hits, Columns)
+        Crossings along each axis (see :func:`nearest_crossings`); not
+        needed with ``exact``.
+    exact : bool
+        Colour every voxel from its exact nearest surface point
+        (:func:`exact_colours`) instead of the nearest of its six axis
+        crossings.
+    frame : (lo, spacing, z0), optional
+        With ``exact``: see :func:`exact_colours`.
+
+    Returns
+    -------
+    colors : (nx, ny, nz, 4) uint8
+        Indexed ``[x, y, z, channel]``; in memory RGBA-interleaved with x
+        fastest (``colors.transpose(2, 1, 0, 3)`` is C-contiguous).
+    """
+    for problem in mesh.problems:
+        warnings.warn(problem, GeovoxWarning, stacklevel=3)
+    load_textures(mesh)
+    if exact:
+        return exact_colours(mesh, grid, occupancy, diffuse=diffuse, ambient=ambient, jobs=jobs,
+                             frame=frame)
+    nx, ny, nz = grid.shape
+    base = np.zeros((nz, ny, nx, 4), dtype=np.uint8)
+    colors = base.transpose(2, 1, 0, 3)
+    inside, hits, best, dist = nearest_crossings(mesh, grid, occupancy, cast, jobs=jobs)
+    if len(inside) == 0:
+        return colors
+    # Every crossing is a surface point with a known triangle and
+    # barycentrics: shade each chosen one once (in a slab of a long grid, many
+    # crossings on the rays along z go unused); deep voxels take their
+    # crossing's colour.
+    hit_rgba = np.zeros(len(hits), dtype=np.uint32)
+    used = np.zeros(len(hits), dtype=bool)
+    used[best] = True
+    used = np.flatnonzero(used)
+
+    def shade_hits(s, e):
+        h = used[s:e]
+        rgb = shade(mesh, hits.triangle[h], hits.bary[h], diffuse=diffuse, ambient=ambient)
+        hit_rgba[h] = _pack(rgb)
+
+    for_blocks(shade_hits, len(used), BLOCK, jobs)
+    # One uint32 per voxel: RGBA bytes in memory order, scattered in one go.
+    flat = base.reshape(-1, 4).view(np.uint32).reshape(-1)  # index = F-order voxel index
+    centres = [grid.centres(a) for a in range(3)]
+
+    def colour_block(s, e):
+        vox = inside[s:e]
+        h = best[s:e]
+        rgba = hit_rgba[h]
+        # Near the surface, the exact closest point on the crossing's triangle.
+        near = np.flatnonzero(dist[s:e] < REFINE)
+        if len(near):
+            v = vox[near]
+            p = np.stack([centres[0][v % nx], centres[1][(v // nx) % ny],
+                          centres[2][v // (nx * ny)]], axis=1)
+            t = hits.triangle[h[near]]
+            b = closest_on_triangles(p, mesh.triangles[t])
+            rgba[near] = _pack(shade(mesh, t, b, diffuse=diffuse, ambient=ambient))
+        flat[vox] = rgba
+
+    for_blocks(colour_block, len(inside), BLOCK, jobs)
     return colors
 
 

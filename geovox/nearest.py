@@ -59,6 +59,9 @@ MARGIN = 1e-8
 #: Pairs (cell, triangle) handled at once: bounds the working memory (about
 #: 0.4 KiB a pair at the widest step) whatever the grid.
 CHUNK = 1 << 15
+#: Cells of 2**BOTTOM voxels go straight to their voxels (the 2-voxel
+#: cells' corners would be the voxel centres themselves: no saving).
+BOTTOM = 2
 #: Triangles per cluster for the top cells' first cut.
 CLUSTER = 32
 #: Bytes of working memory per pair at the widest step (for the budget).
@@ -471,9 +474,13 @@ class _Search:
         keep, near = self.prune(cells, level, pc, pt, near)
         pc, pt = pc[keep], pt[keep]
         pc, pt = self.settle(cells, level, pc, pt)
-        # Children that hold inside voxels, per cell.
-        kids = cells[:, None, :] * 2 + ((_SIGNS + 1) // 2).astype(np.int64)  # (m, 8, 3)
-        below = self.has[level - 1]
+        # Children that hold inside voxels, per cell: the 8 cells of the level
+        # below, or from level BOTTOM straight to the voxels.
+        step = level if level <= BOTTOM else 1
+        k = 1 << step
+        offs = np.stack(np.meshgrid(*[np.arange(k)] * 3, indexing="ij"), -1).reshape(-1, 3)
+        kids = cells[:, None, :] * k + offs  # (m, k^3, 3)
+        below = self.has[level - step]
         inside = below[kids[..., 0], kids[..., 1], kids[..., 2]]
         nkid = inside.sum(axis=1)
         npair = np.bincount(pc, minlength=len(cells))
@@ -484,7 +491,8 @@ class _Search:
         while s < len(cells):
             e = int(np.searchsorted(ends, (ends[s - 1] if s else 0) + CHUNK, side="right"))
             e = max(e, s + 1)
-            self._children(cells[s:e], kids[s:e], inside[s:e], level, pc, pt, s, e, near[s:e])
+            self._children(cells[s:e], kids[s:e], inside[s:e], level - step, pc, pt, s, e,
+                           near[s:e])
             s = e
 
     def settle(self, cells, level, pc, pt):
@@ -530,7 +538,7 @@ class _Search:
         rest = np.repeat(~done, count)
         return pc[rest], pt[rest]
 
-    def _children(self, cells, kids, inside, level, pc, pt, s, e, near):
+    def _children(self, cells, kids, inside, below, pc, pt, s, e, near):
         lo, hi = np.searchsorted(pc, [s, e])
         c, t = pc[lo:hi] - s, pt[lo:hi]
         kid_cells = kids[inside]  # (k, 3), cell-major
@@ -548,25 +556,42 @@ class _Search:
         np_ = npair[parent]
         child = kid_start[parent] + local // np_
         tri = t[pair_start[parent] + local % np_]
-        if level - 1 == 0:
+        if below == 0:
             self.voxels(kid_cells, child, tri, kid_near)
         else:
-            self.descend(kid_cells, level - 1, child, tri, kid_near)
+            self.descend(kid_cells, below, child, tri, kid_near)
 
     def voxels(self, vox, pv, pt, near):
-        """The exact nearest triangle of each voxel among its candidates."""
+        """The exact nearest triangle of each voxel among its candidates.
+
+        Bounds first (cheap), then the exact closest point on the candidate
+        with the lowest bound, then exactly only the candidates whose bound
+        beats that point.
+        """
         x = self.centres(vox, 0)
         best = np.sum((x - near) ** 2, axis=1)
-        r = np.sqrt(best)
-        best += 2 * self.m * r + self.m * self.m
         xp = x[pv]
+        low = lower_bound_sq(xp, pt, self.tris)
         # Only candidates whose bound beats the cell's surface point can win.
-        ok = np.flatnonzero(lower_bound_sq(xp, pt, self.tris) <= best[pv])
-        pv, pt, xp = pv[ok], pt[ok], xp[ok]
-        d2, uv = closest(xp, pt, self.tris)
+        ok = np.flatnonzero(low <= best[pv] + self._slack(best)[pv])
+        pv, pt, xp, low = pv[ok], pt[ok], xp[ok], low[ok]
+        starts = np.flatnonzero(np.r_[True, pv[1:] != pv[:-1]])
+        group = np.repeat(np.arange(len(starts)), np.diff(np.r_[starts, len(pv)]))
+        least = np.minimum.reduceat(low, starts)
+        first = np.minimum.reduceat(np.where(low <= least[group], np.arange(len(pv)), len(pv)),
+                                    starts)
+        d2_first, _ = closest(xp[first], pt[first], self.tris)
+        bound = d2_first + self._slack(d2_first)
+        rest = np.flatnonzero(low <= bound[group])
+        d2, uv = closest(xp[rest], pt[rest], self.tris)
+        pv, pt = pv[rest], pt[rest]
         starts = np.flatnonzero(np.r_[True, pv[1:] != pv[:-1]])
         w = pick(d2, pt, starts, self.hmin)
         self.emit(vox[pv[w]], pt[w], uv[w])
+
+    def _slack(self, d2):
+        """What a squared distance ``d2`` may be exceeded by within MARGIN: 2 m d + m^2."""
+        return 2 * self.m * np.sqrt(d2) + self.m * self.m
 
 
 def nearest_inside(triangles, occupancy, spacing, *, origin, z0=0, jobs=1, emit, same=None):

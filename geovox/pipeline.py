@@ -73,9 +73,11 @@ def voxelize(
         use y, see :mod:`geovox.stream`). Occupancy is the same up to ties on
         the surface; coverage density, sampled across the rays, can differ
         by a step or so where the surface is steep.
-    color : bool
+    color : bool or "exact"
         Also fill ``Volume.colors`` from the model's materials, textures or
-        vertex colours (see :mod:`geovox.colour` for the exact rule).
+        vertex colours (see :mod:`geovox.colour` for the exact rule);
+        ``"exact"`` takes every voxel's colour from its exact nearest
+        surface point (slower).
     diffuse : bool
         Multiply by the material's ``Kd`` (MTL semantics for ``map_Kd``).
     ambient : bool
@@ -207,6 +209,7 @@ def voxelize_block(
     sdf=False,
     band=3.0,
     progress=None,
+    shared_crossings=None,
     _stacklevel=2,
 ) -> Volume:
     """Voxelise one block of a grid -- the whole grid or a slab along z -- with every option.
@@ -235,6 +238,10 @@ def voxelize_block(
     axis, jobs, color, diffuse, ambient, density, supersample, density_dtype, sdf, band, progress
         As for :func:`voxelize` (``jobs`` already resolved: an int >= 1;
         ``progress`` is not told "load").
+    shared_crossings : dict, optional
+        ``axis -> f(block_grid) -> (Hits, Columns)``: the colour step's
+        crossings along that axis, cast once for the whole grid by the
+        caller instead of again for every block.
 
     Returns
     -------
@@ -303,9 +310,23 @@ def voxelize_block(
         from .colour import colour_volume
 
         step("colour")
-        z0 = 0 if block is None else int(block[0])
-        colors = colour_volume(m, grid, occ, diffuse=diffuse, ambient=ambient, jobs=jobs,
-                               frame=(whole.lo, whole.spacing, z0))
+        for a, crossings_of in (shared_crossings or {}).items():
+            if a not in crossings:
+                crossings[a] = crossings_of(grid)
+        # Exact colour needs no crossings at all.
+        others = [a for a in range(3) if a not in crossings and color != "exact"]
+        if jobs > 1 and len(others) > 1:
+            from concurrent.futures import ThreadPoolExecutor
+
+            with ThreadPoolExecutor(max_workers=2) as pool:
+                for a, result in zip(others, pool.map(cast, others)):
+                    crossings[a] = result
+        else:
+            for a in others:
+                crossings[a] = cast(a)
+        colors = colour_volume(m, grid, occ, crossings, diffuse=diffuse, ambient=ambient,
+                               jobs=jobs, exact=color == "exact",
+                               frame=(whole.lo, whole.spacing, 0 if block is None else block[0]))
         timings["colour"] = time.perf_counter() - t_fill
     dens = None
     if density == "coverage":

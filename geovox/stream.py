@@ -6,8 +6,8 @@ the 64³ HDF5 chunks), each slab is voxelised as a block of the grid
 rays still start outside the whole mesh, so a slab is classified exactly as
 the full grid would be -- and written into its place in the output before
 the next one is made. Peak memory is one slab's arrays, whatever the grid.
-Colour, density and distance work per slab too (colour searches the whole
-mesh for each slab voxel's nearest point).
+Colour, density and distance work per slab too: every candidate crossing of
+a slab's voxels lies on a ray through that slab.
 
 Streaming writes HDF5 (plain datasets and the VTK-HDF group) and RAW (with
 its headers and sidecar); other formats need the whole volume in memory.
@@ -206,7 +206,30 @@ def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, *
     inside = 0
     timings = {"load": 0.0, "rays": 0.0, "fill": 0.0, "write": 0.0}
     h = grid.spacing
+    reuse = None
     try:
+        if (options.get("color") and options.get("color") != "exact" and len(plan) > 1
+                and method != "vote"):  # vote casts z itself; exact colour needs no rays
+            # Colour wants the crossings along z as well; those rays run
+            # through every slab, so they are cast once, for the whole grid,
+            # and each slab takes them with depths measured from its own
+            # low face (the slab's rays along x and y are its own).
+            tz = time.perf_counter()
+            z_start = ray_start(m, grid, 2)
+            # Sorted once here, so each slab only picks its part.
+            z_hits = engine.cast(m, grid.columns(2, start=z_start), jobs=jobs).sorted()
+            timings["colour"] = time.perf_counter() - tz
+
+            from .backends.base import Hits
+
+            def along_z(g):
+                cols = g.columns(2, start=z_start)
+                shift = cols.w0 - float(grid.lo[2])
+                # A constant shift keeps the order.
+                return Hits(z_hits.ray, z_hits.depth - shift, z_hits.triangle, z_hits.bary,
+                            ordered=True), cols
+
+            reuse = {2: along_z}
         if len(plan) == 1 and method == "parity" and not any(
                 options.get(k) for k in ("color", "density", "sdf")):
             # Occupancy alone, one piece: the rays along z are cast once for
@@ -225,7 +248,8 @@ def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, *
                 # (x, z) pairs and no ray is cast twice. One piece: voxelize's
                 # default axis, so the file equals the in-memory volume.
                 vol = voxelize_block(m, grid, (z0, z1), engine=engine, inside=method, jobs=jobs,
-                                     axis=1 if len(plan) > 1 else 2, **options)
+                                     axis=1 if len(plan) > 1 else 2, shared_crossings=reuse,
+                                     **options)
             tb = time.perf_counter()
             writer.write(z0, vol)
             for key, value in vol.timings.items():

@@ -267,6 +267,34 @@ def test_result_does_not_depend_on_jobs(jobs, backend):
     np.testing.assert_array_equal(one.colors, many.colors)
 
 
+def test_relevant_crossings_keeps_what_a_voxel_can_use():
+    from geovox.backends.base import Hits
+    from geovox.colour import relevant_crossings
+
+    rng = np.random.default_rng(2)
+    h = 2000
+    hits = Hits(ray=rng.integers(0, 50, h), depth=rng.integers(-5, 15, h).astype(float),
+                triangle=rng.permutation(h), bary=np.zeros((h, 2)))
+    n = 10
+    k = np.clip(hits.depth, 0, n).astype(int)  # centres at 0.5 .. 9.5 -> k = ceil-ish
+    got = relevant_crossings(hits, k, n, 50).sorted()
+    # Already in order, the fast path keeps the same crossings.
+    s0 = hits.sorted()
+    fast = relevant_crossings(s0, np.clip(s0.depth, 0, n).astype(int), n, 50)
+    assert fast.ordered
+    np.testing.assert_array_equal(fast.triangle, got.triangle)
+    # Reference: sort everything, then per ray keep the in-range crossings,
+    # the last one before the first centre and the first one past the last.
+    s = hits.sorted()
+    ks = np.clip(s.depth, 0, n).astype(int)
+    want = []
+    for r in range(50):
+        on = np.flatnonzero(s.ray == r)
+        before, inner, after = on[ks[on] == 0], on[(ks[on] > 0) & (ks[on] < n)], on[ks[on] == n]
+        want += list(before[-1:]) + list(inner) + list(after[:1])
+    np.testing.assert_array_equal(got.triangle, s.triangle[np.array(want)])
+
+
 # Materials as other formats state them (glTF, PLY): a colour the file does not
 # state is never taken for one it does.
 
