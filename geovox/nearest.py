@@ -61,7 +61,7 @@ MARGIN = 1e-8
 CHUNK = 1 << 15
 #: Cells of 2**BOTTOM voxels go straight to their voxels (the 2-voxel
 #: cells' corners would be the voxel centres themselves: no saving).
-BOTTOM = 2
+BOTTOM = 1
 #: Triangles per cluster for the top cells' first cut.
 CLUSTER = 32
 #: Bytes of working memory per pair at the widest step (for the budget).
