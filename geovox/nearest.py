@@ -59,9 +59,6 @@ MARGIN = 1e-8
 #: Pairs (cell, triangle) handled at once: bounds the working memory (about
 #: 0.4 KiB a pair at the widest step) whatever the grid.
 CHUNK = 1 << 15
-#: Cells of 2**BOTTOM voxels go straight to their voxels (the 2-voxel
-#: cells' corners would be the voxel centres themselves: no saving).
-BOTTOM = 1
 #: Triangles per cluster for the top cells' first cut.
 CLUSTER = 32
 #: Bytes of working memory per pair at the widest step (for the budget).
@@ -160,33 +157,30 @@ def lower_bound_sq(x: np.ndarray, t: np.ndarray, tris: dict) -> np.ndarray:
     return _bound_from_signed(s)
 
 
-def _corner_test(w, base, half, r2, thresh, group):
-    """Whether a pair survives: min over the box's corners of bound - |k - p|^2 <= thresh.
+def _corner_bounds(w, base, half):
+    """(8, p) lower bounds of the squared distance at the box's 8 corners.
 
     ``w`` (p, 4, 3) directions, ``base`` (p, 4) signed distances at the
-    centre, ``half`` (3,) half-extents, ``r2`` (g, 8) squared distances of
-    the corners to the cell's surface point, ``thresh`` (g,), ``group`` (p,)
-    cell of each pair. One corner at a time on (4, p) component rows:
-    contiguous, small temporaries.
+    centre, ``half`` (3,) half-extents; corner ``k`` is ``centre + _SIGNS[k]
+    * half``. One corner at a time on (4, p) component rows: contiguous,
+    small temporaries.
     """
     wh = w * half
     dx, dy, dz = (np.ascontiguousarray(wh[:, :, a].T) for a in range(3))
     b = np.ascontiguousarray(base.T)
     plus, minus = dy + dz, dy - dz
-    low = None
+    out = np.empty((8, len(base)))
     for k in range(8):
         # _SIGNS[k] = (+-1 by bit 0, bit 1, bit 2) for x, y, z.
         v = b + dx if k & 1 else b - dx
-        yz = (plus if k & 4 else minus) if k & 2 else (-minus if k & 4 else -plus)
-        v += yz
-        e = np.maximum(v[1], v[2])
+        v += (plus if k & 4 else minus) if k & 2 else (-minus if k & 4 else -plus)
+        e = out[k]
+        np.maximum(v[1], v[2], out=e)
         np.maximum(e, v[3], out=e)
         np.maximum(e, 0.0, out=e)
         e *= e
         e += v[0] * v[0]
-        e -= r2[group, k]
-        low = e if low is None else np.minimum(low, e, out=low)
-    return low <= thresh[group]
+    return out
 
 
 def _bound_from_signed(s):
@@ -258,34 +252,40 @@ def closest(x: np.ndarray, t: np.ndarray, tris: dict):
     return d2, np.stack([u, v], axis=1)
 
 
-def pick(d2: np.ndarray, t: np.ndarray, starts: np.ndarray, h: float) -> np.ndarray:
-    """The tie rule over groups of candidates: index of each group's winner.
+def pick(d2: np.ndarray, t: np.ndarray, point: np.ndarray, n: int, h: float) -> np.ndarray:
+    """The tie rule: the winning candidate of each point.
 
     Parameters
     ----------
-    d2 : (n,) float64
-        Squared distances, grouped by point (groups start at ``starts``).
-    t : (n,) int
+    d2 : (c,) float64
+        Squared distances of the candidates.
+    t : (c,) int
         Triangle of each candidate.
-    starts : (g,) int
-        First candidate of each group (ascending, ``starts[0] == 0``).
+    point : (c,) int
+        Point of each candidate, in ``range(n)``.
+    n : int
+        Number of points.
     h : float
         The voxel size ``TIE`` is measured in.
 
     Returns
     -------
-    (g,) int64
-        Index into the candidates: of those within ``TIE * h`` of the
-        group's smallest distance, the one with the smallest triangle.
+    (k,) int64
+        Index of each point's winner among the candidates (points without
+        candidates have none): of those within ``TIE * h`` of the point's
+        smallest distance, the one with the smallest triangle (the first
+        such candidate).
     """
     d = np.sqrt(d2)
-    group = np.repeat(np.arange(len(starts)), np.diff(np.r_[starts, len(d2)]))
-    near = d <= np.minimum.reduceat(d, starts)[group] + TIE * h
-    key = np.where(near, t, np.iinfo(np.int64).max).astype(np.int64)
-    best_t = np.minimum.reduceat(key, starts)
-    # The first candidate of each group holding that triangle.
-    pos = np.where(near & (t == best_t[group]), np.arange(len(d2)), len(d2))
-    return np.minimum.reduceat(pos, starts)
+    low = np.full(n, np.inf)
+    np.minimum.at(low, point, d)
+    near = d <= low[point] + TIE * h
+    big = np.iinfo(np.int64).max
+    best_t = np.full(n, big)
+    np.minimum.at(best_t, point, np.where(near, t, big))
+    pos = np.full(n, len(d2))
+    np.minimum.at(pos, point, np.where(near & (t == best_t[point]), np.arange(len(d2)), len(d2)))
+    return pos[pos < len(d2)]
 
 
 def brute_force(points: np.ndarray, tris: dict, h: float, block: int = 1 << 16):
@@ -313,7 +313,7 @@ def brute_force(points: np.ndarray, tris: dict, h: float, block: int = 1 << 16):
         x = np.repeat(p, nt, axis=0)
         t = np.tile(np.arange(nt), len(p))
         d2, uv = closest(x, t, tris)
-        w = pick(d2, t, np.arange(0, len(x), nt), h)
+        w = pick(d2, t, np.repeat(np.arange(len(p)), nt), len(p), h)
         out_t[s:s + per] = t[w]
         out_uv[s:s + per] = uv[w]
     return out_t, out_uv
@@ -438,49 +438,104 @@ class _Search:
         keep = np.empty(len(pc), bool)
         near = near.copy()
         half = ((1 << level) - 1) / 2.0 * self.h
-        tris = self.tris
         for s in range(0, len(pc), CHUNK):
             c, t = pc[s:s + CHUNK], pt[s:s + CHUNK]
-            first = np.flatnonzero(np.r_[True, c[1:] != c[:-1]])
-            cu = c[first]
-            centre = self.centres(cells[cu], level)
-            group = np.repeat(np.arange(len(first)), np.diff(np.r_[first, len(c)]))
-            w = tris["w"][t]
-            base = np.einsum("pij,pj->pi", w, centre[group]) - tris["off"][t]
-            # The nearest surface point to the centre: only candidates whose
-            # bound there beats the given point can be nearer.
-            p = near[cu]
-            best = np.sum((centre - p) ** 2, axis=1)
-            try_ = np.flatnonzero(_bound_from_signed(base) < best[group])
-            if len(try_):
-                g = group[try_]
-                d2, uv = closest(centre[g], t[try_], tris)
-                low = np.full(len(first), np.inf)
-                np.minimum.at(low, g, d2)
-                win = d2 == low[g]
-                win &= d2 < best[g]
-                gw, tw, uvw = g[win], t[try_[win]], uv[win]
-                p[gw] = tris["a"][tw] + uvw[:, :1] * tris["ab"][tw] + uvw[:, 1:] * tris["ac"][tw]
-                near[cu] = p
-            corners = centre[:, None, :] + _SIGNS * half
-            r2 = np.sum((corners - p[:, None, :]) ** 2, axis=2)  # (g, 8)
+            cu, group, w, base, p, r2 = self._surface_point(cells, level, c, t, near)
             r = np.sqrt(r2.max(axis=1))
             thresh = 2 * self.m * r + self.m * self.m
-            keep[s:s + CHUNK] = _corner_test(w, base, half, r2, thresh, group)
+            low = _corner_bounds(w, base, half)
+            low -= r2.T[:, group]
+            keep[s:s + CHUNK] = low.min(axis=0) <= thresh[group]
         return keep, near
+
+    def _surface_point(self, cells, level, c, t, near):
+        """A chunk's pairs: signed distances at the cell centres, and each cell's surface point.
+
+        Returns the chunk's cells ``cu`` (g,), each pair's ``group`` (p,),
+        ``w`` (p, 4, 3), ``base`` (p, 4), the surface points ``p`` (g, 3)
+        (also written into ``near``) and the squared distances ``r2``
+        (g, 8) from each cell's corners to its point.
+        """
+        tris = self.tris
+        first = np.flatnonzero(np.r_[True, c[1:] != c[:-1]])
+        cu = c[first]
+        centre = self.centres(cells[cu], level)
+        group = np.repeat(np.arange(len(first)), np.diff(np.r_[first, len(c)]))
+        w = tris["w"][t]
+        base = np.einsum("pij,pj->pi", w, centre[group]) - tris["off"][t]
+        # The nearest surface point to the centre: only candidates whose
+        # bound there beats the given point can be nearer.
+        p = near[cu]
+        best = np.sum((centre - p) ** 2, axis=1)
+        try_ = np.flatnonzero(_bound_from_signed(base) < best[group])
+        if len(try_):
+            g = group[try_]
+            d2, uv = closest(centre[g], t[try_], tris)
+            low = np.full(len(first), np.inf)
+            np.minimum.at(low, g, d2)
+            win = d2 == low[g]
+            win &= d2 < best[g]
+            gw, tw, uvw = g[win], t[try_[win]], uv[win]
+            p[gw] = tris["a"][tw] + uvw[:, :1] * tris["ab"][tw] + uvw[:, 1:] * tris["ac"][tw]
+            near[cu] = p
+        half = ((1 << level) - 1) / 2.0 * self.h
+        corners = centre[:, None, :] + _SIGNS * half
+        r2 = np.sum((corners - p[:, None, :]) ** 2, axis=2)
+        return cu, group, w, base, p, r2
+
+    def bottom(self, cells, pc, pt, near):
+        """Cells of 2 voxels a side: their corners are the voxel centres.
+
+        The corner bounds are the voxels' own bounds, so each voxel keeps
+        the candidates whose bound beats the cell's surface point, then
+        the exact closest point on the one with the lowest bound settles
+        which others need measuring exactly.
+        """
+        half = 0.5 * self.h
+        offs = ((_SIGNS + 1) // 2).astype(np.int64)  # corner k -> voxel offset
+        for s in range(0, len(pc), CHUNK):
+            c, t = pc[s:s + CHUNK], pt[s:s + CHUNK]
+            cu, group, w, base, p, r2 = self._surface_point(cells, 1, c, t, near)
+            vox = cells[cu][:, None, :] * 2 + offs  # (g, 8, 3)
+            inside = self.has[0][vox[..., 0], vox[..., 1], vox[..., 2]]
+            limit = r2 + self._slack(r2)
+            limit[~inside] = -1.0
+            low = _corner_bounds(w, base, half)  # (8, p)
+            k, j = np.nonzero(low <= limit.T[:, group])
+            vid = group[j] * 8 + k  # voxel of the chunk
+            self._settle_voxels(vox.reshape(-1, 3), vid, t[j], low[k, j])
+
+    def _settle_voxels(self, vox, vid, t, low):
+        """Exact nearest among each voxel's candidates (``vid`` indexes ``vox``)."""
+        n = len(vox)
+        x = self.centres(vox, 0)
+        least = np.full(n, np.inf)
+        np.minimum.at(least, vid, low)
+        pos = np.arange(len(vid))
+        first = np.full(n, len(vid))
+        np.minimum.at(first, vid, np.where(low <= least[vid], pos, len(vid)))
+        has = np.flatnonzero(first < len(vid))
+        f = first[has]
+        d2f, _ = closest(x[has], t[f], self.tris)
+        bound = np.full(n, -1.0)
+        bound[has] = d2f + self._slack(d2f)
+        rest = np.flatnonzero(low <= bound[vid])
+        vid, t = vid[rest], t[rest]
+        d2, uv = closest(x[vid], t, self.tris)
+        w = pick(d2, t, vid, n, self.hmin)
+        self.emit(vox[vid[w]], t[w], uv[w])
 
     def descend(self, cells, level, pc, pt, near):
         """Prune the pairs of ``cells`` at ``level``, then go down, chunk by chunk."""
+        if level == 1:
+            self.bottom(cells, pc, pt, near)
+            return
         keep, near = self.prune(cells, level, pc, pt, near)
         pc, pt = pc[keep], pt[keep]
         pc, pt = self.settle(cells, level, pc, pt)
-        # Children that hold inside voxels, per cell: the 8 cells of the level
-        # below, or from level BOTTOM straight to the voxels.
-        step = level if level <= BOTTOM else 1
-        k = 1 << step
-        offs = np.stack(np.meshgrid(*[np.arange(k)] * 3, indexing="ij"), -1).reshape(-1, 3)
-        kids = cells[:, None, :] * k + offs  # (m, k^3, 3)
-        below = self.has[level - step]
+        # Children that hold inside voxels, per cell.
+        kids = cells[:, None, :] * 2 + ((_SIGNS + 1) // 2).astype(np.int64)  # (m, 8, 3)
+        below = self.has[level - 1]
         inside = below[kids[..., 0], kids[..., 1], kids[..., 2]]
         nkid = inside.sum(axis=1)
         npair = np.bincount(pc, minlength=len(cells))
@@ -491,7 +546,7 @@ class _Search:
         while s < len(cells):
             e = int(np.searchsorted(ends, (ends[s - 1] if s else 0) + CHUNK, side="right"))
             e = max(e, s + 1)
-            self._children(cells[s:e], kids[s:e], inside[s:e], level - step, pc, pt, s, e,
+            self._children(cells[s:e], kids[s:e], inside[s:e], level - 1, pc, pt, s, e,
                            near[s:e])
             s = e
 
@@ -556,38 +611,7 @@ class _Search:
         np_ = npair[parent]
         child = kid_start[parent] + local // np_
         tri = t[pair_start[parent] + local % np_]
-        if below == 0:
-            self.voxels(kid_cells, child, tri, kid_near)
-        else:
-            self.descend(kid_cells, below, child, tri, kid_near)
-
-    def voxels(self, vox, pv, pt, near):
-        """The exact nearest triangle of each voxel among its candidates.
-
-        Bounds first (cheap), then the exact closest point on the candidate
-        with the lowest bound, then exactly only the candidates whose bound
-        beats that point.
-        """
-        x = self.centres(vox, 0)
-        best = np.sum((x - near) ** 2, axis=1)
-        xp = x[pv]
-        low = lower_bound_sq(xp, pt, self.tris)
-        # Only candidates whose bound beats the cell's surface point can win.
-        ok = np.flatnonzero(low <= best[pv] + self._slack(best)[pv])
-        pv, pt, xp, low = pv[ok], pt[ok], xp[ok], low[ok]
-        starts = np.flatnonzero(np.r_[True, pv[1:] != pv[:-1]])
-        group = np.repeat(np.arange(len(starts)), np.diff(np.r_[starts, len(pv)]))
-        least = np.minimum.reduceat(low, starts)
-        first = np.minimum.reduceat(np.where(low <= least[group], np.arange(len(pv)), len(pv)),
-                                    starts)
-        d2_first, _ = closest(xp[first], pt[first], self.tris)
-        bound = d2_first + self._slack(d2_first)
-        rest = np.flatnonzero(low <= bound[group])
-        d2, uv = closest(xp[rest], pt[rest], self.tris)
-        pv, pt = pv[rest], pt[rest]
-        starts = np.flatnonzero(np.r_[True, pv[1:] != pv[:-1]])
-        w = pick(d2, pt, starts, self.hmin)
-        self.emit(vox[pv[w]], pt[w], uv[w])
+        self.descend(kid_cells, below, child, tri, kid_near)
 
     def _slack(self, d2):
         """What a squared distance ``d2`` may be exceeded by within MARGIN: 2 m d + m^2."""
