@@ -36,10 +36,11 @@ the cell's box, ``d(x, T) > d(x, surface) + MARGIN`` voxel sizes:
   ``sqrt(2)`` half-widths away sideways, however deep the cell.
 
 At the voxels, the survivors of each 2-voxel cell are evaluated exactly.
-Float errors are covered by the margin: ``MARGIN`` (1e-8 voxel sizes) is far
-above the rounding of float64 arithmetic on coordinates of grids up to
-millions of voxels across (about 1e-13 voxel sizes) and above ``TIE``, so a
-dropped triangle is never the float argmin nor within ``TIE`` of it.
+Float errors are covered by the margin: ``MARGIN`` (1e-6 voxel sizes) is far
+above the rounding of float64 arithmetic on coordinates of grids thousands
+of voxels across (about 1e-13 voxel sizes; slivers below a relative area of
+1e-6 are measured by their edges, see :func:`prepare`) and above ``TIE``, so
+a dropped triangle is never the float argmin nor within ``TIE`` of it.
 
 All coordinates are taken relative to the whole grid's low corner, voxel
 centres as ``(index + 0.5) * spacing`` with global indices, so a slab of a
@@ -54,11 +55,15 @@ import numpy as np
 #: with the smallest index wins.
 TIE = 1e-9
 #: A triangle is dropped only when it is provably this many voxel sizes
-#: farther than the surface everywhere in a cell (covers TIE and rounding).
-MARGIN = 1e-8
+#: farther than the surface everywhere in a cell (covers TIE and rounding:
+#: about 1e-13 voxel sizes for coordinates within a few thousand voxels, and
+#: below 4e-7 for the planes of the thinnest triangles measured by them).
+MARGIN = 1e-6
 #: Pairs (cell, triangle) handled at once: bounds the working memory (about
 #: 0.4 KiB a pair at the widest step) whatever the grid.
 CHUNK = 1 << 15
+#: Top cells are started this many (cell, triangle) pairs' worth at a time.
+TOP_PAIRS = 1 << 21
 #: Triangles per cluster for the top cells' first cut.
 CLUSTER = 32
 #: Bytes of working memory per pair at the widest step (for the budget).
@@ -95,8 +100,11 @@ def prepare(triangles: np.ndarray, origin: np.ndarray) -> dict:
     n = np.cross(ab, ac)
     area2 = np.einsum("ij,ij->i", n, n)
     scale2 = np.maximum(np.einsum("ij,ij->i", ab, ab), np.einsum("ij,ij->i", ac, ac))
-    # A triangle whose area is at rounding level has no trustworthy plane.
-    flat = ~(area2 > 1e-24 * scale2 * scale2) | ~np.isfinite(area2)
+    # A sliver's unit normal is only as good as rounding over its area
+    # (direction error about 1e-16 / (area / longest edge^2)): below 1e-6 the
+    # plane could misplace a point thousands of voxels away by more than the
+    # margin, so such a triangle is bounded and measured by its edges alone.
+    flat = ~(area2 > 1e-12 * scale2 * scale2) | ~np.isfinite(area2)
     with np.errstate(divide="ignore", invalid="ignore"):
         n = np.where(flat[:, None], 0.0, n / np.sqrt(area2)[:, None])
 
@@ -661,12 +669,17 @@ def nearest_inside(triangles, occupancy, spacing, *, origin, z0=0, jobs=1, emit,
     parts = max(1, min(len(cells), 4 * jobs))
     step = -(-len(cells) // parts)
 
+    # Top cells a few at a time: a deep cell of a big mesh can keep most
+    # triangles, so this bounds the first pair arrays (about 16 bytes a pair).
+    batch = max(1, TOP_PAIRS // len(triangles))
+
     def run(s, e):
-        sub = cells[s:e]
-        pc, pt = search.top(sub)
-        order = np.argsort(pc, kind="stable")
-        centre = search.centres(sub, levels)
-        _, iv = search._kd.query(centre)
-        search.descend(sub, levels, pc[order], pt[order], verts[iv])
+        for a in range(s, e, batch):
+            sub = cells[a:min(a + batch, e)]
+            pc, pt = search.top(sub)
+            order = np.argsort(pc, kind="stable")
+            centre = search.centres(sub, levels)
+            _, iv = search._kd.query(centre)
+            search.descend(sub, levels, pc[order], pt[order], verts[iv])
 
     for_blocks(run, len(cells), step, jobs)
