@@ -524,12 +524,17 @@ class _Search:
         np.minimum.at(first, vid, np.where(low <= least[vid], pos, len(vid)))
         has = np.flatnonzero(first < len(vid))
         f = first[has]
-        d2f, _ = closest(x[has], t[f], self.tris)
+        d2f, uvf = closest(x[has], t[f], self.tris)
         bound = np.full(n, -1.0)
         bound[has] = d2f + self._slack(d2f)
-        rest = np.flatnonzero(low <= bound[vid])
-        vid, t = vid[rest], t[rest]
-        d2, uv = closest(x[vid], t, self.tris)
+        rest = low <= bound[vid]
+        rest[f] = False  # measured already
+        rest = np.flatnonzero(rest)
+        d2, uv = closest(x[vid[rest]], t[rest], self.tris)
+        # Candidate order (voxel, then as listed) is kept: the tie rule
+        # looks at triangle indices only.
+        vid, t = np.r_[vid[f], vid[rest]], np.r_[t[f], t[rest]]
+        d2, uv = np.r_[d2f, d2], np.r_[uvf, uv]
         w = pick(d2, t, vid, n, self.hmin)
         self.emit(vox[vid[w]], t[w], uv[w])
 
