@@ -109,6 +109,8 @@ def main():
     p.add_argument("--methods", nargs="+", default=["color", "exact-color"])
     p.add_argument("--repeat", type=int, default=3)
     args = p.parse_args()
+    if not (args.accuracy or args.times):
+        args.times = True
     today = datetime.date.today()
     if args.accuracy:
         print(f"# bench_colour --accuracy {today}: every inside voxel at {args.grid}³")
