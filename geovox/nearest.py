@@ -643,7 +643,7 @@ def nearest_inside(triangles, occupancy, spacing, *, origin, z0=0, jobs=1, emit,
         The whole grid's voxel size.
     origin : (3,) float64
         The whole grid's low corner; voxel ``(i, j, k)`` of the block has
-        its centre at ``origin + (i, j, k + z0) + 0.5) * spacing``.
+        its centre at ``origin + ((i, j, k + z0) + 0.5) * spacing``.
     z0 : int
         The block's first layer in the whole grid.
     jobs : int
