@@ -85,9 +85,12 @@ def prepare(triangles: np.ndarray, origin: np.ndarray) -> dict:
     Returns
     -------
     dict of arrays
-        ``a, ab, ac`` (t, 3); ``w`` (t, 4, 3): the unit normal and the three
-        unit in-plane outward edge normals; ``off`` (t, 4): their offsets
-        (``x . w - off`` is the signed distance to the plane / edge line);
+        ``a, ab, ac`` (t, 3); ``n`` (t, 3) unit normal; ``w`` (t, 4, 3): the
+        unit normal and the three unit in-plane outward edge normals;
+        ``off`` (t, 4): their offsets (``x . w - off`` is the signed
+        distance to the plane / edge line); ``rows`` (16, t): ``w`` by
+        component (row ``4 a + j`` is component ``a`` of direction ``j``)
+        then ``off``, for gathering contiguous rows per pair;
         ``g0, g1`` (t, 3): the dual basis giving the in-plane barycentrics;
         inverse squared edge lengths ``iab, iac, ibc`` (t,); ``flat`` (t,)
         bool, zero-area triangles (bounded below by 0 and evaluated by
@@ -138,7 +141,11 @@ def prepare(triangles: np.ndarray, origin: np.ndarray) -> dict:
         def inv(v):
             return np.where(v > 0, 1.0 / v, 0.0)
 
-        return {"a": a, "ab": ab, "ac": ac, "w": w, "off": off, "g0": g0, "g1": g1,
+        # The same by component, for gathering contiguous rows per pair:
+        # rows 4 a + j hold component a of direction j; offsets after them.
+        rows = np.concatenate([w.transpose(2, 1, 0).reshape(12, -1), off.T], axis=0)
+        return {"a": a, "ab": ab, "ac": ac, "n": n, "w": w, "off": off, "rows": rows,
+                "g0": g0, "g1": g1,
                 "iab": inv(dab), "iac": inv(dac), "ibc": inv(dbc), "flat": flat,
                 "lo": np.minimum(np.minimum(a, b), c), "hi": np.maximum(np.maximum(a, b), c)}
 
@@ -165,23 +172,27 @@ def lower_bound_sq(x: np.ndarray, t: np.ndarray, tris: dict) -> np.ndarray:
     return _bound_from_signed(s)
 
 
-def _corner_bounds(w, base, half):
+def _corner_bounds(rows, base, half):
     """(8, p) lower bounds of the squared distance at the box's 8 corners.
 
-    ``w`` (p, 4, 3) directions, ``base`` (p, 4) signed distances at the
-    centre, ``half`` (3,) half-extents; corner ``k`` is ``centre + _SIGNS[k]
-    * half``. One corner at a time on (4, p) component rows: contiguous,
-    small temporaries.
+    ``rows`` (16, p): the pairs' triangle rows (see :func:`prepare`),
+    ``base`` (4, p) signed distances at the box centre, ``half`` (3,)
+    half-extents; corner ``k`` is ``centre + _SIGNS[k] * half``. One corner
+    at a time on contiguous (4, p) rows, small temporaries.
     """
-    wh = w * half
-    dx, dy, dz = (np.ascontiguousarray(wh[:, :, a].T) for a in range(3))
-    b = np.ascontiguousarray(base.T)
+    dx = rows[0:4] * half[0]
+    dy = rows[4:8] * half[1]
+    dz = rows[8:12] * half[2]
     plus, minus = dy + dz, dy - dz
-    out = np.empty((8, len(base)))
+    out = np.empty((8, base.shape[1]))
+    v = np.empty_like(base)
     for k in range(8):
         # _SIGNS[k] = (+-1 by bit 0, bit 1, bit 2) for x, y, z.
-        v = b + dx if k & 1 else b - dx
-        v += (plus if k & 4 else minus) if k & 2 else (-minus if k & 4 else -plus)
+        (np.add if k & 1 else np.subtract)(base, dx, out=v)
+        if k & 2:
+            v += plus if k & 4 else minus
+        else:
+            v -= minus if k & 4 else plus
         e = out[k]
         np.maximum(v[1], v[2], out=e)
         np.maximum(e, v[3], out=e)
@@ -224,7 +235,7 @@ def closest(x: np.ndarray, t: np.ndarray, tris: dict):
     r = np.einsum("ij,ij->i", ap, tris["g1"][t])
     face = (s >= 0) & (r >= 0) & (s + r <= 1) & ~tris["flat"][t]
     # Face: distance to the plane (exactly |ap - s ab - r ac| up to rounding).
-    d2 = np.square(np.einsum("ij,ij->i", ap, tris["w"][t][:, 0]))
+    d2 = np.square(np.einsum("ij,ij->i", ap, tris["n"][t]))
     u = s
     v = r
     out = np.flatnonzero(~face)
@@ -460,7 +471,8 @@ class _Search:
         """A chunk's pairs: signed distances at the cell centres, and each cell's surface point.
 
         Returns the chunk's cells ``cu`` (g,), each pair's ``group`` (p,),
-        ``w`` (p, 4, 3), ``base`` (p, 4), the surface points ``p`` (g, 3)
+        the pairs' triangle rows ``w`` (16, p) (see :func:`prepare`), the
+        signed distances at the centres ``base`` (4, p), the surface points ``p`` (g, 3)
         (also written into ``near``) and the squared distances ``r2``
         (g, 8) from each cell's corners to its point.
         """
@@ -469,13 +481,17 @@ class _Search:
         cu = c[first]
         centre = self.centres(cells[cu], level)
         group = np.repeat(np.arange(len(first)), np.diff(np.r_[first, len(c)]))
-        w = tris["w"][t]
-        base = np.einsum("pij,pj->pi", w, centre[group]) - tris["off"][t]
+        w = tris["rows"][:, t]  # (16, p)
+        cg = centre[group]
+        base = w[0:4] * cg[:, 0]
+        base += w[4:8] * cg[:, 1]
+        base += w[8:12] * cg[:, 2]
+        base -= w[12:16]  # (4, p)
         # The nearest surface point to the centre: only candidates whose
         # bound there beats the given point can be nearer.
         p = near[cu]
         best = np.sum((centre - p) ** 2, axis=1)
-        try_ = np.flatnonzero(_bound_from_signed(base) < best[group])
+        try_ = np.flatnonzero(_bound_from_signed(base.T) < best[group])
         if len(try_):
             g = group[try_]
             d2, uv = closest(centre[g], t[try_], tris)
