@@ -16,7 +16,7 @@ cell's list only when a valid bound proves that, for every point ``x`` of
 the cell's box, ``d(x, T) > d(x, surface) + MARGIN`` voxel sizes:
 
 * **Top cells**: ``U = max over the box's corners of |k - v|`` for a mesh
-  vertex ``v`` bounds ``d(x, surface)`` over the box (``|x - v|`` is convex);
+  vertex ``v`` near the cell bounds ``d(x, surface)`` over the box (``|x - v|`` is convex);
   a triangle whose bounding box is farther than ``U`` from the cell's box is
   dropped.
 * **Every cell, dominance by one surface point**: for any fixed point ``p``
@@ -362,7 +362,7 @@ def _pyramid(occupancy: np.ndarray, levels: int) -> list:
 class _Search:
     """The branch and bound over one block's inside voxels (see the module notes)."""
 
-    def __init__(self, tris, vertices, occupancy, spacing, z0, levels, emit, same=None):
+    def __init__(self, tris, occupancy, spacing, z0, levels, emit, same=None):
         self.tris = tris
         n = len(tris["a"])
         self.same = np.full(n, -1, np.int64) if same is None else np.asarray(same, np.int64)
@@ -373,7 +373,6 @@ class _Search:
         self.levels = levels
         self.has = _pyramid(occupancy, levels)
         self.emit = emit
-        self.vertices = vertices
         self.m = MARGIN * self.hmin
 
     def centres(self, cells, level):
@@ -386,18 +385,14 @@ class _Search:
 
     def top(self, cells):
         """(cell, triangle) pairs for top cells: triangles whose box is within reach."""
-        from scipy.spatial import cKDTree
-
         L = self.levels
         half = ((1 << L) - 1) / 2.0 * self.h
         centre = self.centres(cells, L)
-        if not hasattr(self, "_kd"):
-            self._kd = cKDTree(self.vertices)
+        if not hasattr(self, "_cl"):
             self._clusters()
-        _, iv = self._kd.query(centre)
+        v = self.start_points(centre)
         corners = centre[:, None, :] + _SIGNS * half
-        reach = np.sqrt(np.max(np.sum((corners - self.vertices[iv][:, None, :]) ** 2, axis=2),
-                               axis=1)) + self.m
+        reach = np.sqrt(np.max(np.sum((corners - v[:, None, :]) ** 2, axis=2), axis=1)) + self.m
         lo, hi = centre - half, centre + half
         pcs, pts = [], []
         clo, chi, members, cstart = self._cl
@@ -419,6 +414,22 @@ class _Search:
             pts.append(t[ok])
         return np.concatenate(pcs), np.concatenate(pts)
 
+    def start_points(self, centre):
+        """(m, 3) a surface point near each centre: the nearest of a sample of vertices.
+
+        Any surface point gives valid bounds; a near one gives tight ones.
+        """
+        rep = self._rep
+        best = np.full(len(centre), np.inf)
+        out = np.zeros((len(centre), 3))
+        per = max(1, CHUNK // len(rep))
+        for s in range(0, len(centre), per):
+            d = np.sum((centre[s:s + per, None, :] - rep[None]) ** 2, axis=2)
+            i = d.argmin(axis=1)
+            best[s:s + per] = d[np.arange(len(i)), i]
+            out[s:s + per] = rep[i]
+        return out
+
     def _clusters(self):
         """Triangles grouped ``CLUSTER`` at a time in Morton order of their centres, with boxes."""
         lo, hi = self.tris["lo"], self.tris["hi"]
@@ -434,6 +445,8 @@ class _Search:
         clo = np.minimum.reduceat(lo[members], cstart[:-1], axis=0)
         chi = np.maximum.reduceat(hi[members], cstart[:-1], axis=0)
         self._cl = (clo, chi, members, cstart)
+        # Start points: a vertex of every eighth triangle in Morton order.
+        self._rep = self.tris["a"][members[::8]]
 
     def prune(self, cells, level, pc, pt, near):
         """Drop the pairs a surface point dominates over their cell.
@@ -683,10 +696,9 @@ def nearest_inside(triangles, occupancy, spacing, *, origin, z0=0, jobs=1, emit,
     tris = prepare(np.asarray(triangles, float), origin)
     # Top cells about 16 to a side of the grid (at least 2 voxels).
     levels = max(3, int(np.ceil(np.log2(max(occupancy.shape) / 16.0))))
-    verts = np.unique(np.asarray(triangles, float).reshape(-1, 3), axis=0) - origin
-    search = _Search(tris, verts, occupancy, spacing, z0, levels, emit, same)
+    search = _Search(tris, occupancy, spacing, z0, levels, emit, same)
     cells = np.argwhere(search.has[levels])
-    search.top(cells[:1])  # builds the shared tree and clusters once, before the threads
+    search.top(cells[:1])  # builds the shared clusters once, before the threads
     parts = max(1, min(len(cells), 4 * jobs))
     step = -(-len(cells) // parts)
 
@@ -699,8 +711,7 @@ def nearest_inside(triangles, occupancy, spacing, *, origin, z0=0, jobs=1, emit,
             sub = cells[a:min(a + batch, e)]
             pc, pt = search.top(sub)
             order = np.argsort(pc, kind="stable")
-            centre = search.centres(sub, levels)
-            _, iv = search._kd.query(centre)
-            search.descend(sub, levels, pc[order], pt[order], verts[iv])
+            near = search.start_points(search.centres(sub, levels))
+            search.descend(sub, levels, pc[order], pt[order], near)
 
     for_blocks(run, len(cells), step, jobs)
