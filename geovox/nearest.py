@@ -144,8 +144,11 @@ def prepare(triangles: np.ndarray, origin: np.ndarray) -> dict:
         # The same by component, for gathering contiguous rows per pair:
         # rows 4 a + j hold component a of direction j; offsets after them.
         rows = np.concatenate([w.transpose(2, 1, 0).reshape(12, -1), off.T], axis=0)
+        # For the closest point: a, ab, ac, g0, g1, n, iab, iac, ibc as rows.
+        crow = np.concatenate([a.T, ab.T, ac.T, g0.T, g1.T, n.T,
+                               np.stack([inv(dab), inv(dac), inv(dbc)])], axis=0)
         return {"a": a, "ab": ab, "ac": ac, "n": n, "w": w, "off": off, "rows": rows,
-                "g0": g0, "g1": g1,
+                "crow": crow, "g0": g0, "g1": g1,
                 "iab": inv(dab), "iac": inv(dac), "ibc": inv(dbc), "flat": flat,
                 "lo": np.minimum(np.minimum(a, b), c), "hi": np.maximum(np.maximum(a, b), c)}
 
@@ -228,47 +231,46 @@ def closest(x: np.ndarray, t: np.ndarray, tris: dict):
         Weights of vertices 1 and 2 of the closest point (vertex 0 has
         ``1 - u - v``).
     """
-    ap = x - tris["a"][t]
-    ab = tris["ab"][t]
-    ac = tris["ac"][t]
-    s = np.einsum("ij,ij->i", ap, tris["g0"][t])
-    r = np.einsum("ij,ij->i", ap, tris["g1"][t])
+    R = tris["crow"][:, t]  # (21, n): rows gathered once, then contiguous row arithmetic
+    X = np.ascontiguousarray(x.T)
+    ap = X - R[0:3]
+    s = ap[0] * R[9] + ap[1] * R[10] + ap[2] * R[11]
+    r = ap[0] * R[12] + ap[1] * R[13] + ap[2] * R[14]
     face = (s >= 0) & (r >= 0) & (s + r <= 1) & ~tris["flat"][t]
     # Face: distance to the plane (exactly |ap - s ab - r ac| up to rounding).
-    d2 = np.square(np.einsum("ij,ij->i", ap, tris["n"][t]))
-    u = s
-    v = r
+    h = ap[0] * R[15] + ap[1] * R[16] + ap[2] * R[17]
+    d2 = h * h
+    uv = np.empty((len(t), 2))
+    uv[:, 0] = s
+    uv[:, 1] = r
     out = np.flatnonzero(~face)
     if len(out):
-        apo, abo, aco = ap[out], ab[out], ac[out]
-        to = t[out]
+        Ro = R[:, out]
+        apo, ab, ac = ap[:, out], Ro[3:6], Ro[6:9]
+
+        def segment(start, e, inv):
+            # Closest point of the segment start + w e (w in [0, 1]) to the origin of start.
+            w = np.clip((start[0] * e[0] + start[1] * e[1] + start[2] * e[2]) * inv, 0.0, 1.0)
+            d = start - w * e
+            return w, d[0] * d[0] + d[1] * d[1] + d[2] * d[2]
+
         # Otherwise the nearest of the three edges (segments).
-        w1 = np.clip(np.einsum("ij,ij->i", apo, abo) * tris["iab"][to], 0.0, 1.0)
-        e1 = apo - w1[:, None] * abo
-        best = np.einsum("ij,ij->i", e1, e1)
+        w1, best = segment(apo, ab, Ro[18])
         bu, bv = w1, np.zeros_like(w1)
-        w2 = np.clip(np.einsum("ij,ij->i", apo, aco) * tris["iac"][to], 0.0, 1.0)
-        e2 = apo - w2[:, None] * aco
-        d = np.einsum("ij,ij->i", e2, e2)
+        w2, d = segment(apo, ac, Ro[19])
         take = d < best
         best = np.where(take, d, best)
         bu = np.where(take, 0.0, bu)
         bv = np.where(take, w2, bv)
-        bp = apo - abo
-        bc = aco - abo
-        w3 = np.clip(np.einsum("ij,ij->i", bp, bc) * tris["ibc"][to], 0.0, 1.0)
-        e3 = bp - w3[:, None] * bc
-        d = np.einsum("ij,ij->i", e3, e3)
+        w3, d = segment(apo - ab, ac - ab, Ro[20])
         take = d < best
         best = np.where(take, d, best)
         bu = np.where(take, 1.0 - w3, bu)
         bv = np.where(take, w3, bv)
         d2[out] = best
-        u = u.copy()
-        v = v.copy()
-        u[out] = bu
-        v[out] = bv
-    return d2, np.stack([u, v], axis=1)
+        uv[out, 0] = bu
+        uv[out, 1] = bv
+    return d2, uv
 
 
 def pick(d2: np.ndarray, t: np.ndarray, point: np.ndarray, n: int, h: float) -> np.ndarray:
