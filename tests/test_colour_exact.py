@@ -292,3 +292,20 @@ def test_cli_exact_color(tmp_path):
     d = np.load(out)
     ref = geovox.voxelize(corpus("fuze", "fuze.obj"), resolution=16, color="exact")
     np.testing.assert_array_equal(d["colors"], ref.colors)
+
+
+def test_a_region_that_cuts_the_mesh_and_unequal_voxels():
+    # The cut face's voxels take the colour of the nearest surface point,
+    # which may lie outside the region; voxels are not cubes here.
+    m = geovox.load_mesh(SPOT)
+    lo, hi = m.bounds
+    mid = (lo + hi) / 2
+    bounds = (*lo, hi[0], hi[1], mid[2])
+    vol = geovox.voxelize(SPOT, shape=(14, 22, 11), bounds=bounds, color="exact")
+    load_textures(m)
+    idx = np.argwhere(vol.occupancy)
+    h = float(min(vol.spacing))
+    tri, bary, _, tie = reference_nearest(m.triangles, _centres(vol, idx), h)
+    ref = np.rint(shade(m, tri, bary) * 255)
+    err = np.abs(vol.colors[tuple(idx.T)][:, :3].astype(int) - ref).max(axis=1)
+    assert len(idx) > 300 and not np.any((err > 2) & ~tie)
