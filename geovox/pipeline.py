@@ -267,6 +267,8 @@ def voxelize_block(
     step = progress or (lambda stage: None)
     whole, grid = grid, block_grid(grid, block)
     supersample, band = _check_options(density, density_dtype, supersample, sdf, band)
+    if not (color is None or isinstance(color, (bool, np.bool_, int)) or color == "exact"):
+        raise ParameterError(f"`color` must be True, False or 'exact', got {color!r}")
     check_memory(grid, bytes_per_voxel(color, density, sdf))
 
     from . import inside as inside_tests

@@ -309,3 +309,8 @@ def test_a_region_that_cuts_the_mesh_and_unequal_voxels():
     ref = np.rint(shade(m, tri, bary) * 255)
     err = np.abs(vol.colors[tuple(idx.T)][:, :3].astype(int) - ref).max(axis=1)
     assert len(idx) > 300 and not np.any((err > 2) & ~tie)
+
+
+def test_colour_option_is_checked():
+    with pytest.raises(geovox.ParameterError, match="`color` must be"):
+        geovox.voxelize(SPOT, resolution=8, color="exactly")
