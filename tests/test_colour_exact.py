@@ -15,6 +15,8 @@ import warnings
 import numpy as np
 import pytest
 import trimesh
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 import geovox
 from geovox.colour import load_textures, shade
@@ -314,3 +316,15 @@ def test_a_region_that_cuts_the_mesh_and_unequal_voxels():
 def test_colour_option_is_checked():
     with pytest.raises(geovox.ParameterError, match="`color` must be"):
         geovox.voxelize(SPOT, resolution=8, color="exactly")
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), res=st.integers(6, 24))
+def test_random_hulls_pick_the_reference_triangle(seed, res):
+    # Convex hulls of random points: many unlike triangles, slivers among them.
+    rng = np.random.default_rng(seed)
+    hull = trimesh.convex.convex_hull(rng.normal(size=(int(rng.integers(5, 40)), 3))
+                                      * rng.uniform(0.2, 3.0, size=3))
+    mesh = Mesh(np.asarray(hull.vertices, float), np.asarray(hull.faces, np.int64), source="hull")
+    got, uv, (tri, bary, dist, tie) = _nearest_triangles(mesh, res)
+    assert np.all((got == tri) | tie)
