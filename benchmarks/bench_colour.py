@@ -1,26 +1,52 @@
-"""Colour conversion, end to end: `geovox convert spot.obj --color` per grid size.
+"""Colour: accuracy against a brute-force nearest point, and end-to-end times.
 
-Each run is a fresh interpreter running the CLI in-process (imports, OBJ and
-texture loading, rays along three axes, parity fill, colouring, writing the
-RAW + RGBA RAW files), timed by wall clock from interpreter start to exit;
-peak memory is the process's peak RSS (VmHWM).
+Accuracy (``--accuracy``): for each corpus model with colour, every inside
+voxel of a 64³ grid (the whole volume, not a sample) is coloured by both
+methods -- ``color=True`` (the nearest of the six axis crossings, the
+default) and ``color="exact"`` (the exact nearest surface point) -- and
+compared with a brute-force reference: the closest point over *every*
+triangle (:func:`geovox.nearest.brute_force`, no pruning), its barycentrics,
+UVs, bilinear texel x Kd. Per model: the share of inside voxels within 2
+levels per channel, and the median and 90th percentile of the largest
+per-channel error.
 
-Usage: python benchmarks/bench_colour.py [--res 64 128 256 512] [--backend auto]
+Times (``--times``): wall clock of a fresh interpreter running ``geovox
+convert data/spot/spot.obj -o spot.raw -r N --color`` (or ``--exact-color``)
+(imports, OBJ and texture loading, rays, fill, colour, writing the RAW + RGBA
+RAW files), best of ``--repeat`` runs; peak memory is the process's peak RSS
+(VmHWM, what ``/usr/bin/time -v`` reports as maximum resident set size).
+
+Usage: python benchmarks/bench_colour.py [--accuracy] [--times] [--res 128 256]
+       [--methods color exact-color] [--repeat 3]
 """
 
 from __future__ import annotations
 
 import argparse
 import datetime
+import json
 import os
 import subprocess
 import sys
 import tempfile
 import time
+import warnings
+
+import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
-from common import SPOT  # noqa: E402
+from common import CORPUS, SPOT  # noqa: E402
+
+#: Corpus models with colour: texture (spot, fuze), materials (cornell_box,
+#: suzanne), a texture on a tetrahedron (trimesh's test file).
+MODELS = {
+    "spot": SPOT,
+    "fuze": os.path.join(CORPUS, "fuze", "fuze.obj"),
+    "suzanne": os.path.join(CORPUS, "suzanne", "suzanne.obj"),
+    "cornell_box": os.path.join(CORPUS, "cornell_box", "cornell_box.obj"),
+    "textured_tetrahedron": os.path.join(CORPUS, "trimesh_edge_cases", "textured_tetrahedron.obj"),
+}
 
 CHILD = """
 import sys, json
@@ -31,16 +57,42 @@ print(json.dumps({"rc": rc, "peak_kib": int(hwm)}))
 """
 
 
-def run(res, backend, out_dir):
+def accuracy(path, res=64):
+    """Errors of both methods against the brute-force reference, over every inside voxel."""
+    import geovox
+    from geovox.colour import load_textures, shade
+    from geovox.nearest import brute_force, prepare
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        before = geovox.voxelize(path, resolution=res, color=True)
+        t0 = time.perf_counter()
+        after = geovox.voxelize(path, resolution=res, color="exact")
+        t_exact = time.perf_counter() - t0
+    mesh = geovox.load_mesh(path)
+    load_textures(mesh)
+    g = after.grid
+    idx = np.argwhere(after.occupancy)
+    pts = (idx + 0.5) * g.spacing  # the frame nearest_inside uses: relative to grid.lo
+    t0 = time.perf_counter()
+    tri, uv = brute_force(pts, prepare(mesh.triangles, g.lo), float(g.spacing.min()))
+    t_brute = time.perf_counter() - t0
+    ref = np.rint(shade(mesh, tri, uv) * 255)
+    out = {"inside": len(idx), "exact_s": t_exact, "brute_s": t_brute}
+    for name, vol in (("before", before), ("after", after)):
+        err = np.abs(vol.colors[tuple(idx.T)][:, :3].astype(int) - ref).max(axis=1)
+        out[name] = (float(np.mean(err <= 2)), float(np.median(err)), float(np.percentile(err, 90)))
+    return out
+
+
+def run(res, flag, out_dir):
     out = os.path.join(out_dir, f"spot_{res}.raw")
-    args = ["convert", SPOT, "-o", out, "-r", str(res), "--color", "--backend", backend, "-q"]
+    args = ["convert", SPOT, "-o", out, "-r", str(res), f"--{flag}", "-q"]
     t0 = time.perf_counter()
     p = subprocess.run([sys.executable, "-c", CHILD, *args], capture_output=True, text=True)
     wall = time.perf_counter() - t0
     if p.returncode != 0:
         return {"error": p.stderr.strip().splitlines()[-1]}
-    import json
-
     info = json.loads(p.stdout.strip().splitlines()[-1])
     for f in os.listdir(out_dir):
         os.remove(os.path.join(out_dir, f))
@@ -49,23 +101,45 @@ def run(res, backend, out_dir):
 
 def main():
     p = argparse.ArgumentParser()
-    p.add_argument("--res", type=int, nargs="+", default=[64, 128, 256, 512])
-    p.add_argument("--backend", default="auto")
+    p.add_argument("--accuracy", action="store_true")
+    p.add_argument("--times", action="store_true")
+    p.add_argument("--models", nargs="+", default=list(MODELS))
+    p.add_argument("--grid", type=int, default=64, help="accuracy grid (default 64)")
+    p.add_argument("--res", type=int, nargs="+", default=[128, 256])
+    p.add_argument("--methods", nargs="+", default=["color", "exact-color"])
     p.add_argument("--repeat", type=int, default=3)
     args = p.parse_args()
-    print(f"# bench_colour {datetime.date.today()} backend={args.backend}")
-    print("| model | grid | end to end (s), best of runs | peak RSS (MiB) |")
-    print("|---|---|---|---|")
-    with tempfile.TemporaryDirectory() as tmp:
-        for res in args.res:
-            runs = [run(res, args.backend, tmp) for _ in range(args.repeat if res <= 256 else 1)]
-            ok = [r for r in runs if "error" not in r]
-            if not ok:
-                print(f"| spot | {res}³ | error: {runs[0]['error']} | |")
-                continue
-            best = min(r["wall"] for r in ok)
-            peak = max(r["peak"] for r in ok)
-            print(f"| spot | {res}³ | {best:.2f} | {peak / 2**20:.0f} |", flush=True)
+    if not (args.accuracy or args.times):
+        args.times = True
+    today = datetime.date.today()
+    if args.accuracy:
+        print(f"# bench_colour --accuracy {today}: every inside voxel at {args.grid}³")
+        print("| model | inside voxels | within 2 levels, before | after | median error, before "
+              "| after | 90th percentile, before | after | exact colour step (s) | brute force (s) |")
+        print("|---|---|---|---|---|---|---|---|---|---|")
+        for name in args.models:
+            r = accuracy(MODELS[name], args.grid)
+            b, a = r["before"], r["after"]
+            print(f"| {name} | {r['inside']:,} | {100 * b[0]:.2f} % | {100 * a[0]:.2f} % "
+                  f"| {b[1]:.0f} | {a[1]:.0f} | {b[2]:.0f} | {a[2]:.0f} | {r['exact_s']:.2f} "
+                  f"| {r['brute_s']:.1f} |", flush=True)
+    if args.times:
+        print(f"# bench_colour --times {today}")
+        print("| model | grid | option | end to end (s), best of runs | peak RSS (MiB) |")
+        print("|---|---|---|---|---|")
+        with tempfile.TemporaryDirectory() as tmp:
+            for res in args.res:
+                for flag in args.methods:
+                    n = args.repeat if res <= 256 else 1
+                    runs = [run(res, flag, tmp) for _ in range(n)]
+                    ok = [r for r in runs if "error" not in r]
+                    if not ok:
+                        print(f"| spot | {res}³ | --{flag} | error: {runs[0]['error']} | |")
+                        continue
+                    best = min(r["wall"] for r in ok)
+                    peak = max(r["peak"] for r in ok)
+                    print(f"| spot | {res}³ | --{flag} | {best:.2f} | {peak / 2**20:.0f} |",
+                          flush=True)
 
 
 if __name__ == "__main__":

@@ -154,6 +154,9 @@ def _grid_options(c):
                         "otherwise)")
     c.add_argument("--color", "--colour", dest="color", action="store_true",
                    help="also colour the voxels from the model's materials and textures")
+    c.add_argument("--exact-color", "--exact-colour", dest="color", action="store_const",
+                   const="exact", help="as --color, every voxel from its exact nearest surface "
+                   "point (slower; instead of --color)")
     c.add_argument("--no-diffuse", dest="diffuse", action="store_false",
                    help="with --color: do not multiply by the material's Kd")
     c.add_argument("--ambient", action="store_true",

@@ -25,6 +25,17 @@ own colour. The result equals the brute-force nearest point wherever the
 nearest triangle is one of the six candidates (nearly always next to the
 surface; measured in tests/test_colour.py), and is otherwise a nearby point
 of the surface.
+
+With ``exact`` (``color="exact"``, ``--exact-color``) the nearest surface
+point is exact instead (:func:`exact_colours`): the triangle at the smallest
+Euclidean distance from the voxel centre (ties within 1e-9 voxel sizes go to
+the smallest triangle index) and the closest point on it, for every inside
+voxel, by :func:`geovox.nearest.nearest_inside` (a branch and bound over
+voxel cells that drops a triangle only where a valid bound proves it
+farther). Where every triangle still in the running for a block of voxels
+has the same constant colour (no texture, no vertex colours), that colour is
+used without finding which of them is nearest. It needs no rays, but it is
+several times slower (see benchmarks/README.md), so it is not the default.
 """
 
 from __future__ import annotations
@@ -409,7 +420,87 @@ def nearest_crossings(mesh, grid, occupancy, cast, jobs=1):
     return inside, Hits.concatenate(parts), best, best_d
 
 
-def colour_volume(mesh, grid, occupancy, cast, *, diffuse=True, ambient=False, jobs=1) -> np.ndarray:
+def constant_colours(mesh, *, diffuse=True, ambient=False):
+    """Triangles whose whole face has one colour, keyed by that colour.
+
+    Returns
+    -------
+    key : (t,) int64
+        Equal keys >= 0 for triangles of the same constant colour (no
+        texture sampled and no vertex colours); -1 where the colour varies
+        over the face.
+    rgba : (k,) uint32
+        The packed colour of each key (see :func:`_pack`).
+    """
+    n = len(mesh.faces)
+    key = np.full(n, -1, np.int64)
+    if mesh.vertex_colors is not None or n == 0:
+        return key, np.zeros(0, np.uint32)
+    flat = np.ones(n, bool)
+    if mesh.face_material is not None and mesh.corner_uv is not None:
+        textured = np.array([m.defined and m.image is not None for m in mesh.materials] + [False])
+        fm = mesh.face_material
+        uv_ok = np.isfinite(mesh.corner_uv).all(axis=(1, 2))
+        flat = ~(textured[fm] & uv_ok)
+    sel = np.flatnonzero(flat)
+    if len(sel) == 0:
+        return key, np.zeros(0, np.uint32)
+    rgba = _pack(shade(mesh, sel, np.full((len(sel), 2), 1 / 3), diffuse=diffuse,
+                       ambient=ambient))
+    values, inverse = np.unique(rgba, return_inverse=True)
+    key[sel] = inverse.reshape(-1)
+    return key, values
+
+
+def exact_colours(mesh, grid, occupancy, *, diffuse=True, ambient=False, jobs=1,
+                  frame=None) -> np.ndarray:
+    """RGBA colours of the inside voxels from their exact nearest surface points; alpha 0 outside.
+
+    Parameters
+    ----------
+    mesh : Mesh
+    grid : Grid
+        The block's grid.
+    occupancy : (nx, ny, nz) bool
+    frame : (lo, spacing, z0), optional
+        The whole grid's low corner and voxel size, and the block's first
+        layer in it (default: this grid, layer 0). Voxel centres are
+        computed from these, so a slab's colours are the whole grid's bit
+        for bit.
+
+    Returns
+    -------
+    colors : (nx, ny, nz, 4) uint8
+        Indexed ``[x, y, z, channel]``; in memory RGBA-interleaved with x
+        fastest (``colors.transpose(2, 1, 0, 3)`` is C-contiguous).
+    """
+    from .nearest import nearest_inside
+
+    nx, ny, nz = grid.shape
+    base = np.zeros((nz, ny, nx, 4), dtype=np.uint8)
+    colors = base.transpose(2, 1, 0, 3)
+    lo, spacing, z0 = frame if frame is not None else (grid.lo, grid.spacing, 0)
+    key, key_rgba = constant_colours(mesh, diffuse=diffuse, ambient=ambient)
+    # One uint32 per voxel: RGBA bytes in memory order (index = F-order voxel index).
+    flat = base.reshape(-1, 4).view(np.uint32).reshape(-1)
+
+    def emit(vox, tri, uv):
+        k = key[tri]
+        rgba = np.zeros(len(tri), np.uint32)
+        const = k >= 0
+        rgba[const] = key_rgba[k[const]]
+        vary = np.flatnonzero(~const)
+        if len(vary):
+            rgba[vary] = _pack(shade(mesh, tri[vary], uv[vary], diffuse=diffuse, ambient=ambient))
+        flat[vox[:, 0] + nx * (vox[:, 1] + ny * vox[:, 2])] = rgba
+
+    nearest_inside(mesh.triangles, occupancy, spacing, origin=lo, z0=z0, jobs=jobs, emit=emit,
+                   same=key)
+    return colors
+
+
+def colour_volume(mesh, grid, occupancy, cast=None, *, diffuse=True, ambient=False, jobs=1,
+                  exact=False, frame=None) -> np.ndarray:
     """RGBA colours of the inside voxels; alpha 0 outside.
 
     Parameters
@@ -418,7 +509,14 @@ def colour_volume(mesh, grid, occupancy, cast, *, diffuse=True, ambient=False, j
     grid : Grid
     occupancy : (nx, ny, nz) bool
     cast : dict axis -> (Hits, Columns)
-        Crossings along each axis (see :func:`nearest_crossings`).
+        Crossings along each axis (see :func:`nearest_crossings`); not
+        needed with ``exact``.
+    exact : bool
+        Colour every voxel from its exact nearest surface point
+        (:func:`exact_colours`) instead of the nearest of its six axis
+        crossings.
+    frame : (lo, spacing, z0), optional
+        With ``exact``: see :func:`exact_colours`.
 
     Returns
     -------
@@ -429,6 +527,9 @@ def colour_volume(mesh, grid, occupancy, cast, *, diffuse=True, ambient=False, j
     for problem in mesh.problems:
         warnings.warn(problem, GeovoxWarning, stacklevel=3)
     load_textures(mesh)
+    if exact:
+        return exact_colours(mesh, grid, occupancy, diffuse=diffuse, ambient=ambient, jobs=jobs,
+                             frame=frame)
     nx, ny, nz = grid.shape
     base = np.zeros((nz, ny, nx, 4), dtype=np.uint8)
     colors = base.transpose(2, 1, 0, 3)

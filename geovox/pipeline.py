@@ -73,9 +73,11 @@ def voxelize(
         use y, see :mod:`geovox.stream`). Occupancy is the same up to ties on
         the surface; coverage density, sampled across the rays, can differ
         by a step or so where the surface is steep.
-    color : bool
+    color : bool or "exact"
         Also fill ``Volume.colors`` from the model's materials, textures or
-        vertex colours (see :mod:`geovox.colour` for the exact rule).
+        vertex colours (see :mod:`geovox.colour` for the exact rule);
+        ``"exact"`` takes every voxel's colour from its exact nearest
+        surface point (slower).
     diffuse : bool
         Multiply by the material's ``Kd`` (MTL semantics for ``map_Kd``).
     ambient : bool
@@ -263,8 +265,10 @@ def voxelize_block(
         engine = get_backend(engine)
     m = load_mesh(mesh)
     step = progress or (lambda stage: None)
-    grid = block_grid(grid, block)
+    whole, grid = grid, block_grid(grid, block)
     supersample, band = _check_options(density, density_dtype, supersample, sdf, band)
+    if not (color is None or isinstance(color, (bool, np.bool_, int)) or color == "exact"):
+        raise ParameterError(f"`color` must be True, False or 'exact', got {color!r}")
     check_memory(grid, bytes_per_voxel(color, density, sdf))
 
     from . import inside as inside_tests
@@ -311,7 +315,8 @@ def voxelize_block(
         for a, crossings_of in (shared_crossings or {}).items():
             if a not in crossings:
                 crossings[a] = crossings_of(grid)
-        others = [a for a in range(3) if a not in crossings]
+        # Exact colour needs no crossings at all.
+        others = [a for a in range(3) if a not in crossings and color != "exact"]
         if jobs > 1 and len(others) > 1:
             from concurrent.futures import ThreadPoolExecutor
 
@@ -322,7 +327,8 @@ def voxelize_block(
             for a in others:
                 crossings[a] = cast(a)
         colors = colour_volume(m, grid, occ, crossings, diffuse=diffuse, ambient=ambient,
-                               jobs=jobs)
+                               jobs=jobs, exact=color == "exact",
+                               frame=(whole.lo, whole.spacing, 0 if block is None else block[0]))
         timings["colour"] = time.perf_counter() - t_fill
     dens = None
     if density == "coverage":

@@ -208,7 +208,8 @@ def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, *
     h = grid.spacing
     reuse = None
     try:
-        if options.get("color") and len(plan) > 1 and method != "vote":  # vote casts z itself
+        if (options.get("color") and options.get("color") != "exact" and len(plan) > 1
+                and method != "vote"):  # vote casts z itself; exact colour needs no rays
             # Colour wants the crossings along z as well; those rays run
             # through every slab, so they are cast once, for the whole grid,
             # and each slab takes them with depths measured from its own
