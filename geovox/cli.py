@@ -79,6 +79,13 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--overwrite", action="store_true",
                    help="with several inputs: convert even where the output exists")
     c.add_argument("-q", "--quiet", action="store_true", help="print nothing on success")
+    where = c.add_mutually_exclusive_group()
+    where.add_argument("--scheduler", metavar="ADDRESS",
+                       help="run on this Dask scheduler (tcp://HOST:8786; default "
+                            "$DASK_SCHEDULER_ADDRESS); needs the 'distributed' extra")
+    where.add_argument("--scheduler-file", metavar="FILE", help="the scheduler named in this file")
+    where.add_argument("--local-cluster", type=_positive_int, metavar="N",
+                       help="start a local Dask cluster of N worker processes")
 
     pv = sub.add_parser("preview", help="write a PNG picture of a volume (or of a mesh, voxelised)")
     pv.add_argument("input", help="a volume written by geovox, or a mesh")
@@ -199,12 +206,17 @@ def _voxelize(args, path):
     return vol
 
 
-def _volume_or_mesh(args, path):
-    """A volume file written by geovox is read; anything else is voxelised as a mesh."""
+def _volume_or_mesh(args, path, largest=None):
+    """A volume file written by geovox is read; anything else is voxelised as a mesh.
+
+    A ``.zarr`` is read from its finest pyramid level with every side at most ``largest``.
+    """
     from . import formats
 
     lower = path.lower()
     if any(lower.endswith(e) for f in formats.formats() for e in f.extensions):
+        if lower.rstrip("/").endswith(".zarr") and largest is not None:
+            return formats.read(path, max_side=largest)
         return formats.read(path)
     return _voxelize(args, path)
 
@@ -215,7 +227,8 @@ def _output_path(args, input_path, shape) -> str:
     from .formats.headers import default_name
 
     out = args.output
-    if out is not None and not (os.path.isdir(out) or out.endswith(("/", os.sep))):
+    if out is not None and not (os.path.isdir(out) or out.endswith(("/", os.sep))) or (
+            out is not None and out.lower().endswith(".zarr")):
         return out
     folder = out or os.getcwd()
     fmt = formats.format_for("x.raw", args.fmt)
@@ -292,10 +305,14 @@ def _convert_streaming(args, mesh, output, t0, t_read=0.0) -> int:
             bar.total = total
             bar.update(done - bar.n)
 
-    with warnings.catch_warnings(record=True) as caught:
+    from .cluster import client_from_options
+
+    with warnings.catch_warnings(record=True) as caught, client_from_options(
+            getattr(args, "scheduler", None), getattr(args, "scheduler_file", None),
+            getattr(args, "local_cluster", None)) as client:
         warnings.simplefilter("always", GeovoxWarning)
         info = convert_to(mesh, output, args.fmt, jobs=args.jobs, progress=progress,
-                          **_options(args))
+                          **({"client": client} if client is not None else {}), **_options(args))
     if bar is not None:
         bar.close()
     for w in caught:
@@ -335,7 +352,8 @@ def _convert(args) -> int:
         return _batch(args)
     args.input = args.input[0]
     t0 = time.perf_counter()
-    default_out = args.output is None or os.path.isdir(args.output) or args.output.endswith(("/", os.sep))
+    default_out = args.output is None or args.output.endswith(("/", os.sep)) or (
+        os.path.isdir(args.output) and not args.output.lower().endswith(".zarr"))
     if not default_out:
         formats.format_for(args.output, args.fmt)  # unknown extension: fail before work
         formats.check_writable(args.output)
@@ -356,6 +374,10 @@ def _convert(args) -> int:
     write_options = _write_options(args, fmt)  # a bad combination fails before any work
     if fmt.check is not None:
         fmt.check(grid)  # e.g. binvox needs cubic voxels
+    if fmt.name != "zarr" and (args.scheduler or args.scheduler_file or args.local_cluster):
+        from .errors import ParameterError
+
+        raise ParameterError(f"one model runs on a cluster into .zarr only, not {fmt.name}")
     if streams(grid, fmt.name, args.color, args.density, args.sdf):
         return _convert_streaming(args, mesh, output, t0, t_read)
     vol = _voxelize(args, mesh)
@@ -396,21 +418,21 @@ def _convert(args) -> int:
 
 
 def _preview(args) -> int:
-    from .preview import write_preview
+    from .preview import LARGEST, write_preview
 
     from . import formats
 
     formats.check_writable(args.output)
-    vol = _volume_or_mesh(args, args.input)
+    vol = _volume_or_mesh(args, args.input, LARGEST)
     print(f"wrote {write_preview(vol, args.output)}")
     return EXIT_OK
 
 
 def _view(args) -> int:
     from .mesh import load_mesh
-    from .view import show
+    from .view import LARGEST, show
 
-    vol = _volume_or_mesh(args, args.input)
+    vol = _volume_or_mesh(args, args.input, LARGEST)
     mesh = load_mesh(args.mesh) if args.mesh else None
     out = show(vol, mesh=mesh, screenshot=args.screenshot)
     if out:

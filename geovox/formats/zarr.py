@@ -40,7 +40,6 @@ reads everything back (the tests compare both ways).
 from __future__ import annotations
 
 import contextlib
-import json
 import os
 import shutil
 from concurrent.futures import ThreadPoolExecutor
@@ -202,8 +201,7 @@ def create(layout: Layout, meta, unit=None) -> None:
                               serializer=BytesCodec(endian="little"), fill_value=0,
                               dimension_names=names)
     # What _shard_bytes writes must be what the metadata says.
-    codecs = json.load(open(os.path.join(layout.root, layout.fields[0].levels[0].path,
-                                         "zarr.json")))["codecs"]
+    codecs = root[layout.fields[0].levels[0].path].metadata.to_dict()["codecs"]
     inner = codecs[0]["configuration"]
     assert [c["name"] for c in inner["codecs"]] == ["bytes", "gzip"], inner
     assert [c["name"] for c in inner["index_codecs"]] == ["bytes", "crc32c"], inner
@@ -498,21 +496,22 @@ class ZarrWriter:
         self.layout = make_layout(tmp, meta, thick)
         try:
             create(self.layout, meta, unit)
-        except BaseException:
-            self.abort()
-            raise
+        except BaseException as exc:
+            self._fail(exc)
 
     def write(self, z0: int, vol) -> None:
         """Write ``vol`` (a Volume covering layers z0 .. z0 + its depth) into place."""
-        write_slab(self.layout, z0, vol, self.jobs)
+        try:
+            write_slab(self.layout, z0, vol, self.jobs)
+        except OSError as exc:
+            self._fail(exc)
 
     def write_whole(self, volume) -> list:
         try:
             for z0 in range(0, volume.shape[2], self.layout.thick):
                 self.write(z0, _slab_of(volume, z0, min(z0 + self.layout.thick, volume.shape[2])))
-        except BaseException:
-            self.abort()
-            raise
+        except BaseException as exc:
+            self._fail(exc)
         return self.close()
 
     def close(self, client=None) -> list:
@@ -521,11 +520,20 @@ class ZarrWriter:
             build_levels(self.layout, client, self.jobs)
             _replace_folder(self.layout.root, self.path)
         except BaseException as exc:
-            self.abort()
-            if isinstance(exc, OSError) and not isinstance(exc, OutputError):
-                raise OutputError(f"cannot write {self.path}: {exc.strerror or exc}") from exc
-            raise
+            self._fail(exc)
         return [self.path]
+
+    def _fail(self, exc):
+        """Drop everything and raise ``exc`` (an OS error as an OutputError)."""
+        self.abort()
+        if isinstance(exc, OSError) and not isinstance(exc, OutputError):
+            import errno
+
+            if exc.errno == errno.ENOSPC:
+                raise OutputError(f"disk full while writing {self.path}; nothing was written") \
+                    from exc
+            raise OutputError(f"cannot write {self.path}: {exc.strerror or exc}") from exc
+        raise exc
 
     def abort(self) -> None:
         """Drop everything written (call from an ``except`` block)."""
@@ -541,14 +549,14 @@ def _umask() -> int:
 def _replace_folder(tmp: str, path: str) -> None:
     """Rename ``tmp`` to ``path``; an existing ``.zarr`` there is replaced only once ``tmp`` is whole."""
     if not os.path.lexists(path):
-        os.rename(tmp, path)
+        os.replace(tmp, path)
         return
     old = tmp + ".old"
-    os.rename(path, old)
+    os.replace(path, old)
     try:
-        os.rename(tmp, path)
+        os.replace(tmp, path)
     except BaseException:
-        os.rename(old, path)
+        os.replace(old, path)
         raise
     if os.path.isdir(old) and not os.path.islink(old):
         shutil.rmtree(old, ignore_errors=True)
