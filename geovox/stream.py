@@ -163,6 +163,12 @@ def _run_on_cluster(client, m, grid, plan, layout, options, reuse_z, progress, t
     """Submit one :func:`_zarr_slab` task per slab; their inside counts summed, timings added up."""
     from dask.distributed import as_completed
 
+    if options.get("color"):
+        from .colour import load_textures
+
+        # Read here, once: the tasks of one worker share its copy of the
+        # mesh, and reading textures in each would race on it.
+        load_textures(m)
     mesh = client.scatter(m, broadcast=True, hash=False)
     futures = []
     for z0, z1 in plan:
