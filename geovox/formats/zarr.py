@@ -346,6 +346,29 @@ def _halve(a: np.ndarray, axis: int, pick, pad):
     return pick(first, a[tuple(idx)])
 
 
+def _halve_occupancy(a: np.ndarray) -> np.ndarray:
+    """The maximum over 2 x 2 x 2 children of 0/v bytes ``(z, y, x)``, as 0/1.
+
+    OR is the maximum of 0/v values, and the last step compares byte pairs
+    as one uint16 (a byte-strided maximum along x took 4x as long). Eight
+    layers at a time, in buffers that stay in cache: a whole 128 x 2048²
+    slab at once spent most of its 0.9 s touching fresh temporary memory.
+    """
+    if any(n % 2 for n in a.shape):
+        a = np.pad(a, [(0, n % 2) for n in a.shape])
+    nz, ny, nx = a.shape
+    out = np.empty((nz // 2, ny // 2, nx // 2), dtype=np.uint8)
+    step = 4
+    b = np.empty((step, ny, nx), dtype=np.uint8)
+    c = np.empty((step, ny // 2, nx), dtype=np.uint8)
+    for z in range(0, nz // 2, step):
+        k = min(step, nz // 2 - z)
+        np.bitwise_or(a[2 * z:2 * (z + k):2], a[2 * z + 1:2 * (z + k):2], out=b[:k])
+        np.bitwise_or(b[:k, 0::2], b[:k, 1::2], out=c[:k])
+        np.not_equal(c[:k].view(np.uint16), 0, out=out[z:z + k].view(bool))
+    return out
+
+
 def downsample(a: np.ndarray, name: str) -> np.ndarray:
     """One pyramid step of a field: ``(.., z, y, x)`` -> halves (sides rounded up).
 
@@ -356,13 +379,7 @@ def downsample(a: np.ndarray, name: str) -> np.ndarray:
     """
     axes = (a.ndim - 3, a.ndim - 2, a.ndim - 1)
     if name == "occupancy":
-        if any(n % 2 for n in a.shape):
-            a = np.pad(a, [(0, n % 2) for n in a.shape])
-        # OR is the maximum of 0/v values; the last step compares byte pairs
-        # as one uint16 (a byte-strided maximum along x took 4x as long).
-        a = np.bitwise_or(a[0::2], a[1::2])
-        a = np.bitwise_or(a[:, 0::2], a[:, 1::2])
-        return (a.view(np.uint16) != 0).view(np.uint8)
+        return _halve_occupancy(a)
     if name == "sdf":
         for ax in axes:
             a = _halve(a, ax, np.minimum, np.inf)
