@@ -175,9 +175,19 @@ def multiscales(meta, field: Field, unit=None) -> dict:
             "axes": axes, "datasets": datasets}
 
 
+def _zarr():
+    """The zarr module, or a ParameterError that says what to install."""
+    try:
+        import zarr
+    except ImportError:
+        raise ParameterError("writing or reading .zarr needs zarr-python 3: "
+                             "pip install 'geovox[distributed]'") from None
+    return zarr
+
+
 def create(layout: Layout, meta, unit=None) -> None:
     """Write every group's and array's metadata under ``layout.root`` (no data yet)."""
-    import zarr
+    zarr = _zarr()
     from zarr.codecs import BytesCodec, GzipCodec
 
     from . import FIELD_VALUES
@@ -459,7 +469,7 @@ def level_tasks(layout: Layout, k: int) -> list:
 
 def make_level_tile(layout: Layout, k: int, task, jobs: int = 1) -> None:
     """Make one output shard of level ``k`` from level ``k - 1`` (already complete) and write it."""
-    import zarr
+    zarr = _zarr()
 
     name, z0, y0, x0 = task
     field = next(f for f in layout.fields if f.name == name)
@@ -632,7 +642,7 @@ def read_zarr(path, max_side=None, level=None):
     level : int, optional
         Read this level instead.
     """
-    import zarr
+    zarr = _zarr()
 
     from ..grid import Grid
     from ..volume import Volume
