@@ -62,6 +62,12 @@ def cli(n, folder, repeat):
             shutil.rmtree(out, ignore_errors=True) if os.path.isdir(out) else os.unlink(out)
 
 
+def cpu_seconds() -> float:
+    """User + system seconds of this process so far."""
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return r.ru_utime + r.ru_stime
+
+
 def cluster(n, folder, repeat):
     from dask.distributed import Client, LocalCluster
 
@@ -75,14 +81,20 @@ def cluster(n, folder, repeat):
             client.run(reset_peak)
             reset_peak()
             out = os.path.join(folder, "v.zarr")
+            cpu0 = client.run(cpu_seconds)
+            c = cpu_seconds()
             t = time.perf_counter()
             info = convert_to(m, out, resolution=n, client=client)
             wall = time.perf_counter() - t
+            c = cpu_seconds() - c
+            cpu = {k: v - cpu0[k] for k, v in client.run(cpu_seconds).items()}
             workers = client.run(peak_rss)
             print(json.dumps({"case": "cluster", "grid": n, "seconds": round(wall, 2),
                               "slabs": info["slabs"], "inside": info["inside"],
                               "worker_peak_gib": [round(v / 2**30, 2) for v in workers.values()],
                               "client_peak_gib": round(peak_rss() / 2**30, 2),
+                              "worker_cpu_s": [round(v, 1) for v in cpu.values()],
+                              "client_cpu_s": round(c, 1),
                               "task_seconds": {k: round(v, 1) for k, v in info["timings"].items()},
                               "load": os.getloadavg()[0]}), flush=True)
             shutil.rmtree(out)

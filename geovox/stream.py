@@ -47,7 +47,7 @@ from .pipeline import empty_reason, ray_start, voxelize_block
 SLAB_BUDGET = 1 << 30
 STREAMABLE = ("hdf5", "raw", "vtkhdf", "zarr")
 #: Memory one slab task may take on a cluster worker (its occupancy and working arrays).
-WORKER_SLAB_BUDGET = 1 << 29
+WORKER_SLAB_BUDGET = 1 << 30
 
 
 def slab_plan(grid: Grid, per_voxel: float, budget: float = SLAB_BUDGET) -> list:

@@ -259,3 +259,12 @@ def test_preview_and_view_read_the_level_that_fits(outputs, tmp_path, monkeypatc
     np.testing.assert_allclose(shown[0].spacing, 2 * np.asarray(F.read(path).spacing))
     info = json.loads((outputs["local64"] / "zarr.json").read_text())
     assert info["attributes"]["geovox"]["values"] == "0 outside, 255 inside"
+
+
+def test_own_shard_reader_equals_zarr_python(outputs):
+    g = zarr.open_group(str(outputs["local64"]), mode="r")
+    for prefix in FIELDS.values():
+        a = g[prefix + "0"]
+        level = Z.Level(prefix + "0", a.shape, a.shards)
+        got = Z.read_block(str(outputs["local64"]), level, a.dtype, (5, 3, 7), (100, 20, 64))
+        np.testing.assert_array_equal(got, a[..., 5:105, 3:23, 7:71], err_msg=prefix)
