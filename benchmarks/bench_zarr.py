@@ -73,8 +73,12 @@ def cluster(n, folder, repeat):
 
     from geovox.stream import convert_to
 
+    import dask
+
     m = load_model("bunny105k")
-    with LocalCluster(n_workers=2, threads_per_worker=1, dashboard_address=None) as lc, \
+    # As geovox's --local-cluster starts it (see geovox/cluster.py).
+    with dask.config.set({"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None}), \
+            LocalCluster(n_workers=2, threads_per_worker=1, dashboard_address=None) as lc, \
             Client(lc) as client:
         client.run(lambda: __import__("geovox.pipeline"))  # imports are not the conversion
         for _ in range(repeat):

@@ -52,8 +52,17 @@ def client_from_options(scheduler=None, scheduler_file=None, local_cluster=None)
         raise InputNotFoundError(f"scheduler file not found: {scheduler_file}")
     try:
         if local_cluster is not None:
-            cluster = LocalCluster(n_workers=int(local_cluster), threads_per_worker=1,
-                                   dashboard_address=None)
+            import dask
+
+            # Dask sets MALLOC_TRIM_THRESHOLD_ for its workers, which also
+            # fixes glibc's mmap threshold at 128 KiB: every array over that
+            # is then mapped, faulted in and unmapped again, slab after slab
+            # (the 2048³ bunny's workers took 29 s of CPU with it, 22 s
+            # without, on a loaded machine: benchmarks/README.md).
+            with dask.config.set({"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_":
+                                  None}):
+                cluster = LocalCluster(n_workers=int(local_cluster), threads_per_worker=1,
+                                       dashboard_address=None)
             client = Client(cluster)
         elif scheduler_file is not None:
             client = Client(scheduler_file=scheduler_file, timeout=CONNECT_TIMEOUT)
