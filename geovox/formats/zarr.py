@@ -57,14 +57,20 @@ SHARD_XY = 512
 TOP = 256
 _EMPTY = np.uint64(2**64 - 1)
 
-try:  # ISA-L deflate: the gzip stream format, much faster than zlib.
-    from isal import isal_zlib as _deflate
-except ImportError:  # pragma: no cover - isal has wheels for the common platforms
-    import zlib as _deflate
+def _deflate():
+    """ISA-L's zlib module (the same streams, much faster), or zlib where isal is missing.
+
+    Imported here, not with the package: only .zarr output needs it.
+    """
+    try:
+        from isal import isal_zlib
+    except ImportError:  # pragma: no cover - isal has wheels for the common platforms
+        import zlib as isal_zlib
+    return isal_zlib
 
 
 def _gzip(data) -> bytes:
-    return _deflate.compress(data, 1, 31)  # wbits 31: the gzip container
+    return _deflate().compress(data, 1, 31)  # wbits 31: the gzip container
 
 
 @dataclass(frozen=True)
@@ -484,6 +490,7 @@ def read_block(root: str, level: Level, dtype, origin, extent) -> np.ndarray:
     per = tuple(s // CHUNK for s in shard)
     known = {_gzip(np.full(chunk, 255, np.uint8).tobytes()): 255} if dtype == np.uint8 else {}
     ranges = [range(o // s, -(-b // s)) for o, b, s in zip(origin, stop, shard)]
+    inflate = _deflate().decompress
     for key in ((a, b, c) for a in ranges[0] for b in ranges[1] for c in ranges[2]):
         path = os.path.join(root, level.path, "c", *(["0"] if lead else []), *map(str, key))
         try:
@@ -508,7 +515,7 @@ def read_block(root: str, level: Level, dtype, origin, extent) -> np.ndarray:
             if raw in known:
                 out[(...,) + dst] = known[raw]
                 continue
-            values = np.frombuffer(_deflate.decompress(raw, 31), dtype=dtype.newbyteorder("<"))
+            values = np.frombuffer(inflate(raw, 31), dtype=dtype.newbyteorder("<"))
             out[(...,) + dst] = values.reshape(chunk)[(...,) + src]
     return out
 
