@@ -78,7 +78,7 @@ def cluster(n, folder, repeat):
     m = load_model("bunny105k")
     # As geovox's --local-cluster starts it (see geovox/cluster.py).
     with dask.config.set({"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None}), \
-            LocalCluster(n_workers=2, threads_per_worker=1, dashboard_address=None) as lc, \
+            LocalCluster(n_workers=2, threads_per_worker=1, dashboard_address=":0") as lc, \
             Client(lc) as client:
         client.run(lambda: __import__("geovox.pipeline"))  # imports are not the conversion
         for _ in range(repeat):

@@ -62,7 +62,7 @@ def client_from_options(scheduler=None, scheduler_file=None, local_cluster=None)
             with dask.config.set({"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_":
                                   None}):
                 cluster = LocalCluster(n_workers=int(local_cluster), threads_per_worker=1,
-                                       dashboard_address=None)
+                                       dashboard_address=":0")
             client = Client(cluster)
         elif scheduler_file is not None:
             client = Client(scheduler_file=scheduler_file, timeout=CONNECT_TIMEOUT)
