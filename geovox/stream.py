@@ -142,8 +142,15 @@ def _zarr_slab(m, grid, block, layout, options, z_part=None, z_start=None):
 
     Returns ``(inside count, timings)``.
     """
+    import os
+
+    from .errors import OutputError
     from .formats.zarr import write_slab
 
+    if not os.path.isdir(layout.root):
+        # Shards written here would never reach the output.
+        raise OutputError(f"a worker cannot see the output folder {layout.root}: put the .zarr on "
+                          f"a file system that the client and every worker share")
     shared = None
     if z_part is not None:
         shared = {2: lambda g: (z_part, g.columns(2, start=z_start))}

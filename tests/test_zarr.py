@@ -268,3 +268,12 @@ def test_own_shard_reader_equals_zarr_python(outputs):
         level = Z.Level(prefix + "0", a.shape, a.shards)
         got = Z.read_block(str(outputs["local64"]), level, a.dtype, (5, 3, 7), (100, 20, 64))
         np.testing.assert_array_equal(got, a[..., 5:105, 3:23, 7:71], err_msg=prefix)
+
+
+def test_a_worker_that_cannot_see_the_output_says_so(tmp_path):
+    from geovox.stream import _zarr_slab
+
+    vol = geovox.voxelize(SPOT, shape=(8, 8, 64))
+    layout = Z.make_layout(str(tmp_path / "elsewhere"), vol, 64)
+    with pytest.raises(geovox.errors.OutputError, match="share"):
+        _zarr_slab(geovox.load_mesh(SPOT), vol.grid, (0, 64), layout, {})
