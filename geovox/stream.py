@@ -30,6 +30,7 @@ exactly the candidates the whole grid's colour step would use.
 
 from __future__ import annotations
 
+import threading
 import time
 import warnings
 
@@ -141,6 +142,10 @@ def z_crossings_of_slab(z_hits, grid: Grid, block, z_start: float):
     return relevant_crossings(hits, k, g.shape[2], g.shape[0] * g.shape[1])
 
 
+#: The occupancy buffer of this thread's slab tasks (see :func:`_zarr_slab`).
+_SLAB_BUFFER = threading.local()
+
+
 def _zarr_slab(m, grid, block, layout, options, z_part=None, z_start=None):
     """One cluster task: voxelise slab ``block`` and write it into its own shards.
 
@@ -159,9 +164,19 @@ def _zarr_slab(m, grid, block, layout, options, z_part=None, z_start=None):
     if z_part is not None:
         shared = {2: lambda g: (z_part, g.columns(2, start=z_start))}
     t = time.perf_counter()
+    shape = (grid.shape[0], grid.shape[1], block[1] - block[0])
+    out = None
+    if options.get("inside") == "parity":
+        # One occupancy buffer per worker thread, reused by its slabs:
+        # faulting 1 GiB in afresh for every slab cost more system time
+        # than the fill itself.
+        out = getattr(_SLAB_BUFFER, "array", None)
+        if out is None or out.shape != shape:
+            _SLAB_BUFFER.array = None
+            out = _SLAB_BUFFER.array = np.empty(shape, dtype=bool, order="F")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", GeovoxWarning)  # said once, on the client
-        vol = voxelize_block(m, grid, block, jobs=1, shared_crossings=shared, **options)
+        vol = voxelize_block(m, grid, block, jobs=1, shared_crossings=shared, out=out, **options)
     tb = time.perf_counter()
     write_slab(layout, block[0], vol, 1)
     timings = {k: v for k, v in vol.timings.items() if k != "total"}
