@@ -34,7 +34,9 @@ it, so shards are assembled here as the Zarr v3 sharding codec defines them
 ``uint64`` pairs with its CRC-32C, at the end), with the trick of
 :mod:`geovox.formats.chunks`: chunks of zeros (the fill value) are not stored,
 chunks of one value are compressed once. zarr-python writes the metadata and
-reads everything back (the tests compare both ways).
+:func:`read_zarr` reads with it; the levels above the slabs are made from
+shards read back by :func:`read_block` (the tests check it against
+zarr-python, and every level against the pyramid's rules).
 """
 
 from __future__ import annotations
