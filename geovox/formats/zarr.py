@@ -475,24 +475,19 @@ def level_tasks(layout: Layout, k: int) -> list:
     return out
 
 
-def read_block(root: str, level: Level, dtype, origin, extent) -> np.ndarray:
-    """Voxels ``origin .. origin + extent`` (z, y, x; clipped to the array) of one array.
+def _chunks(root: str, level: Level, origin, stop):
+    """Yield ``(start, raw)`` for each stored chunk of ``level`` meeting ``origin .. stop`` (z, y, x).
 
-    Reads the shards :func:`write_block` wrote, without zarr-python (its
-    codec pipeline cost about 0.16 ms a chunk, most of the time of making a
-    level): absent chunks are zeros, and a chunk whose bytes are those of a
-    full chunk of 255 (written once and reused) is not decompressed.
+    ``start`` is the chunk's first voxel and ``raw`` its compressed bytes;
+    absent chunks (zeros) are skipped. Shards are read as :func:`write_block`
+    wrote them, without zarr-python (its codec pipeline cost about 0.16 ms a
+    chunk, most of the time of making a level).
     """
     lead = len(level.shape) - 3
-    shape, shard = level.shape[lead:], level.shard[lead:]
-    stop = [min(o + e, n) for o, e, n in zip(origin, extent, shape)]
-    dtype = np.dtype(dtype)
-    out = np.zeros(level.shape[:lead] + tuple(b - a for a, b in zip(origin, stop)), dtype=dtype)
-    chunk = level.shape[:lead] + (CHUNK,) * 3
+    shard = level.shard[lead:]
     per = tuple(s // CHUNK for s in shard)
-    known = {_gzip(np.full(chunk, 255, np.uint8).tobytes()): 255} if dtype == np.uint8 else {}
+    n = int(np.prod(per))
     ranges = [range(o // s, -(-b // s)) for o, b, s in zip(origin, stop, shard)]
-    inflate = _deflate().decompress
     for key in ((a, b, c) for a in ranges[0] for b in ranges[1] for c in ranges[2]):
         path = os.path.join(root, level.path, "c", *(["0"] if lead else []), *map(str, key))
         try:
@@ -500,39 +495,63 @@ def read_block(root: str, level: Level, dtype, origin, extent) -> np.ndarray:
                 data = f.read()
         except FileNotFoundError:
             continue  # a shard of zeros
-        n = int(np.prod(per))
         index = np.frombuffer(data, "<u8", count=2 * n, offset=len(data) - 4 - 16 * n)
         index = index.reshape(per + (2,))
         for k in np.ndindex(per):
             offset, nbytes = (int(v) for v in index[k])
             if offset == int(_EMPTY):
                 continue
-            lo = [(sk * s + kk * CHUNK) for sk, s, kk in zip(key, shard, k)]
-            src = tuple(slice(max(a, o) - a, min(a + CHUNK, b) - a)
-                        for a, o, b in zip(lo, origin, stop))
-            if any(sl.start >= sl.stop for sl in src):
-                continue
-            dst = tuple(slice(max(a, o) - o, min(a + CHUNK, b) - o) for a, o, b in zip(lo, origin, stop))
-            raw = data[offset:offset + nbytes]
-            if raw in known:
-                out[(...,) + dst] = known[raw]
-                continue
-            values = np.frombuffer(inflate(raw, 31), dtype=dtype.newbyteorder("<"))
-            out[(...,) + dst] = values.reshape(chunk)[(...,) + src]
+            start = tuple(sk * s + kk * CHUNK for sk, s, kk in zip(key, shard, k))
+            if all(a < b and a + CHUNK > o for a, o, b in zip(start, origin, stop)):
+                yield start, data[offset:offset + nbytes]
+
+
+def read_block(root: str, level: Level, dtype, origin, extent) -> np.ndarray:
+    """Voxels ``origin .. origin + extent`` (z, y, x; clipped to the array) of one array."""
+    lead = len(level.shape) - 3
+    stop = [min(o + e, n) for o, e, n in zip(origin, extent, level.shape[lead:])]
+    dtype = np.dtype(dtype)
+    out = np.zeros(level.shape[:lead] + tuple(b - a for a, b in zip(origin, stop)), dtype=dtype)
+    chunk = level.shape[:lead] + (CHUNK,) * 3
+    inflate = _deflate().decompress
+    for start, raw in _chunks(root, level, origin, stop):
+        src = tuple(slice(max(a, o) - a, min(a + CHUNK, b) - a) for a, o, b in zip(start, origin, stop))
+        dst = tuple(slice(max(a, o) - o, min(a + CHUNK, b) - o) for a, o, b in zip(start, origin, stop))
+        values = np.frombuffer(inflate(raw, 31), dtype=dtype.newbyteorder("<")).reshape(chunk)
+        out[(...,) + dst] = values[(...,) + src]
     return out
 
 
 def make_level_tile(layout: Layout, k: int, task, jobs: int = 1) -> None:
-    """Make one output shard of level ``k`` from level ``k - 1`` (already complete) and write it."""
+    """Make one output shard of level ``k`` from level ``k - 1`` (already complete) and write it.
+
+    Chunk by chunk: a chunk starts on an even voxel, so its children never
+    straddle two chunks and its own half is the level's there; an absent
+    chunk halves to zeros (under every rule) and a full chunk of 255 to ones,
+    neither decompressed, and the fine level is never held whole.
+    """
     name, z0, y0, x0 = task
     field = next(f for f in layout.fields if f.name == name)
-    level = field.levels[k]
+    level, fine = field.levels[k], field.levels[k - 1]
     lead = 1 if field.channels else 0
-    extent = tuple(2 * s for s in level.shard[lead:])
-    part = read_block(layout.root, field.levels[k - 1], field.dtype, (2 * z0, 2 * y0, 2 * x0),
-                      extent)
-    write_block(layout.root, level, downsample(part, name), (z0, y0, x0),
-                scale=255 if name == "occupancy" else 1, jobs=jobs)
+    origin = (z0, y0, x0)
+    stop = [min(o + s, n) for o, s, n in zip(origin, level.shard[lead:], level.shape[lead:])]
+    fine_stop = [min(2 * b, n) for b, n in zip(stop, fine.shape[lead:])]
+    dtype = np.dtype(field.dtype)
+    out_dtype = np.uint8 if name == "occupancy" else dtype
+    out = np.zeros(level.shape[:lead] + tuple(b - a for a, b in zip(origin, stop)), dtype=out_dtype)
+    chunk = level.shape[:lead] + (CHUNK,) * 3
+    full = _gzip(np.full(chunk, 255, np.uint8).tobytes()) if name == "occupancy" else None
+    inflate = _deflate().decompress
+    for start, raw in _chunks(layout.root, fine, tuple(2 * o for o in origin), fine_stop):
+        valid = tuple(min(CHUNK, n - a) for a, n in zip(start, fine.shape[lead:]))
+        dst = tuple(slice(a // 2 - o, (a + v + 1) // 2 - o) for a, v, o in zip(start, valid, origin))
+        if raw == full:
+            out[dst] = 1
+            continue
+        values = np.frombuffer(inflate(raw, 31), dtype=dtype.newbyteorder("<")).reshape(chunk)
+        out[(...,) + dst] = downsample(values[(...,) + tuple(slice(0, v) for v in valid)], name)
+    write_block(layout.root, level, out, origin, scale=255 if name == "occupancy" else 1, jobs=jobs)
 
 
 def build_levels(layout: Layout, client=None, jobs: int = 1) -> None:
