@@ -305,11 +305,17 @@ def _convert_streaming(args, mesh, output, t0, t_read=0.0) -> int:
             bar.total = total
             bar.update(done - bar.n)
 
+    import contextlib
+
+    from . import formats
     from .cluster import client_from_options
 
-    with warnings.catch_warnings(record=True) as caught, client_from_options(
-            getattr(args, "scheduler", None), getattr(args, "scheduler_file", None),
-            getattr(args, "local_cluster", None)) as client:
+    # Only a .zarr runs on a cluster ($DASK_SCHEDULER_ADDRESS included).
+    cluster = client_from_options(
+        getattr(args, "scheduler", None), getattr(args, "scheduler_file", None),
+        getattr(args, "local_cluster", None)) if formats.format_for(output, args.fmt).name == "zarr" \
+        else contextlib.nullcontext()
+    with warnings.catch_warnings(record=True) as caught, cluster as client:
         warnings.simplefilter("always", GeovoxWarning)
         info = convert_to(mesh, output, args.fmt, jobs=args.jobs, progress=progress,
                           **({"client": client} if client is not None else {}), **_options(args))

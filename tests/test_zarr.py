@@ -296,3 +296,12 @@ def test_levels_from_full_and_empty_chunks(tmp_path, small_top):
     for k in range(1, 4):
         np.testing.assert_array_equal(a[str(k)], _brute_halve(a[str(k - 1)], "occupancy") * 255)
     assert a["3"][120 // 8, 5 // 8, 3 // 8] == 255 and a["3"][17].max() == 0
+
+
+def test_scheduler_variable_is_only_for_zarr(tmp_path, monkeypatch):
+    import geovox.stream
+
+    # A big .h5 streams here even with a scheduler in the environment.
+    monkeypatch.setenv("DASK_SCHEDULER_ADDRESS", "tcp://127.0.0.1:1")
+    monkeypatch.setattr(geovox.stream, "streams", lambda *a, **k: True)
+    assert main(["convert", SPOT, "-o", str(tmp_path / "v.h5"), "-r", "16", "-q"]) == 0
