@@ -142,8 +142,13 @@ def z_crossings_of_slab(z_hits, grid: Grid, block, z_start: float):
     return relevant_crossings(hits, k, g.shape[2], g.shape[0] * g.shape[1])
 
 
-#: The occupancy buffer of this thread's slab tasks (see :func:`_zarr_slab`).
-_SLAB_BUFFER = threading.local()
+#: The occupancy buffer of each thread's slab tasks, by thread id (see :func:`_zarr_slab`).
+_SLAB_BUFFERS: dict = {}
+
+
+def _release_slab_buffers() -> None:
+    """Drop this process's slab buffers (run on each worker when a conversion ends)."""
+    _SLAB_BUFFERS.clear()
 
 
 def _zarr_slab(m, grid, block, layout, options, z_part=None, z_start=None):
@@ -170,10 +175,11 @@ def _zarr_slab(m, grid, block, layout, options, z_part=None, z_start=None):
         # One occupancy buffer per worker thread, reused by its slabs:
         # faulting 1 GiB in afresh for every slab cost more system time
         # than the fill itself.
-        out = getattr(_SLAB_BUFFER, "array", None)
+        me = threading.get_ident()
+        out = _SLAB_BUFFERS.get(me)
         if out is None or out.shape != shape:
-            _SLAB_BUFFER.array = None
-            out = _SLAB_BUFFER.array = np.empty(shape, dtype=bool, order="F")
+            _SLAB_BUFFERS.pop(me, None)
+            out = _SLAB_BUFFERS[me] = np.empty(shape, dtype=bool, order="F")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", GeovoxWarning)  # said once, on the client
         vol = voxelize_block(m, grid, block, jobs=1, shared_crossings=shared, out=out, **options)
@@ -217,6 +223,13 @@ def _run_on_cluster(client, m, grid, plan, layout, options, reuse_z, progress, t
     except BaseException:
         client.cancel(futures)
         raise
+    finally:
+        # A long-lived cluster keeps no slab-sized buffers after the conversion
+        # (best effort: a cluster that is failing must not hide the first error).
+        try:
+            client.run(_release_slab_buffers)
+        except Exception:  # noqa: BLE001 - whatever the cluster raises here
+            pass
     return inside
 
 

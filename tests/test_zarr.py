@@ -83,6 +83,9 @@ def test_slabs_equal_the_volume_in_one_piece(outputs, ref):
 
 
 def test_cluster_writes_what_the_local_path_writes(outputs):
+    import geovox.stream
+
+    assert geovox.stream._SLAB_BUFFERS == {}  # the workers' slab buffers are released
     here, there = arrays(outputs["local128"]), arrays(outputs["cluster128"])
     assert sorted(here) == sorted(there) and len(here) == 16  # 4 fields x 4 levels
     for key in here:
