@@ -38,8 +38,10 @@ def small_top():
 
 @pytest.fixture(scope="module")
 def client():
+    # Workers are threads of this process; TCP so that the CLI can reach the
+    # scheduler by its address as it would a remote one.
     with distributed.LocalCluster(n_workers=2, processes=False, threads_per_worker=1,
-                                  dashboard_address=":0") as cluster, \
+                                  protocol="tcp", dashboard_address=":0") as cluster, \
             distributed.Client(cluster) as c:
         yield c
 
@@ -229,7 +231,7 @@ def test_cli_on_a_scheduler_and_bad_set_ups(tmp_path, client, capsys):
     assert main(["convert", SPOT, "-o", str(out), *grid, "-q"]) == 0
     assert sorted(os.listdir(tmp_path)) == ["s.zarr"]
     for argv, words in [
-            (["--local-cluster", "2", "-o", str(tmp_path / "v.h5")], "into .zarr only"),
+            (["--local-cluster", "2", "-o", str(tmp_path / "v.h5")], ".zarr"),
             (["--scheduler-file", str(tmp_path / "none.json"), "-o", str(tmp_path / "v.zarr")],
              "scheduler file not found"),
             (["-o", str(tmp_path / "missing" / "v.zarr")], "output folder does not exist")]:
