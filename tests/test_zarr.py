@@ -227,9 +227,12 @@ def test_cli_on_a_scheduler_and_bad_set_ups(tmp_path, client, capsys):
     assert main(["convert", SPOT, "-o", str(out), *grid, "--scheduler", client.scheduler.address,
                  "-q"]) == 0
     np.testing.assert_array_equal(F.read(out).occupancy, geovox.voxelize(SPOT, shape=(20, 18, 70)).occupancy)
-    # Converting again replaces it (a .zarr is a folder, not an output folder).
+    # Converting again replaces it (a .zarr is a folder, not an output folder), here or there.
     assert main(["convert", SPOT, "-o", str(out), *grid, "-q"]) == 0
+    assert main(["convert", SPOT, "-o", str(out), *grid, "--scheduler", client.scheduler.address,
+                 "-q"]) == 0
     assert sorted(os.listdir(tmp_path)) == ["s.zarr"]
+    assert sorted(os.listdir(out)) == ["0", "zarr.json"]  # nothing written inside it
     for argv, words in [
             (["--local-cluster", "2", "-o", str(tmp_path / "v.h5")], ".zarr"),
             (["--scheduler-file", str(tmp_path / "none.json"), "-o", str(tmp_path / "v.zarr")],
