@@ -89,10 +89,12 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--overwrite", action="store_true",
                    help="with several inputs: convert even where the output exists (and "
                         "whatever --manifest says was done)")
-    many = c.add_argument_group("many models (a folder, or several inputs, into -o FOLDER or URL)")
+    many = c.add_argument_group("many models (a folder, or several inputs, into -o FOLDER or URL), "
+                                "or one volume into -o NAME.zarr, on a Dask cluster")
     where = many.add_mutually_exclusive_group()
     where.add_argument("--scheduler", metavar="ADDRESS",
-                       help="run one task per model on this Dask scheduler (tcp://HOST:8786; "
+                       help="run one task per model (or per .zarr slab) on this Dask scheduler "
+                            "(tcp://HOST:8786; "
                             "default: $DASK_SCHEDULER_ADDRESS if set); needs geovox[distributed]")
     where.add_argument("--scheduler-file", metavar="FILE",
                        help="the scheduler's address from the JSON file `dask scheduler "
@@ -231,12 +233,17 @@ def _voxelize(args, path):
     return vol
 
 
-def _volume_or_mesh(args, path):
-    """A volume file written by geovox is read; anything else is voxelised as a mesh."""
+def _volume_or_mesh(args, path, largest=None):
+    """A volume file written by geovox is read; anything else is voxelised as a mesh.
+
+    A ``.zarr`` is read from its finest pyramid level with every side at most ``largest``.
+    """
     from . import formats
 
     lower = path.lower()
     if any(lower.endswith(e) for f in formats.formats() for e in f.extensions):
+        if lower.rstrip("/").endswith(".zarr") and largest is not None:
+            return formats.read(path, max_side=largest)
         return formats.read(path)
     return _voxelize(args, path)
 
@@ -247,7 +254,8 @@ def _output_path(args, input_path, shape) -> str:
     from .formats.headers import default_name
 
     out = args.output
-    if out is not None and not (os.path.isdir(out) or out.endswith(("/", os.sep))):
+    if out is not None and not (os.path.isdir(out) or out.endswith(("/", os.sep))) or (
+            out is not None and out.lower().endswith(".zarr")):
         return out
     folder = out or os.getcwd()
     fmt = formats.format_for("x.raw", args.fmt)
@@ -338,10 +346,20 @@ def _convert_streaming(args, mesh, output, t0, t_read=0.0) -> int:
             bar.total = total
             bar.update(done - bar.n)
 
-    with warnings.catch_warnings(record=True) as caught:
+    import contextlib
+
+    from . import formats
+    from .cluster import client_from_options
+
+    # Only a .zarr runs on a cluster ($DASK_SCHEDULER_ADDRESS included).
+    cluster = client_from_options(
+        getattr(args, "scheduler", None), getattr(args, "scheduler_file", None),
+        getattr(args, "local_cluster", None)) if formats.format_for(output, args.fmt).name == "zarr" \
+        else contextlib.nullcontext()
+    with warnings.catch_warnings(record=True) as caught, cluster as client:
         warnings.simplefilter("always", GeovoxWarning)
         info = convert_to(mesh, output, args.fmt, jobs=args.jobs, progress=progress,
-                          **_options(args))
+                          **({"client": client} if client is not None else {}), **_options(args))
     if bar is not None:
         bar.close()
     for w in caught:
@@ -379,13 +397,15 @@ def _convert(args) -> int:
 
     if (len(args.input) > 1 or os.path.isdir(args.input[0]) or args.manifest or args.shard
             or ((args.scheduler or args.scheduler_file or args.local_cluster)
-                and (args.output is None or os.path.isdir(args.output)
-                     or args.output.endswith(("/", os.sep))))
+                and (args.output is None or args.output.endswith(("/", os.sep))
+                     or (os.path.isdir(args.output)
+                         and not args.output.lower().endswith(".zarr"))))
             or (args.output and "://" in args.output and not args.output.endswith(".zarr"))):
         return _batch(args)  # many models, or one sent as a batch of one to a cluster
     args.input = args.input[0]
     t0 = time.perf_counter()
-    default_out = args.output is None or os.path.isdir(args.output) or args.output.endswith(("/", os.sep))
+    default_out = args.output is None or args.output.endswith(("/", os.sep)) or (
+        os.path.isdir(args.output) and not args.output.lower().endswith(".zarr"))
     if not default_out:
         formats.format_for(args.output, args.fmt)  # unknown extension: fail before work
         formats.check_writable(args.output)
@@ -451,21 +471,21 @@ def _convert(args) -> int:
 
 
 def _preview(args) -> int:
-    from .preview import write_preview
+    from .preview import LARGEST, write_preview
 
     from . import formats
 
     formats.check_writable(args.output)
-    vol = _volume_or_mesh(args, args.input)
+    vol = _volume_or_mesh(args, args.input, LARGEST)
     print(f"wrote {write_preview(vol, args.output)}")
     return EXIT_OK
 
 
 def _view(args) -> int:
     from .mesh import load_mesh
-    from .view import show
+    from .view import LARGEST, show
 
-    vol = _volume_or_mesh(args, args.input)
+    vol = _volume_or_mesh(args, args.input, LARGEST)
     mesh = load_mesh(args.mesh) if args.mesh else None
     out = show(vol, mesh=mesh, screenshot=args.screenshot)
     if out:

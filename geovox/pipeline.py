@@ -210,6 +210,7 @@ def voxelize_block(
     band=3.0,
     progress=None,
     shared_crossings=None,
+    out=None,
     _stacklevel=2,
 ) -> Volume:
     """Voxelise one block of a grid -- the whole grid or a slab along z -- with every option.
@@ -242,6 +243,9 @@ def voxelize_block(
         ``axis -> f(block_grid) -> (Hits, Columns)``: the colour step's
         crossings along that axis, cast once for the whole grid by the
         caller instead of again for every block.
+    out : (nx, ny, nz_block) bool, Fortran order, optional
+        Array the parity fill writes the occupancy into (reused by a caller
+        making many blocks, so its memory is not faulted in afresh each time).
 
     Returns
     -------
@@ -287,7 +291,7 @@ def voxelize_block(
     if method == "parity":
         crossings[axis] = cast(axis)
         t_rays = time.perf_counter()
-        occ = parity.fill(*crossings[axis], grid, jobs=jobs)
+        occ = parity.fill(*crossings[axis], grid, out=out, jobs=jobs)
     elif method == "vote":
         votes = None
         for ax in (axis,) + tuple(a for a in range(3) if a != axis):

@@ -18,6 +18,9 @@ ALPHA = 0.35
 BACKGROUND = (24, 24, 28)
 GREY = np.array([225.0, 225.0, 225.0])
 PANEL = 300
+#: A ``.zarr`` is previewed from its finest pyramid level with every side at
+#: most this (the composites walk every slice: 512³ takes a few seconds).
+LARGEST = 512
 
 # view axis -> (horizontal axis, vertical axis, front is the high end of the view axis);
 # horizontal < vertical always, so a slice indexed [h, v] needs one transpose.

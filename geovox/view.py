@@ -14,6 +14,9 @@ from .errors import GeovoxError, OutputError
 
 #: Above this many inside voxels only the visible shell is drawn.
 SHELL_ABOVE = 200_000
+#: A ``.zarr`` is shown from its finest pyramid level with every side at most
+#: this (each voxel is a hexahedron; 256³ is what a desktop GPU turns smoothly).
+LARGEST = 256
 
 
 class ViewerUnavailableError(GeovoxError, ImportError):

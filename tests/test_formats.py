@@ -33,7 +33,7 @@ def origin(v):
     return np.asarray(v.bounds[0]) + 0.5 * np.asarray(v.spacing)
 
 
-@pytest.mark.parametrize("ext", [".raw", ".h5", ".vtkhdf", ".hdf", ".nrrd", ".npz", ".vox"])
+@pytest.mark.parametrize("ext", [".raw", ".h5", ".vtkhdf", ".hdf", ".nrrd", ".npz", ".vox", ".zarr"])
 def test_round_trip_through_geovox_readers(tmp_path, vol, ext):
     written = F.write(vol, tmp_path / f"v{ext}")
     assert all(os.path.exists(p) for p in written)
@@ -208,7 +208,7 @@ def test_vox_quantises_to_255_colours():
     np.testing.assert_array_equal(p[i], few)
 
 
-@pytest.mark.parametrize("ext", [".raw", ".h5", ".vtkhdf", ".nrrd", ".npy", ".npz", ".vox"])
+@pytest.mark.parametrize("ext", [".raw", ".h5", ".vtkhdf", ".nrrd", ".npy", ".npz", ".vox", ".zarr"])
 def test_failed_write_leaves_nothing(tmp_path, vol, ext, monkeypatch):
     def fail(src, dst):
         raise OSError(28, "No space left on device")

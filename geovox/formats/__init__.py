@@ -69,7 +69,10 @@ def check_writable(path) -> None:
         raise OutputError(f"output folder does not exist: {folder}")
     if not os.access(folder, os.W_OK | os.X_OK):
         raise OutputError(f"output folder is not writable: {folder}")
-    if os.path.isdir(os.fspath(path)):
+    if os.path.isdir(os.fspath(path)) and not (
+            # A .zarr is a folder; an existing one is replaced only once the new one is whole.
+            os.fspath(path).lower().endswith(".zarr")
+            and os.path.isfile(os.path.join(os.fspath(path), "zarr.json"))):
         raise OutputError(f"output path is a folder: {os.fspath(path)}")
 
 
@@ -128,16 +131,16 @@ def atomic_output(path):
         yield group.add(path)
 
 
-def read(path, fmt=None):
+def read(path, fmt=None, **options):
     """Read a volume written by geovox back (occupancy, grid, colour when present)."""
     from ..errors import InputNotFoundError, MeshError
 
     path = os.fspath(path)
-    if not os.path.isfile(path):
-        raise InputNotFoundError(f"volume file not found: {path}")
     f = format_for(path, fmt)
+    if not (os.path.isfile(path) or (f.name == "zarr" and os.path.isdir(path))):
+        raise InputNotFoundError(f"volume file not found: {path}")
     try:
-        return f.reader(path)
+        return f.reader(path, **options)
     except Exception as exc:  # readers of several libraries raise their own types
         raise MeshError(f"{path}: cannot be read as a geovox {f.name} volume "
                         f"({type(exc).__name__}: {exc})") from exc
@@ -208,6 +211,7 @@ def write(volume, path, fmt=None, **options) -> list:
 
 
 from . import binvox, hdf5, nrrd, numpy_files, raw, vdb, vox, vtkhdf  # noqa: E402  (registration)
+from . import zarr as zarr_format  # noqa: E402  (registration)
 
 register_format("raw", (".raw",), raw.write_raw,
                 "headerless uint8 (0/255), x fastest; .json sidecar, .mhd and .nhdr headers",
@@ -235,6 +239,10 @@ register_format("vdb", (".vdb",), vdb.write_vdb,
 register_format("vox", (".vox",), vox.write_vox,
                 "MagicaVoxel: 256³ models in a scene graph, 255 quantised colours",
                 reader=vox.read_vox)
+register_format("zarr", (".zarr",), zarr_format.write_zarr,
+                "OME-Zarr 0.5 (Zarr v3) multiscale image for napari, neuroglancer, Fiji, WEBKNOSSOS: "
+                "occupancy, color, density, sdf; written slab by slab, or on a Dask cluster",
+                reader=zarr_format.read_zarr)
 
 __all__ = ["register_format", "formats", "format_for", "write", "read", "atomic_output",
            "atomic_outputs",
