@@ -108,12 +108,25 @@ def is_url(path) -> bool:
 
 
 def _output_exists(target) -> bool:
+    # A .zarr is a folder whose root zarr.json is uploaded last (see _upload):
+    # on an object store, some of its chunks may be there before it is whole.
+    if target.lower().rstrip("/").endswith(".zarr"):
+        target = target.rstrip("/") + "/zarr.json"
     if is_url(target):
         import fsspec
 
         fs, p = fsspec.core.url_to_fs(target)
         return fs.exists(p)
     return os.path.exists(target)
+
+
+def _folder_files(folder) -> list:
+    """The files under ``folder`` (relative paths, ``/``-separated), the root ``zarr.json`` last."""
+    out = []
+    for here, _, names in os.walk(folder):
+        rel = os.path.relpath(here, folder)
+        out += [n if rel == "." else rel.replace(os.sep, "/") + "/" + n for n in sorted(names)]
+    return sorted(out, key=lambda r: r == "zarr.json")
 
 
 def _written_since(target, started) -> bool:
@@ -132,7 +145,7 @@ def _written_since(target, started) -> bool:
 
 
 def _upload(local_files, main, folder) -> list:
-    """Copy files written locally into the URL ``folder``; the volume ``main`` last.
+    """Copy files (or a ``.zarr`` folder) written locally into the URL ``folder``; ``main`` last.
 
     An object store shows an object only once its upload is complete; on a
     plain file system each file goes to a temporary name first and is then
@@ -146,14 +159,19 @@ def _upload(local_files, main, folder) -> list:
     atomic_rename = "file" in (fs.protocol if isinstance(fs.protocol, tuple) else (fs.protocol,))
     urls = {}
     for f in order:
-        name = os.path.basename(f)
+        name = os.path.basename(f.rstrip(os.sep))
         target = base.rstrip("/") + "/" + name
-        if atomic_rename:
-            part = base.rstrip("/") + f"/.{name}.{os.getpid()}.part"
-            fs.put_file(f, part)
-            fs.mv(part, target)
+        dest = base.rstrip("/") + f"/.{name}.{os.getpid()}.part" if atomic_rename else target
+        if os.path.isdir(f):  # a .zarr: every file, its root zarr.json last
+            if atomic_rename and fs.exists(target):
+                fs.rm(target, recursive=True)  # mv would nest the folder inside the old one
+            for rel in _folder_files(f):
+                fs.makedirs((dest + "/" + rel).rsplit("/", 1)[0], exist_ok=True)
+                fs.put_file(os.path.join(f, *rel.split("/")), dest + "/" + rel)
         else:
-            fs.put_file(f, target)
+            fs.put_file(f, dest)
+        if atomic_rename:
+            fs.mv(dest, target, recursive=os.path.isdir(f))
         urls[f] = folder.rstrip("/") + "/" + name  # as the user spelt the folder
     return [urls[f] for f in local_files]
 

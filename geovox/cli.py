@@ -392,6 +392,51 @@ def _convert_streaming(args, mesh, output, t0, t_read=0.0) -> int:
     return EXIT_OK
 
 
+def _names_a_file(url: str) -> bool:
+    """Whether an output URL names one volume (``s3://b/spot.zarr``), not a folder (``s3://b/out/``)."""
+    return not url.endswith("/") and bool(os.path.splitext(url.rsplit("/", 1)[-1])[1])
+
+
+def _convert_to_url(args) -> int:
+    """One model into an fsspec URL: written into a local scratch folder, then copied up.
+
+    The copy goes through :func:`geovox.batch._upload`, as a batch's outputs do:
+    the volume (a ``.zarr``'s root ``zarr.json``) last, so nothing half-written
+    is taken for a volume. What the local run prints is reprinted with the URL.
+    """
+    import contextlib
+    import io
+    import shutil
+    import tempfile
+
+    from .batch import _upload
+    from .errors import ParameterError
+
+    url = args.output
+    parent, name = url.rsplit("/", 1)
+    try:
+        import fsspec
+
+        fsspec.core.url_to_fs(url)  # an unknown protocol or a missing filesystem package
+    except ImportError:
+        raise ParameterError(f"an output URL needs fsspec (pip install 'geovox[cloud]'): {url}")
+    except ValueError as exc:
+        raise ParameterError(f"cannot write to {url}: {exc}")
+    tmp = tempfile.mkdtemp(prefix="geovox-")
+    try:
+        args.output = os.path.join(tmp, name)
+        said = io.StringIO()
+        with contextlib.redirect_stdout(said):
+            rc = _convert(args)
+        if rc == EXIT_OK:
+            local = sorted(os.path.join(tmp, f) for f in os.listdir(tmp))
+            _upload(local, args.output, parent)
+        print(said.getvalue().replace(tmp + os.sep, parent + "/"), end="")
+        return rc
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
 def _convert(args) -> int:
     from . import formats
 
@@ -400,8 +445,10 @@ def _convert(args) -> int:
                 and (args.output is None or args.output.endswith(("/", os.sep))
                      or (os.path.isdir(args.output)
                          and not args.output.lower().endswith(".zarr"))))
-            or (args.output and "://" in args.output and not args.output.endswith(".zarr"))):
+            or (args.output and "://" in args.output and not _names_a_file(args.output))):
         return _batch(args)  # many models, or one sent as a batch of one to a cluster
+    if "://" in (args.output or ""):
+        return _convert_to_url(args)
     args.input = args.input[0]
     t0 = time.perf_counter()
     default_out = args.output is None or args.output.endswith(("/", os.sep)) or (

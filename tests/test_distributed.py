@@ -164,6 +164,47 @@ def test_memory_urls_get_complete_files_only(client, models, tmp_path):
     fs.rm("/geovox-test", recursive=True)
 
 
+def test_zarr_folders_go_up_whole_through_urls(tmp_path):
+    """A .zarr is a folder: every file of it is copied, its root zarr.json last."""
+    pytest.importorskip("zarr")
+    from geovox import formats
+    from geovox.cli import main
+
+    want = geovox.voxelize(SPOT, resolution=RES).occupancy
+    fs = fsspec.filesystem("memory")
+    [r] = convert_many([SPOT], "memory://geovox-zarr/out", fmt="zarr", resolution=RES)
+    assert r.status == "ok" and r.output.endswith("/spot_12x12x12_uint8.zarr")
+    keys = fs.find("/geovox-zarr/out/spot_12x12x12_uint8.zarr")
+    local = tmp_path / "back.zarr"
+    fs.get("/geovox-zarr/out/spot_12x12x12_uint8.zarr", str(local), recursive=True)
+    assert len(keys) >= 3 and (formats.read(str(local)).occupancy == want).all()
+    # Skipping looks at the root zarr.json, which a cut-short upload lacks.
+    assert convert_many([SPOT], "memory://geovox-zarr/out", fmt="zarr",
+                        resolution=RES)[0].status == "skipped"
+    fs.rm("/geovox-zarr/out/spot_12x12x12_uint8.zarr/zarr.json")
+    assert convert_many([SPOT], "memory://geovox-zarr/out", fmt="zarr",
+                        resolution=RES)[0].status == "ok"
+    fs.rm("/geovox-zarr", recursive=True)
+    # One model into a URL that names its file: a .zarr and a .raw with its headers.
+    for name in ("one.zarr", "one.raw"):
+        url = "file://" + str(tmp_path / "up" / name)
+        (tmp_path / "up").mkdir(exist_ok=True)
+        assert main(["convert", SPOT, "-r", str(RES), "-o", url, "-q"]) == 0
+        assert (formats.read(str(tmp_path / "up" / name)).occupancy == want).all()
+    assert main(["convert", SPOT, "-r", str(RES), "-o", "file://" + str(tmp_path / "up" / "one.zarr"),
+                 "-q"]) == 0  # replaced whole, not nested inside the old one
+    assert sorted(os.listdir(tmp_path / "up" / "one.zarr")) == ["0", "zarr.json"]
+    assert not [n for n in os.listdir(tmp_path / "up") if n.startswith(".")]
+
+
+def test_an_unknown_url_protocol_is_one_line(tmp_path, capsys):
+    from geovox.cli import main
+
+    assert main(["convert", SPOT, "-r", "8", "-o", "nosuch://bucket/x.raw"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "nosuch://bucket/x.raw" in err
+
+
 def test_unknown_option_and_bad_retries_are_refused(models, tmp_path):
     with pytest.raises(geovox.ParameterError, match="resolutoin"):
         convert_many([models], tmp_path, resolutoin=8)
