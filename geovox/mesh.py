@@ -378,9 +378,19 @@ def _read_off(path: str, mesh: Mesh | None) -> Mesh | None:
         raise MeshError(f"{path}: the OFF header announces {nv:,} vertices and {nf:,} faces, "
                         f"but the file has {len(vlines):,} and {len(flines):,}; it is cut short")
 
+    problems = mesh.problems if mesh is not None else []
+
     def unit(rows):
-        c = np.asarray(rows, dtype=np.float64)
-        return np.clip(c / 255.0 if c.size and c.max() > 1.0 else c, 0.0, 1.0)
+        """(k, 3) float64 in [0, 1] and (k,) bool: which rows were finite.
+
+        A NaN or infinite row becomes white (no colour, as in an OBJ) and
+        does not decide the 0-255 scale; a word raises ValueError.
+        """
+        c = np.array(rows, dtype=np.float64)
+        ok = np.isfinite(c).all(axis=1) if c.ndim == 2 else np.ones(len(c), dtype=bool)
+        scale = 255.0 if c[ok].size and c[ok].max() > 1.0 else 1.0
+        c[~ok] = scale
+        return np.clip(c / scale, 0.0, 1.0), ok
 
     try:
         if mesh is None:
@@ -390,32 +400,42 @@ def _read_off(path: str, mesh: Mesh | None) -> Mesh | None:
         faces = fm = None
         materials = []
         if mesh is None or face_colours:
-            faces, fm, materials = _off_faces(flines, unit, face_colours)
+            faces, fm, materials = _off_faces(flines, unit, face_colours, problems, path)
     except ValueError:  # what cannot be read here: trimesh's result or its error
         return mesh
     vc = None
     if head.group(2):
         at = 3 + (1 if head.group(4) else 0) + (3 if head.group(3) else 0)
         try:
-            vc = unit([ln[at:at + 3] for ln in vlines])
-        except ValueError:  # missing or unreadable colours: none
+            vc, ok = unit([ln[at:at + 3] for ln in vlines])
+        except ValueError:  # unreadable colours (words, or rows cut short): none
             vc = None
+            problems.append(f"{path}: cannot read the COFF vertex colours; the vertices "
+                            f"count as having none")
         if vc is not None and vc.shape != (nv, 3):
-            vc = None
+            vc = None  # fewer than three numbers after the position: no colours stated
+        elif vc is not None and not ok.all():
+            n = int((~ok).sum())
+            problems.append(f"{path}: NaN or infinite colour on {n:,} "
+                            f"{'vertex' if n == 1 else 'vertices'}; they count as having no "
+                            f"colour (white)")
     if mesh is not None and vc is None and faces is None:
         return mesh
     return build_mesh(vertices, mesh.faces if faces is None else faces, path,
                       face_material=fm, materials=materials, vertex_colors=vc,
-                      problems=mesh.problems if mesh is not None else [])
+                      problems=problems)
 
 
-def _off_faces(flines, unit, coloured_file: bool):
+def _off_faces(flines, unit, coloured_file: bool, problems: list, path: str):
     """Fanned faces (m, 3) of OFF face lines, face materials (m,) and their materials.
+
+    A face colour that cannot be read (a word, NaN) leaves its face without
+    one (the default colour) and is appended to ``problems``.
 
     Raises
     ------
     ValueError
-        A face line that cannot be read.
+        A face line whose indices cannot be read.
     """
     sizes = np.array([int(ln[0]) for ln in flines], dtype=np.int64)
     if np.any(sizes < 0) or any(len(ln) < 1 + k for ln, k in zip(flines, sizes.tolist())):
@@ -433,8 +453,16 @@ def _off_faces(flines, unit, coloured_file: bool):
         return faces, None, []
     rest = [ln[1 + k:1 + k + 3] for ln, k in zip(flines, sizes.tolist())]
     has = np.array([len(r) == 3 for r in rest])
-    fc = unit([r if len(r) == 3 else ["0", "0", "0"] for r in rest])
-    fc, has = fc[keep][poly], has[keep][poly]
+    try:
+        fc, ok = unit([r if len(r) == 3 else ["0", "0", "0"] for r in rest])
+    except ValueError:
+        problems.append(f"{path}: cannot read the face colours; the faces count as having none")
+        return faces, None, []
+    if not ok.all():
+        n = int((~ok).sum())
+        problems.append(f"{path}: NaN or infinite colour on {n:,} face{'' if n == 1 else 's'}; "
+                        f"{'it takes' if n == 1 else 'they take'} the default colour")
+    fc, has = fc[keep][poly], (has & ok)[keep][poly]
     uniq, inverse = np.unique(fc, axis=0, return_inverse=True)
     materials = [Material(name="face colour", kd=c) for c in uniq]
     return faces, np.where(has, inverse.reshape(-1), -1), materials
