@@ -152,11 +152,13 @@ def _grid_options(c):
     c.add_argument("--inside", default="auto", choices=["auto", "parity", "vote", "winding"],
                    help="inside test (default: auto = parity for closed meshes, winding number "
                         "otherwise)")
-    c.add_argument("--color", "--colour", dest="color", action="store_true",
-                   help="also colour the voxels from the model's materials and textures")
-    c.add_argument("--exact-color", "--exact-colour", dest="color", action="store_const",
-                   const="exact", help="as --color, every voxel from its exact nearest surface "
-                   "point (slower; instead of --color)")
+    # One of the two: both share `color`, and argparse would let the last one win silently.
+    colour = c.add_mutually_exclusive_group()
+    colour.add_argument("--color", "--colour", dest="color", action="store_true",
+                        help="also colour the voxels from the model's materials and textures")
+    colour.add_argument("--exact-color", "--exact-colour", dest="color", action="store_const",
+                        const="exact", help="as --color, every voxel from its exact nearest "
+                        "surface point (slower; instead of --color)")
     c.add_argument("--no-diffuse", dest="diffuse", action="store_false",
                    help="with --color: do not multiply by the material's Kd")
     c.add_argument("--ambient", action="store_true",
