@@ -444,6 +444,16 @@ def convert_many(inputs, out, *, client=None, fmt=None, overwrite=False, jobs=1,
     if isinstance(inputs, (str, os.PathLike)):
         inputs = [inputs]  # one file or folder, not a list of characters
     found = find_inputs(inputs)
+    if manifest is not None:
+        # Checked before the output folder is made, so that a bad manifest
+        # path leaves nothing behind (the open below still has the last word).
+        folder = os.path.dirname(os.path.abspath(manifest))
+        why = ("No such file or directory" if not os.path.isdir(folder) else
+               "Is a directory" if os.path.isdir(manifest) else
+               "Permission denied" if not os.access(folder, os.W_OK)
+               or (os.path.exists(manifest) and not os.access(manifest, os.W_OK)) else None)
+        if why:
+            raise OutputError(f"cannot write the manifest {manifest}: {why}")
     out = os.fspath(out)
     if is_url(out):
         import fsspec

@@ -354,6 +354,17 @@ def test_batch_needs_a_folder_output(tmp_path, capsys):
     assert "-o must be a folder" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("where", ["missing folder", "a folder"])
+def test_batch_bad_manifest_is_one_line_and_makes_no_output_folder(tmp_path, capsys, where):
+    manifest = tmp_path / "no" / "m.jsonl" if where == "missing folder" else tmp_path
+    out = tmp_path / "out"
+    assert main(["convert", SPOT, SPOT, "-o", str(out), "-r", "8",
+                 "--manifest", str(manifest)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("geovox: error: cannot write the manifest")
+    assert not out.exists()
+
+
 def test_review_regressions_give_one_line(tmp_path, capsys):
     # A batch whose -o is an existing file.
     target = tmp_path / "plainfile"
