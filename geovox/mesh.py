@@ -237,7 +237,7 @@ def _gltf_rewrite(header: dict, path: str) -> dict:
         pbr = pbr if isinstance(pbr, dict) else {}
         factor = _numbers(pbr.get("baseColorFactor", [1, 1, 1, 1]), 4)
         if factor is None:
-            problems.append(f"material {name!r} has a baseColorFactor that is not 4 numbers "
+            problems.append(f"material {name!r} has a baseColorFactor that is not 4 finite numbers "
                             f"({pbr.get('baseColorFactor')!r}); using white")
             factor = np.ones(4)
         fact = {"name": name, "kd": np.clip(factor[:3], 0.0, 1.0), "wrap": ("repeat", "repeat"),
