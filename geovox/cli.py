@@ -45,6 +45,14 @@ def _non_negative_int(text):
     return value
 
 
+def _non_empty(text):
+    """argparse type: a string that is not blank (an empty `--scheduler ""`, say from an
+    unset shell variable, would otherwise silently mean "no cluster")."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError(f"must not be empty, got {text!r}")
+    return text
+
+
 def _number(positive: bool):
     """argparse type: a finite float, positive if asked."""
     what = "a positive number" if positive else "a finite number"
@@ -91,10 +99,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "whatever --manifest says was done)")
     many = c.add_argument_group("many models (a folder, or several inputs, into -o FOLDER or URL)")
     where = many.add_mutually_exclusive_group()
-    where.add_argument("--scheduler", metavar="ADDRESS",
+    where.add_argument("--scheduler", type=_non_empty, metavar="ADDRESS",
                        help="run one task per model on this Dask scheduler (tcp://HOST:8786; "
                             "default: $DASK_SCHEDULER_ADDRESS if set); needs geovox[distributed]")
-    where.add_argument("--scheduler-file", metavar="FILE",
+    where.add_argument("--scheduler-file", type=_non_empty, metavar="FILE",
                        help="the scheduler's address from the JSON file `dask scheduler "
                             "--scheduler-file` (or dask-jobqueue) wrote")
     where.add_argument("--local-cluster", type=_positive_int, metavar="N",

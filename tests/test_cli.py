@@ -109,13 +109,15 @@ def _bad_inputs(tmp_path):
         "unknown extension": ([SPOT, "-o", str(tmp_path / "x.xyz")], "output format"),
         "missing output folder": ([SPOT, "-o", str(tmp_path / "no" / "x.raw")], "does not exist"),
         "color and exact color": ([SPOT, "--exact-color", "--color"], "not allowed with"),
+        "empty scheduler": ([SPOT, SPOT, "--scheduler", " "], "--scheduler: must not be empty"),
     }
 
 
 CASES = ["missing input", "folder as input", "empty file", "not a mesh", "binary garbage",
          "vertices only", "nan vertices", "bounds min >= max", "resolution zero",
          "resolution negative", "resolution not a number", "voxel size zero",
-         "unknown extension", "missing output folder", "color and exact color"]
+         "unknown extension", "missing output folder", "color and exact color",
+         "empty scheduler"]
 
 
 @pytest.mark.parametrize("case", CASES)
