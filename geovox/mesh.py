@@ -401,6 +401,8 @@ def _read_off(path: str, mesh: Mesh | None) -> Mesh | None:
         materials = []
         if mesh is None or face_colours:
             faces, fm, materials = _off_faces(flines, unit, face_colours, problems, path)
+            if mesh is not None and fm is None:
+                faces = None  # face colours unreadable: trimesh's faces, as without colours
     except ValueError:  # what cannot be read here: trimesh's result or its error
         return mesh
     vc = None
