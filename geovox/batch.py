@@ -528,7 +528,8 @@ def convert_many(inputs, out, *, client=None, fmt=None, overwrite=False, jobs=1,
         if log is not None:
             log.write(json.dumps(dict(
                 input=tasks[i]["input"], out=out_key, options=recorded, status=r.status,
-                outputs=[o if is_url(o) else os.path.abspath(o) for o in r.outputs], error=r.error, seconds=round(r.seconds, 4),
+                outputs=[o if is_url(o) else os.path.abspath(o) for o in r.outputs],
+                error=r.error, seconds=round(r.seconds, 4),
                 time=datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")))
                 + "\n")
             log.flush()  # the record survives the run being killed
