@@ -261,7 +261,13 @@ def _canonical(value):
 
 
 def _read_manifest(path) -> dict:
-    """The last record of each input in a JSONL manifest ({} if there is none)."""
+    """The last record of each input in a JSONL manifest ({} if there is none).
+
+    Raises
+    ------
+    OutputError
+        The file cannot be read, or is not UTF-8 text (so not a manifest).
+    """
     done = {}
     if path is None or not os.path.exists(path):
         return done
@@ -279,6 +285,10 @@ def _read_manifest(path) -> dict:
                     continue
     except OSError as exc:
         raise OutputError(f"cannot read the manifest {path}: {exc.strerror or exc}") from None
+    except UnicodeDecodeError:
+        # geovox writes ASCII JSON: this is some other file, which appending would spoil.
+        raise OutputError(f"cannot use {path} as the manifest: it is not a geovox manifest "
+                          f"(not UTF-8 text)") from None
     return done
 
 
@@ -454,6 +464,7 @@ def convert_many(inputs, out, *, client=None, fmt=None, overwrite=False, jobs=1,
                or (os.path.exists(manifest) and not os.access(manifest, os.W_OK)) else None)
         if why:
             raise OutputError(f"cannot write the manifest {manifest}: {why}")
+    done = {} if overwrite else _read_manifest(manifest)
     out = os.fspath(out)
     if is_url(out):
         import fsspec
@@ -496,7 +507,6 @@ def convert_many(inputs, out, *, client=None, fmt=None, overwrite=False, jobs=1,
     out_key = out if is_url(out) else os.path.abspath(out)
     results = [None] * len(tasks)
     todo = []
-    done = {} if overwrite else _read_manifest(manifest)
     for i, t in enumerate(tasks):
         rec = done.get(t["input"])
         if (rec and rec.get("status") in ("ok", "skipped") and rec.get("out") == out_key

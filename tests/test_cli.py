@@ -356,15 +356,21 @@ def test_batch_needs_a_folder_output(tmp_path, capsys):
     assert "-o must be a folder" in capsys.readouterr().err
 
 
-@pytest.mark.parametrize("where", ["missing folder", "a folder"])
+@pytest.mark.parametrize("where", ["missing folder", "a folder", "not text"])
 def test_batch_bad_manifest_is_one_line_and_makes_no_output_folder(tmp_path, capsys, where):
-    manifest = tmp_path / "no" / "m.jsonl" if where == "missing folder" else tmp_path
+    manifest = {"missing folder": tmp_path / "no" / "m.jsonl", "a folder": tmp_path,
+                "not text": tmp_path / "model.bin"}[where]
+    if where == "not text":  # some other file named by mistake: not appended to
+        manifest.write_bytes(bytes(range(256)))
     out = tmp_path / "out"
     assert main(["convert", SPOT, SPOT, "-o", str(out), "-r", "8",
                  "--manifest", str(manifest)]) == 2
     err = capsys.readouterr().err
-    assert err.count("\n") == 1 and err.startswith("geovox: error: cannot write the manifest")
+    assert err.count("\n") == 1 and err.startswith("geovox: error: cannot ")
+    assert "manifest" in err and "Traceback" not in err
     assert not out.exists()
+    if where == "not text":
+        assert manifest.read_bytes() == bytes(range(256))
 
 
 def test_review_regressions_give_one_line(tmp_path, capsys):
