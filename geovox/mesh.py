@@ -23,11 +23,13 @@ TRIMESH_DEFAULT = np.array([102, 102, 102, 255])
 TRIMESH_PLACEHOLDER = np.array([100, 100, 100, 255])
 
 
-def _unit_colours(colours, n: int):
+def _unit_colours(colours, n: int, problems=None):
     """(n, 3) float64 in [0, 1] from per-vertex colours as stored, or None.
 
     Floats are taken as they are; integers are normalised by their type's
     maximum (glTF's normalised 8- and 16-bit ``COLOR_0``; trimesh's uint8).
+    A NaN or infinite colour counts as none (white, as in an OBJ), said in
+    ``problems`` when given.
     """
     if colours is None:
         return None
@@ -36,7 +38,14 @@ def _unit_colours(colours, n: int):
         return None
     scale = 1.0 if c.dtype.kind == "f" else float(np.iinfo(c.dtype).max)
     out = c[:, :3].astype(np.float64) / scale
-    return np.clip(np.nan_to_num(out, nan=1.0), 0.0, 1.0)
+    broken = ~np.isfinite(out).all(axis=1)
+    if broken.any():
+        out[broken] = 1.0
+        if problems is not None:
+            k = int(broken.sum())
+            problems.append(f"NaN or infinite COLOR_0 on {k:,} {'vertex' if k == 1 else 'vertices'}"
+                            f"; they count as having no colour (white)")
+    return np.clip(out, 0.0, 1.0)
 
 
 def _visual_parts(g, nfaces, materials, gltf=None, made=None, original=None):
@@ -83,7 +92,7 @@ def _visual_parts(g, nfaces, materials, gltf=None, made=None, original=None):
                 uv = np.stack([t[0, 0] * gu + t[0, 1] * gv + t[0, 2],
                                1.0 - (t[1, 0] * gu + t[1, 1] * gv + t[1, 2])], axis=1)
             uv = uv[g.faces]
-        vc = _unit_colours(_vertex_attribute(source, "color"), len(g.vertices))
+        vc = _unit_colours(_vertex_attribute(source, "color"), len(g.vertices), gltf["problems"])
     elif kind == "texture":
         m = Material(name=getattr(mat, "name", None) or "material")
         image = getattr(mat, "image", None) or getattr(mat, "baseColorTexture", None)

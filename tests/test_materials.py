@@ -642,3 +642,16 @@ def test_off_nan_and_unreadable_colours_warn_and_fall_back(tmp_path):
         path = write_off(tmp_path / name, header, vx, fx)
         with pytest.warns(GeovoxWarning, match="cannot read the (COFF vertex|face) colours"):
             assert colours_of(path) == {(204, 204, 204)}
+
+
+def test_nan_color_0_counts_as_white_with_a_warning(tmp_path):
+    vert, faces = box()
+    colour = np.tile(np.float32([0.2, 0.4, 0.6]), (len(vert), 1))
+    colour[0] = np.nan
+    path = write_gltf(tmp_path / "cnan.glb", [dict(vertices=vert, faces=faces,
+                                                   attributes={"COLOR_0": colour})])
+    with pytest.warns(GeovoxWarning, match="NaN or infinite COLOR_0 on 1 vertex;"):
+        vol = geovox.voxelize(path, resolution=10, color=True)
+    assert np.all(vol.colors[vol.occupancy, 3] == 255)
+    got = {tuple(int(x) for x in c) for c in vol.colors[vol.occupancy, :3]}
+    assert (51, 102, 153) in got  # the other vertices keep their colour
