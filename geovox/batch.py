@@ -279,7 +279,13 @@ def _canonical(value):
 
 
 def _read_manifest(path) -> dict:
-    """The last record of each input in a JSONL manifest ({} if there is none)."""
+    """The last record of each input in a JSONL manifest ({} if there is none).
+
+    Raises
+    ------
+    OutputError
+        The file cannot be read, or is not UTF-8 text (so not a manifest).
+    """
     done = {}
     if path is None or not os.path.exists(path):
         return done
@@ -297,6 +303,10 @@ def _read_manifest(path) -> dict:
                     continue
     except OSError as exc:
         raise OutputError(f"cannot read the manifest {path}: {exc.strerror or exc}") from None
+    except UnicodeDecodeError:
+        # geovox writes ASCII JSON: this is some other file, which appending would spoil.
+        raise OutputError(f"cannot use {path} as the manifest: it is not a geovox manifest "
+                          f"(not UTF-8 text)") from None
     return done
 
 
@@ -462,6 +472,17 @@ def convert_many(inputs, out, *, client=None, fmt=None, overwrite=False, jobs=1,
     if isinstance(inputs, (str, os.PathLike)):
         inputs = [inputs]  # one file or folder, not a list of characters
     found = find_inputs(inputs)
+    if manifest is not None:
+        # Checked before the output folder is made, so that a bad manifest
+        # path leaves nothing behind (the open below still has the last word).
+        folder = os.path.dirname(os.path.abspath(manifest))
+        why = ("No such file or directory" if not os.path.isdir(folder) else
+               "Is a directory" if os.path.isdir(manifest) else
+               "Permission denied" if not os.access(folder, os.W_OK)
+               or (os.path.exists(manifest) and not os.access(manifest, os.W_OK)) else None)
+        if why:
+            raise OutputError(f"cannot write the manifest {manifest}: {why}")
+    done = {} if overwrite else _read_manifest(manifest)
     out = os.fspath(out)
     if is_url(out):
         import fsspec
@@ -504,7 +525,6 @@ def convert_many(inputs, out, *, client=None, fmt=None, overwrite=False, jobs=1,
     out_key = out if is_url(out) else os.path.abspath(out)
     results = [None] * len(tasks)
     todo = []
-    done = {} if overwrite else _read_manifest(manifest)
     for i, t in enumerate(tasks):
         rec = done.get(t["input"])
         if (rec and rec.get("status") in ("ok", "skipped") and rec.get("out") == out_key
@@ -536,7 +556,8 @@ def convert_many(inputs, out, *, client=None, fmt=None, overwrite=False, jobs=1,
         if log is not None:
             log.write(json.dumps(dict(
                 input=tasks[i]["input"], out=out_key, options=recorded, status=r.status,
-                outputs=[o if is_url(o) else os.path.abspath(o) for o in r.outputs], error=r.error, seconds=round(r.seconds, 4),
+                outputs=[o if is_url(o) else os.path.abspath(o) for o in r.outputs],
+                error=r.error, seconds=round(r.seconds, 4),
                 time=datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")))
                 + "\n")
             log.flush()  # the record survives the run being killed

@@ -45,6 +45,14 @@ def _non_negative_int(text):
     return value
 
 
+def _non_empty(text):
+    """argparse type: a string that is not blank (an empty `--scheduler ""`, say from an
+    unset shell variable, would otherwise silently mean "no cluster")."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError(f"must not be empty, got {text!r}")
+    return text
+
+
 def _number(positive: bool):
     """argparse type: a finite float, positive if asked."""
     what = "a positive number" if positive else "a finite number"
@@ -92,11 +100,11 @@ def build_parser() -> argparse.ArgumentParser:
     many = c.add_argument_group("many models (a folder, or several inputs, into -o FOLDER or URL), "
                                 "or one volume into -o NAME.zarr, on a Dask cluster")
     where = many.add_mutually_exclusive_group()
-    where.add_argument("--scheduler", metavar="ADDRESS",
+    where.add_argument("--scheduler", type=_non_empty, metavar="ADDRESS",
                        help="run one task per model (or per .zarr slab) on this Dask scheduler "
                             "(tcp://HOST:8786; "
                             "default: $DASK_SCHEDULER_ADDRESS if set); needs geovox[distributed]")
-    where.add_argument("--scheduler-file", metavar="FILE",
+    where.add_argument("--scheduler-file", type=_non_empty, metavar="FILE",
                        help="the scheduler's address from the JSON file `dask scheduler "
                             "--scheduler-file` (or dask-jobqueue) wrote")
     where.add_argument("--local-cluster", type=_positive_int, metavar="N",
@@ -154,11 +162,13 @@ def _grid_options(c):
     c.add_argument("--inside", default="auto", choices=["auto", "parity", "vote", "winding"],
                    help="inside test (default: auto = parity for closed meshes, winding number "
                         "otherwise)")
-    c.add_argument("--color", "--colour", dest="color", action="store_true",
-                   help="also colour the voxels from the model's materials and textures")
-    c.add_argument("--exact-color", "--exact-colour", dest="color", action="store_const",
-                   const="exact", help="as --color, every voxel from its exact nearest surface "
-                   "point (slower; instead of --color)")
+    # One of the two: both share `color`, and argparse would let the last one win silently.
+    colour = c.add_mutually_exclusive_group()
+    colour.add_argument("--color", "--colour", dest="color", action="store_true",
+                        help="also colour the voxels from the model's materials and textures")
+    colour.add_argument("--exact-color", "--exact-colour", dest="color", action="store_const",
+                        const="exact", help="as --color, every voxel from its exact nearest "
+                        "surface point (slower; instead of --color)")
     c.add_argument("--no-diffuse", dest="diffuse", action="store_false",
                    help="with --color: do not multiply by the material's Kd")
     c.add_argument("--ambient", action="store_true",

@@ -46,12 +46,6 @@ LOCAL_CLUSTER_CONFIG = {
 }
 
 
-def asked(scheduler=None, scheduler_file=None, local_cluster=None) -> bool:
-    """Whether these options (or ``DASK_SCHEDULER_ADDRESS``) ask for a cluster."""
-    return bool(scheduler or scheduler_file or local_cluster
-                or os.environ.get("DASK_SCHEDULER_ADDRESS", "").strip())
-
-
 def import_distributed():
     """``dask.distributed``, or the error that says which extra to install."""
     try:

@@ -23,11 +23,13 @@ TRIMESH_DEFAULT = np.array([102, 102, 102, 255])
 TRIMESH_PLACEHOLDER = np.array([100, 100, 100, 255])
 
 
-def _unit_colours(colours, n: int):
+def _unit_colours(colours, n: int, problems=None):
     """(n, 3) float64 in [0, 1] from per-vertex colours as stored, or None.
 
     Floats are taken as they are; integers are normalised by their type's
     maximum (glTF's normalised 8- and 16-bit ``COLOR_0``; trimesh's uint8).
+    A NaN or infinite colour counts as none (white, as in an OBJ), said in
+    ``problems`` when given.
     """
     if colours is None:
         return None
@@ -36,7 +38,14 @@ def _unit_colours(colours, n: int):
         return None
     scale = 1.0 if c.dtype.kind == "f" else float(np.iinfo(c.dtype).max)
     out = c[:, :3].astype(np.float64) / scale
-    return np.clip(np.nan_to_num(out, nan=1.0), 0.0, 1.0)
+    broken = ~np.isfinite(out).all(axis=1)
+    if broken.any():
+        out[broken] = 1.0
+        if problems is not None:
+            k = int(broken.sum())
+            problems.append(f"NaN or infinite COLOR_0 on {k:,} {'vertex' if k == 1 else 'vertices'}"
+                            f"; they count as having no colour (white)")
+    return np.clip(out, 0.0, 1.0)
 
 
 def _visual_parts(g, nfaces, materials, gltf=None, made=None, original=None):
@@ -83,7 +92,7 @@ def _visual_parts(g, nfaces, materials, gltf=None, made=None, original=None):
                 uv = np.stack([t[0, 0] * gu + t[0, 1] * gv + t[0, 2],
                                1.0 - (t[1, 0] * gu + t[1, 1] * gv + t[1, 2])], axis=1)
             uv = uv[g.faces]
-        vc = _unit_colours(_vertex_attribute(source, "color"), len(g.vertices))
+        vc = _unit_colours(_vertex_attribute(source, "color"), len(g.vertices), gltf["problems"])
     elif kind == "texture":
         m = Material(name=getattr(mat, "name", None) or "material")
         image = getattr(mat, "image", None) or getattr(mat, "baseColorTexture", None)
@@ -237,7 +246,7 @@ def _gltf_rewrite(header: dict, path: str) -> dict:
         pbr = pbr if isinstance(pbr, dict) else {}
         factor = _numbers(pbr.get("baseColorFactor", [1, 1, 1, 1]), 4)
         if factor is None:
-            problems.append(f"material {name!r} has a baseColorFactor that is not 4 numbers "
+            problems.append(f"material {name!r} has a baseColorFactor that is not 4 finite numbers "
                             f"({pbr.get('baseColorFactor')!r}); using white")
             factor = np.ones(4)
         fact = {"name": name, "kd": np.clip(factor[:3], 0.0, 1.0), "wrap": ("repeat", "repeat"),
@@ -378,9 +387,19 @@ def _read_off(path: str, mesh: Mesh | None) -> Mesh | None:
         raise MeshError(f"{path}: the OFF header announces {nv:,} vertices and {nf:,} faces, "
                         f"but the file has {len(vlines):,} and {len(flines):,}; it is cut short")
 
+    problems = mesh.problems if mesh is not None else []
+
     def unit(rows):
-        c = np.asarray(rows, dtype=np.float64)
-        return np.clip(c / 255.0 if c.size and c.max() > 1.0 else c, 0.0, 1.0)
+        """(k, 3) float64 in [0, 1] and (k,) bool: which rows were finite.
+
+        A NaN or infinite row becomes white (no colour, as in an OBJ) and
+        does not decide the 0-255 scale; a word raises ValueError.
+        """
+        c = np.array(rows, dtype=np.float64)
+        ok = np.isfinite(c).all(axis=1) if c.ndim == 2 else np.ones(len(c), dtype=bool)
+        scale = 255.0 if c[ok].size and c[ok].max() > 1.0 else 1.0
+        c[~ok] = scale
+        return np.clip(c / scale, 0.0, 1.0), ok
 
     try:
         if mesh is None:
@@ -390,32 +409,44 @@ def _read_off(path: str, mesh: Mesh | None) -> Mesh | None:
         faces = fm = None
         materials = []
         if mesh is None or face_colours:
-            faces, fm, materials = _off_faces(flines, unit, face_colours)
+            faces, fm, materials = _off_faces(flines, unit, face_colours, problems, path)
+            if mesh is not None and fm is None:
+                faces = None  # face colours unreadable: trimesh's faces, as without colours
     except ValueError:  # what cannot be read here: trimesh's result or its error
         return mesh
     vc = None
     if head.group(2):
         at = 3 + (1 if head.group(4) else 0) + (3 if head.group(3) else 0)
         try:
-            vc = unit([ln[at:at + 3] for ln in vlines])
-        except ValueError:  # missing or unreadable colours: none
+            vc, ok = unit([ln[at:at + 3] for ln in vlines])
+        except ValueError:  # unreadable colours (words, or rows cut short): none
             vc = None
+            problems.append(f"{path}: cannot read the COFF vertex colours; the vertices "
+                            f"count as having none")
         if vc is not None and vc.shape != (nv, 3):
-            vc = None
+            vc = None  # fewer than three numbers after the position: no colours stated
+        elif vc is not None and not ok.all():
+            n = int((~ok).sum())
+            problems.append(f"{path}: NaN or infinite colour on {n:,} "
+                            f"{'vertex' if n == 1 else 'vertices'}; they count as having no "
+                            f"colour (white)")
     if mesh is not None and vc is None and faces is None:
         return mesh
     return build_mesh(vertices, mesh.faces if faces is None else faces, path,
                       face_material=fm, materials=materials, vertex_colors=vc,
-                      problems=mesh.problems if mesh is not None else [])
+                      problems=problems)
 
 
-def _off_faces(flines, unit, coloured_file: bool):
+def _off_faces(flines, unit, coloured_file: bool, problems: list, path: str):
     """Fanned faces (m, 3) of OFF face lines, face materials (m,) and their materials.
+
+    A face colour that cannot be read (a word, NaN) leaves its face without
+    one (the default colour) and is appended to ``problems``.
 
     Raises
     ------
     ValueError
-        A face line that cannot be read.
+        A face line whose indices cannot be read.
     """
     sizes = np.array([int(ln[0]) for ln in flines], dtype=np.int64)
     if np.any(sizes < 0) or any(len(ln) < 1 + k for ln, k in zip(flines, sizes.tolist())):
@@ -433,8 +464,16 @@ def _off_faces(flines, unit, coloured_file: bool):
         return faces, None, []
     rest = [ln[1 + k:1 + k + 3] for ln, k in zip(flines, sizes.tolist())]
     has = np.array([len(r) == 3 for r in rest])
-    fc = unit([r if len(r) == 3 else ["0", "0", "0"] for r in rest])
-    fc, has = fc[keep][poly], has[keep][poly]
+    try:
+        fc, ok = unit([r if len(r) == 3 else ["0", "0", "0"] for r in rest])
+    except ValueError:
+        problems.append(f"{path}: cannot read the face colours; the faces count as having none")
+        return faces, None, []
+    if not ok.all():
+        n = int((~ok).sum())
+        problems.append(f"{path}: NaN or infinite colour on {n:,} face{'' if n == 1 else 's'}; "
+                        f"{'it takes' if n == 1 else 'they take'} the default colour")
+    fc, has = fc[keep][poly], (has & ok)[keep][poly]
     uniq, inverse = np.unique(fc, axis=0, return_inverse=True)
     materials = [Material(name="face colour", kd=c) for c in uniq]
     return faces, np.where(has, inverse.reshape(-1), -1), materials

@@ -66,8 +66,6 @@ CHUNK = 1 << 15
 TOP_PAIRS = 1 << 21
 #: Triangles per cluster for the top cells' first cut.
 CLUSTER = 32
-#: Bytes of working memory per pair at the widest step (for the budget).
-PAIR_BYTES = 400
 
 # The 8 corners of a box as signs of its half-extents, (8, 3).
 _SIGNS = np.array([[(k >> a) & 1 for a in range(3)] for k in range(8)], float) * 2 - 1

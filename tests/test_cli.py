@@ -108,13 +108,16 @@ def _bad_inputs(tmp_path):
         "voxel size zero": ([SPOT, "--voxel-size", "0"], "positive number"),
         "unknown extension": ([SPOT, "-o", str(tmp_path / "x.xyz")], "output format"),
         "missing output folder": ([SPOT, "-o", str(tmp_path / "no" / "x.raw")], "does not exist"),
+        "color and exact color": ([SPOT, "--exact-color", "--color"], "not allowed with"),
+        "empty scheduler": ([SPOT, SPOT, "--scheduler", " "], "--scheduler: must not be empty"),
     }
 
 
 CASES = ["missing input", "folder as input", "empty file", "not a mesh", "binary garbage",
          "vertices only", "nan vertices", "bounds min >= max", "resolution zero",
          "resolution negative", "resolution not a number", "voxel size zero",
-         "unknown extension", "missing output folder"]
+         "unknown extension", "missing output folder", "color and exact color",
+         "empty scheduler"]
 
 
 @pytest.mark.parametrize("case", CASES)
@@ -351,6 +354,23 @@ def test_batch_results_do_not_depend_on_jobs(tmp_path, capsys):
 def test_batch_needs_a_folder_output(tmp_path, capsys):
     assert main(["convert", SPOT, SPOT, "-o", str(tmp_path / "x.raw")]) == 2
     assert "-o must be a folder" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("where", ["missing folder", "a folder", "not text"])
+def test_batch_bad_manifest_is_one_line_and_makes_no_output_folder(tmp_path, capsys, where):
+    manifest = {"missing folder": tmp_path / "no" / "m.jsonl", "a folder": tmp_path,
+                "not text": tmp_path / "model.bin"}[where]
+    if where == "not text":  # some other file named by mistake: not appended to
+        manifest.write_bytes(bytes(range(256)))
+    out = tmp_path / "out"
+    assert main(["convert", SPOT, SPOT, "-o", str(out), "-r", "8",
+                 "--manifest", str(manifest)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("geovox: error: cannot ")
+    assert "manifest" in err and "Traceback" not in err
+    assert not out.exists()
+    if where == "not text":
+        assert manifest.read_bytes() == bytes(range(256))
 
 
 def test_review_regressions_give_one_line(tmp_path, capsys):

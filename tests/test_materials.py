@@ -616,3 +616,42 @@ def test_truncated_off_is_still_an_error(tmp_path):
                     + "5 0 1 2 3 4\n4 0 1 6 5\n")
     with pytest.raises(geovox.MeshError, match="announces 10 vertices and 7 faces.*has 10 and 2"):
         geovox.load_mesh(path)
+
+
+def test_off_nan_and_unreadable_colours_warn_and_fall_back(tmp_path):
+    # One NaN vertex colour must neither turn the 0-255 file into 0-1 (every
+    # colour white) nor reach the uint8 cast: that vertex counts as white.
+    path = write_off(tmp_path / "nan.off", "COFF", " 10 200 30 255")
+    text = path.read_text().splitlines()
+    text[3] = "0 0 0 nan 200 30 255"
+    path.write_text("\n".join(text) + "\n")
+    with pytest.warns(GeovoxWarning, match="NaN or infinite colour on 1 vertex;"):
+        vol = geovox.voxelize(path, resolution=10, color=True)
+    assert tuple(vol.colors[9, 9, 9, :3]) == (10, 200, 30)  # the corner far from vertex 0
+    assert tuple(vol.colors[0, 0, 0, :3]) != (10, 200, 30)
+    # A NaN face colour: that face takes the default, the others keep theirs.
+    path = write_off(tmp_path / "fnan.off",
+                     face_extra=lambda i: " nan 0 0" if i == 1 else " 0 0 255")
+    with pytest.warns(GeovoxWarning, match="NaN or infinite colour on 1 face;"):
+        vol = geovox.voxelize(path, resolution=10, color=True)
+    assert np.all(vol.colors[2:8, 2:8, 9, :3] == 204)
+    assert np.all(vol.colors[:, :, 0, :3] == (0, 0, 255))
+    # Words where colours should be: no colours, said once, not a failed load.
+    for name, header, vx, fx in [("w.off", "COFF", " red 0 0 255", lambda i: ""),
+                                 ("fw.off", "OFF", "", lambda i: " x y z")]:
+        path = write_off(tmp_path / name, header, vx, fx)
+        with pytest.warns(GeovoxWarning, match="cannot read the (COFF vertex|face) colours"):
+            assert colours_of(path) == {(204, 204, 204)}
+
+
+def test_nan_color_0_counts_as_white_with_a_warning(tmp_path):
+    vert, faces = box()
+    colour = np.tile(np.float32([0.2, 0.4, 0.6]), (len(vert), 1))
+    colour[0] = np.nan
+    path = write_gltf(tmp_path / "cnan.glb", [dict(vertices=vert, faces=faces,
+                                                   attributes={"COLOR_0": colour})])
+    with pytest.warns(GeovoxWarning, match="NaN or infinite COLOR_0 on 1 vertex;"):
+        vol = geovox.voxelize(path, resolution=10, color=True)
+    assert np.all(vol.colors[vol.occupancy, 3] == 255)
+    got = {tuple(int(x) for x in c) for c in vol.colors[vol.occupancy, :3]}
+    assert (51, 102, 153) in got  # the other vertices keep their colour
