@@ -580,45 +580,35 @@ class _Search:
     def _settle_voxels(self, vox, vid, t, low):
         """Exact nearest among each voxel's candidates (``vid`` indexes ``vox``).
 
-        Each voxel's candidates are measured in ascending order of their
-        lower bound ``low``, keeping the smallest squared distance so far;
-        a voxel is done at the first candidate whose bound exceeds it by
-        more than the slack (all later ones do too). Every candidate within
-        ``TIE`` of the nearest has ``low <= d2 <= best + slack`` and so is
-        measured: the tie rule sees all of them. Measuring only the
-        lowest-bound candidate and then every one below its distance
-        measured about four per voxel on spot where about one ties: a
-        vertex region's bound is well below its distance, so the first
-        candidate is often a poor one.
+        The candidate with the lowest bound is measured, then every other
+        one whose bound is within the slack of its distance (so every one
+        within ``TIE`` of the nearest). The half-strip bound is exact except
+        near obtuse corners, so this measures about as many as tie: 1.20 per
+        inside voxel on spot at 128³ for 1.17 tied, where the edge-line
+        bound alone measured 4.7 (measuring in ascending bound order with a
+        running minimum then still measured 4.0, and its sort cost more than
+        it saved once the bound was tight).
         """
         n = len(vox)
         x = self.centres(vox, 0)
-        order = np.lexsort((low, vid))
-        vid, t, low = vid[order], t[order], low[order]
-        start = np.flatnonzero(np.r_[True, vid[1:] != vid[:-1]])
-        count = np.diff(np.r_[start, len(vid)])
-        best = np.full(len(start), np.inf)
-        live = np.arange(len(start))  # segments still measuring
-        taken, d2s, uvs = [], [], []
-        r = 0
-        while len(live):
-            at = start[live] + r
-            d2, uv = closest(x[vid[at]], t[at], self.tris)
-            taken.append(at)
-            d2s.append(d2)
-            uvs.append(uv)
-            b = np.minimum(best[live], d2)
-            best[live] = b
-            r += 1
-            more = count[live] > r
-            nxt = np.where(more, start[live] + r, 0)
-            more &= low[nxt] <= b + self._slack(b)
-            live = live[more]
-        at = np.concatenate(taken)
-        # Candidate order (voxel, then as listed) does not matter: the tie
-        # rule looks at triangle indices only.
-        vid, t = vid[at], t[at]
-        d2, uv = np.concatenate(d2s), np.concatenate(uvs)
+        least = np.full(n, np.inf)
+        np.minimum.at(least, vid, low)
+        pos = np.arange(len(vid))
+        first = np.full(n, len(vid))
+        np.minimum.at(first, vid, np.where(low <= least[vid], pos, len(vid)))
+        has = np.flatnonzero(first < len(vid))
+        f = first[has]
+        d2f, uvf = closest(x[has], t[f], self.tris)
+        bound = np.full(n, -1.0)
+        bound[has] = d2f + self._slack(d2f)
+        rest = low <= bound[vid]
+        rest[f] = False  # measured already
+        rest = np.flatnonzero(rest)
+        d2, uv = closest(x[vid[rest]], t[rest], self.tris)
+        # Candidate order (voxel, then as listed) is kept: the tie rule
+        # looks at triangle indices only.
+        vid, t = np.r_[vid[f], vid[rest]], np.r_[t[f], t[rest]]
+        d2, uv = np.r_[d2f, d2], np.r_[uvf, uv]
         w = pick(d2, t, vid, n, self.hmin)
         self.emit(vox[vid[w]], t[w], uv[w])
 
