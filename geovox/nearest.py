@@ -539,7 +539,12 @@ class _Search:
         # bound there beats the given point can be nearer.
         p = near[cu]
         best = np.sum((centre - p) ** 2, axis=1)
-        try_ = np.flatnonzero(_bound_from_signed(base.T, w[28:31].T) < best[group])
+        e = np.empty((3, len(c)))
+        _strip_sq(base, w[28:31], e, np.empty_like(e))
+        low = np.maximum(e[0], e[1], out=e[0])
+        np.maximum(low, e[2], out=low)
+        low += base[0] * base[0]
+        try_ = np.flatnonzero(low < best[group])
         if len(try_):
             g = group[try_]
             d2, uv = closest(centre[g], t[try_], tris)
