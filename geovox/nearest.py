@@ -515,14 +515,15 @@ class _Search:
             keep[s:s + CHUNK] = low.min(axis=0) <= thresh[group]
         return keep, near
 
-    def _surface_point(self, cells, level, c, t, near):
+    def _surface_point(self, cells, level, c, t, near, search=True):
         """A chunk's pairs: signed distances at the cell centres, and each cell's surface point.
 
         Returns the chunk's cells ``cu`` (g,), each pair's ``group`` (p,),
         the pairs' triangle rows ``w`` (16, p) (see :func:`prepare`), the
         signed distances at the centres ``base`` (4, p), the surface points ``p`` (g, 3)
         (also written into ``near``) and the squared distances ``r2``
-        (g, 8) from each cell's corners to its point.
+        (g, 8) from each cell's corners to its point. Without ``search``,
+        the point given in ``near`` is kept.
         """
         tris = self.tris
         first = np.flatnonzero(np.r_[True, c[1:] != c[:-1]])
@@ -538,13 +539,15 @@ class _Search:
         # The nearest surface point to the centre: only candidates whose
         # bound there beats the given point can be nearer.
         p = near[cu]
-        best = np.sum((centre - p) ** 2, axis=1)
-        e = np.empty((3, len(c)))
-        _strip_sq(base, w[28:31], e, np.empty_like(e))
-        low = np.maximum(e[0], e[1], out=e[0])
-        np.maximum(low, e[2], out=low)
-        low += base[0] * base[0]
-        try_ = np.flatnonzero(low < best[group])
+        best = np.sum((centre - p) ** 2, axis=1) if search else None
+        try_ = ()
+        if search:
+            e = np.empty((3, len(c)))
+            _strip_sq(base, w[28:31], e, np.empty_like(e))
+            low = np.maximum(e[0], e[1], out=e[0])
+            np.maximum(low, e[2], out=low)
+            low += base[0] * base[0]
+            try_ = np.flatnonzero(low < best[group])
         if len(try_):
             g = group[try_]
             d2, uv = closest(centre[g], t[try_], tris)
@@ -572,7 +575,7 @@ class _Search:
         offs = ((_SIGNS + 1) // 2).astype(np.int64)  # corner k -> voxel offset
         for s in range(0, len(pc), CHUNK):
             c, t = pc[s:s + CHUNK], pt[s:s + CHUNK]
-            cu, group, w, base, p, r2 = self._surface_point(cells, 1, c, t, near)
+            cu, group, w, base, p, r2 = self._surface_point(cells, 1, c, t, near, search=False)
             vox = cells[cu][:, None, :] * 2 + offs  # (g, 8, 3)
             inside = self.has[0][vox[..., 0], vox[..., 1], vox[..., 2]]
             limit = r2 + self._slack(r2)
