@@ -396,6 +396,24 @@ def _pyramid(occupancy: np.ndarray, levels: int) -> list:
     return has
 
 
+def _cell_chunks(pc):
+    """``(start, end)`` slices of the sorted cells ``pc``, about ``CHUNK`` long, never splitting a cell.
+
+    A voxel's candidates must all be settled together (the tie rule and
+    the bound from the first measured one see all of them), and one cell
+    can hold more than ``CHUNK`` pairs.
+    """
+    s = 0
+    while s < len(pc):
+        e = s + CHUNK
+        if e < len(pc):
+            e = int(np.searchsorted(pc, pc[e], side="left"))
+            if e == s:
+                e = int(np.searchsorted(pc, pc[s], side="right"))
+        yield s, min(e, len(pc))
+        s = e
+
+
 class _Search:
     """The branch and bound over one block's inside voxels (see the module notes)."""
 
@@ -575,8 +593,8 @@ class _Search:
         """
         half = 0.5 * self.h
         offs = ((_SIGNS + 1) // 2).astype(np.int64)  # corner k -> voxel offset
-        for s in range(0, len(pc), CHUNK):
-            c, t = pc[s:s + CHUNK], pt[s:s + CHUNK]
+        for s, e in _cell_chunks(pc):
+            c, t = pc[s:e], pt[s:e]
             cu, group, w, base, p, r2 = self._surface_point(cells, 1, c, t, near, search=False)
             vox = cells[cu][:, None, :] * 2 + offs  # (g, 8, 3)
             inside = self.has[0][vox[..., 0], vox[..., 1], vox[..., 2]]

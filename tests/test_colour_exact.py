@@ -355,3 +355,12 @@ def test_lower_bound_is_below_the_distance_and_exact_on_acute_triangles(seed, sq
     acute = ok & (np.min(cos, axis=0) > np.cos(np.radians(89)))
     assert acute.sum() > 5
     np.testing.assert_allclose(low[acute], exact[acute], rtol=1e-9, atol=1e-12)
+
+
+def test_small_chunks_never_split_a_voxels_candidates(monkeypatch):
+    # Pairs are handled CHUNK at a time; a cell can hold more than that, and
+    # the last step must still see every candidate of a voxel at once (with
+    # chunks of 64 pairs, splitting them coloured voxels from a partial list).
+    import geovox.nearest as nearest
+    monkeypatch.setattr(nearest, "CHUNK", 64)
+    _check_against_reference(SPOT, 20)
