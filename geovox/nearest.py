@@ -60,10 +60,12 @@ TIE = 1e-9
 #: below 4e-7 for the planes of the thinnest triangles measured by them).
 MARGIN = 1e-6
 #: Pairs (cell, triangle) handled at once: bounds the working memory (about
-#: 0.6 KiB a pair at the widest step) whatever the grid. 8192 pairs keep a
-#: chunk's 31 gathered rows (2 MiB) about in a core's L2 cache: 11 % less CPU
-#: at 256³ on spot than 32768 (paired whole-process runs, 2026-11-30).
-CHUNK = 1 << 13
+#: 0.6 KiB a pair at the widest step) whatever the grid. Measured on spot at
+#: 256³ (paired whole-process runs, 2026-11-30): with the default threads,
+#: 16384 and 32768 took 17 % and 11 % less wall time than 8192 (many small
+#: steps contend for the GIL); with one thread 8192 took 11 % less CPU than
+#: 32768 (a chunk's 31 gathered rows stay nearer the cache).
+CHUNK = 1 << 14
 #: Top cells are started this many (cell, triangle) pairs' worth at a time.
 TOP_PAIRS = 1 << 21
 #: Triangles per cluster for the top cells' first cut.
