@@ -28,10 +28,17 @@ the cell's box, ``d(x, T) > d(x, surface) + MARGIN`` voxel sizes:
   box. ``p`` is the closest point to the cell's centre on the candidate
   that looks nearest there. A lower bound of ``d(k, T)**2`` at the corners
   is enough (it only weakens the test), so the corners use the cheap
-  :func:`lower_bound_sq`: squared distance to the triangle's plane plus the
-  squared distance past the farthest edge line within the plane, exact
-  wherever the closest point is on the face or an edge. Unlike a bound by
-  ``d(centre, T) - half diagonal``, this one does not weaken with depth: a
+  :func:`lower_bound_sq`: the squared distance to the triangle's plane plus,
+  for the edge that gives most, the squared distance to the edge's
+  half-strip within the plane (inside the edge line and within the
+  triangle's extent along the edge; the triangle lies in it, and plane
+  normal, edge normal and edge direction are orthonormal, so the squared
+  distance to the strip is a sum of squares). Exact wherever the closest
+  point is on the face or an edge, and on acute and right triangles at
+  their vertices too; below the distance only near the vertices of obtuse
+  triangles (the edge line alone, used before, left every vertex region
+  loose: 4.4 triangles a voxel were measured where 1.17 tie, spot 256³).
+  Unlike a bound by ``d(centre, T) - half diagonal``, this one does not weaken with depth: a
   plane's neighbouring triangles are dropped once they are about
   ``sqrt(2)`` half-widths away sideways, however deep the cell.
 
@@ -89,12 +96,15 @@ def prepare(triangles: np.ndarray, origin: np.ndarray) -> dict:
     Returns
     -------
     dict of arrays
-        ``a, ab, ac`` (t, 3); ``n`` (t, 3) unit normal; ``w`` (t, 4, 3): the
-        unit normal and the three unit in-plane outward edge normals;
-        ``off`` (t, 4): their offsets (``x . w - off`` is the signed
-        distance to the plane / edge line); ``rows`` (16, t): ``w`` by
-        component (row ``4 a + j`` is component ``a`` of direction ``j``)
-        then ``off``, for gathering contiguous rows per pair;
+        ``a, ab, ac`` (t, 3); ``n`` (t, 3) unit normal; ``w`` (t, 7, 3): the
+        unit normal, the three unit in-plane outward edge normals ``m``
+        and the three edge directions ``n x m``; ``off`` (t, 7): their
+        offsets (``x . w - off`` is the signed distance to the plane / edge
+        line, or along the edge from the middle of the triangle's extent
+        along it); ``hw`` (t, 3): half those extents; ``rows`` (31, t):
+        ``w`` by component (row ``7 a + j`` is component ``a`` of direction
+        ``j``), then ``off``, then ``hw``, for gathering contiguous rows
+        per pair;
         ``g0, g1`` (t, 3): the dual basis giving the in-plane barycentrics;
         inverse squared edge lengths ``iab, iac, ibc`` (t,); ``flat`` (t,)
         bool, zero-area triangles (bounded below by 0 and evaluated by
@@ -178,10 +188,12 @@ def prepare(triangles: np.ndarray, origin: np.ndarray) -> dict:
 def lower_bound_sq(x: np.ndarray, t: np.ndarray, tris: dict) -> np.ndarray:
     """A lower bound of the squared distance from points to triangles.
 
-    Squared distance to the plane plus the squared distance past the
-    farthest edge line (in the plane): exact where the closest point lies on
-    the face or on an edge, below it where it is a vertex. 0 for flat
-    triangles.
+    Squared distance to the plane plus the largest over the edges of the
+    squared in-plane distance to the edge's half-strip (inside the edge
+    line, within the triangle's extent along the edge): exact where the
+    closest point lies on the face or on an edge, and at the vertices of
+    acute and right triangles; below it only near the vertices of obtuse
+    triangles. 0 for flat triangles.
 
     Parameters
     ----------
@@ -399,7 +411,7 @@ def _pyramid(occupancy: np.ndarray, levels: int) -> list:
 
 
 def _cell_chunks(pc):
-    """``(start, end)`` slices of the sorted cells ``pc``, about ``CHUNK`` long, never splitting a cell.
+    """``(start, end)`` slices of the sorted cells ``pc``: about ``CHUNK`` long, whole cells.
 
     A voxel's candidates must all be settled together (the tie rule and
     the bound from the first measured one see all of them), and one cell
@@ -541,8 +553,8 @@ class _Search:
         """A chunk's pairs: signed distances at the cell centres, and each cell's surface point.
 
         Returns the chunk's cells ``cu`` (g,), each pair's ``group`` (p,),
-        the pairs' triangle rows ``w`` (16, p) (see :func:`prepare`), the
-        signed distances at the centres ``base`` (4, p), the surface points ``p`` (g, 3)
+        the pairs' triangle rows ``w`` (31, p) (see :func:`prepare`), the
+        signed distances at the centres ``base`` (7, p), the surface points ``p`` (g, 3)
         (also written into ``near``) and the squared distances ``r2``
         (g, 8) from each cell's corners to its point. Without ``search``,
         the point given in ``near`` is kept.
