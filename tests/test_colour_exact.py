@@ -328,3 +328,39 @@ def test_random_hulls_pick_the_reference_triangle(seed, res):
     mesh = Mesh(np.asarray(hull.vertices, float), np.asarray(hull.faces, np.int64), source="hull")
     got, uv, (tri, bary, dist, tie) = _nearest_triangles(mesh, res)
     assert np.all((got == tri) | tie)
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), squash=st.sampled_from([1.0, 1e-2, 1e-4]))
+def test_lower_bound_is_below_the_distance_and_exact_on_acute_triangles(seed, squash):
+    # The pruning bound (plane, then the half-strip along each edge): never
+    # above the exact distance, whatever the triangle (obtuse, needles,
+    # slivers by ``squash``), and equal to it on acute triangles, vertex
+    # regions included (so ties and near-ties are measured, and little else).
+    from geovox.nearest import lower_bound_sq, prepare
+    rng = np.random.default_rng(seed)
+    T = rng.normal(size=(200, 3, 3)) * rng.uniform(0.1, 3.0, size=(200, 1, 3))
+    T[:, :, 2] *= squash
+    p = rng.normal(size=(200, 3)) * 3
+    tris = prepare(T, np.zeros(3))
+    low = lower_bound_sq(p, np.arange(200), tris)
+    exact = np.diagonal(_distance_sq(p, T)).copy()
+    ok = ~tris["flat"]
+    assert np.all(low[ok] <= exact[ok] * (1 + 1e-9) + 1e-12)
+    assert np.all(low[~ok] == 0)
+    # Acute: every vertex angle below 89 degrees.
+    e = [T[:, (k + 1) % 3] - T[:, k] for k in range(3)]
+    cos = [np.einsum("ij,ij->i", -e[k - 1], e[k])
+           / np.linalg.norm(e[k - 1], axis=1) / np.linalg.norm(e[k], axis=1) for k in range(3)]
+    acute = ok & (np.min(cos, axis=0) > np.cos(np.radians(89)))
+    assert acute.sum() > 5
+    np.testing.assert_allclose(low[acute], exact[acute], rtol=1e-9, atol=1e-12)
+
+
+def test_small_chunks_never_split_a_voxels_candidates(monkeypatch):
+    # Pairs are handled CHUNK at a time; a cell can hold more than that, and
+    # the last step must still see every candidate of a voxel at once (with
+    # chunks of 64 pairs, splitting them coloured voxels from a partial list).
+    import geovox.nearest as nearest
+    monkeypatch.setattr(nearest, "CHUNK", 64)
+    _check_against_reference(SPOT, 16)
