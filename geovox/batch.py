@@ -184,9 +184,7 @@ def _convert_one(task) -> Result:
     ``write_options`` and ``versions`` (the client's geovox and NumPy, which
     a worker that joined a cluster late must match).
     """
-    import warnings
-
-    from .errors import GeovoxWarning
+    from .errors import collect_warnings
 
     t0 = time.perf_counter()
     path, out_dir, options = task["input"], task["out"], task["options"]
@@ -207,8 +205,9 @@ def _convert_one(task) -> Result:
         from .stream import convert_to, streams
 
         remote = is_url(out_dir)
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always", GeovoxWarning)
+        # geovox's own collector, not warnings.catch_warnings: tasks may run
+        # side by side on threads of one worker (see geovox.errors.warn).
+        with collect_warnings() as said:
             mesh = load_mesh(path)
             grid = make_grid(mesh.bounds, bounds=options.get("bounds"),
                              resolution=options.get("resolution"), shape=options.get("shape"),
@@ -243,7 +242,6 @@ def _convert_one(task) -> Result:
                     written, inside = write(vol, local, **task["write_options"]), vol.inside_count
                 written = [local] + [f for f in written if f != local]
                 outputs = _upload(written, local, out_dir) if remote else written
-        said = [str(w.message) for w in caught if issubclass(w.category, GeovoxWarning)]
         note = f"{inside:,} inside" + (f"; warning: {'; '.join(said)}" if said else "")
         return Result(path, "ok", outputs, "", time.perf_counter() - t0, note)
     except (GeovoxError, MemoryError) as exc:

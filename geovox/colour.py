@@ -40,11 +40,10 @@ several times slower (see benchmarks/README.md), so it is not the default.
 
 from __future__ import annotations
 
-import warnings
 
 import numpy as np
 
-from .errors import GeovoxWarning
+from .errors import warn
 from .parallel import for_blocks, scan_along
 
 #: Voxels whose nearest axis crossing is closer than this many voxels get the
@@ -70,8 +69,8 @@ def load_textures(mesh) -> None:
             with Image.open(m.texture_file) as im:
                 m.image = texels(im)
         except Exception as exc:  # Pillow raises several types for bad files
-            warnings.warn(f"cannot read texture {m.texture_file} (material {m.name!r}): "
-                          f"{exc}; using its Kd colour", GeovoxWarning, stacklevel=3)
+            warn(f"cannot read texture {m.texture_file} (material {m.name!r}): "
+                 f"{exc}; using its Kd colour", stacklevel=3)
 
 
 def _texel_axis(t: np.ndarray, n: int, mode: str) -> tuple:
@@ -525,7 +524,7 @@ def colour_volume(mesh, grid, occupancy, cast=None, *, diffuse=True, ambient=Fal
         fastest (``colors.transpose(2, 1, 0, 3)`` is C-contiguous).
     """
     for problem in mesh.problems:
-        warnings.warn(problem, GeovoxWarning, stacklevel=3)
+        warn(problem, stacklevel=3)
     load_textures(mesh)
     if exact:
         return exact_colours(mesh, grid, occupancy, diffuse=diffuse, ambient=ambient, jobs=jobs,

@@ -29,12 +29,11 @@ what was repaired, unless the mesh only had overlapping closed pieces).
 
 from __future__ import annotations
 
-import warnings
 
 import numpy as np
 
 from .backends.base import Hits
-from .errors import GeovoxWarning, ParameterError
+from .errors import ParameterError, warn
 from .mesh import Mesh
 from .parallel import scan_along
 
@@ -962,11 +961,11 @@ def _estimated(unsure, grid) -> None:
     share = 100.0 * n / grid.size
     # "99.6 %" or "0.0031 %", never "1e+02 %"
     share = f"{share:.1f}" if share >= 1 else f"{share:.2g}"
-    warnings.warn(
+    warn(
         f"the holes' caps are too many and too large to settle every voxel exactly within the "
         f"work budget: {n:,} of {grid.size:,} voxels ({share} %) were decided "
         f"by an estimate of the winding number whose proven error bound reaches 1/2 "
-        f"(--inside vote or parity are the fast alternatives)", GeovoxWarning, stacklevel=4)
+        f"(--inside vote or parity are the fast alternatives)", stacklevel=4)
 
 
 def choose(mesh: Mesh, method: str) -> str:
@@ -996,11 +995,11 @@ def choose(mesh: Mesh, method: str) -> str:
     then = (f"the copy has {left:,} edges without a partner, so the winding-number inside test "
             f"bridges its holes" if left else
             "the copy is closed, so its winding number comes exactly from signed crossings")
-    warnings.warn(
+    warn(
         f"{mesh.source}: the mesh is not closed and consistently wound ({n_open:,} open edges, "
         f"{n_nonmanifold:,} non-manifold, {len(edges):,} without a partner edge running the other "
         f"way, {rep.duplicates + rep.opposite:,} duplicate faces, after merging vertices by "
         f"position); repaired a copy: {rep.describe()}; {then}"
         + (" (pass inside='parity' or --inside parity to override)" if method == "auto" else ""),
-        GeovoxWarning, stacklevel=3)
+        stacklevel=3)
     return "winding"

@@ -7,6 +7,7 @@ import json
 import os
 import re
 import struct
+import threading
 import urllib.parse
 import warnings
 
@@ -499,6 +500,9 @@ NOT_A_MESH = {
     ".svg": "a 2-D drawing (SVG), not a 3-D mesh",
 }
 
+#: Held while trimesh reads a file (see load_mesh).
+_TRIMESH_LOAD = threading.Lock()
+
 #: The pip name of each optional module trimesh's readers import.
 PIP_NAMES = {"collada": "pycollada", "cascadio": "cascadio",
              "networkx": "networkx", "lxml": "lxml", "DracoPy": "DracoPy",
@@ -672,7 +676,9 @@ def _trimesh_load(path: str) -> Mesh:
     logger.setLevel(logging.DEBUG)
     logger.propagate = False
     try:
-        with warnings.catch_warnings():
+        # The lock: catch_warnings swaps process-wide filters, so two threads
+        # of one Dask worker loading side by side would restore each other's.
+        with _TRIMESH_LOAD, warnings.catch_warnings():
             warnings.simplefilter("ignore")  # NumPy noise from trimesh's parsers
             gltf = _gltf_file(path) if ext in (".gltf", ".glb") else None
             if gltf is None:

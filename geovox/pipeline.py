@@ -10,13 +10,12 @@ a block's voxels are classified exactly as the full grid's would be.
 from __future__ import annotations
 
 import time
-import warnings
 
 import numpy as np
 
 from . import parity
 from .backends import get_backend
-from .errors import GeovoxWarning, ParameterError
+from .errors import ParameterError, warn
 from .grid import Grid, make_grid
 from .memory import bytes_per_voxel, check_memory
 from .mesh import load_mesh
@@ -310,7 +309,7 @@ def voxelize_block(
     # The checks and the inside test's choice count with the rays.
     timings = {"rays": t_rays - t0, "fill": t_fill - t_rays}
     if not occ.any():
-        warnings.warn(empty_reason(m, grid, method), GeovoxWarning, stacklevel=_stacklevel)
+        warn(empty_reason(m, grid, method), stacklevel=_stacklevel)
     colors = None
     if color:
         from .colour import colour_volume

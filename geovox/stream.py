@@ -32,11 +32,10 @@ from __future__ import annotations
 
 import threading
 import time
-import warnings
 
 import numpy as np
 
-from .errors import GeovoxWarning, ParameterError
+from .errors import ParameterError, collect_warnings, warn
 from .grid import Grid, make_grid
 from . import memory
 from .memory import bytes_per_voxel
@@ -180,8 +179,7 @@ def _zarr_slab(m, grid, block, layout, options, z_part=None, z_start=None):
         if out is None or out.shape != shape:
             _SLAB_BUFFERS.pop(me, None)
             out = _SLAB_BUFFERS[me] = np.empty(shape, dtype=bool, order="F")
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", GeovoxWarning)  # said once, on the client
+    with collect_warnings(drop=True):  # said once, on the client
         vol = voxelize_block(m, grid, block, jobs=1, shared_crossings=shared, out=out, **options)
     tb = time.perf_counter()
     write_slab(layout, block[0], vol, 1)
@@ -343,9 +341,9 @@ def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, c
     # Said once here; the slabs below are silenced.
     if options.get("color"):
         for problem in m.problems:
-            warnings.warn(problem, GeovoxWarning, stacklevel=2)
+            warn(problem, stacklevel=2)
     if not (np.all(m.bounds[0] <= grid.hi) and np.all(m.bounds[1] >= grid.lo)):
-        warnings.warn("the region misses the mesh; the volume is empty", GeovoxWarning, stacklevel=2)
+        warn("the region misses the mesh; the volume is empty", stacklevel=2)
     per = bytes_per_voxel(options.get("color"), options.get("density"), options.get("sdf"))
     per += inside_tests.working_bytes(m, method)
     if budget is None:
@@ -437,8 +435,7 @@ def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, c
         else:
             plan_left, streamed = plan, False
         for n, (z0, z1) in enumerate(plan_left):
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", GeovoxWarning)  # said once, above
+            with collect_warnings(drop=True):  # said once, above
                 # Several slabs: rays along y, so a slab's columns are its own
                 # (x, z) pairs and no ray is cast twice. One piece: voxelize's
                 # default axis, so the file equals the in-memory volume.
@@ -457,7 +454,7 @@ def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, c
                 progress(n + 1, len(plan))
         files = writer.close(client) if f.name == "zarr" else writer.close()
         if inside == 0 and np.all(m.bounds[0] <= grid.hi) and np.all(m.bounds[1] >= grid.lo):
-            warnings.warn(empty_reason(m, grid, method), GeovoxWarning, stacklevel=2)
+            warn(empty_reason(m, grid, method), stacklevel=2)
     except BaseException:
         writer.abort()
         raise

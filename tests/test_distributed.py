@@ -63,7 +63,7 @@ def test_cluster_gives_the_local_files_byte_for_byte(client, models, tmp_path):
     assert [r.input for r in remote] == [r.input for r in local]
     assert [os.path.basename(r.input) for r in remote] == ["broken.obj", "fuze.obj", "spot.obj",
                                                           "spot.obj"]
-    assert [r.status for r in remote] == ["failed", "ok", "ok", "ok"]
+    assert [r.status for r in remote] == ["failed", "ok", "ok", "ok"], [r.error for r in remote]
     broken = remote[0]
     assert broken.outputs == [] and broken.error and "\n" not in broken.error
     assert remote[1].output.endswith("fuze_12x12x12_uint8.raw") and remote[1].seconds > 0
@@ -382,3 +382,34 @@ def test_manifest_holds_absolute_paths(models, tmp_path, monkeypatch):
     monkeypatch.chdir(elsewhere)
     again = convert_many([models], tmp_path / "out", manifest=tmp_path / "run.jsonl", resolution=8)
     assert [r.note for r in again] == ["done (manifest)"] * 3
+
+
+def test_geovox_warnings_are_gathered_per_thread_not_process_wide():
+    """Tasks on threads of one worker each get their own warnings (no catch_warnings race)."""
+    import threading
+    import warnings
+
+    from geovox.errors import GeovoxWarning, collect_warnings, warn
+
+    both = threading.Barrier(2)
+    got = {}
+
+    def task(k):
+        with collect_warnings() as said:
+            both.wait()
+            warn(f"from task {k}")  # the suite turns warnings into errors: this must not raise
+            both.wait()
+        with collect_warnings(drop=True) as dropped:
+            warn("said once elsewhere")
+        got[k] = (said, dropped)
+
+    threads = [threading.Thread(target=task, args=(k,)) for k in range(2)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert got == {0: (["from task 0"], []), 1: (["from task 1"], [])}
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        warn("outside any collector")
+    assert [(w.category, str(w.message)) for w in caught] == [(GeovoxWarning, "outside any collector")]

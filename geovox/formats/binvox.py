@@ -24,7 +24,6 @@ places them half a voxel off and slightly scaled (the occupancy is the same).
 from __future__ import annotations
 
 import os
-import warnings
 
 import numpy as np
 
@@ -98,15 +97,15 @@ def cube_of(volume):
 
 def write_binvox(volume, path) -> list:
     """Write the occupancy as a ``.binvox`` file (see the module docstring)."""
-    from ..errors import GeovoxWarning
+    from ..errors import warn
     from . import atomic_output
 
     path = os.fspath(path)
     dim, translate, scale = cube_of(volume)
     nx, ny, nz = volume.shape
     if (nx, ny, nz) != (dim, dim, dim):
-        warnings.warn(f"binvox is cubic: the {nx} x {ny} x {nz} grid is padded with empty voxels "
-                      f"to {dim}³ on the high side of each shorter axis", GeovoxWarning, stacklevel=3)
+        warn(f"binvox is cubic: the {nx} x {ny} x {nz} grid is padded with empty voxels "
+             f"to {dim}³ on the high side of each shorter axis", stacklevel=3)
     occ = volume.occupancy.view(np.uint8)
     per = max(1, SLAB_VOXELS // (dim * dim))
     with atomic_output(path) as tmp:
