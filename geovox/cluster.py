@@ -144,6 +144,10 @@ def _one_line(exc) -> str:
     return f"{type(exc).__name__}: {text[0]}" if text else type(exc).__name__
 
 
+#: Seconds the workers get to report their versions (see check_versions).
+VERSION_TIMEOUT = 5.0
+
+
 def check_versions(client) -> None:
     """Refuse workers whose geovox or NumPy version differs from this process's.
 
@@ -158,7 +162,14 @@ def check_versions(client) -> None:
         A worker differs or cannot import geovox.
     """
     mine = _versions()
-    theirs = client.run(_versions, on_error="return")
+    try:
+        # With a bound: a worker that hangs must not hang the set-up (errors
+        # within 10 s); client.run itself waits for ever.
+        theirs = client.sync(client._run, _versions, on_error="return",
+                             callback_timeout=VERSION_TIMEOUT)
+    except TimeoutError:
+        raise ClusterError(f"the cluster's workers did not say their versions within "
+                           f"{VERSION_TIMEOUT:g} s; is every worker alive?") from None
     bad = []
     for address, v in sorted(theirs.items()):
         if isinstance(v, BaseException):

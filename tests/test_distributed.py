@@ -413,3 +413,24 @@ def test_geovox_warnings_are_gathered_per_thread_not_process_wide():
         warnings.simplefilter("always")
         warn("outside any collector")
     assert [(w.category, str(w.message)) for w in caught] == [(GeovoxWarning, "outside any collector")]
+
+
+def test_workers_that_do_not_answer_the_version_check_are_an_error_in_bounded_time(
+        client, monkeypatch):
+    import threading
+    import time
+
+    real = cluster_mod._versions
+
+    def slow():  # on the workers only: the client answers at once
+        if threading.current_thread() is not threading.main_thread():
+            time.sleep(1.5)
+        return real()
+
+    monkeypatch.setattr(cluster_mod, "_versions", slow)
+    monkeypatch.setattr(cluster_mod, "VERSION_TIMEOUT", 0.3)
+    # Had it waited, the workers would have answered (same versions) and nothing raised.
+    with pytest.raises(geovox.errors.ClusterError, match="did not say their versions within 0.3 s"):
+        cluster_mod.check_versions(client)
+    monkeypatch.setattr(cluster_mod, "_versions", real)
+    time.sleep(1.5)  # let the workers finish before the next test uses them
