@@ -86,7 +86,9 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("-o", "--output", default=None,
                    help="output file, format from its extension (see `geovox formats`); or a "
                         "folder, or nothing for the current one, to get a name with the grid "
-                        "size and type such as spot_128x128x128_uint8.raw")
+                        "size and type such as spot_128x128x128_uint8.raw; either may be an "
+                        "fsspec URL (s3://bucket/spot.zarr, gs://bucket/out/; the cloud extra), "
+                        "written here first and then copied up")
     _grid_options(c)
     c.add_argument("--format", dest="fmt", help="output format, overriding the extension")
     c.add_argument("--shell", action="store_true",
