@@ -41,105 +41,6 @@ sys.path.insert(0, HERE)
 from common import BUNNY, CORPUS, ROOT, SPOT  # noqa: E402
 
 
-def before_read_obj(path):
-    """geovox 0.1's OBJ reader (commit c6f2705), the "before" of this table (messages shortened)."""
-    import numpy as np
-
-    from geovox.errors import MeshError
-    from geovox.mesh import Material, Mesh
-    from geovox.obj import _rest, read_mtl, resolve_path
-
-    with open(path, "rb") as f:
-        data = f.read()
-    if b"\0" in data[:4096]:
-        raise MeshError(f"{path}: is a binary file, not a text OBJ mesh")
-    text = data.decode("utf-8", errors="replace")
-    text = text.replace("\\\r\n", " ").replace("\\\n", " ")
-    folder = os.path.dirname(os.path.abspath(path))
-    v, vc, vt = [], [], []
-    tri_v, tri_t, tri_m = [], [], []
-    mat_index, mat_names, libs = {}, [], []
-    current = -1
-    has_vc = False
-    for lineno, line in enumerate(text.splitlines(), 1):
-        if not line or line[0] == "#":
-            continue
-        parts = line.split()
-        if not parts:
-            continue
-        key = parts[0]
-        try:
-            if key == "v":
-                v.append((float(parts[1]), float(parts[2]), float(parts[3])))
-                if len(parts) >= 7:
-                    vc.append((float(parts[4]), float(parts[5]), float(parts[6])))
-                    has_vc = True
-                else:
-                    vc.append((1.0, 1.0, 1.0))
-            elif key == "vt":
-                vt.append((float(parts[1]), float(parts[2]) if len(parts) > 2 else 0.0))
-            elif key == "f":
-                nv, nt = len(v), len(vt)
-                corners_v, corners_t = [], []
-                for tok in parts[1:]:
-                    s = tok.split("/")
-                    i = int(s[0])
-                    corners_v.append(i - 1 if i > 0 else nv + i)
-                    if len(s) > 1 and s[1]:
-                        j = int(s[1])
-                        corners_t.append(j - 1 if j > 0 else nt + j)
-                    else:
-                        corners_t.append(-1)
-                if len(corners_v) < 3:
-                    continue
-                for k in range(1, len(corners_v) - 1):
-                    tri_v.append((corners_v[0], corners_v[k], corners_v[k + 1]))
-                    tri_t.append((corners_t[0], corners_t[k], corners_t[k + 1]))
-                    tri_m.append(current)
-            elif key == "usemtl":
-                name = _rest(line, "usemtl")
-                if name not in mat_index:
-                    mat_index[name] = len(mat_names)
-                    mat_names.append(name)
-                current = mat_index[name]
-            elif key == "mtllib":
-                libs.append(_rest(line, "mtllib"))
-        except (ValueError, IndexError):
-            raise MeshError(f"{path}: line {lineno} is not valid OBJ") from None
-    if not v and not tri_v:
-        raise MeshError(f"{path}: cannot be read as a mesh (no OBJ vertices or faces)")
-    faces = np.array(tri_v, dtype=np.int64).reshape(-1, 3)
-    tex = np.array(tri_t, dtype=np.int64).reshape(-1, 3)
-    if faces.size and (faces.min() < 0 or faces.max() >= len(v)):
-        raise MeshError(f"{path}: faces index vertices that do not exist")
-    if tex.size and tex.max() >= len(vt):
-        raise MeshError(f"{path}: faces index texture coordinates that do not exist")
-    problems, library, missing_lib = [], {}, False
-    for lib in libs:
-        found = resolve_path(lib, folder)
-        if found is None:
-            problems.append(f"material file not found: {lib!r}")
-            missing_lib = True
-            continue
-        library.update(read_mtl(found, problems))
-    materials = []
-    for name in mat_names:
-        if name in library:
-            materials.append(library[name])
-        else:
-            if libs and not missing_lib:
-                problems.append(f"material {name!r} is not defined")
-            materials.append(Material(name=name, defined=False))
-    uv = None
-    if vt and (tex >= 0).any():
-        vt_arr = np.array(vt, dtype=np.float64)
-        uv = np.where((tex >= 0)[..., None], vt_arr[np.maximum(tex, 0)], np.nan)
-    return Mesh(vertices=np.array(v, dtype=np.float64).reshape(-1, 3), faces=faces, source=path,
-                face_material=np.array(tri_m, dtype=np.int64), materials=materials,
-                corner_uv=uv, vertex_colors=np.array(vc, dtype=np.float64) if has_vc else None,
-                problems=problems)
-
-
 def worker(reader, path):
     """Import the reader, then time one read of ``path``; print a JSON line."""
     import numpy as np  # noqa: F401  (imported before timing, as the CLI would)
@@ -153,7 +54,10 @@ def worker(reader, path):
         def read(p):
             return trimesh.load(p, process=False)
     elif reader == "before":
-        read = before_read_obj
+        # geovox 0.1's OBJ reader (commit c6f2705), kept once, in the tests,
+        # as the reference the new reader must match; imported before timing.
+        sys.path.insert(0, os.path.join(ROOT, "tests"))
+        from test_obj import reference_read_obj as read
     elif reader == "load":
         from geovox.mesh import load_mesh as read
     else:
