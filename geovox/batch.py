@@ -296,9 +296,14 @@ def _read_manifest(path) -> dict:
                     rec = json.loads(line)
                     done[rec["input"]] = rec
                 except (ValueError, KeyError, TypeError):
-                    # A run killed while writing leaves a cut last line: ignore it,
-                    # that model is simply done again.
-                    continue
+                    # A run killed while writing leaves a cut line (the next
+                    # run starts a fresh line after it): ignore it, that model
+                    # is simply done again. A line geovox did not begin (every
+                    # record starts with "{") means some other text file,
+                    # which appending would spoil.
+                    if not line.lstrip().startswith("{"):
+                        raise OutputError(f"cannot use {path} as the manifest: line {n} is not "
+                                          f"a geovox manifest record") from None
     except OSError as exc:
         raise OutputError(f"cannot read the manifest {path}: {exc.strerror or exc}") from None
     except UnicodeDecodeError:
@@ -480,7 +485,11 @@ def convert_many(inputs, out, *, client=None, fmt=None, overwrite=False, jobs=1,
                or (os.path.exists(manifest) and not os.access(manifest, os.W_OK)) else None)
         if why:
             raise OutputError(f"cannot write the manifest {manifest}: {why}")
-    done = {} if overwrite else _read_manifest(manifest)
+    # Read even with overwrite: it also refuses a file that is not a manifest
+    # before anything is appended to it.
+    done = _read_manifest(manifest)
+    if overwrite:
+        done = {}
     out = os.fspath(out)
     if is_url(out):
         import fsspec

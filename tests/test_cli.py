@@ -356,21 +356,37 @@ def test_batch_needs_a_folder_output(tmp_path, capsys):
     assert "-o must be a folder" in capsys.readouterr().err
 
 
-@pytest.mark.parametrize("where", ["missing folder", "a folder", "not text"])
+@pytest.mark.parametrize("where", ["missing folder", "a folder", "not text", "not text, --overwrite",
+                                   "other text", "other text, --overwrite"])
 def test_batch_bad_manifest_is_one_line_and_makes_no_output_folder(tmp_path, capsys, where):
     manifest = {"missing folder": tmp_path / "no" / "m.jsonl", "a folder": tmp_path,
-                "not text": tmp_path / "model.bin"}[where]
-    if where == "not text":  # some other file named by mistake: not appended to
-        manifest.write_bytes(bytes(range(256)))
+                "not text": tmp_path / "model.bin", "not text, --overwrite": tmp_path / "model.bin",
+                "other text": tmp_path / "notes.txt",
+                "other text, --overwrite": tmp_path / "notes.txt"}[where]
+    # Some other file named by mistake: never appended to, --overwrite or not.
+    content = {"not text": bytes(range(256)),
+               "other text": b'my notes\n{"input": 1}\n'}.get(where.split(",")[0])
+    if content is not None:
+        manifest.write_bytes(content)
     out = tmp_path / "out"
-    assert main(["convert", SPOT, SPOT, "-o", str(out), "-r", "8",
-                 "--manifest", str(manifest)]) == 2
+    assert main(["convert", SPOT, SPOT, "-o", str(out), "-r", "8", "--manifest", str(manifest)]
+                + (["--overwrite"] if "overwrite" in where else [])) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and err.startswith("geovox: error: cannot ")
     assert "manifest" in err and "Traceback" not in err
     assert not out.exists()
-    if where == "not text":
-        assert manifest.read_bytes() == bytes(range(256))
+    if content is not None:
+        assert manifest.read_bytes() == content
+
+
+def test_manifest_with_a_cut_last_line_still_resumes(tmp_path, capsys):
+    manifest = tmp_path / "m.jsonl"
+    out = tmp_path / "out"
+    assert main(["convert", SPOT, "-o", str(out), "-r", "8", "--manifest", str(manifest), "-q"]) == 0
+    with open(manifest, "a") as f:
+        f.write('{"input": "/half')  # a run killed mid-line
+    assert main(["convert", SPOT, "-o", str(out), "-r", "8", "--manifest", str(manifest), "-q"]) == 0
+    capsys.readouterr()
 
 
 def test_review_regressions_give_one_line(tmp_path, capsys):
