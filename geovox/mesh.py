@@ -15,7 +15,8 @@ import numpy as np
 
 from .errors import InputNotFoundError, MeshError
 # Mesh, Material and check_mesh are also public here, where they used to live.
-from .surface import WRAP_MODES, Material, Mesh, build_mesh, check_mesh, texels  # noqa: F401
+from .surface import (WRAP_MODES, Material, Mesh, build_mesh, check_mesh, texels,  # noqa: F401
+                      transform_uv)
 
 
 #: The diffuse colour trimesh gives a material the file does not colour.
@@ -88,10 +89,8 @@ def _visual_parts(g, nfaces, materials, gltf=None, made=None, original=None):
                 # KHR_texture_transform acts on glTF's UVs (V down); trimesh
                 # has flipped V. Affine, so applying it to the corners is
                 # the same as applying it to interpolated UVs.
-                t = fact["transform"]
-                gu, gv = uv[:, 0], 1.0 - uv[:, 1]
-                uv = np.stack([t[0, 0] * gu + t[0, 1] * gv + t[0, 2],
-                               1.0 - (t[1, 0] * gu + t[1, 1] * gv + t[1, 2])], axis=1)
+                flip = np.array([1.0, -1.0]), np.array([0.0, 1.0])
+                uv = transform_uv(uv * flip[0] + flip[1], fact["transform"]) * flip[0] + flip[1]
             uv = uv[g.faces]
         vc = _unit_colours(_vertex_attribute(source, "color"), len(g.vertices), gltf["problems"])
     elif kind == "texture":

@@ -40,7 +40,15 @@ class Material:
         The texture's texels as stored (sRGB), once read.
     wrap : (str, str)
         How UVs outside [0, 1] wrap along u and v: ``"repeat"``, ``"mirror"``
-        (glTF MIRRORED_REPEAT) or ``"clamp"`` (CLAMP_TO_EDGE).
+        (glTF MIRRORED_REPEAT), ``"clamp"`` (CLAMP_TO_EDGE: the edge texels
+        beyond) or ``"border"`` (MTL ``-clamp on``: one copy of the texture;
+        beyond it the face is coloured as if it had no texture).
+    uv_transform : (3, 3) float64 or None
+        Affine map applied to the texture coordinates before sampling (MTL
+        ``-o``/``-s``); the OBJ reader has already applied it to
+        :attr:`Mesh.corner_uv`, so it is informational.
+    ignored_options : list of (str, list of str, str)
+        ``map_Kd`` options that are not applied: option, values, what it does.
     vertex_tint : bool
         Whether vertex colours multiply the texture (glTF's ``COLOR_0``) rather
         than being replaced by it (OBJ's ``v x y z r g b``).
@@ -54,12 +62,25 @@ class Material:
     image: np.ndarray | None = field(default=None, repr=False)
     wrap: tuple = ("repeat", "repeat")
     vertex_tint: bool = False
+    uv_transform: np.ndarray | None = field(default=None, repr=False)
+    ignored_options: list = field(default_factory=list, repr=False)
 
     def diffuse(self) -> np.ndarray:
         """``Kd``, or the default: 1 under a texture (so it shows as painted), else 0.8 grey."""
         if self.kd is not None:
             return self.kd
         return np.ones(3) if self.texture_file or self.image is not None else np.full(3, 0.8)
+
+
+def transform_uv(uv: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """``t`` (3, 3) applied to texture coordinates ``uv`` (..., 2) as points; NaN stays NaN.
+
+    Affine, so transforming a face's corner UVs is the same as transforming
+    the UVs interpolated between them.
+    """
+    u, v = uv[..., 0], uv[..., 1]
+    return np.stack([t[0, 0] * u + t[0, 1] * v + t[0, 2],
+                     t[1, 0] * u + t[1, 1] * v + t[1, 2]], axis=-1)
 
 
 def texels(image) -> np.ndarray:

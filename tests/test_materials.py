@@ -513,22 +513,186 @@ def test_glb_written_by_trimesh(tmp_path):
     assert np.all(vol.colors[13:15, 3:5, 3:5, :3] == (0, 0, 255))
 
 
-def test_obj_map_kd_clamp_on_clamps(tmp_path):
+# OBJ + MTL: map_Kd options.
+
+def obj_centre(i):
+    """OBJ texture coordinate v of the centre of texel row i (of 4): V points up."""
+    return 1 - (i + 0.5) / 4
+
+
+def obj_box(folder, mtl, u, v, material="m", name="b.obj"):
+    """A 2 x 2 x 2 box OBJ, every corner at texture coordinates (u, v), using ``material``."""
+    (folder / "t.png").write_bytes(texture_png())
+    (folder / "a.mtl").write_text(mtl)
+    m = _trimesh_box()
+    lines = ["mtllib a.mtl", f"vt {u!r} {v!r}"] + [f"v {x} {y} {z}" for x, y, z in m.vertices]
+    lines += [f"usemtl {material}"] + [f"f {a + 1}/1 {b + 1}/1 {c + 1}/1" for a, b, c in m.faces]
+    (folder / name).write_text("\n".join(lines) + "\n")
+    return folder / name
+
+
+def quiet_colours(path, **kw):
+    """colours_of, and the GeovoxWarning messages it gave."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        got = colours_of(path, **kw)
+    return got, [str(w.message) for w in caught if issubclass(w.category, GeovoxWarning)]
+
+
+@pytest.mark.parametrize("options,u,v,want", [
+    # -o shifts the lookup: uv -> uv + o (Blender's and three.js's reading)
+    ("-o 0.25 0 0", centre(0), obj_centre(0), texel(1, 0)),
+    ("-o 0 -0.5", centre(0), obj_centre(0), texel(0, 2)),
+    # -s scales it: uv -> s * uv; v's scale defaults to 1
+    ("-s 2 2 1", centre(1) / 2, obj_centre(3) / 2, texel(1, 3)),
+    ("-s 2", centre(1) / 2, obj_centre(2), texel(1, 2)),
+    # both: uv -> s * uv + o, in either order on the line
+    ("-s 0.5 0.5 -o 0.25 0.25", 0.75, 0.75, texel(2, 1)),
+    ("-o 0.25 0.25 -s 0.5 0.5", 0.75, 0.75, texel(2, 1)),
+    # after the transform the texture still repeats
+    ("-o 3 -2", centre(3), obj_centre(1), texel(3, 1)),
+])
+def test_map_kd_offset_and_scale_move_the_lookup(tmp_path, options, u, v, want):
+    path = obj_box(tmp_path, f"newmtl m\nmap_Kd {options} t.png\n", u, v)
+    assert quiet_colours(path) == ({want}, [])
+
+
+def test_map_kd_offset_and_scale_agree_with_khr_texture_transform(tmp_path):
+    # The same move stated in glTF (V down, KHR_texture_transform) and in MTL (V up).
+    t = textured(tex_extra={"extensions": {"KHR_texture_transform": {
+        "offset": [0.25, 0.5], "scale": [0.5, 0.5]}}})
+    gltf = write_gltf(tmp_path / "t.glb", [uv_box(0.75, 0.25, material=0)], **t)
+    # glTF v' = 0.5 * 0.25 + 0.5 = 0.625 (row 2); in OBJ's V: 1 - 0.625 = 0.375 = 0.5 * 0.75 + 0
+    obj = obj_box(tmp_path, "newmtl m\nmap_Kd -s 0.5 0.5 -o 0.25 0 t.png\n", 0.75, 0.75)
+    assert colours_of(gltf) == colours_of(obj) == {texel(2, 2)}
+
+
+def test_map_kd_clamp_on_is_one_copy_of_the_texture(tmp_path):
+    # The MTL specification: "one copy of the texture is mapped onto the surface
+    # [...]. Outside of the origin texture, the underlying material is unchanged."
     from geovox.obj import read_mtl
 
-    (tmp_path / "t.png").write_bytes(texture_png())
-    (tmp_path / "a.mtl").write_text("newmtl c\nmap_Kd -clamp on -s 1 1 1 t.png\n"
-                                    "newmtl r\nmap_Kd -clamp off t.png\nnewmtl p\nmap_Kd t.png\n")
+    mtl = ("newmtl c\nKd 0.2 0.4 0.6\nmap_Kd -clamp on t.png\n"
+           "newmtl w\nmap_Kd -clamp on t.png\n"
+           "newmtl s\nmap_Kd -clamp on -s 0.5 0.5 t.png\n"
+           "newmtl r\nmap_Kd -clamp off t.png\nnewmtl p\nmap_Kd t.png\n")
+    path = obj_box(tmp_path, mtl, 1.375, 1.375, "c")
     mats = read_mtl(str(tmp_path / "a.mtl"), [])
-    assert mats["c"].wrap == ("clamp", "clamp") and mats["c"].texture_file.endswith("t.png")
+    assert mats["c"].wrap == ("border", "border") and mats["c"].texture_file.endswith("t.png")
     assert mats["r"].wrap == mats["p"].wrap == ("repeat", "repeat")
-    # end to end: a box whose every corner has u = v = 1.375 takes the corner texel
+    # off the texture: Kd alone (with Kd 1: white), not an edge texel
+    assert colours_of(path) == {(51, 102, 153)}
+    assert colours_of(obj_box(tmp_path, mtl, 1.375, 1.375, "w")) == {(255, 255, 255)}
+    assert colours_of(obj_box(tmp_path, mtl, -0.01, centre(1), "w")) == {(255, 255, 255)}
+    # on its edge and inside: the texture
+    assert colours_of(obj_box(tmp_path, mtl, 1.0, 1.0, "w")) == {texel(3, 0)}
+    assert colours_of(obj_box(tmp_path, mtl, centre(1), obj_centre(2), "w")) == {texel(1, 2)}
+    # scaled by 0.5 the one copy covers uv up to 2
+    assert colours_of(obj_box(tmp_path, mtl, 1.75, 1.75, "s")) == {texel(3, 0)}
+    assert colours_of(obj_box(tmp_path, mtl, 2.5, 1.75, "s")) == {(255, 255, 255)}
+    # off: repeats (1.375 -> 0.375)
+    assert colours_of(obj_box(tmp_path, mtl, 1.375, 1.375, "r")) == {texel(1, 2)}
+
+
+def test_map_kd_clamp_on_across_a_face_keeps_the_texture_inside(tmp_path):
+    # One face spanning u from -1 to 2: the inside third is textured, the rest takes Kd.
+    (tmp_path / "t.png").write_bytes(texture_png())
+    (tmp_path / "a.mtl").write_text("newmtl m\nKd 1 1 1\nmap_Kd -clamp on t.png\n")
+    mesh = geovox.load_mesh(obj_box(tmp_path, (tmp_path / "a.mtl").read_text(), 0.5, 0.5))
+    from geovox.colour import load_textures, shade
+
+    mesh.corner_uv[:] = [[-1.0, obj_centre(1)], [2.0, obj_centre(1)], [2.0, obj_centre(1)]]
+    load_textures(mesh)
+    u = np.linspace(0, 1, 301)  # barycentric weight of corner 1: uv = -1 + 3 u
+    got = shade(mesh, np.zeros(len(u), np.int64), np.stack([u, np.zeros_like(u)], axis=1))
+    uv = -1 + 3 * u
+    inside = (uv >= 0) & (uv <= 1)
+    edge = (np.abs(uv) < 1e-6) | (np.abs(uv - 1) < 1e-6)  # rounding decides these
+    inside, outside = inside & ~edge, ~inside & ~edge
+    assert np.all(got[outside] == 1.0) and outside.sum() == 200
+    from geovox.colour import sample_bilinear
+
+    want = sample_bilinear(mesh.materials[0].image,
+                           np.stack([uv[inside], np.full(inside.sum(), obj_centre(1))], axis=1),
+                           ("clamp", "clamp"))
+    np.testing.assert_allclose(got[inside], want, atol=1e-12)
+
+
+@pytest.mark.parametrize("statement,file", [
+    # every option of the specification at its neutral value, and a name with spaces
+    ("-blendu on -blendv on -cc off -clamp off -mm 0 1 -o 0 0 0 -s 1 1 1 -t 0 0 0 my tex.png",
+     "my tex.png"),
+    ("my  tex.png", "my  tex.png"),  # inner spaces kept as written
+    ("  -s 1 1 1   my tex.png  ", "my tex.png"),
+    ('"my tex.png"', "my tex.png"),
+    ("-o 0 0 12 monkeys.png", "12 monkeys.png"),  # a name that starts with a number
+    ("-s 1 1 -o 0 0 0 -clamp off 12 monkeys.png", "12 monkeys.png"),
+    ("-s 1 1 1 sub\\t.png", "sub/t.png"),  # Windows separators
+    ("-o 0 0 -dash.png", "-dash.png"),  # a name that looks like an option
+    ("-dash.png", "-dash.png"),
+])
+def test_map_kd_options_and_names_find_the_right_image(tmp_path, statement, file):
+    from geovox.obj import read_mtl
+
+    (tmp_path / "sub").mkdir()
+    for name in ("my tex.png", "my  tex.png", "12 monkeys.png", "sub/t.png", "-dash.png",
+                 "tex.png"):
+        (tmp_path / name).write_bytes(b"")
+    (tmp_path / "a.mtl").write_text(f"newmtl m\nmap_Kd {statement}\n")
+    problems = []
+    mats = read_mtl(str(tmp_path / "a.mtl"), problems)
+    assert mats["m"].texture_file == str(tmp_path / file)
+    assert problems == [] and mats["m"].ignored_options == []
+    assert mats["m"].uv_transform is None and mats["m"].wrap == ("repeat", "repeat")
+
+
+def test_map_kd_options_not_applied_warn_once_each_naming_them(tmp_path):
+    # Options geovox does not apply: the texture still loads and samples as
+    # stored, and each option is one warning naming it and its materials.
+    mtl = ("newmtl a\nmap_Kd -bm 0.5 -mm 0.2 0.8 t.png\n"
+           "newmtl b\nmap_Kd -mm 0.1 2 -imfchan r -blendu off t.png\n"
+           "newmtl c\nmap_Kd -cc on -t 1 0 0 -texres 512 -boost 2 -type sphere -foo 3 t.png\n"
+           "newmtl d\nmap_Kd -o 0.25 t.png\n")
+    (tmp_path / "t.png").write_bytes(texture_png())
     m = _trimesh_box()
-    lines = ["mtllib a.mtl", "vt 1.375 1.375"] + [f"v {x} {y} {z}" for x, y, z in m.vertices]
-    lines += ["usemtl c"] + [f"f {a + 1}/1 {b + 1}/1 {c + 1}/1" for a, b, c in m.faces]
-    (tmp_path / "c.obj").write_text("\n".join(lines) + "\n")
-    # V up in OBJ: v = 1.375 clamps to 1, the image's top row; u clamps to its last column
-    assert colours_of(tmp_path / "c.obj") == {texel(3, 0)}
+    lines = ["mtllib a.mtl", f"vt {centre(1)} {obj_centre(2)}"]
+    lines += [f"v {x} {y} {z}" for x, y, z in m.vertices]
+    for i, (a, b, c) in enumerate(m.faces):
+        lines += [f"usemtl {'abc'[i % 3]}", f"f {a + 1}/1 {b + 1}/1 {c + 1}/1"]
+    (tmp_path / "a.mtl").write_text(mtl)
+    (tmp_path / "o.obj").write_text("\n".join(lines) + "\n")
+    got, said = quiet_colours(tmp_path / "o.obj")
+    assert got == {texel(1, 2)}
+    options = [s.split("map_Kd option ")[1].split("'")[1] for s in said]
+    assert sorted(options) == sorted(["-bm 0.5", "-mm 0.2 0.8", "-imfchan r", "-blendu off",
+                                      "-cc on", "-t 1 0 0", "-texres 512", "-boost 2",
+                                      "-type sphere", "-foo 3"])
+    mm = [s for s in said if "-mm" in s]
+    assert len(mm) == 1 and "materials 'a', 'b'" in mm[0]
+    assert any("-foo 3" in s and "not an option of the MTL specification" in s for s in said)
+    # material d (unused here) says nothing; used, its -o is applied without a word
+    got, said = quiet_colours(obj_box(tmp_path, mtl, centre(0), obj_centre(2), "d"))
+    assert (got, said) == ({texel(1, 2)}, [])
+
+
+def test_map_kd_options_through_the_cli(tmp_path):
+    path = obj_box(tmp_path, "newmtl m\nmap_Kd -s 0.5 0.5 -o 0.25 0.25 -clamp on t.png\n",
+                   0.75, 0.75)
+    assert cli_colours(path, tmp_path) == {texel(2, 1)}
+
+
+def test_border_samples_like_clamp_on_the_texture():
+    from geovox.colour import on_texture, sample_bilinear
+
+    rng = np.random.default_rng(7)
+    img = rng.integers(0, 256, (4, 6, 3)).astype(np.uint8)
+    uv = rng.uniform(-0.5, 1.5, (5000, 2))
+    uv[:4] = [[0, 0], [1, 1], [0, 1], [1, 0]]
+    np.testing.assert_array_equal(sample_bilinear(img, uv, ("border", "border")),
+                                  sample_bilinear(img, uv, ("clamp", "clamp")))
+    on = on_texture(uv, ("border", "repeat"))
+    np.testing.assert_array_equal(on, (uv[:, 0] >= 0) & (uv[:, 0] <= 1))
+    assert on[:4].all() and not on_texture(np.array([[np.nan, 0.5]]), ("repeat", "repeat"))[0]
 
 
 @pytest.mark.parametrize("typ,value", [("float", "0.2 0.4 0.6"), ("uchar", "51 102 153"),
