@@ -695,18 +695,141 @@ def test_border_samples_like_clamp_on_the_texture():
     assert on[:4].all() and not on_texture(np.array([[np.nan, 0.5]]), ("repeat", "repeat"))[0]
 
 
-@pytest.mark.parametrize("typ,value", [("float", "0.2 0.4 0.6"), ("uchar", "51 102 153"),
-                                       ("ushort", "13107 26214 39321")])
-def test_ply_vertex_colour_encodings(tmp_path, typ, value):
+PLY_TYPES = {"uchar": "u1", "char": "i1", "ushort": "u2", "short": "i2", "uint": "u4",
+             "int": "i4", "float": "f4", "double": "f8"}
+
+
+def write_ply(path, fmt="ascii", vprops=(), vvals=None, fprops=(), fvals=None,
+              vertices=None, polygons=None):
+    """A PLY of ``vertices`` (default: the 2 x 2 x 2 box) and ``polygons``.
+
+    ``vprops``/``fprops``: (type, name) after x y z / after the index list;
+    ``vvals``/``fvals``: one row of values per vertex / face. ``fmt``:
+    ``ascii``, ``binary_little_endian`` or ``binary_big_endian``.
+    """
+    if vertices is None:
+        m = _trimesh_box()
+        vertices, polygons = np.asarray(m.vertices), np.asarray(m.faces)
+    head = [f"ply", f"format {fmt} 1.0", f"element vertex {len(vertices)}",
+            "property float x", "property float y", "property float z"]
+    head += [f"property {t} {n}" for t, n in vprops]
+    head += [f"element face {len(polygons)}", "property list uchar int vertex_indices"]
+    head += [f"property {t} {n}" for t, n in fprops] + ["end_header"]
+    text = "\n".join(head) + "\n"
+    if fmt == "ascii":
+        rows = [" ".join(map(str, list(p) + (list(vvals[i]) if vprops else [])))
+                for i, p in enumerate(vertices)]
+        rows += [" ".join(map(str, [len(q)] + list(q) + (list(fvals[i]) if fprops else [])))
+                 for i, q in enumerate(polygons)]
+        path.write_text(text + "\n".join(rows) + "\n")
+        return path
+    e = "<" if "little" in fmt else ">"
+    vd = np.dtype([(a, e + "f4") for a in "xyz"] + [(n, e + PLY_TYPES[t]) for t, n in vprops])
+    v = np.zeros(len(vertices), vd)
+    for k, a in enumerate("xyz"):
+        v[a] = vertices[:, k]
+    for k, (t, n) in enumerate(vprops):
+        v[n] = np.asarray(vvals, dtype=np.float64)[:, k]
+    k = len(polygons[0])
+    fd = np.dtype([("n", "u1"), ("i", e + "i4", (k,))] + [(n, e + PLY_TYPES[t]) for t, n in fprops])
+    f = np.zeros(len(polygons), fd)
+    f["n"], f["i"] = k, polygons
+    for j, (t, n) in enumerate(fprops):
+        f[n] = np.asarray(fvals, dtype=np.float64)[:, j]
+    path.write_bytes(text.encode() + v.tobytes() + f.tobytes())
+    return path
+
+
+RGB = ("red", "green", "blue")
+RGBA = RGB + ("alpha",)
+FORMATS = ["ascii", "binary_little_endian", "binary_big_endian"]
+
+
+@pytest.mark.parametrize("fmt", FORMATS)
+@pytest.mark.parametrize("typ,names,value,want", [
+    ("float", RGB, (0.2, 0.4, 0.6), (51, 102, 153)),
+    ("double", RGB, (0.2, 0.4, 0.6), (51, 102, 153)),
+    ("float", RGBA, (0.2, 0.4, 0.6, 0.0), (51, 102, 153)),  # alpha is not used
+    ("float", RGB, (51, 102, 153), (51, 102, 153)),  # floats above 1: 0-255, as in OFF
+    ("uchar", RGBA, (10, 200, 30, 0), (10, 200, 30)),
+    ("ushort", RGB, (32768, 65535, 0), (128, 255, 0)),  # trimesh's 8 bits made 32768 0
+    ("uint", RGB, (2 ** 31, 2 ** 32 - 1, 0), (128, 255, 0)),
+])
+@pytest.mark.parametrize("element", ["vertex", "face"])
+def test_ply_colour_types(tmp_path, fmt, typ, names, value, want, element):
+    props = [(typ, n) for n in names]
+    n = 8 if element == "vertex" else 12
+    kw = dict(vprops=props, vvals=[value] * n) if element == "vertex" else \
+        dict(fprops=props, fvals=[value] * n)
+    path = write_ply(tmp_path / "c.ply", fmt, **kw)
+    assert quiet_colours(path) == ({want}, [])
+
+
+@pytest.mark.parametrize("fmt", FORMATS)
+def test_ply_nan_colours_are_not_black(tmp_path, fmt):
+    # trimesh turns a NaN colour into 0: black, a colour the file does not state.
+    rgb = [("float", n) for n in RGB]
+    nan = [(np.nan,) * 3] * 8
+    path = write_ply(tmp_path / "a.ply", fmt, rgb, nan)
+    got, said = quiet_colours(path)
+    assert got == {(204, 204, 204)}  # no vertex states a colour: the default
+    assert len(said) == 1 and "NaN or infinite colour on 8 vertices" in said[0]
+    one = [(0.2, 0.4, 0.6)] * 8
+    one[0] = (np.nan, 0.4, 0.6)
+    path = write_ply(tmp_path / "b.ply", fmt, rgb, one)
+    with pytest.warns(GeovoxWarning, match="colour on 1 vertex; it counts as having no colour"):
+        vol = geovox.voxelize(path, resolution=10, color=True)
     m = _trimesh_box()
-    head = (f"ply\nformat ascii 1.0\nelement vertex {len(m.vertices)}\nproperty float x\n"
-            f"property float y\nproperty float z\nproperty {typ} red\nproperty {typ} green\n"
-            f"property {typ} blue\nelement face {len(m.faces)}\n"
-            f"property list uchar int vertex_indices\nend_header\n")
-    body = "".join(f"{x} {y} {z} {value}\n" for x, y, z in m.vertices)
-    body += "".join(f"3 {a} {b} {c}\n" for a, b, c in m.faces)
-    (tmp_path / "c.ply").write_text(head + body)
-    assert colours_of(tmp_path / "c.ply") == {(51, 102, 153)}
+    far = tuple(np.clip(np.floor((2 - m.vertices[0]) * 5), 0, 9).astype(int))
+    near = tuple(np.clip(np.floor(m.vertices[0] * 5), 0, 9).astype(int))
+    assert tuple(vol.colors[far][:3]) == (51, 102, 153)
+    assert np.all(vol.colors[near][:3] >= (51, 102, 153)) and tuple(vol.colors[near][:3]) != \
+        (51, 102, 153)  # towards white, never black
+    # faces: a NaN face takes the default, the others keep theirs
+    fc = [(0.0, 0.0, 1.0)] * 12
+    top = [i for i, f in enumerate(m.faces) if np.all(m.vertices[f][:, 2] == 2)]
+    for i in top:
+        fc[i] = (np.nan, np.nan, np.nan)
+    path = write_ply(tmp_path / "f.ply", fmt, fprops=rgb, fvals=fc)
+    with pytest.warns(GeovoxWarning, match="NaN or infinite colour on 2 faces; they take the default"):
+        vol = geovox.voxelize(path, resolution=10, color=True)
+    assert np.all(vol.colors[2:8, 2:8, 9, :3] == 204)
+    assert np.all(vol.colors[:, :, 0, :3] == (0, 0, 255))
+
+
+@pytest.mark.parametrize("fmt", FORMATS)
+@pytest.mark.parametrize("typ,red,blue", [("uchar", (255, 0, 0), (0, 0, 255)),
+                                          ("float", (1.0, 0, 0), (0, 0, 1.0))])
+def test_ply_quads_with_face_colours(tmp_path, fmt, typ, red, blue):
+    # trimesh cuts the quads into triangles and its 6 face colours no longer
+    # fit its 12 triangles: the load used to fail.
+    path = write_ply(tmp_path / "q.ply", fmt, fprops=[(typ, n) for n in RGB],
+                     fvals=[red if i == 1 else blue for i in range(6)], vertices=BOX8,
+                     polygons=np.array(QUADS))
+    vol = geovox.voxelize(path, resolution=10, color=True)
+    assert vol.inside_count == 1000
+    assert np.all(vol.colors[2:8, 2:8, 9, :3] == (255, 0, 0))
+    assert np.all(vol.colors[:, :, 0, :3] == (0, 0, 255))
+
+
+def test_ply_polygons_of_every_size_with_face_colours(tmp_path):
+    # The pentagonal prism of the OFF test below, as an ASCII PLY.
+    ang = 2 * np.pi * np.arange(5) / 5
+    ring = np.stack([1 + np.cos(ang), 1 + np.sin(ang)], axis=1)
+    v = np.concatenate([np.c_[ring, np.zeros(5)], np.c_[ring, np.full(5, 2.0)]])
+    polys = [list(range(4, -1, -1)), list(range(5, 10))]
+    polys += [[i, (i + 1) % 5, (i + 1) % 5 + 5, i + 5] for i in range(5)]
+    colours = [(255, 0, 0), (0, 255, 0)] + [(0, 0, 40 * (i + 1)) for i in range(5)]
+    path = write_ply(tmp_path / "p.ply", fprops=[("uchar", n) for n in RGB], fvals=colours,
+                     vertices=v, polygons=polys)
+    prism = trimesh.Trimesh(v, trimesh.geometry.triangulate_quads(polys), process=False)
+    want = geovox.voxelize(prism, resolution=12)
+    got = geovox.voxelize(path, resolution=12, color=True)
+    np.testing.assert_array_equal(got.occupancy, want.occupancy)
+    top = got.colors[:, :, -1][got.occupancy[:, :, -1]]
+    assert np.mean(np.all(top[:, :3] == (0, 255, 0), axis=1)) > 0.5
+    bottom = got.colors[:, :, 0][got.occupancy[:, :, 0]]
+    assert np.mean(np.all(bottom[:, :3] == (255, 0, 0), axis=1)) > 0.5
 
 
 def test_mirror_wrap_is_repeat_over_the_unfolded_image():
