@@ -86,14 +86,29 @@ def transform_uv(uv: np.ndarray, t: np.ndarray) -> np.ndarray:
 def texels(image) -> np.ndarray:
     """(h, w, 3) uint8: a Pillow image's colours as stored, alpha dropped.
 
-    No colour-space conversion: an sRGB texture keeps its sRGB values. Pillow
-    opens 16-bit grey PNGs as mode ``I;16`` and its RGB conversion clips them
-    at 255 (nearly everything white), so those are scaled down here.
+    No colour-space conversion: an sRGB texture keeps its sRGB values.
+    Alpha is not applied: an RGBA, LA or PA texel gives its colour channels
+    as stored (straight, not multiplied by alpha; a premultiplied ``RGBa`` or
+    ``La`` image is divided back). Grey images (L, LA, 1) give the grey in
+    all three channels, palette images (P, PA) their palette's colours.
+    Pillow opens 16-bit grey PNGs as mode ``I;16`` (or ``I``), whose RGB
+    conversion clips them at 255 (nearly everything white), so those are
+    scaled by 1/257; a float image (``F``) is taken as 0-1, or 0-255 when a
+    value exceeds 1.
     """
-    if image.mode == "I" or image.mode.startswith("I;16"):
+    mode = image.mode
+    if mode == "I" or mode.startswith("I;16") or mode == "F":
         grey = np.asarray(image, dtype=np.float64)
-        grey = np.rint(np.clip(grey, 0, 65535) / 257.0).astype(np.uint8)
+        if mode == "F":
+            finite = grey[np.isfinite(grey)]
+            grey = np.nan_to_num(grey, nan=0.0) * (255.0 if finite.size == 0 or finite.max() <= 1.0
+                                                   else 1.0)
+        else:
+            grey = np.clip(grey, 0, 65535) / 257.0
+        grey = np.rint(np.clip(grey, 0, 255)).astype(np.uint8)
         return np.repeat(grey[..., None], 3, axis=2)
+    if mode == "La":
+        image = image.convert("LA")  # Pillow converts La to nothing else
     return np.asarray(image.convert("RGB"))
 
 

@@ -520,9 +520,9 @@ def obj_centre(i):
     return 1 - (i + 0.5) / 4
 
 
-def obj_box(folder, mtl, u, v, material="m", name="b.obj"):
+def obj_box(folder, mtl, u, v, material="m", name="b.obj", png=None):
     """A 2 x 2 x 2 box OBJ, every corner at texture coordinates (u, v), using ``material``."""
-    (folder / "t.png").write_bytes(texture_png())
+    (folder / "t.png").write_bytes(texture_png() if png is None else png)
     (folder / "a.mtl").write_text(mtl)
     m = _trimesh_box()
     lines = ["mtllib a.mtl", f"vt {u!r} {v!r}"] + [f"v {x} {y} {z}" for x, y, z in m.vertices]
@@ -693,6 +693,89 @@ def test_border_samples_like_clamp_on_the_texture():
     on = on_texture(uv, ("border", "repeat"))
     np.testing.assert_array_equal(on, (uv[:, 0] >= 0) & (uv[:, 0] <= 1))
     assert on[:4].all() and not on_texture(np.array([[np.nan, 0.5]]), ("repeat", "repeat"))[0]
+
+
+# Texture pixel formats: the colour as stored, alpha not applied.
+
+def encoded(image, fmt="PNG", **kw) -> bytes:
+    out = io.BytesIO()
+    image.save(out, format=fmt, **kw)
+    return out.getvalue()
+
+
+def png16(a: np.ndarray, colour_type: int) -> bytes:
+    """A 16-bit PNG of ``a`` (h, w, channels) uint16 (Pillow writes none with colour)."""
+    import struct
+    import zlib
+
+    h, w = a.shape[:2]
+    rows = b"".join(b"\0" + a[y].astype(">u2").tobytes() for y in range(h))
+
+    def chunk(kind, data):
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+    return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 16, colour_type, 0, 0, 0))
+            + chunk(b"IDAT", zlib.compress(rows)) + chunk(b"IEND", b""))
+
+
+RGB4 = np.array([[texel(c, r) for c in range(4)] for r in range(4)], np.uint8)
+GREY4 = RGB4[..., 0]  # 60 * col + 10
+ALPHA4 = np.array([[0, 128, 255, 1]] * 4, np.uint8)  # fully transparent texels too
+
+
+def _palette():
+    im = Image.fromarray((np.arange(16).reshape(4, 4)).astype(np.uint8), "P")
+    im.putpalette(RGB4.reshape(-1).tolist())
+    return encoded(im, transparency=bytes([0, 64] + [255] * 14))
+
+
+@pytest.mark.parametrize("name,png,want", [
+    ("RGBA", lambda: encoded(Image.fromarray(np.dstack([RGB4, ALPHA4]), "RGBA")), RGB4),
+    ("LA", lambda: encoded(Image.fromarray(np.dstack([GREY4, ALPHA4]), "LA")),
+     np.repeat(GREY4[..., None], 3, axis=2)),
+    ("L", lambda: encoded(Image.fromarray(GREY4, "L")), np.repeat(GREY4[..., None], 3, axis=2)),
+    ("P with transparency", _palette, RGB4),
+    ("RGB 16-bit", lambda: png16(RGB4.astype(np.uint16) * 257, 2), RGB4),
+    ("RGBA 16-bit", lambda: png16(np.dstack([RGB4, ALPHA4]).astype(np.uint16) * 257, 6), RGB4),
+    ("LA 16-bit", lambda: png16(np.dstack([GREY4, ALPHA4]).astype(np.uint16) * 257, 4),
+     np.repeat(GREY4[..., None], 3, axis=2)),
+    ("L 16-bit", lambda: png16(GREY4[..., None].astype(np.uint16) * 257, 0),
+     np.repeat(GREY4[..., None], 3, axis=2)),
+])
+def test_texture_pixel_formats_give_their_colour_as_stored(tmp_path, name, png, want):
+    data = png()
+    # column 0 is fully transparent, column 1 half: their colours still count
+    for col, row in ((0, 1), (1, 2), (3, 3)):
+        path = obj_box(tmp_path, "newmtl m\nmap_Kd t.png\n", centre(col), obj_centre(row),
+                       png=data)
+        assert quiet_colours(path, res=6) == ({tuple(int(x) for x in want[row, col])}, [])
+
+
+def test_grey_and_alpha_textures_in_gltf(tmp_path):
+    for png, want in ((encoded(Image.fromarray(np.dstack([GREY4, ALPHA4]), "LA")), (130,) * 3),
+                      (encoded(Image.fromarray(GREY4, "L")), (130,) * 3),
+                      (encoded(Image.fromarray(np.dstack([RGB4, ALPHA4]), "RGBA")), texel(2, 1))):
+        t = textured()
+        t["images"] = [{"png": png}]
+        path = write_gltf(tmp_path / "g.glb", [uv_box(centre(2), centre(1), material=0)], **t)
+        assert colours_of(path) == {want}
+
+
+def test_texels_of_other_pillow_modes():
+    from geovox.surface import texels
+
+    rgba = Image.fromarray(np.array([[[200, 100, 50, 128]]], np.uint8), "RGBA")
+    assert texels(rgba.convert("RGBa")).reshape(-1).tolist() in ([200, 100, 50], [199, 99, 49])
+    la = Image.fromarray(np.array([[[90, 128]]], np.uint8), "LA")
+    assert texels(la.convert("La")).reshape(-1).tolist() in ([90] * 3, [89] * 3)
+    assert texels(rgba.convert("PA")).reshape(-1).tolist() == texels(rgba.convert("P")).reshape(-1).tolist()
+    assert texels(Image.fromarray(np.array([[0.5, 1.0]], np.float32))).reshape(-1).tolist() == \
+        [128] * 3 + [255] * 3
+    assert texels(Image.fromarray(np.array([[90.0, 300]], np.float32))).reshape(-1).tolist() == \
+        [90] * 3 + [255] * 3
+    assert texels(Image.fromarray(np.array([[0, 255]], np.uint8)).convert("1")).reshape(-1).tolist() \
+        == [0] * 3 + [255] * 3
+    cmyk = Image.fromarray(np.array([[[200, 100, 50]]], np.uint8)).convert("CMYK")
+    assert texels(cmyk).reshape(-1).tolist() == [200, 100, 50]
 
 
 PLY_TYPES = {"uchar": "u1", "char": "i1", "ushort": "u2", "short": "i2", "uint": "u4",
