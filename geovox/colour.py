@@ -55,12 +55,23 @@ BLOCK = 1 << 19
 DEFAULT_GREY = 0.8
 
 
-def load_textures(mesh) -> None:
-    """Read each material's texture once; warn about what is missing or unreadable."""
+def load_textures(mesh, ambient=False) -> None:
+    """Read each material's texture once; warn about what is missing or unreadable.
+
+    With ``ambient``, also say which materials have an ambient texture
+    (``map_Ka``), which is not read: their ``A`` is ``Ka`` alone.
+    """
     from PIL import Image
 
     from .surface import texels
 
+    if ambient:
+        named = [m.name for m in mesh.materials if getattr(m, "ambient_map", None)]
+        if named:
+            shown = ", ".join(repr(n) for n in named[:3]) + (", ..." if len(named) > 3 else "")
+            warn(f"{mesh.source}: the ambient textures (map_Ka) of material"
+                 f"{'s' if len(named) > 1 else ''} {shown} are not read; the ambient colour "
+                 f"added is their Ka alone", stacklevel=3)
     for m in mesh.materials:
         if m.image is not None or not m.texture_file or getattr(m, "_tried", False):
             continue
@@ -542,7 +553,7 @@ def colour_volume(mesh, grid, occupancy, cast=None, *, diffuse=True, ambient=Fal
     """
     for problem in mesh.problems:
         warn(problem, stacklevel=3)
-    load_textures(mesh)
+    load_textures(mesh, ambient=ambient)
     if exact:
         return exact_colours(mesh, grid, occupancy, diffuse=diffuse, ambient=ambient, jobs=jobs,
                              frame=frame)

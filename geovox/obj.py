@@ -230,6 +230,8 @@ def read_mtl(path: str, problems: list) -> dict:
                 cur.kd = np.array(rgb, dtype=np.float64)
             else:
                 cur.ka = np.array(rgb, dtype=np.float64)
+        elif key.lower() == "map_ka":
+            cur.ambient_map = _rest(line, key) or None
         elif key.lower() == "map_kd":
             name, options = _map_statement(_rest(line, key), folder)
             cur.ignored_options = _apply_map_options(cur, options)

@@ -49,6 +49,9 @@ class Material:
         :attr:`Mesh.corner_uv`, so it is informational.
     ignored_options : list of (str, list of str, str)
         ``map_Kd`` options that are not applied: option, values, what it does.
+    ambient_map : str or None
+        The ``map_Ka`` statement's argument, which is not read (said with
+        ``ambient``).
     vertex_tint : bool
         Whether vertex colours multiply the texture (glTF's ``COLOR_0``) rather
         than being replaced by it (OBJ's ``v x y z r g b``).
@@ -64,6 +67,7 @@ class Material:
     vertex_tint: bool = False
     uv_transform: np.ndarray | None = field(default=None, repr=False)
     ignored_options: list = field(default_factory=list, repr=False)
+    ambient_map: str | None = None
 
     def diffuse(self) -> np.ndarray:
         """``Kd``, or the default: 1 under a texture (so it shows as painted), else 0.8 grey."""

@@ -675,6 +675,15 @@ def test_map_kd_options_not_applied_warn_once_each_naming_them(tmp_path):
     assert (got, said) == ({texel(1, 2)}, [])
 
 
+def test_map_ka_is_not_read_and_says_so_with_ambient(tmp_path):
+    mtl = "newmtl m\nKa 0.2 0.2 0.2\nmap_Ka -s 2 2 t.png\nmap_Kd t.png\n"
+    path = obj_box(tmp_path, mtl, centre(1), obj_centre(2))
+    assert quiet_colours(path) == ({texel(1, 2)}, [])  # ambient off: nothing to say
+    got, said = quiet_colours(path, ambient=True)
+    assert got == {tuple(min(255, c + 51) for c in texel(1, 2))}  # + Ka alone
+    assert len(said) == 1 and "map_Ka" in said[0] and "'m'" in said[0]
+
+
 def test_map_kd_options_through_the_cli(tmp_path):
     path = obj_box(tmp_path, "newmtl m\nmap_Kd -s 0.5 0.5 -o 0.25 0.25 -clamp on t.png\n",
                    0.75, 0.75)
