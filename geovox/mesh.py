@@ -426,6 +426,11 @@ def _read_off(path: str, mesh: Mesh | None) -> Mesh | None:
                             f"count as having none")
         if vc is not None and vc.shape != (nv, 3):
             vc = None  # fewer than three numbers after the position: no colours stated
+        elif vc is not None and not ok.any():
+            # no vertex states a colour: the file has none (the default), as for a PLY
+            vc = None
+            problems.append(f"{path}: NaN or infinite colour on all {nv:,} vertices; the file "
+                            f"states no vertex colours, so the default colour is used")
         elif vc is not None and not ok.all():
             n = int((~ok).sum())
             problems.append(f"{path}: NaN or infinite colour on {n:,} "

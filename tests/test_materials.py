@@ -1008,6 +1008,10 @@ def test_off_nan_and_unreadable_colours_warn_and_fall_back(tmp_path):
         vol = geovox.voxelize(path, resolution=10, color=True)
     assert tuple(vol.colors[9, 9, 9, :3]) == (10, 200, 30)  # the corner far from vertex 0
     assert tuple(vol.colors[0, 0, 0, :3]) != (10, 200, 30)
+    # NaN on every vertex: no colour stated, the default (not white, not black)
+    path = write_off(tmp_path / "allnan.off", "COFF", " nan nan nan 255")
+    with pytest.warns(GeovoxWarning, match="all 8 vertices; the file states no vertex colours"):
+        assert colours_of(path) == {(204, 204, 204)}
     # A NaN face colour: that face takes the default, the others keep theirs.
     path = write_off(tmp_path / "fnan.off",
                      face_extra=lambda i: " nan 0 0" if i == 1 else " 0 0 255")
