@@ -769,6 +769,19 @@ def test_grey_and_alpha_textures_in_gltf(tmp_path):
         assert colours_of(path) == {want}
 
 
+def test_ktx2_texture_is_not_read_and_says_so(tmp_path):
+    # KHR_texture_basisu: Pillow cannot decode KTX2, so the faces take the factor, with a warning.
+    (tmp_path / "t.ktx2").write_bytes(b"\xabKTX 20\xbb\r\n\x1a\n" + bytes(100))
+    t = textured(factor=[0.2, 0.4, 0.6, 1.0])
+    t["textures"] = [{"extensions": {"KHR_texture_basisu": {"source": 0}}}]
+    t["images"] = [{"uri": "t.ktx2", "mimeType": "image/ktx2"}]
+    path = write_gltf(tmp_path / "k.gltf", [uv_box(centre(1), centre(1), material=0)],
+                      extensions_used=["KHR_texture_basisu"], **t)
+    got, said = quiet_colours(path)
+    assert got == {(51, 102, 153)}
+    assert len(said) == 1 and "'t.ktx2'" in said[0] and "base colour factor" in said[0]
+
+
 def test_texels_of_other_pillow_modes():
     from geovox.surface import texels
 
