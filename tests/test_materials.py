@@ -14,8 +14,10 @@ from __future__ import annotations
 import base64
 import io
 import json
+import os
 import struct
 import warnings
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -682,6 +684,39 @@ def test_map_ka_is_not_read_and_says_so_with_ambient(tmp_path):
     got, said = quiet_colours(path, ambient=True)
     assert got == {tuple(min(255, c + 51) for c in texel(1, 2))}  # + Ka alone
     assert len(said) == 1 and "map_Ka" in said[0] and "'m'" in said[0]
+
+
+def test_map_kd_options_on_fuze(tmp_path):
+    # fuze's texture name has a space in it. Neutral options change nothing;
+    # -s 2 3 -o 0.25 -0.5 gives what the same transform written into its vt lines gives.
+    import shutil
+
+    src = corpus("fuze", "fuze.obj")
+    folder = os.path.dirname(src)
+    for name in ("fuze.obj", "fuze uv.jpg"):
+        shutil.copy(os.path.join(folder, name), tmp_path / name)
+    mtl = Path(folder, "fuze.obj.mtl").read_text()
+    assert "map_Kd fuze uv.jpg" in mtl
+
+    def run(mtl_text, obj=tmp_path / "fuze.obj"):
+        (tmp_path / "fuze.obj.mtl").write_text(mtl_text)
+        vol = geovox.voxelize(obj, resolution=24, color=True)
+        return vol.colors
+
+    plain = geovox.voxelize(src, resolution=24, color=True).colors
+    neutral = mtl.replace("map_Kd fuze uv.jpg", "map_Kd -blendu on -cc off -s 1 1 1 -o 0 0 0 "
+                                                "-clamp off -mm 0 1 fuze uv.jpg")
+    np.testing.assert_array_equal(run(neutral), plain)
+    moved = run(mtl.replace("map_Kd fuze uv.jpg", "map_Kd -s 2 3 -o 0.25 -0.5 fuze uv.jpg"))
+    lines = []
+    for line in Path(src).read_text().splitlines():
+        if line.startswith("vt "):
+            u, v = (float(x) for x in line.split()[1:3])
+            line = f"vt {2 * u + 0.25!r} {3 * v - 0.5!r}"
+        lines.append(line)
+    (tmp_path / "moved.obj").write_text("\n".join(lines) + "\n")
+    np.testing.assert_array_equal(run(mtl, tmp_path / "moved.obj"), moved)
+    assert not np.array_equal(moved, plain)
 
 
 def test_map_kd_options_through_the_cli(tmp_path):
