@@ -105,8 +105,9 @@ def _map_statement(args: str, folder: str) -> tuple:
     (``-o u [v [w]]``); an option the specification does not list takes the
     values that follow it. The name is the rest of the line, inner spaces
     kept. Where that names no file but giving back the last option's
-    trailing numbers does (``-o 0.5 0.5 12 monkeys.png``), or the whole
-    line does (a name starting with a dash), that reading is taken.
+    trailing numbers does (``-o 0.5 0.5 12 monkeys.png``), or starting the
+    name at one of the options' dashes does (``-o 1 -x.png``), that reading
+    is taken.
 
     Returns
     -------
@@ -115,9 +116,10 @@ def _map_statement(args: str, folder: str) -> tuple:
         Each option (lower case) and its values, in the order written.
     """
     spans = [(m.start(), m.group()) for m in re.finditer(r"\S+", args)]
-    options, i = [], 0
+    options, starts, i = [], [], 0
     while i < len(spans) - 1 and _is_option(spans[i][1]):
         key = spans[i][1].lower()
+        starts.append(i)
         most = _MAP_OPTIONS.get(key, len(spans))
         i += 1
         values = []
@@ -128,19 +130,19 @@ def _map_statement(args: str, folder: str) -> tuple:
         options.append((key, values))
     if i >= len(spans):
         return "", options
-    name = args[spans[i][0]:].strip()
-    if resolve_path(name, folder) is None:
-        if options and len(options[-1][1]) > 1:
-            # Numbers that may begin the file name: give back all but the first.
-            key, values = options[-1]
-            for keep in range(len(values) - 1, 0, -1):
-                first = spans[i - (len(values) - keep)][0]
-                if resolve_path(args[first:].strip(), folder) is not None:
-                    options[-1] = (key, values[:keep])
-                    return args[first:].strip(), options
-        if options and resolve_path(args.strip(), folder) is not None:
-            return args.strip(), []
-    return name, options
+    # Readings in order of preference: as parsed; the last option's trailing
+    # values given back to the name; the name starting at an option's dash.
+    readings = [(i, options)]
+    if options and len(options[-1][1]) > 1:
+        key, values = options[-1]
+        readings += [(i - (len(values) - keep), options[:-1] + [(key, values[:keep])])
+                     for keep in range(len(values) - 1, 0, -1)]
+    readings += [(starts[k], options[:k]) for k in range(len(options) - 1, -1, -1)]
+    for first, opts in readings:
+        name = args[spans[first][0]:].strip()
+        if resolve_path(name, folder) is not None:
+            return name, opts
+    return args[spans[i][0]:].strip(), options
 
 
 def _numbers(values, defaults) -> tuple | None:

@@ -648,6 +648,54 @@ def test_map_kd_options_and_names_find_the_right_image(tmp_path, statement, file
     assert mats["m"].uv_transform is None and mats["m"].wrap == ("repeat", "repeat")
 
 
+def test_map_kd_statements_written_any_way_find_their_file_and_values(tmp_path_factory):
+    # Property: options in any order, with any number of their values, before
+    # a file name with spaces, leading digits or dashes inside, find that
+    # file; -o/-s/-clamp get the values written (missing ones at their defaults).
+    from hypothesis import given, settings
+    from hypothesis import strategies as st
+
+    from geovox.obj import _apply_map_options, _map_statement
+
+    folder = tmp_path_factory.mktemp("names")
+    number = st.floats(-4, 4, allow_nan=False).map(lambda x: round(x, 3))
+    option = st.one_of(
+        st.tuples(st.sampled_from(["-o", "-s", "-t"]), st.lists(number, min_size=1, max_size=3)),
+        st.tuples(st.sampled_from(["-mm"]), st.lists(number, min_size=2, max_size=2)),
+        st.tuples(st.sampled_from(["-clamp", "-blendu", "-blendv", "-cc"]),
+                  st.sampled_from([["on"], ["off"]])),
+        st.tuples(st.sampled_from(["-bm", "-boost", "-texres"]), st.lists(number, min_size=1,
+                                                                          max_size=1)),
+        st.tuples(st.just("-imfchan"), st.sampled_from([["r"], ["l"], ["m"]])))
+    word = st.text("abcXYZ019_-.", min_size=1, max_size=6)
+    name = st.lists(word, min_size=1, max_size=3).map(lambda w: " ".join(w) + ".png")
+
+    @settings(max_examples=150, deadline=None)
+    @given(st.lists(option, max_size=5), name)
+    def check(options, file):
+        (folder / file).write_bytes(b"")
+        text = " ".join(" ".join([k] + [str(v) for v in vals]) for k, vals in options)
+        try:
+            found, parsed = _map_statement(f"{text} {file}", str(folder))
+        finally:
+            (folder / file).unlink()
+        assert found == file
+        m = Material()
+        _apply_map_options(m, parsed)
+        last = {k: vals for k, vals in options}
+        o = [float(x) for x in last.get("-o", [])] + [0.0, 0.0]
+        sc = [float(x) for x in last.get("-s", [])] + [1.0, 1.0]
+        want = np.array([[sc[0], 0, o[0]], [0, sc[1], o[1]], [0, 0, 1]])
+        got = np.eye(3) if m.uv_transform is None else m.uv_transform
+        np.testing.assert_array_equal(got, want)
+        clamp = last.get("-clamp", ["off"])[0] == "on"
+        assert m.wrap == (("border",) * 2 if clamp else ("repeat",) * 2)
+
+    from geovox.surface import Material
+
+    check()
+
+
 def test_map_kd_options_not_applied_warn_once_each_naming_them(tmp_path):
     # Options geovox does not apply: the texture still loads and samples as
     # stored, and each option is one warning naming it and its materials.
