@@ -552,7 +552,9 @@ def _ply_colours(loaded, mesh: Mesh, path: str) -> Mesh:
     white, and colours of polygons it cut into triangles no longer match the
     triangles. Its raw reading (``metadata["_ply_raw"]``) keeps them as
     stored, so they are taken from there, for the visual trimesh chose
-    (vertex or face colours). A NaN face colour leaves its face without a
+    (vertex or face colours); vertex colours beside UVs, which trimesh
+    drops, are taken too (the texture, if any, replaces them, as in an OBJ).
+    A NaN face colour leaves its face without a
     colour (the default); a NaN vertex colour counts as none (white, as in
     OBJ and OFF), and when every vertex's is NaN the file states no vertex
     colours at all (the default). Alpha is not used.
@@ -560,29 +562,38 @@ def _ply_colours(loaded, mesh: Mesh, path: str) -> Mesh:
     meta = getattr(loaded, "metadata", None)
     raw = meta.get("_ply_raw") if isinstance(meta, dict) else None
     kind = getattr(getattr(loaded, "visual", None), "kind", None)
-    if not isinstance(raw, dict) or kind not in ("vertex", "face"):
+    if not isinstance(raw, dict) or kind not in ("vertex", "face", "texture"):
         return mesh
     problems = mesh.problems
-    element = raw.get(kind)
+    element = raw.get("vertex" if kind == "texture" else kind)
     try:
         exact = all(np.dtype(element["properties"][c]) == np.uint8 for c in _RGB)
     except (KeyError, TypeError):
         exact = False
     if exact and kind == "vertex":
         return mesh  # 8-bit colours: trimesh's are the file's
-    if kind == "vertex" and mesh.vertex_colors is not None:
+    if kind in ("vertex", "texture"):
         vc = _ply_unit(raw.get("vertex"), problems, ("vertex", "vertices"), path)
         if vc is None or len(vc) != len(mesh.vertices):
             return mesh
         broken = np.isnan(vc).any(axis=1)
         if broken.all():
             problems[-1] += "; the file states no vertex colours, so the default colour is used"
+            if kind == "texture":
+                return mesh
             return build_mesh(mesh.vertices, mesh.faces, path, problems=problems)
         if broken.any():
             problems[-1] += (f"; {'it counts' if broken.sum() == 1 else 'they count'} as having "
                              f"no colour (white)")
             vc[broken] = 1.0
         mesh.vertex_colors = vc
+        if kind == "texture":
+            # trimesh keeps the UVs and drops the vertex colours. Its made-up
+            # material (no texture, no colour) states nothing: the vertex
+            # colours are the colour, as for a PLY without UVs.
+            for m in mesh.materials:
+                if m.image is None and m.kd is None:
+                    m.defined = False
         return mesh
     fc = _ply_unit(raw.get("face"), problems, ("face", "faces"), path)
     polygons = _ply_polygons(raw.get("face"))

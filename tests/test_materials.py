@@ -1000,6 +1000,20 @@ def test_ply_quads_with_face_colours(tmp_path, fmt, typ, red, blue):
     assert np.all(vol.colors[:, :, 0, :3] == (0, 0, 255))
 
 
+@pytest.mark.parametrize("fmt", FORMATS)
+def test_ply_vertex_colours_beside_uvs(tmp_path, fmt):
+    # trimesh keeps the UVs and drops the colours: without a texture they are the colour
+    props = [("float", "s"), ("float", "t")] + [("uchar", n) for n in RGB]
+    vals = [(centre(1), obj_centre(2), 10, 200, 30)] * 8
+    path = write_ply(tmp_path / "uvc.ply", fmt, props, vals)
+    assert quiet_colours(path) == ({(10, 200, 30)}, [])
+    # with a texture (comment TextureFile), the texture, as in an OBJ
+    (tmp_path / "t.png").write_bytes(texture_png())
+    data = path.read_bytes().replace(b"1.0\n", b"1.0\ncomment TextureFile t.png\n", 1)
+    (tmp_path / "tex.ply").write_bytes(data)
+    assert quiet_colours(tmp_path / "tex.ply") == ({texel(1, 2)}, [])
+
+
 def test_ply_polygons_of_every_size_with_face_colours(tmp_path):
     # The pentagonal prism of the OFF test below, as an ASCII PLY.
     ang = 2 * np.pi * np.arange(5) / 5
