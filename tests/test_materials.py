@@ -900,7 +900,7 @@ def write_ply(path, fmt="ascii", vprops=(), vvals=None, fprops=(), fvals=None,
     if vertices is None:
         m = _trimesh_box()
         vertices, polygons = np.asarray(m.vertices), np.asarray(m.faces)
-    head = [f"ply", f"format {fmt} 1.0", f"element vertex {len(vertices)}",
+    head = ["ply", f"format {fmt} 1.0", f"element vertex {len(vertices)}",
             "property float x", "property float y", "property float z"]
     head += [f"property {t} {n}" for t, n in vprops]
     head += [f"element face {len(polygons)}", "property list uchar int vertex_indices"]
