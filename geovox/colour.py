@@ -55,12 +55,23 @@ BLOCK = 1 << 19
 DEFAULT_GREY = 0.8
 
 
-def load_textures(mesh) -> None:
-    """Read each material's texture once; warn about what is missing or unreadable."""
+def load_textures(mesh, ambient=False) -> None:
+    """Read each material's texture once; warn about what is missing or unreadable.
+
+    With ``ambient``, also say which materials have an ambient texture
+    (``map_Ka``), which is not read: their ``A`` is ``Ka`` alone.
+    """
     from PIL import Image
 
     from .surface import texels
 
+    if ambient:
+        named = [m.name for m in mesh.materials if getattr(m, "ambient_map", None)]
+        if named:
+            shown = ", ".join(repr(n) for n in named[:3]) + (", ..." if len(named) > 3 else "")
+            warn(f"{mesh.source}: the ambient textures (map_Ka) of material"
+                 f"{'s' if len(named) > 1 else ''} {shown} are not read; the ambient colour "
+                 f"added is their Ka alone", stacklevel=3)
     for m in mesh.materials:
         if m.image is not None or not m.texture_file or getattr(m, "_tried", False):
             continue
@@ -80,6 +91,9 @@ def _texel_axis(t: np.ndarray, n: int, mode: str) -> tuple:
     edge, 1 at the last's); wrap modes act on texel indices as OpenGL's do.
     """
     # Reduce t first (exact for each mode) so huge UVs keep their fraction.
+    # "border" samples like "clamp" (the caller leaves out UVs beyond the texture).
+    if mode == "border":
+        mode = "clamp"
     t = np.clip(t, 0.0, 1.0) if mode == "clamp" else np.mod(t, 2.0 if mode == "mirror" else 1.0)
     x = t * n - 0.5
     x0 = np.floor(x)
@@ -102,8 +116,9 @@ def sample_bilinear(image: np.ndarray, uv: np.ndarray, wrap=("repeat", "repeat")
     image : (h, w, 3) uint8
     uv : (n, 2) float64
     wrap : (str, str)
-        Wrap mode along u and along v: ``"repeat"``, ``"mirror"`` or
-        ``"clamp"`` (see :attr:`geovox.surface.Material.wrap`).
+        Wrap mode along u and along v: ``"repeat"``, ``"mirror"``,
+        ``"clamp"`` or ``"border"`` (sampled as ``"clamp"``; see
+        :func:`on_texture` and :attr:`geovox.surface.Material.wrap`).
 
     Returns
     -------
@@ -121,6 +136,19 @@ def sample_bilinear(image: np.ndarray, uv: np.ndarray, wrap=("repeat", "repeat")
     top = flat[r0 + x0] * (1 - fx) + flat[r0 + x1] * fx
     bottom = flat[r1 + x0] * (1 - fx) + flat[r1 + x1] * fx
     return (top * (1 - fy) + bottom * fy) / 255.0
+
+
+def on_texture(uv: np.ndarray, wrap) -> np.ndarray:
+    """(n,) bool: finite UVs that fall on the texture (within [0, 1] along each ``"border"`` axis).
+
+    The bounds have a margin of 1e-9: UVs interpolated between corners at
+    exactly 0 or 1 (a UV island on the texture's edge) round a little past it.
+    """
+    ok = np.isfinite(uv).all(axis=1)
+    for axis, mode in enumerate(wrap):
+        if mode == "border":
+            ok &= (uv[:, axis] >= -1e-9) & (uv[:, axis] <= 1.0 + 1e-9)
+    return ok
 
 
 def shade(mesh, tri: np.ndarray, bary: np.ndarray, *, diffuse=True, ambient=False) -> np.ndarray:
@@ -152,7 +180,7 @@ def shade(mesh, tri: np.ndarray, bary: np.ndarray, *, diffuse=True, ambient=Fals
             continue
         if m.image is not None and mesh.corner_uv is not None:
             uv = np.einsum("nk,nkc->nc", w[sel], mesh.corner_uv[tri[sel]])
-            ok = np.isfinite(uv).all(axis=1)
+            ok = on_texture(uv, m.wrap)
             texel = sample_bilinear(m.image, uv[ok], m.wrap)
             # glTF's COLOR_0 multiplies the texture; OBJ's vertex colours give way to it.
             base[sel[ok]] = texel * base[sel[ok]] if m.vertex_tint else texel
@@ -525,7 +553,7 @@ def colour_volume(mesh, grid, occupancy, cast=None, *, diffuse=True, ambient=Fal
     """
     for problem in mesh.problems:
         warn(problem, stacklevel=3)
-    load_textures(mesh)
+    load_textures(mesh, ambient=ambient)
     if exact:
         return exact_colours(mesh, grid, occupancy, diffuse=diffuse, ambient=ambient, jobs=jobs,
                              frame=frame)

@@ -15,7 +15,8 @@ import numpy as np
 
 from .errors import InputNotFoundError, MeshError
 # Mesh, Material and check_mesh are also public here, where they used to live.
-from .surface import WRAP_MODES, Material, Mesh, build_mesh, check_mesh, texels  # noqa: F401
+from .surface import (WRAP_MODES, Material, Mesh, build_mesh, check_mesh, texels,  # noqa: F401
+                      transform_uv)
 
 
 #: The diffuse colour trimesh gives a material the file does not colour.
@@ -88,10 +89,8 @@ def _visual_parts(g, nfaces, materials, gltf=None, made=None, original=None):
                 # KHR_texture_transform acts on glTF's UVs (V down); trimesh
                 # has flipped V. Affine, so applying it to the corners is
                 # the same as applying it to interpolated UVs.
-                t = fact["transform"]
-                gu, gv = uv[:, 0], 1.0 - uv[:, 1]
-                uv = np.stack([t[0, 0] * gu + t[0, 1] * gv + t[0, 2],
-                               1.0 - (t[1, 0] * gu + t[1, 1] * gv + t[1, 2])], axis=1)
+                flip = np.array([1.0, -1.0]), np.array([0.0, 1.0])
+                uv = transform_uv(uv * flip[0] + flip[1], fact["transform"]) * flip[0] + flip[1]
             uv = uv[g.faces]
         vc = _unit_colours(_vertex_attribute(source, "color"), len(g.vertices), gltf["problems"])
     elif kind == "texture":
@@ -125,8 +124,9 @@ def _visual_parts(g, nfaces, materials, gltf=None, made=None, original=None):
             uv = np.asarray(visual.uv, dtype=np.float64)[g.faces]
     elif kind == "vertex":
         vc = np.asarray(visual.vertex_colors, dtype=np.float64)[:, :3] / 255.0
-    elif kind == "face":
-        # Face colours become flat per-face materials.
+    elif kind == "face" and len(visual.face_colors) == nfaces:
+        # Face colours become flat per-face materials. (A PLY's colours of
+        # polygons trimesh cut into triangles do not match its faces: see _ply_colours.)
         fc = np.asarray(visual.face_colors, dtype=np.float64)[:, :3] / 255.0
         uniq, inverse = np.unique(fc, axis=0, return_inverse=True)
         for colour in uniq:
@@ -426,6 +426,11 @@ def _read_off(path: str, mesh: Mesh | None) -> Mesh | None:
                             f"count as having none")
         if vc is not None and vc.shape != (nv, 3):
             vc = None  # fewer than three numbers after the position: no colours stated
+        elif vc is not None and not ok.any():
+            # no vertex states a colour: the file has none (the default), as for a PLY
+            vc = None
+            problems.append(f"{path}: NaN or infinite colour on all {nv:,} vertices; the file "
+                            f"states no vertex colours, so the default colour is used")
         elif vc is not None and not ok.all():
             n = int((~ok).sum())
             problems.append(f"{path}: NaN or infinite colour on {n:,} "
@@ -478,6 +483,147 @@ def _off_faces(flines, unit, coloured_file: bool, problems: list, path: str):
     uniq, inverse = np.unique(fc, axis=0, return_inverse=True)
     materials = [Material(name="face colour", kd=c) for c in uniq]
     return faces, np.where(has, inverse.reshape(-1), -1), materials
+
+
+_RGB = ("red", "green", "blue")
+
+
+def _ply_unit(element, problems: list, what: tuple, path: str):
+    """(k, 3) float64 colours in [0, 1] of a PLY element as stored, and (k,) bool: finite.
+
+    Integers are scaled by their type's maximum (255 for ``uchar``, 65535 for
+    ``ushort``; signed types read as the unsigned type of their size); floats
+    are 0-1, or 0-255 when a finite one exceeds 1 (as for OFF). Rows with a
+    NaN or infinite channel are not colours: NaN in the result, said in
+    ``problems``. None when the element has no red, green and blue.
+    """
+    props = element.get("properties", {}) if isinstance(element, dict) else {}
+    if not all(c in props for c in _RGB):
+        return None
+    try:
+        cols = [np.asarray(element["data"][c]).reshape(-1) for c in _RGB]
+        c = np.stack(cols, axis=1)
+    except (KeyError, ValueError, TypeError, IndexError):
+        return None
+    if c.dtype.kind == "f":
+        c = c.astype(np.float64)
+        ok = np.isfinite(c).all(axis=1)
+        scale = 255.0 if ok.any() and c[ok].max() > 1.0 else 1.0
+    elif c.dtype.kind in "ui":
+        c = c.astype(f"u{c.dtype.itemsize}")  # two's complement: char -1 is 255
+        scale = float(np.iinfo(c.dtype).max)
+        c = c.astype(np.float64)
+        ok = np.ones(len(c), dtype=bool)
+    else:
+        return None
+    out = np.clip(c / scale, 0.0, 1.0)
+    out[~ok] = np.nan
+    if not ok.all():
+        k = int((~ok).sum())
+        problems.append(f"{path}: NaN or infinite colour on {k:,} {what[k != 1]}")
+    return out
+
+
+def _ply_polygons(element):
+    """(lengths (p,) int64, corners (sum,) int64) of a PLY face element's vertex lists, or None."""
+    data = element.get("data") if isinstance(element, dict) else None
+    for key in ("vertex_indices", "vertex_index"):
+        try:
+            lists = data[key]
+        except (KeyError, ValueError, TypeError, IndexError):
+            continue
+        if getattr(lists, "dtype", None) is not None and lists.dtype.names:
+            lists = lists[lists.dtype.names[-1]]  # binary: (count, indices)
+        if isinstance(lists, np.ndarray) and lists.dtype != object and lists.ndim == 2:
+            n, k = lists.shape
+            return np.full(n, k, dtype=np.int64), lists.reshape(-1).astype(np.int64)
+        rows = [np.asarray(r, dtype=np.int64).reshape(-1) for r in lists]
+        lengths = np.array([len(r) for r in rows], dtype=np.int64)
+        return lengths, (np.concatenate(rows) if rows else np.zeros(0, np.int64))
+    return None
+
+
+def _ply_colours(loaded, mesh: Mesh, path: str) -> Mesh:
+    """A PLY's vertex or face colours as the file stores them.
+
+    trimesh reads colour properties of any type, then squeezes them into
+    8 bits for its visual: a NaN becomes 0 (black, a colour the file does not
+    state), 16-bit values wrap (32768 becomes 0), floats above 1 clip to
+    white, and colours of polygons it cut into triangles no longer match the
+    triangles. Its raw reading (``metadata["_ply_raw"]``) keeps them as
+    stored, so they are taken from there, for the visual trimesh chose
+    (vertex or face colours); vertex colours beside UVs, which trimesh
+    drops, are taken too (the texture, if any, replaces them, as in an OBJ).
+    A NaN face colour leaves its face without a
+    colour (the default); a NaN vertex colour counts as none (white, as in
+    OBJ and OFF), and when every vertex's is NaN the file states no vertex
+    colours at all (the default). Alpha is not used.
+    """
+    meta = getattr(loaded, "metadata", None)
+    raw = meta.get("_ply_raw") if isinstance(meta, dict) else None
+    kind = getattr(getattr(loaded, "visual", None), "kind", None)
+    if not isinstance(raw, dict) or kind not in ("vertex", "face", "texture"):
+        return mesh
+    problems = mesh.problems
+    element = raw.get("vertex" if kind == "texture" else kind)
+    try:
+        exact = all(np.dtype(element["properties"][c]) == np.uint8 for c in _RGB)
+    except (KeyError, TypeError):
+        exact = False
+    if exact and kind == "vertex":
+        return mesh  # 8-bit colours: trimesh's are the file's
+    if kind in ("vertex", "texture"):
+        vc = _ply_unit(raw.get("vertex"), problems, ("vertex", "vertices"), path)
+        if vc is None or len(vc) != len(mesh.vertices):
+            return mesh
+        broken = np.isnan(vc).any(axis=1)
+        if broken.all():
+            problems[-1] += "; the file states no vertex colours, so the default colour is used"
+            if kind == "texture":
+                return mesh
+            return build_mesh(mesh.vertices, mesh.faces, path, problems=problems)
+        if broken.any():
+            problems[-1] += (f"; {'it counts' if broken.sum() == 1 else 'they count'} as having "
+                             f"no colour (white)")
+            vc[broken] = 1.0
+        mesh.vertex_colors = vc
+        if kind == "texture":
+            # trimesh keeps the UVs and drops the vertex colours. Its made-up
+            # material (no texture, no colour) states nothing: the vertex
+            # colours are the colour, as for a PLY without UVs.
+            for m in mesh.materials:
+                if m.image is None and m.kd is None:
+                    m.defined = False
+        return mesh
+    fc = _ply_unit(raw.get("face"), problems, ("face", "faces"), path)
+    polygons = _ply_polygons(raw.get("face"))
+    if fc is None or polygons is None or len(fc) != len(polygons[0]):
+        return mesh
+    lengths, corners = polygons
+    if np.all(lengths == 3) and len(lengths) == len(mesh.faces):
+        if exact:
+            return mesh
+        faces, poly = mesh.faces, np.arange(len(lengths))
+    else:
+        # Fan each polygon, so each triangle knows its polygon (trimesh's own
+        # cut of quads uses the same diagonal).
+        first = np.r_[0, np.cumsum(lengths)[:-1]]
+        keep = np.flatnonzero(lengths >= 3)
+        n_tri = lengths[keep] - 2
+        poly = np.repeat(keep, n_tri)
+        j = np.arange(len(poly)) - np.repeat(np.cumsum(n_tri) - n_tri, n_tri) + 1
+        c0 = first[poly]
+        faces = corners[np.stack([c0, c0 + j, c0 + j + 1], axis=1)]
+    broken = np.isnan(fc).any(axis=1)
+    if broken.any():
+        problems[-1] += f"; {'it takes' if broken.sum() == 1 else 'they take'} the default colour"
+    fc_ok = np.where(broken[:, None], 0.0, fc)
+    uniq, inverse = np.unique(fc_ok[~broken], axis=0, return_inverse=True)
+    key = np.full(len(fc), -1, dtype=np.int64)
+    key[~broken] = inverse.reshape(-1)
+    materials = [Material(name="face colour", kd=c) for c in uniq]
+    return build_mesh(mesh.vertices, faces, path, face_material=key[poly], materials=materials,
+                      problems=problems)
 
 
 #: What a file type is, for messages ("cannot be read as glTF binary (.glb)").
@@ -711,6 +857,8 @@ def _trimesh_load(path: str) -> Mesh:
         mesh = from_trimesh(loaded, source=path, _gltf=gltf[1] if gltf else None)
         if ext == ".off":
             mesh = _read_off(path, mesh)
+        elif ext == ".ply":
+            mesh = _ply_colours(loaded, mesh, path)
     except MeshError:
         raise
     except Exception as exc:  # odd visuals or arrays trimesh accepted

@@ -36,15 +36,28 @@ Decisions on input other readers refuse or pass on silently:
 from __future__ import annotations
 
 import os
+import re
 
 import numpy as np
 
 from .errors import MeshError
-from .surface import Material, Mesh
+from .surface import Material, Mesh, transform_uv
 
-# map_Kd options and how many arguments each takes (at most).
+# Texture map options of the MTL specification ("Options for texture map
+# statements") and the most arguments each takes.
 _MAP_OPTIONS = {"-blendu": 1, "-blendv": 1, "-bm": 1, "-boost": 1, "-cc": 1, "-clamp": 1,
                 "-imfchan": 1, "-mm": 2, "-o": 3, "-s": 3, "-t": 3, "-texres": 1, "-type": 1}
+# Options geovox does not apply, with what they would change. Values for
+# which an option changes nothing (the specification's defaults) say nothing.
+_NOT_APPLIED = {
+    "-blendu": "blending along u turned off", "-blendv": "blending along v turned off",
+    "-bm": "a bump multiplier, for bump maps only", "-boost": "mip-map sharpening",
+    "-cc": "colour correction", "-imfchan": "the channel of a scalar or bump texture",
+    "-mm": "a base and gain for the texture's values", "-t": "turbulence",
+    "-texres": "resampling to a power-of-two size", "-type": "a reflection map's type",
+}
+_NEUTRAL = {"-blendu": ("on",), "-blendv": ("on",), "-cc": ("off",), "-mm": (0.0, 1.0),
+            "-t": (0.0, 0.0, 0.0)}
 
 
 def _rest(line: str, key: str) -> str:
@@ -80,19 +93,112 @@ def _is_option_value(token: str) -> bool:
         return False
 
 
-def _texture_name(args: str) -> str:
-    """The file name in a ``map_Kd [options] file`` statement."""
-    tokens = args.split()
-    i = 0
-    while i < len(tokens) - 1 and tokens[i] in _MAP_OPTIONS:
-        n = _MAP_OPTIONS[tokens[i]]
+def _is_option(token: str) -> bool:
+    """``-word``: an option (known or not), not a negative number or a lone dash."""
+    return len(token) > 1 and token[0] == "-" and token[1].isalpha()
+
+
+def _map_statement(args: str, folder: str) -> tuple:
+    """The file name and the options of a ``map_Kd [options] file`` statement.
+
+    Options come before the file name; each takes up to its number of values
+    (``-o u [v [w]]``); an option the specification does not list takes the
+    values that follow it. The name is the rest of the line, inner spaces
+    kept. Where that names no file but giving back the last option's
+    trailing numbers does (``-o 0.5 0.5 12 monkeys.png``), or starting the
+    name at one of the options' dashes does (``-o 1 -x.png``), that reading
+    is taken.
+
+    Returns
+    -------
+    name : str
+    options : list of (str, list of str)
+        Each option (lower case) and its values, in the order written.
+    """
+    spans = [(m.start(), m.group()) for m in re.finditer(r"\S+", args)]
+    options, starts, i = [], [], 0
+    while i < len(spans) - 1 and _is_option(spans[i][1]):
+        key = spans[i][1].lower()
+        starts.append(i)
+        most = _MAP_OPTIONS.get(key, len(spans))
         i += 1
-        for _ in range(n):
-            if i < len(tokens) - 1 and _is_option_value(tokens[i]):
-                i += 1
+        values = []
+        while (len(values) < most and i < len(spans) - 1
+               and (_is_option_value(spans[i][1]) or key == "-type" and not values)):
+            values.append(spans[i][1])
+            i += 1
+        options.append((key, values))
+    if i >= len(spans):
+        return "", options
+    # Readings in order of preference: as parsed; the last option's trailing
+    # values given back to the name; the name starting at an option's dash.
+    readings = [(i, options)]
+    if options and len(options[-1][1]) > 1:
+        key, values = options[-1]
+        readings += [(i - (len(values) - keep), options[:-1] + [(key, values[:keep])])
+                     for keep in range(len(values) - 1, 0, -1)]
+    readings += [(starts[k], options[:k]) for k in range(len(options) - 1, -1, -1)]
+    for first, opts in readings:
+        name = args[spans[first][0]:].strip()
+        if resolve_path(name, folder) is not None:
+            return name, opts
+    return args[spans[i][0]:].strip(), options
+
+
+def _numbers(values, defaults) -> tuple | None:
+    """Floats of an option's values, missing ones from ``defaults``; None if not numbers."""
+    try:
+        out = [float(v) for v in values]
+    except ValueError:
+        return None
+    if not all(np.isfinite(out)):
+        return None
+    return tuple(out + list(defaults[len(out):]))
+
+
+def _apply_map_options(material: Material, options: list) -> list:
+    """Set a material's UV transform and clamping from its ``map_Kd`` options.
+
+    ``-o u v w`` and ``-s u v w`` give the transform ``uv -> s * uv + o`` (per
+    axis; ``w`` is for 3-D textures and not used), as Blender's and three.js's
+    OBJ importers read them; ``-clamp on`` maps one copy of the texture
+    (see :attr:`Material.wrap`). Returns the options that are not applied:
+    ``(option, values, why)``.
+    """
+    offset, scale = (0.0, 0.0), (1.0, 1.0)
+    ignored = []
+    for key, values in options:
+        if key in ("-o", "-s"):
+            got = _numbers(values, (0.0, 0.0) if key == "-o" else (1.0, 1.0))
+            if got is None or not values:
+                ignored.append((key, values, "its values are not numbers"))
+            elif key == "-o":
+                offset = got[:2]
             else:
-                break
-    return " ".join(tokens[i:])
+                scale = got[:2]
+        elif key == "-clamp":
+            state = values[0].lower() if values else ""
+            if state in ("on", "off"):
+                material.wrap = ("border", "border") if state == "on" else ("repeat", "repeat")
+            else:
+                ignored.append((key, values, "its value is not on or off"))
+        elif key in _NOT_APPLIED:
+            neutral = _NEUTRAL.get(key)
+            if neutral is not None:
+                lowered = tuple(v.lower() for v in values)
+                nums = _numbers(values, neutral)
+                if lowered == neutral[:len(lowered)] or nums == neutral:
+                    continue
+            ignored.append((key, values, _NOT_APPLIED[key]))
+        else:
+            ignored.append((key, values, "not an option of the MTL specification"))
+    if offset != (0.0, 0.0) or scale != (1.0, 1.0):
+        material.uv_transform = np.array([[scale[0], 0.0, offset[0]],
+                                          [0.0, scale[1], offset[1]],
+                                          [0.0, 0.0, 1.0]])
+    else:
+        material.uv_transform = None
+    return ignored
 
 
 def read_mtl(path: str, problems: list) -> dict:
@@ -126,13 +232,11 @@ def read_mtl(path: str, problems: list) -> dict:
                 cur.kd = np.array(rgb, dtype=np.float64)
             else:
                 cur.ka = np.array(rgb, dtype=np.float64)
+        elif key.lower() == "map_ka":
+            cur.ambient_map = _rest(line, key) or None
         elif key.lower() == "map_kd":
-            args = _rest(line, key)
-            name = _texture_name(args)
-            options = args.split()[:len(args.split()) - len(name.split())]
-            if any(a == "-clamp" and b.lower() == "on" for a, b in zip(options, options[1:])):
-                # "-clamp on": one copy of the texture, its edge texels beyond [0, 1]
-                cur.wrap = ("clamp", "clamp")
+            name, options = _map_statement(_rest(line, key), folder)
+            cur.ignored_options = _apply_map_options(cur, options)
             found = resolve_path(name, folder) if name else None
             if found is None:
                 problems.append(f"texture not found: {name!r} (material {cur.name!r} in {path}); "
@@ -845,14 +949,24 @@ def _materials(libs, names, folder, path, problems) -> list:
                 continue
             library.update(read_mtl(found, problems))
     materials = []
+    ignored: dict = {}
     for name in names:
         if name in library:
             materials.append(library[name])
+            for key, values, why in library[name].ignored_options:
+                ignored.setdefault((key, why), []).append((name, values))
         else:
             if libs and not missing_lib:
                 problems.append(f"material {name!r} is not defined in {', '.join(libs)}; "
                                 f"using the default colour")
             materials.append(Material(name=name, defined=False))
+    # One line per option geovox does not apply, naming the materials it is on.
+    for (key, why), uses in ignored.items():
+        shown = ", ".join(repr(n) for n, _ in uses[:3]) + (", ..." if len(uses) > 3 else "")
+        written = " ".join([key] + uses[0][1])
+        problems.append(f"{path}: map_Kd option {written!r} of material"
+                        f"{'s' if len(uses) > 1 else ''} {shown} is not applied ({why}); the "
+                        f"texture is sampled without it")
     return materials
 
 
@@ -973,6 +1087,11 @@ def read_obj(path: str) -> Mesh:
         if has_t.any():
             corner_uv = np.full(tri.shape + (2,), np.nan)
             corner_uv[has_t] = uvs[tex[has_t]]
+            for k, m in enumerate(materials):
+                if m.uv_transform is not None:
+                    # map_Kd -o/-s, once per corner (affine: the same as per point)
+                    rows = face_material == k
+                    corner_uv[rows] = transform_uv(corner_uv[rows], m.uv_transform)
     elif has_t.any():
         statements = _distinct(tri_line[has_t.any(axis=1)])
         k = int(traw[has_t][0])

@@ -40,7 +40,18 @@ class Material:
         The texture's texels as stored (sRGB), once read.
     wrap : (str, str)
         How UVs outside [0, 1] wrap along u and v: ``"repeat"``, ``"mirror"``
-        (glTF MIRRORED_REPEAT) or ``"clamp"`` (CLAMP_TO_EDGE).
+        (glTF MIRRORED_REPEAT), ``"clamp"`` (CLAMP_TO_EDGE: the edge texels
+        beyond) or ``"border"`` (MTL ``-clamp on``: one copy of the texture;
+        beyond it the face is coloured as if it had no texture).
+    uv_transform : (3, 3) float64 or None
+        Affine map applied to the texture coordinates before sampling (MTL
+        ``-o``/``-s``); the OBJ reader has already applied it to
+        :attr:`Mesh.corner_uv`, so it is informational.
+    ignored_options : list of (str, list of str, str)
+        ``map_Kd`` options that are not applied: option, values, what it does.
+    ambient_map : str or None
+        The ``map_Ka`` statement's argument, which is not read (said with
+        ``ambient``).
     vertex_tint : bool
         Whether vertex colours multiply the texture (glTF's ``COLOR_0``) rather
         than being replaced by it (OBJ's ``v x y z r g b``).
@@ -54,6 +65,9 @@ class Material:
     image: np.ndarray | None = field(default=None, repr=False)
     wrap: tuple = ("repeat", "repeat")
     vertex_tint: bool = False
+    uv_transform: np.ndarray | None = field(default=None, repr=False)
+    ignored_options: list = field(default_factory=list, repr=False)
+    ambient_map: str | None = None
 
     def diffuse(self) -> np.ndarray:
         """``Kd``, or the default: 1 under a texture (so it shows as painted), else 0.8 grey."""
@@ -62,17 +76,43 @@ class Material:
         return np.ones(3) if self.texture_file or self.image is not None else np.full(3, 0.8)
 
 
+def transform_uv(uv: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """``t`` (3, 3) applied to texture coordinates ``uv`` (..., 2) as points; NaN stays NaN.
+
+    Affine, so transforming a face's corner UVs is the same as transforming
+    the UVs interpolated between them.
+    """
+    u, v = uv[..., 0], uv[..., 1]
+    return np.stack([t[0, 0] * u + t[0, 1] * v + t[0, 2],
+                     t[1, 0] * u + t[1, 1] * v + t[1, 2]], axis=-1)
+
+
 def texels(image) -> np.ndarray:
     """(h, w, 3) uint8: a Pillow image's colours as stored, alpha dropped.
 
-    No colour-space conversion: an sRGB texture keeps its sRGB values. Pillow
-    opens 16-bit grey PNGs as mode ``I;16`` and its RGB conversion clips them
-    at 255 (nearly everything white), so those are scaled down here.
+    No colour-space conversion: an sRGB texture keeps its sRGB values.
+    Alpha is not applied: an RGBA, LA or PA texel gives its colour channels
+    as stored (straight, not multiplied by alpha; a premultiplied ``RGBa`` or
+    ``La`` image is divided back). Grey images (L, LA, 1) give the grey in
+    all three channels, palette images (P, PA) their palette's colours.
+    Pillow opens 16-bit grey PNGs as mode ``I;16`` (or ``I``), whose RGB
+    conversion clips them at 255 (nearly everything white), so those are
+    scaled by 1/257; a float image (``F``) is taken as 0-1, or 0-255 when a
+    value exceeds 1.
     """
-    if image.mode == "I" or image.mode.startswith("I;16"):
+    mode = image.mode
+    if mode == "I" or mode.startswith("I;16") or mode == "F":
         grey = np.asarray(image, dtype=np.float64)
-        grey = np.rint(np.clip(grey, 0, 65535) / 257.0).astype(np.uint8)
+        if mode == "F":
+            finite = grey[np.isfinite(grey)]
+            grey = np.nan_to_num(grey, nan=0.0) * (255.0 if finite.size == 0 or finite.max() <= 1.0
+                                                   else 1.0)
+        else:
+            grey = np.clip(grey, 0, 65535) / 257.0
+        grey = np.rint(np.clip(grey, 0, 255)).astype(np.uint8)
         return np.repeat(grey[..., None], 3, axis=2)
+    if mode == "La":
+        image = image.convert("LA")  # Pillow converts La to nothing else
     return np.asarray(image.convert("RGB"))
 
 

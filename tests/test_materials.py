@@ -14,8 +14,10 @@ from __future__ import annotations
 import base64
 import io
 import json
+import os
 import struct
 import warnings
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -513,36 +515,525 @@ def test_glb_written_by_trimesh(tmp_path):
     assert np.all(vol.colors[13:15, 3:5, 3:5, :3] == (0, 0, 255))
 
 
-def test_obj_map_kd_clamp_on_clamps(tmp_path):
+# OBJ + MTL: map_Kd options.
+
+def obj_centre(i):
+    """OBJ texture coordinate v of the centre of texel row i (of 4): V points up."""
+    return 1 - (i + 0.5) / 4
+
+
+def obj_box(folder, mtl, u, v, material="m", name="b.obj", png=None):
+    """A 2 x 2 x 2 box OBJ, every corner at texture coordinates (u, v), using ``material``."""
+    (folder / "t.png").write_bytes(texture_png() if png is None else png)
+    (folder / "a.mtl").write_text(mtl)
+    m = _trimesh_box()
+    lines = ["mtllib a.mtl", f"vt {u!r} {v!r}"] + [f"v {x} {y} {z}" for x, y, z in m.vertices]
+    lines += [f"usemtl {material}"] + [f"f {a + 1}/1 {b + 1}/1 {c + 1}/1" for a, b, c in m.faces]
+    (folder / name).write_text("\n".join(lines) + "\n")
+    return folder / name
+
+
+def quiet_colours(path, **kw):
+    """colours_of, and the GeovoxWarning messages it gave."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        got = colours_of(path, **kw)
+    return got, [str(w.message) for w in caught if issubclass(w.category, GeovoxWarning)]
+
+
+@pytest.mark.parametrize("options,u,v,want", [
+    # -o shifts the lookup: uv -> uv + o (Blender's and three.js's reading)
+    ("-o 0.25 0 0", centre(0), obj_centre(0), texel(1, 0)),
+    ("-o 0 -0.5", centre(0), obj_centre(0), texel(0, 2)),
+    # -s scales it: uv -> s * uv; v's scale defaults to 1
+    ("-s 2 2 1", centre(1) / 2, obj_centre(3) / 2, texel(1, 3)),
+    ("-s 2", centre(1) / 2, obj_centre(2), texel(1, 2)),
+    # both: uv -> s * uv + o, in either order on the line
+    ("-s 0.5 0.5 -o 0.25 0.25", 0.75, 0.75, texel(2, 1)),
+    ("-o 0.25 0.25 -s 0.5 0.5", 0.75, 0.75, texel(2, 1)),
+    # after the transform the texture still repeats
+    ("-o 3 -2", centre(3), obj_centre(1), texel(3, 1)),
+])
+def test_map_kd_offset_and_scale_move_the_lookup(tmp_path, options, u, v, want):
+    path = obj_box(tmp_path, f"newmtl m\nmap_Kd {options} t.png\n", u, v)
+    assert quiet_colours(path) == ({want}, [])
+
+
+def test_map_kd_offset_and_scale_agree_with_khr_texture_transform(tmp_path):
+    # The same move stated in glTF (V down, KHR_texture_transform) and in MTL (V up).
+    t = textured(tex_extra={"extensions": {"KHR_texture_transform": {
+        "offset": [0.25, 0.5], "scale": [0.5, 0.5]}}})
+    gltf = write_gltf(tmp_path / "t.glb", [uv_box(0.75, 0.25, material=0)], **t)
+    # glTF v' = 0.5 * 0.25 + 0.5 = 0.625 (row 2); in OBJ's V: 1 - 0.625 = 0.375 = 0.5 * 0.75 + 0
+    obj = obj_box(tmp_path, "newmtl m\nmap_Kd -s 0.5 0.5 -o 0.25 0 t.png\n", 0.75, 0.75)
+    assert colours_of(gltf) == colours_of(obj) == {texel(2, 2)}
+
+
+def test_map_kd_clamp_on_is_one_copy_of_the_texture(tmp_path):
+    # The MTL specification: "one copy of the texture is mapped onto the surface
+    # [...]. Outside of the origin texture, the underlying material is unchanged."
     from geovox.obj import read_mtl
 
-    (tmp_path / "t.png").write_bytes(texture_png())
-    (tmp_path / "a.mtl").write_text("newmtl c\nmap_Kd -clamp on -s 1 1 1 t.png\n"
-                                    "newmtl r\nmap_Kd -clamp off t.png\nnewmtl p\nmap_Kd t.png\n")
+    mtl = ("newmtl c\nKd 0.2 0.4 0.6\nmap_Kd -clamp on t.png\n"
+           "newmtl w\nmap_Kd -clamp on t.png\n"
+           "newmtl s\nmap_Kd -clamp on -s 0.5 0.5 t.png\n"
+           "newmtl r\nmap_Kd -clamp off t.png\nnewmtl p\nmap_Kd t.png\n")
+    path = obj_box(tmp_path, mtl, 1.375, 1.375, "c")
     mats = read_mtl(str(tmp_path / "a.mtl"), [])
-    assert mats["c"].wrap == ("clamp", "clamp") and mats["c"].texture_file.endswith("t.png")
+    assert mats["c"].wrap == ("border", "border") and mats["c"].texture_file.endswith("t.png")
     assert mats["r"].wrap == mats["p"].wrap == ("repeat", "repeat")
-    # end to end: a box whose every corner has u = v = 1.375 takes the corner texel
-    m = _trimesh_box()
-    lines = ["mtllib a.mtl", "vt 1.375 1.375"] + [f"v {x} {y} {z}" for x, y, z in m.vertices]
-    lines += ["usemtl c"] + [f"f {a + 1}/1 {b + 1}/1 {c + 1}/1" for a, b, c in m.faces]
-    (tmp_path / "c.obj").write_text("\n".join(lines) + "\n")
-    # V up in OBJ: v = 1.375 clamps to 1, the image's top row; u clamps to its last column
-    assert colours_of(tmp_path / "c.obj") == {texel(3, 0)}
+    # off the texture: Kd alone (with Kd 1: white), not an edge texel
+    assert colours_of(path) == {(51, 102, 153)}
+    assert colours_of(obj_box(tmp_path, mtl, 1.375, 1.375, "w")) == {(255, 255, 255)}
+    assert colours_of(obj_box(tmp_path, mtl, -0.01, centre(1), "w")) == {(255, 255, 255)}
+    # on its edge and inside: the texture
+    assert colours_of(obj_box(tmp_path, mtl, 1.0, 1.0, "w")) == {texel(3, 0)}
+    assert colours_of(obj_box(tmp_path, mtl, centre(1), obj_centre(2), "w")) == {texel(1, 2)}
+    # scaled by 0.5 the one copy covers uv up to 2
+    assert colours_of(obj_box(tmp_path, mtl, 1.75, 1.75, "s")) == {texel(3, 0)}
+    assert colours_of(obj_box(tmp_path, mtl, 2.5, 1.75, "s")) == {(255, 255, 255)}
+    # off: repeats (1.375 -> 0.375)
+    assert colours_of(obj_box(tmp_path, mtl, 1.375, 1.375, "r")) == {texel(1, 2)}
 
 
-@pytest.mark.parametrize("typ,value", [("float", "0.2 0.4 0.6"), ("uchar", "51 102 153"),
-                                       ("ushort", "13107 26214 39321")])
-def test_ply_vertex_colour_encodings(tmp_path, typ, value):
+def test_map_kd_clamp_on_across_a_face_keeps_the_texture_inside(tmp_path):
+    # One face spanning u from -1 to 2: the inside third is textured, the rest takes Kd.
+    (tmp_path / "t.png").write_bytes(texture_png())
+    (tmp_path / "a.mtl").write_text("newmtl m\nKd 1 1 1\nmap_Kd -clamp on t.png\n")
+    mesh = geovox.load_mesh(obj_box(tmp_path, (tmp_path / "a.mtl").read_text(), 0.5, 0.5))
+    from geovox.colour import load_textures, shade
+
+    mesh.corner_uv[:] = [[-1.0, obj_centre(1)], [2.0, obj_centre(1)], [2.0, obj_centre(1)]]
+    load_textures(mesh)
+    u = np.linspace(0, 1, 301)  # barycentric weight of corner 1: uv = -1 + 3 u
+    got = shade(mesh, np.zeros(len(u), np.int64), np.stack([u, np.zeros_like(u)], axis=1))
+    uv = -1 + 3 * u
+    inside = (uv >= 0) & (uv <= 1)
+    edge = (np.abs(uv) < 1e-6) | (np.abs(uv - 1) < 1e-6)  # rounding decides these
+    inside, outside = inside & ~edge, ~inside & ~edge
+    assert np.all(got[outside] == 1.0) and outside.sum() == 200
+    from geovox.colour import sample_bilinear
+
+    want = sample_bilinear(mesh.materials[0].image,
+                           np.stack([uv[inside], np.full(inside.sum(), obj_centre(1))], axis=1),
+                           ("clamp", "clamp"))
+    np.testing.assert_allclose(got[inside], want, atol=1e-12)
+
+
+@pytest.mark.parametrize("statement,file", [
+    # every option of the specification at its neutral value, and a name with spaces
+    ("-blendu on -blendv on -cc off -clamp off -mm 0 1 -o 0 0 0 -s 1 1 1 -t 0 0 0 my tex.png",
+     "my tex.png"),
+    ("my  tex.png", "my  tex.png"),  # inner spaces kept as written
+    ("  -s 1 1 1   my tex.png  ", "my tex.png"),
+    ('"my tex.png"', "my tex.png"),
+    ("-o 0 0 12 monkeys.png", "12 monkeys.png"),  # a name that starts with a number
+    ("-s 1 1 -o 0 0 0 -clamp off 12 monkeys.png", "12 monkeys.png"),
+    ("-s 1 1 1 sub\\t.png", "sub/t.png"),  # Windows separators
+    ("-o 0 0 -dash.png", "-dash.png"),  # a name that looks like an option
+    ("-dash.png", "-dash.png"),
+])
+def test_map_kd_options_and_names_find_the_right_image(tmp_path, statement, file):
+    from geovox.obj import read_mtl
+
+    (tmp_path / "sub").mkdir()
+    for name in ("my tex.png", "my  tex.png", "12 monkeys.png", "sub/t.png", "-dash.png",
+                 "tex.png"):
+        (tmp_path / name).write_bytes(b"")
+    (tmp_path / "a.mtl").write_text(f"newmtl m\nmap_Kd {statement}\n")
+    problems = []
+    mats = read_mtl(str(tmp_path / "a.mtl"), problems)
+    assert mats["m"].texture_file == str(tmp_path / file)
+    assert problems == [] and mats["m"].ignored_options == []
+    assert mats["m"].uv_transform is None and mats["m"].wrap == ("repeat", "repeat")
+
+
+def test_map_kd_statements_written_any_way_find_their_file_and_values(tmp_path_factory):
+    # Property: options in any order, with any number of their values, before
+    # a file name with spaces, leading digits or dashes inside, find that
+    # file; -o/-s/-clamp get the values written (missing ones at their defaults).
+    from hypothesis import given, settings
+    from hypothesis import strategies as st
+
+    from geovox.obj import _apply_map_options, _map_statement
+
+    folder = tmp_path_factory.mktemp("names")
+    number = st.floats(-4, 4, allow_nan=False).map(lambda x: round(x, 3))
+    option = st.one_of(
+        st.tuples(st.sampled_from(["-o", "-s", "-t"]), st.lists(number, min_size=1, max_size=3)),
+        st.tuples(st.sampled_from(["-mm"]), st.lists(number, min_size=2, max_size=2)),
+        st.tuples(st.sampled_from(["-clamp", "-blendu", "-blendv", "-cc"]),
+                  st.sampled_from([["on"], ["off"]])),
+        st.tuples(st.sampled_from(["-bm", "-boost", "-texres"]), st.lists(number, min_size=1,
+                                                                          max_size=1)),
+        st.tuples(st.just("-imfchan"), st.sampled_from([["r"], ["l"], ["m"]])))
+    word = st.text("abcXYZ019_-.", min_size=1, max_size=6)
+    name = st.lists(word, min_size=1, max_size=3).map(lambda w: " ".join(w) + ".png")
+
+    @settings(max_examples=150, deadline=None)
+    @given(st.lists(option, max_size=5), name)
+    def check(options, file):
+        (folder / file).write_bytes(b"")
+        text = " ".join(" ".join([k] + [str(v) for v in vals]) for k, vals in options)
+        try:
+            found, parsed = _map_statement(f"{text} {file}", str(folder))
+        finally:
+            (folder / file).unlink()
+        assert found == file
+        m = Material()
+        _apply_map_options(m, parsed)
+        last = {k: vals for k, vals in options}
+        o = [float(x) for x in last.get("-o", [])] + [0.0, 0.0]
+        sc = [float(x) for x in last.get("-s", [])] + [1.0, 1.0]
+        want = np.array([[sc[0], 0, o[0]], [0, sc[1], o[1]], [0, 0, 1]])
+        got = np.eye(3) if m.uv_transform is None else m.uv_transform
+        np.testing.assert_array_equal(got, want)
+        clamp = last.get("-clamp", ["off"])[0] == "on"
+        assert m.wrap == (("border",) * 2 if clamp else ("repeat",) * 2)
+
+    from geovox.surface import Material
+
+    check()
+
+
+def test_map_kd_options_not_applied_warn_once_each_naming_them(tmp_path):
+    # Options geovox does not apply: the texture still loads and samples as
+    # stored, and each option is one warning naming it and its materials.
+    mtl = ("newmtl a\nmap_Kd -bm 0.5 -mm 0.2 0.8 t.png\n"
+           "newmtl b\nmap_Kd -mm 0.1 2 -imfchan r -blendu off t.png\n"
+           "newmtl c\nmap_Kd -cc on -t 1 0 0 -texres 512 -boost 2 -type sphere -foo 3 t.png\n"
+           "newmtl d\nmap_Kd -o 0.25 t.png\n")
+    (tmp_path / "t.png").write_bytes(texture_png())
     m = _trimesh_box()
-    head = (f"ply\nformat ascii 1.0\nelement vertex {len(m.vertices)}\nproperty float x\n"
-            f"property float y\nproperty float z\nproperty {typ} red\nproperty {typ} green\n"
-            f"property {typ} blue\nelement face {len(m.faces)}\n"
-            f"property list uchar int vertex_indices\nend_header\n")
-    body = "".join(f"{x} {y} {z} {value}\n" for x, y, z in m.vertices)
-    body += "".join(f"3 {a} {b} {c}\n" for a, b, c in m.faces)
-    (tmp_path / "c.ply").write_text(head + body)
-    assert colours_of(tmp_path / "c.ply") == {(51, 102, 153)}
+    lines = ["mtllib a.mtl", f"vt {centre(1)} {obj_centre(2)}"]
+    lines += [f"v {x} {y} {z}" for x, y, z in m.vertices]
+    for i, (a, b, c) in enumerate(m.faces):
+        lines += [f"usemtl {'abc'[i % 3]}", f"f {a + 1}/1 {b + 1}/1 {c + 1}/1"]
+    (tmp_path / "a.mtl").write_text(mtl)
+    (tmp_path / "o.obj").write_text("\n".join(lines) + "\n")
+    got, said = quiet_colours(tmp_path / "o.obj")
+    assert got == {texel(1, 2)}
+    options = [s.split("map_Kd option ")[1].split("'")[1] for s in said]
+    assert sorted(options) == sorted(["-bm 0.5", "-mm 0.2 0.8", "-imfchan r", "-blendu off",
+                                      "-cc on", "-t 1 0 0", "-texres 512", "-boost 2",
+                                      "-type sphere", "-foo 3"])
+    mm = [s for s in said if "-mm" in s]
+    assert len(mm) == 1 and "materials 'a', 'b'" in mm[0]
+    assert any("-foo 3" in s and "not an option of the MTL specification" in s for s in said)
+    # material d (unused here) says nothing; used, its -o is applied without a word
+    got, said = quiet_colours(obj_box(tmp_path, mtl, centre(0), obj_centre(2), "d"))
+    assert (got, said) == ({texel(1, 2)}, [])
+
+
+def test_map_ka_is_not_read_and_says_so_with_ambient(tmp_path):
+    mtl = "newmtl m\nKa 0.2 0.2 0.2\nmap_Ka -s 2 2 t.png\nmap_Kd t.png\n"
+    path = obj_box(tmp_path, mtl, centre(1), obj_centre(2))
+    assert quiet_colours(path) == ({texel(1, 2)}, [])  # ambient off: nothing to say
+    got, said = quiet_colours(path, ambient=True)
+    assert got == {tuple(min(255, c + 51) for c in texel(1, 2))}  # + Ka alone
+    assert len(said) == 1 and "map_Ka" in said[0] and "'m'" in said[0]
+
+
+def test_map_kd_options_on_fuze(tmp_path):
+    # fuze's texture name has a space in it. Neutral options change nothing;
+    # -s 2 3 -o 0.25 -0.5 gives what the same transform written into its vt lines gives.
+    import shutil
+
+    src = corpus("fuze", "fuze.obj")
+    folder = os.path.dirname(src)
+    for name in ("fuze.obj", "fuze uv.jpg"):
+        shutil.copy(os.path.join(folder, name), tmp_path / name)
+    mtl = Path(folder, "fuze.obj.mtl").read_text()
+    assert "map_Kd fuze uv.jpg" in mtl
+
+    def run(mtl_text, obj=tmp_path / "fuze.obj"):
+        (tmp_path / "fuze.obj.mtl").write_text(mtl_text)
+        vol = geovox.voxelize(obj, resolution=24, color=True)
+        return vol.colors
+
+    plain = geovox.voxelize(src, resolution=24, color=True).colors
+    neutral = mtl.replace("map_Kd fuze uv.jpg", "map_Kd -blendu on -cc off -s 1 1 1 -o 0 0 0 "
+                                                "-clamp off -mm 0 1 fuze uv.jpg")
+    np.testing.assert_array_equal(run(neutral), plain)
+    moved = run(mtl.replace("map_Kd fuze uv.jpg", "map_Kd -s 2 3 -o 0.25 -0.5 fuze uv.jpg"))
+    lines = []
+    for line in Path(src).read_text().splitlines():
+        if line.startswith("vt "):
+            u, v = (float(x) for x in line.split()[1:3])
+            line = f"vt {2 * u + 0.25!r} {3 * v - 0.5!r}"
+        lines.append(line)
+    (tmp_path / "moved.obj").write_text("\n".join(lines) + "\n")
+    np.testing.assert_array_equal(run(mtl, tmp_path / "moved.obj"), moved)
+    assert not np.array_equal(moved, plain)
+
+
+def test_map_kd_options_through_the_cli(tmp_path):
+    path = obj_box(tmp_path, "newmtl m\nmap_Kd -s 0.5 0.5 -o 0.25 0.25 -clamp on t.png\n",
+                   0.75, 0.75)
+    assert cli_colours(path, tmp_path) == {texel(2, 1)}
+
+
+def test_border_samples_like_clamp_on_the_texture():
+    from geovox.colour import on_texture, sample_bilinear
+
+    rng = np.random.default_rng(7)
+    img = rng.integers(0, 256, (4, 6, 3)).astype(np.uint8)
+    uv = rng.uniform(-0.5, 1.5, (5000, 2))
+    uv[:4] = [[0, 0], [1, 1], [0, 1], [1, 0]]
+    np.testing.assert_array_equal(sample_bilinear(img, uv, ("border", "border")),
+                                  sample_bilinear(img, uv, ("clamp", "clamp")))
+    on = on_texture(uv, ("border", "repeat"))
+    np.testing.assert_array_equal(on, (uv[:, 0] >= 0) & (uv[:, 0] <= 1))
+    assert on[:4].all() and not on_texture(np.array([[np.nan, 0.5]]), ("repeat", "repeat"))[0]
+
+
+# Texture pixel formats: the colour as stored, alpha not applied.
+
+def encoded(image, fmt="PNG", **kw) -> bytes:
+    out = io.BytesIO()
+    image.save(out, format=fmt, **kw)
+    return out.getvalue()
+
+
+def png16(a: np.ndarray, colour_type: int) -> bytes:
+    """A 16-bit PNG of ``a`` (h, w, channels) uint16 (Pillow writes none with colour)."""
+    import struct
+    import zlib
+
+    h, w = a.shape[:2]
+    rows = b"".join(b"\0" + a[y].astype(">u2").tobytes() for y in range(h))
+
+    def chunk(kind, data):
+        crc = struct.pack(">I", zlib.crc32(kind + data))
+        return struct.pack(">I", len(data)) + kind + data + crc
+    head = struct.pack(">IIBBBBB", w, h, 16, colour_type, 0, 0, 0)
+    return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", head) + chunk(b"IDAT", zlib.compress(rows))
+            + chunk(b"IEND", b""))
+
+
+RGB4 = np.array([[texel(c, r) for c in range(4)] for r in range(4)], np.uint8)
+GREY4 = RGB4[..., 0]  # 60 * col + 10
+ALPHA4 = np.array([[0, 128, 255, 1]] * 4, np.uint8)  # fully transparent texels too
+
+
+def _palette():
+    im = Image.fromarray((np.arange(16).reshape(4, 4)).astype(np.uint8), "P")
+    im.putpalette(RGB4.reshape(-1).tolist())
+    return encoded(im, transparency=bytes([0, 64] + [255] * 14))
+
+
+@pytest.mark.parametrize("name,png,want", [
+    ("RGBA", lambda: encoded(Image.fromarray(np.dstack([RGB4, ALPHA4]), "RGBA")), RGB4),
+    ("LA", lambda: encoded(Image.fromarray(np.dstack([GREY4, ALPHA4]), "LA")),
+     np.repeat(GREY4[..., None], 3, axis=2)),
+    ("L", lambda: encoded(Image.fromarray(GREY4, "L")), np.repeat(GREY4[..., None], 3, axis=2)),
+    ("P with transparency", _palette, RGB4),
+    ("RGB 16-bit", lambda: png16(RGB4.astype(np.uint16) * 257, 2), RGB4),
+    ("RGBA 16-bit", lambda: png16(np.dstack([RGB4, ALPHA4]).astype(np.uint16) * 257, 6), RGB4),
+    ("LA 16-bit", lambda: png16(np.dstack([GREY4, ALPHA4]).astype(np.uint16) * 257, 4),
+     np.repeat(GREY4[..., None], 3, axis=2)),
+    ("L 16-bit", lambda: png16(GREY4[..., None].astype(np.uint16) * 257, 0),
+     np.repeat(GREY4[..., None], 3, axis=2)),
+])
+def test_texture_pixel_formats_give_their_colour_as_stored(tmp_path, name, png, want):
+    data = png()
+    # column 0 is fully transparent, column 1 half: their colours still count
+    for col, row in ((0, 1), (1, 2), (3, 3)):
+        path = obj_box(tmp_path, "newmtl m\nmap_Kd t.png\n", centre(col), obj_centre(row),
+                       png=data)
+        assert quiet_colours(path, res=6) == ({tuple(int(x) for x in want[row, col])}, [])
+
+
+def test_grey_and_alpha_textures_in_gltf(tmp_path):
+    for png, want in ((encoded(Image.fromarray(np.dstack([GREY4, ALPHA4]), "LA")), (130,) * 3),
+                      (encoded(Image.fromarray(GREY4, "L")), (130,) * 3),
+                      (encoded(Image.fromarray(np.dstack([RGB4, ALPHA4]), "RGBA")), texel(2, 1))):
+        t = textured()
+        t["images"] = [{"png": png}]
+        path = write_gltf(tmp_path / "g.glb", [uv_box(centre(2), centre(1), material=0)], **t)
+        assert colours_of(path) == {want}
+
+
+def test_ktx2_texture_is_not_read_and_says_so(tmp_path):
+    # KHR_texture_basisu: Pillow cannot decode KTX2, so the faces take the factor, with a warning.
+    (tmp_path / "t.ktx2").write_bytes(b"\xabKTX 20\xbb\r\n\x1a\n" + bytes(100))
+    t = textured(factor=[0.2, 0.4, 0.6, 1.0])
+    t["textures"] = [{"extensions": {"KHR_texture_basisu": {"source": 0}}}]
+    t["images"] = [{"uri": "t.ktx2", "mimeType": "image/ktx2"}]
+    path = write_gltf(tmp_path / "k.gltf", [uv_box(centre(1), centre(1), material=0)],
+                      extensions_used=["KHR_texture_basisu"], **t)
+    got, said = quiet_colours(path)
+    assert got == {(51, 102, 153)}
+    assert len(said) == 1 and "'t.ktx2'" in said[0] and "base colour factor" in said[0]
+
+
+def test_texels_of_other_pillow_modes():
+    from geovox.surface import texels
+
+    rgba = Image.fromarray(np.array([[[200, 100, 50, 128]]], np.uint8), "RGBA")
+    assert texels(rgba.convert("RGBa")).reshape(-1).tolist() in ([200, 100, 50], [199, 99, 49])
+    la = Image.fromarray(np.array([[[90, 128]]], np.uint8), "LA")
+    assert texels(la.convert("La")).reshape(-1).tolist() in ([90] * 3, [89] * 3)
+    np.testing.assert_array_equal(texels(rgba.convert("PA")), texels(rgba.convert("P")))
+    assert texels(Image.fromarray(np.array([[0.5, 1.0]], np.float32))).reshape(-1).tolist() == \
+        [128] * 3 + [255] * 3
+    assert texels(Image.fromarray(np.array([[90.0, 300]], np.float32))).reshape(-1).tolist() == \
+        [90] * 3 + [255] * 3
+    one_bit = Image.fromarray(np.array([[0, 255]], np.uint8)).convert("1")
+    assert texels(one_bit).reshape(-1).tolist() == [0] * 3 + [255] * 3
+    cmyk = Image.fromarray(np.array([[[200, 100, 50]]], np.uint8)).convert("CMYK")
+    assert texels(cmyk).reshape(-1).tolist() == [200, 100, 50]
+
+
+PLY_TYPES = {"uchar": "u1", "char": "i1", "ushort": "u2", "short": "i2", "uint": "u4",
+             "int": "i4", "float": "f4", "double": "f8"}
+
+
+def write_ply(path, fmt="ascii", vprops=(), vvals=None, fprops=(), fvals=None,
+              vertices=None, polygons=None):
+    """A PLY of ``vertices`` (default: the 2 x 2 x 2 box) and ``polygons``.
+
+    ``vprops``/``fprops``: (type, name) after x y z / after the index list;
+    ``vvals``/``fvals``: one row of values per vertex / face. ``fmt``:
+    ``ascii``, ``binary_little_endian`` or ``binary_big_endian``.
+    """
+    if vertices is None:
+        m = _trimesh_box()
+        vertices, polygons = np.asarray(m.vertices), np.asarray(m.faces)
+    head = ["ply", f"format {fmt} 1.0", f"element vertex {len(vertices)}",
+            "property float x", "property float y", "property float z"]
+    head += [f"property {t} {n}" for t, n in vprops]
+    head += [f"element face {len(polygons)}", "property list uchar int vertex_indices"]
+    head += [f"property {t} {n}" for t, n in fprops] + ["end_header"]
+    text = "\n".join(head) + "\n"
+    if fmt == "ascii":
+        rows = [" ".join(map(str, list(p) + (list(vvals[i]) if vprops else [])))
+                for i, p in enumerate(vertices)]
+        rows += [" ".join(map(str, [len(q)] + list(q) + (list(fvals[i]) if fprops else [])))
+                 for i, q in enumerate(polygons)]
+        path.write_text(text + "\n".join(rows) + "\n")
+        return path
+    e = "<" if "little" in fmt else ">"
+    vd = np.dtype([(a, e + "f4") for a in "xyz"] + [(n, e + PLY_TYPES[t]) for t, n in vprops])
+    v = np.zeros(len(vertices), vd)
+    for k, a in enumerate("xyz"):
+        v[a] = vertices[:, k]
+    for k, (t, n) in enumerate(vprops):
+        v[n] = np.asarray(vvals, dtype=np.float64)[:, k]
+    k = len(polygons[0])
+    fd = np.dtype([("n", "u1"), ("i", e + "i4", (k,))] + [(n, e + PLY_TYPES[t]) for t, n in fprops])
+    f = np.zeros(len(polygons), fd)
+    f["n"], f["i"] = k, polygons
+    for j, (t, n) in enumerate(fprops):
+        f[n] = np.asarray(fvals, dtype=np.float64)[:, j]
+    path.write_bytes(text.encode() + v.tobytes() + f.tobytes())
+    return path
+
+
+RGB = ("red", "green", "blue")
+RGBA = RGB + ("alpha",)
+FORMATS = ["ascii", "binary_little_endian", "binary_big_endian"]
+
+
+@pytest.mark.parametrize("fmt", FORMATS)
+@pytest.mark.parametrize("typ,names,value,want", [
+    ("float", RGB, (0.2, 0.4, 0.6), (51, 102, 153)),
+    ("double", RGB, (0.2, 0.4, 0.6), (51, 102, 153)),
+    ("float", RGBA, (0.2, 0.4, 0.6, 0.0), (51, 102, 153)),  # alpha is not used
+    ("float", RGB, (51, 102, 153), (51, 102, 153)),  # floats above 1: 0-255, as in OFF
+    ("uchar", RGBA, (10, 200, 30, 0), (10, 200, 30)),
+    ("ushort", RGB, (32768, 65535, 0), (128, 255, 0)),  # trimesh's 8 bits made 32768 0
+    ("uint", RGB, (2 ** 31, 2 ** 32 - 1, 0), (128, 255, 0)),
+])
+@pytest.mark.parametrize("element", ["vertex", "face"])
+def test_ply_colour_types(tmp_path, fmt, typ, names, value, want, element):
+    props = [(typ, n) for n in names]
+    n = 8 if element == "vertex" else 12
+    kw = dict(vprops=props, vvals=[value] * n) if element == "vertex" else \
+        dict(fprops=props, fvals=[value] * n)
+    path = write_ply(tmp_path / "c.ply", fmt, **kw)
+    assert quiet_colours(path) == ({want}, [])
+
+
+@pytest.mark.parametrize("fmt", FORMATS)
+def test_ply_nan_colours_are_not_black(tmp_path, fmt):
+    # trimesh turns a NaN colour into 0: black, a colour the file does not state.
+    rgb = [("float", n) for n in RGB]
+    nan = [(np.nan,) * 3] * 8
+    path = write_ply(tmp_path / "a.ply", fmt, rgb, nan)
+    got, said = quiet_colours(path)
+    assert got == {(204, 204, 204)}  # no vertex states a colour: the default
+    assert len(said) == 1 and "NaN or infinite colour on 8 vertices" in said[0]
+    one = [(0.2, 0.4, 0.6)] * 8
+    one[0] = (np.nan, 0.4, 0.6)
+    path = write_ply(tmp_path / "b.ply", fmt, rgb, one)
+    with pytest.warns(GeovoxWarning, match="colour on 1 vertex; it counts as having no colour"):
+        vol = geovox.voxelize(path, resolution=10, color=True)
+    m = _trimesh_box()
+    far = tuple(np.clip(np.floor((2 - m.vertices[0]) * 5), 0, 9).astype(int))
+    near = tuple(np.clip(np.floor(m.vertices[0] * 5), 0, 9).astype(int))
+    assert tuple(vol.colors[far][:3]) == (51, 102, 153)
+    assert np.all(vol.colors[near][:3] >= (51, 102, 153)) and tuple(vol.colors[near][:3]) != \
+        (51, 102, 153)  # towards white, never black
+    # faces: a NaN face takes the default, the others keep theirs
+    fc = [(0.0, 0.0, 1.0)] * 12
+    top = [i for i, f in enumerate(m.faces) if np.all(m.vertices[f][:, 2] == 2)]
+    for i in top:
+        fc[i] = (np.nan, np.nan, np.nan)
+    path = write_ply(tmp_path / "f.ply", fmt, fprops=rgb, fvals=fc)
+    with pytest.warns(GeovoxWarning, match="colour on 2 faces; they take the default"):
+        vol = geovox.voxelize(path, resolution=10, color=True)
+    assert np.all(vol.colors[2:8, 2:8, 9, :3] == 204)
+    assert np.all(vol.colors[:, :, 0, :3] == (0, 0, 255))
+
+
+@pytest.mark.parametrize("fmt", FORMATS)
+@pytest.mark.parametrize("typ,red,blue", [("uchar", (255, 0, 0), (0, 0, 255)),
+                                          ("float", (1.0, 0, 0), (0, 0, 1.0))])
+def test_ply_quads_with_face_colours(tmp_path, fmt, typ, red, blue):
+    # trimesh cuts the quads into triangles and its 6 face colours no longer
+    # fit its 12 triangles: the load used to fail.
+    path = write_ply(tmp_path / "q.ply", fmt, fprops=[(typ, n) for n in RGB],
+                     fvals=[red if i == 1 else blue for i in range(6)], vertices=BOX8,
+                     polygons=np.array(QUADS))
+    vol = geovox.voxelize(path, resolution=10, color=True)
+    assert vol.inside_count == 1000
+    assert np.all(vol.colors[2:8, 2:8, 9, :3] == (255, 0, 0))
+    assert np.all(vol.colors[:, :, 0, :3] == (0, 0, 255))
+
+
+@pytest.mark.parametrize("fmt", FORMATS)
+def test_ply_vertex_colours_beside_uvs(tmp_path, fmt):
+    # trimesh keeps the UVs and drops the colours: without a texture they are the colour
+    props = [("float", "s"), ("float", "t")] + [("uchar", n) for n in RGB]
+    vals = [(centre(1), obj_centre(2), 10, 200, 30)] * 8
+    path = write_ply(tmp_path / "uvc.ply", fmt, props, vals)
+    assert quiet_colours(path) == ({(10, 200, 30)}, [])
+    # with a texture (comment TextureFile), the texture, as in an OBJ
+    (tmp_path / "t.png").write_bytes(texture_png())
+    data = path.read_bytes().replace(b"1.0\n", b"1.0\ncomment TextureFile t.png\n", 1)
+    (tmp_path / "tex.ply").write_bytes(data)
+    assert quiet_colours(tmp_path / "tex.ply") == ({texel(1, 2)}, [])
+
+
+def test_ply_polygons_of_every_size_with_face_colours(tmp_path):
+    # The pentagonal prism of the OFF test below, as an ASCII PLY.
+    ang = 2 * np.pi * np.arange(5) / 5
+    ring = np.stack([1 + np.cos(ang), 1 + np.sin(ang)], axis=1)
+    v = np.concatenate([np.c_[ring, np.zeros(5)], np.c_[ring, np.full(5, 2.0)]])
+    polys = [list(range(4, -1, -1)), list(range(5, 10))]
+    polys += [[i, (i + 1) % 5, (i + 1) % 5 + 5, i + 5] for i in range(5)]
+    colours = [(255, 0, 0), (0, 255, 0)] + [(0, 0, 40 * (i + 1)) for i in range(5)]
+    path = write_ply(tmp_path / "p.ply", fprops=[("uchar", n) for n in RGB], fvals=colours,
+                     vertices=v, polygons=polys)
+    prism = trimesh.Trimesh(v, trimesh.geometry.triangulate_quads(polys), process=False)
+    want = geovox.voxelize(prism, resolution=12)
+    got = geovox.voxelize(path, resolution=12, color=True)
+    np.testing.assert_array_equal(got.occupancy, want.occupancy)
+    top = got.colors[:, :, -1][got.occupancy[:, :, -1]]
+    assert np.mean(np.all(top[:, :3] == (0, 255, 0), axis=1)) > 0.5
+    bottom = got.colors[:, :, 0][got.occupancy[:, :, 0]]
+    assert np.mean(np.all(bottom[:, :3] == (255, 0, 0), axis=1)) > 0.5
 
 
 def test_mirror_wrap_is_repeat_over_the_unfolded_image():
@@ -629,6 +1120,10 @@ def test_off_nan_and_unreadable_colours_warn_and_fall_back(tmp_path):
         vol = geovox.voxelize(path, resolution=10, color=True)
     assert tuple(vol.colors[9, 9, 9, :3]) == (10, 200, 30)  # the corner far from vertex 0
     assert tuple(vol.colors[0, 0, 0, :3]) != (10, 200, 30)
+    # NaN on every vertex: no colour stated, the default (not white, not black)
+    path = write_off(tmp_path / "allnan.off", "COFF", " nan nan nan 255")
+    with pytest.warns(GeovoxWarning, match="all 8 vertices; the file states no vertex colours"):
+        assert colours_of(path) == {(204, 204, 204)}
     # A NaN face colour: that face takes the default, the others keep theirs.
     path = write_off(tmp_path / "fnan.off",
                      face_extra=lambda i: " nan 0 0" if i == 1 else " 0 0 255")
