@@ -210,6 +210,7 @@ def voxelize_block(
     progress=None,
     shared_crossings=None,
     out=None,
+    colour_out=None,
     _stacklevel=2,
 ) -> Volume:
     """Voxelise one block of a grid -- the whole grid or a slab along z -- with every option.
@@ -245,6 +246,9 @@ def voxelize_block(
     out : (nx, ny, nz_block) bool, Fortran order, optional
         Array the parity fill writes the occupancy into (reused by a caller
         making many blocks, so its memory is not faulted in afresh each time).
+    colour_out : (nz_block, ny, nx, 4) uint8, C order, optional
+        The same for the colours (``color=True``; see
+        :func:`geovox.colour.colour_volume`).
 
     Returns
     -------
@@ -331,7 +335,8 @@ def voxelize_block(
                 crossings[a] = cast(a)
         colors = colour_volume(m, grid, occ, crossings, diffuse=diffuse, ambient=ambient,
                                jobs=jobs, exact=color == "exact",
-                               frame=(whole.lo, whole.spacing, 0 if block is None else block[0]))
+                               frame=(whole.lo, whole.spacing, 0 if block is None else block[0]),
+                               out=None if color == "exact" else colour_out)
         timings["colour"] = time.perf_counter() - t_fill
     dens = None
     if density == "coverage":
