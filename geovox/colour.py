@@ -331,65 +331,83 @@ class _Crossings(NamedTuple):
     axes: list
 
 
-def _prepare(mesh, grid, cast) -> _Crossings:
+def _prepare(mesh, grid, cast, jobs: int = 1) -> _Crossings:
     """Sort each axis's crossings and build the tables that every chunk reads.
 
     Parameters
     ----------
     cast : dict axis -> (Hits, Columns)
         Crossings of the grid's column rays along each axis.
+    jobs : int
+        Threads (the axes are prepared side by side).
     """
     from .backends.base import Hits
 
     normals = _unit_normals(mesh)
+    order = [a for a in (2, 1, 0) if a in cast]  # ties go to z, then y, then x
+    if jobs > 1 and len(order) > 1:
+        with ThreadPoolExecutor(max_workers=min(jobs, len(order))) as pool:
+            done = list(pool.map(lambda a: _prepare_axis(*cast[a], grid, a, normals), order))
+    else:
+        done = [_prepare_axis(*cast[a], grid, a, normals) for a in order]
     parts, tables, axes = [], [], []
     offset = 0
-    for axis in (2, 1, 0):  # ties go to z, then y, then x
-        if axis not in cast:
-            continue
-        hits, cols = cast[axis]
-        n_axis = grid.shape[axis]
-        centres = (np.arange(n_axis) + 0.5) * grid.spacing[axis]  # from the low face, like depths
-        hits = relevant_crossings(hits, np.searchsorted(centres, hits.depth, side="left"),
-                                  n_axis, cols.count).sorted()
+    for hits, table, ax in done:
         if len(hits) == 0:
             continue
+        # Crossing numbers count through the axes concatenated.
+        ax.first_hit[ax.first_hit >= 0] += offset
+        ax.value[:] += offset
         parts.append(hits)
-        k = np.searchsorted(centres, hits.depth, side="left")
-        # float32 is plenty to choose the nearer crossing and halves the traffic.
-        same = np.r_[hits.ray[1:] == hits.ray[:-1], False]
-        facing = np.maximum(np.abs(normals[hits.triangle, axis]), 1 / np.sqrt(3))
-        table = np.empty((len(hits), 4), dtype=np.float32)
-        table[:, 0] = hits.depth
-        table[:, 1] = facing
-        table[:, 2] = np.where(same, np.r_[hits.depth[1:], 0.0], np.inf)
-        table[:, 3] = np.r_[facing[1:], 1.0]
         tables.append(table)
-        first = np.full(cols.count, np.inf)
-        starts = np.r_[True, ~same[:-1]]
-        first[hits.ray[starts]] = hits.depth[starts]
-        first_hit = np.full(cols.count, -1, dtype=np.int32)
-        first_hit[hits.ray[starts]] = np.flatnonzero(starts) + offset
-        # The deepest crossing at or before each voxel centre is a running
-        # maximum of crossing numbers (sorted by ray, then depth, so deeper
-        # means larger) from the first voxel past each crossing: one entry per
-        # (ray, voxel), the last crossing there.
-        keep = np.flatnonzero(k < n_axis)
-        ray, kk = hits.ray[keep], k[keep]
-        last = np.r_[(ray[1:] != ray[:-1]) | (kk[1:] != kk[:-1]), True]
-        ray, kk, value = ray[last], kk[last], (keep[last] + offset).astype(np.int32)
-        if axis == 2:
-            # In ray order; chunks of z layers want them by layer.
-            order = np.argsort(kk, kind="stable")
-            layer, u, kk, value = kk[order], ray[order], kk[order], value[order]
-        else:
-            layer, u = ray // cols.nu, ray % cols.nu
-        axes.append(_Axis(axis, centres.astype(np.float32), first, first_hit, layer, u, kk, value))
+        axes.append(ax)
         offset += len(hits)
     tables.append(np.array([[-np.inf, 1.0, np.inf, 1.0]], dtype=np.float32))
     rows = np.concatenate(tables).view(np.complex128).reshape(-1)
     hits = Hits.concatenate(parts)
     return _Crossings(hits.triangle, hits.bary, rows, axes)
+
+
+def _prepare_axis(hits, cols, grid, axis: int, normals):
+    """One axis of :func:`_prepare`: its sorted crossings, their table rows and an _Axis.
+
+    Crossing numbers in the _Axis count from 0 on this axis.
+    """
+    n_axis = grid.shape[axis]
+    centres = (np.arange(n_axis) + 0.5) * grid.spacing[axis]  # from the low face, like depths
+    hits = relevant_crossings(hits, np.searchsorted(centres, hits.depth, side="left"),
+                              n_axis, cols.count).sorted()
+    k = np.searchsorted(centres, hits.depth, side="left")
+    # float32 is plenty to choose the nearer crossing and halves the traffic.
+    same = np.r_[hits.ray[1:] == hits.ray[:-1], False]
+    facing = np.maximum(np.abs(normals[hits.triangle, axis]), 1 / np.sqrt(3))
+    table = np.empty((len(hits), 4), dtype=np.float32)
+    table[:, 0] = hits.depth
+    table[:, 1] = facing
+    table[:, 2] = np.where(same, np.r_[hits.depth[1:], 0.0], np.inf)
+    table[:, 3] = np.r_[facing[1:], 1.0]
+    first = np.full(cols.count, np.inf)
+    first_hit = np.full(cols.count, -1, dtype=np.int32)
+    if len(hits):
+        starts = np.r_[True, ~same[:-1]]
+        first[hits.ray[starts]] = hits.depth[starts]
+        first_hit[hits.ray[starts]] = np.flatnonzero(starts)
+    # The deepest crossing at or before each voxel centre is a running
+    # maximum of crossing numbers (sorted by ray, then depth, so deeper means
+    # larger) from the first voxel past each crossing: one entry per (ray,
+    # voxel), the last crossing there.
+    keep = np.flatnonzero(k < n_axis)
+    ray, kk = hits.ray[keep], k[keep]
+    last = np.r_[(ray[1:] != ray[:-1]) | (kk[1:] != kk[:-1]), True]
+    ray, kk, value = ray[last], kk[last], keep[last].astype(np.int32)
+    if axis == 2:
+        # In ray order; chunks of z layers want them by layer.
+        order = np.argsort(kk, kind="stable")
+        layer, u, kk, value = kk[order], ray[order], kk[order], value[order]
+    else:
+        layer, u = ray // cols.nu, ray % cols.nu
+    ax = _Axis(axis, centres.astype(np.float32), first, first_hit, layer, u, kk, value)
+    return hits, table, ax
 
 
 def _z_carry(ax: _Axis, nxy: int, z0: int) -> np.ndarray:
@@ -406,12 +424,13 @@ def _index_volumes(crossings, shape, z0: int, t: int, volumes, carry) -> None:
     Parameters
     ----------
     volumes : list of (>= nx * ny * t,) int32
-        One per axis of ``crossings.axes``, filled in place: along x indexed
-        ``y + ny * (z + t * x)``, along y ``x + nx * (z + t * y)``, along z
-        ``x + nx * (y + ny * z)`` (``z`` counted from ``z0``), -1 where
-        the ray has no crossing yet. The axis runs slowest, so the running
-        maximum along it is a few vectorised steps over whole planes (a scan
-        along a fast axis goes element by element, several times slower).
+        One per axis of ``crossings.axes``, filled in place: along y and z
+        indexed as the chunk's F order, ``x + nx * (y + ny * z)``, along x
+        ``y + ny * (x + nx * z)`` (``z`` counted from ``z0``); -1 where the
+        ray has no crossing yet. The running maximum along the axis then
+        steps through whole planes of contiguous rows, vectorised (a scan
+        along the contiguous axis goes element by element, several times
+        slower).
     carry : (nx * ny,) int32 or None
         Along z: the index before layer ``z0`` (see :func:`_z_carry`),
         advanced to the chunk's last layer.
@@ -426,15 +445,18 @@ def _index_volumes(crossings, shape, z0: int, t: int, volumes, carry) -> None:
             planes[:, 0] = carry
             planes[:, 1:] = -1
             g[ax.u[lo:hi] + nxy * (ax.k[lo:hi] - z0)] = ax.value[lo:hi]
-        else:
-            nu = ny if ax.axis == 0 else nx
-            planes = g.reshape((nu * t, shape[ax.axis]), order="F")
-            g.fill(-1)
-            g[ax.u[lo:hi] + nu * (ax.layer[lo:hi] - z0 + t * ax.k[lo:hi])] = ax.value[lo:hi]
-        for i in range(1, planes.shape[1]):
-            np.maximum(planes[:, i], planes[:, i - 1], out=planes[:, i])
-        if ax.axis == 2:
+            for i in range(1, t):
+                np.maximum(planes[:, i], planes[:, i - 1], out=planes[:, i])
             carry[:] = planes[:, t - 1]
+        else:
+            # Along y the F order itself; along x, x in the middle (y, x, z).
+            # Either way each step of the scan is one plane of contiguous rows.
+            n_u, n_a = (nx, ny) if ax.axis == 1 else (ny, nx)
+            g.fill(-1)
+            g[ax.u[lo:hi] + n_u * (ax.k[lo:hi] + n_a * (ax.layer[lo:hi] - z0))] = ax.value[lo:hi]
+            cube = g.reshape((n_u, n_a, t), order="F")
+            for i in range(1, n_a):
+                np.maximum(cube[:, i], cube[:, i - 1], out=cube[:, i])
 
 
 def _nearest(crossings, shape, z0: int, t: int, volumes, vox, x, y, z, inv_scale):
@@ -469,18 +491,17 @@ def _nearest(crossings, shape, z0: int, t: int, volumes, vox, x, y, z, inv_scale
     just because its plane happens to pass close by.
     """
     nx, ny, _ = shape
-    best_d = np.full(len(vox), np.inf, dtype=np.float32)
-    best = np.zeros(len(vox), np.int32)
+    best = best_d = None
     for ax, g in zip(crossings.axes, volumes):
         # np.take: several times faster than fancy indexing for these gathers.
         if ax.axis == 2:
             prev = np.take(g, vox)
             c = np.take(ax.centres, z + z0)
         elif ax.axis == 1:
-            prev = np.take(g, x + nx * (z + t * y))
+            prev = np.take(g, vox)
             c = np.take(ax.centres, y)
         else:
-            prev = np.take(g, y + ny * (z + t * x))
+            prev = np.take(g, y + ny * (x + nx * z))
             c = np.take(ax.centres, x)
         row = np.take(crossings.rows, prev).view(np.float32).reshape(-1, 4)
         d_prev = (c - row[:, 0]) * row[:, 1]
@@ -502,10 +523,17 @@ def _nearest(crossings, shape, z0: int, t: int, volumes, vox, x, y, z, inv_scale
         chosen = prev + use_next
         if before is not None:
             chosen[before] = np.where(use_next[before], pick, prev[before])
+        if best is None:
+            # The first axis sets the running best (0 where it found nothing).
+            np.copyto(chosen, 0, where=np.isinf(d))
+            best_d, best = d, chosen
+            continue
         # Masked copies: much cheaper than gathering and scattering the winners.
         better = d < best_d
         np.copyto(best_d, d, where=better)
         np.copyto(best, chosen, where=better)
+    if best is None:
+        return np.zeros(len(vox), np.int32), np.full(len(vox), np.inf, dtype=np.float32)
     return best, best_d
 
 
@@ -627,12 +655,13 @@ def colour_volume(mesh, grid, occupancy, cast=None, *, diffuse=True, ambient=Fal
     # Each chunk clears its own layers just before filling them (in cache).
     base = np.empty((nz, ny, nx, 4), dtype=np.uint8) if out is None else out
     colors = base.transpose(2, 1, 0, 3)
-    crossings = _prepare(mesh, grid, cast)
+    crossings = _prepare(mesh, grid, cast, jobs)
     if not crossings.axes:
         base.fill(0)
         return colors
-    # Chunks of z layers; the tasks, runs of consecutive chunks, do not
-    # depend on `jobs`, so neither does anything computed per task.
+    # Chunks of z layers, in tasks of consecutive chunks handed to the threads
+    # as they come free (each task carries the z axis's index from chunk to
+    # chunk; the chunks' results do not depend on which thread ran them).
     t = max(1, min(nz, CHUNK_VOXELS // (nx * ny)))
     chunks = [(z0, min(t, nz - z0)) for z0 in range(0, nz, t)]
     per_task = max(1, TASK_VOXELS // (t * nx * ny))
@@ -665,7 +694,7 @@ def _work_space(crossings, voxels: int) -> dict:
     """Arrays one thread reuses from chunk to chunk: index volumes and the shading cache."""
     m = len(crossings.triangle)
     return {"volumes": [np.empty(voxels, dtype=np.int32) for _ in crossings.axes],
-            "rgba": np.empty(m, dtype=np.uint32), "shaded": np.empty(m, dtype=bool),
+            "rgba": np.empty(m, dtype=np.uint32), "shaded": np.zeros(m, dtype=bool),
             "pending": np.zeros(m, dtype=bool)}
 
 
@@ -690,9 +719,9 @@ def _colour_chunks(mesh, grid, occupancy, crossings, chunks, base, space, *, dif
     along_z = next((ax for ax in crossings.axes if ax.axis == 2), None)
     carry = _z_carry(along_z, nxy, chunks[0][0]) if along_z is not None else None
     volumes = space["volumes"]
-    # The colour of each crossing a deep voxel takes, shaded once per task.
+    # The colour of each crossing a deep voxel takes, shaded once per thread
+    # (shading is row by row, so which batch a crossing falls in is immaterial).
     hit_rgba, shaded, pending = space["rgba"], space["shaded"], space["pending"]
-    shaded.fill(False)
     for z0, t in chunks:
         # One uint32 per voxel: RGBA bytes in memory order, index = F-order voxel index.
         flat = base[z0:z0 + t].reshape(-1, 4).view(np.uint32).reshape(-1)
