@@ -126,8 +126,12 @@ def sample_bilinear(image: np.ndarray, uv: np.ndarray, wrap=("repeat", "repeat")
     fy = fy[:, None]
     r0 = y0 * w
     r1 = y1 * w
-    top = flat[r0 + x0] * (1 - fx) + flat[r0 + x1] * fx
-    bottom = flat[r1 + x0] * (1 - fx) + flat[r1 + x1] * fx
+
+    def texel(i):  # np.take: several times faster than fancy-indexing rows
+        return np.take(flat, i, axis=0)
+
+    top = texel(r0 + x0) * (1 - fx) + texel(r0 + x1) * fx
+    bottom = texel(r1 + x0) * (1 - fx) + texel(r1 + x1) * fx
     return (top * (1 - fy) + bottom * fy) / 255.0
 
 
@@ -398,7 +402,7 @@ def _prepare_axis(hits, cols, grid, axis: int, normals):
     # voxel), the last crossing there.
     keep = np.flatnonzero(k < n_axis)
     ray, kk = hits.ray[keep], k[keep]
-    last = np.r_[(ray[1:] != ray[:-1]) | (kk[1:] != kk[:-1]), True]
+    last = np.r_[(ray[1:] != ray[:-1]) | (kk[1:] != kk[:-1]), True][:len(keep)]
     ray, kk, value = ray[last], kk[last], keep[last].astype(np.int32)
     if axis == 2:
         # In ray order; chunks of z layers want them by layer.
@@ -617,7 +621,7 @@ def exact_colours(mesh, grid, occupancy, *, diffuse=True, ambient=False, jobs=1,
 
 
 def colour_volume(mesh, grid, occupancy, cast=None, *, diffuse=True, ambient=False, jobs=1,
-                  exact=False, frame=None, out=None) -> np.ndarray:
+                  exact=False, frame=None, out=None, sink=None):
     """RGBA colours of the inside voxels; alpha 0 outside.
 
     Parameters
@@ -638,10 +642,16 @@ def colour_volume(mesh, grid, occupancy, cast=None, *, diffuse=True, ambient=Fal
         Without ``exact``: the array to write every voxel's colour into
         (reused by a caller making many blocks, so that its memory is not
         faulted in afresh each time); ``colors`` is its transpose.
+    sink : callable, optional
+        Without ``exact``: instead of making the array, hand over each chunk
+        of layers as soon as it is coloured, ``sink(z0, rgba)`` with
+        ``rgba`` (t, ny, nx, 4) uint8 C order, layers ``z0 .. z0 + t``;
+        called from the worker threads, in no particular order, with a
+        buffer that is reused once it returns.
 
     Returns
     -------
-    colors : (nx, ny, nz, 4) uint8
+    colors : (nx, ny, nz, 4) uint8, or None with ``sink``
         Indexed ``[x, y, z, channel]``; in memory RGBA-interleaved with x
         fastest (``colors.transpose(2, 1, 0, 3)`` is C-contiguous).
     """
@@ -653,11 +663,15 @@ def colour_volume(mesh, grid, occupancy, cast=None, *, diffuse=True, ambient=Fal
                              frame=frame)
     nx, ny, nz = grid.shape
     # Each chunk clears its own layers just before filling them (in cache).
-    base = np.empty((nz, ny, nx, 4), dtype=np.uint8) if out is None else out
-    colors = base.transpose(2, 1, 0, 3)
+    base = None if sink else np.empty((nz, ny, nx, 4), dtype=np.uint8) if out is None else out
+    colors = None if sink else base.transpose(2, 1, 0, 3)
     crossings = _prepare(mesh, grid, cast, jobs)
     if not crossings.axes:
-        base.fill(0)
+        if sink:
+            for z0 in range(nz):
+                sink(z0, np.zeros((1, ny, nx, 4), dtype=np.uint8))
+        else:
+            base.fill(0)
         return colors
     # Chunks of z layers, in tasks of consecutive chunks handed to the threads
     # as they come free (each task carries the z axis's index from chunk to
@@ -678,7 +692,7 @@ def colour_volume(mesh, grid, occupancy, cast=None, *, diffuse=True, ambient=Fal
             if task is None:
                 return
             _colour_chunks(mesh, grid, occupancy, crossings, task, base, space,
-                           diffuse=diffuse, ambient=ambient)
+                           diffuse=diffuse, ambient=ambient, sink=sink)
 
     n = min(jobs, len(tasks))
     if n <= 1:
@@ -695,10 +709,11 @@ def _work_space(crossings, voxels: int) -> dict:
     m = len(crossings.triangle)
     return {"volumes": [np.empty(voxels, dtype=np.int32) for _ in crossings.axes],
             "rgba": np.empty(m, dtype=np.uint32), "shaded": np.zeros(m, dtype=bool),
-            "pending": np.zeros(m, dtype=bool)}
+            "pending": np.zeros(m, dtype=bool), "chunk": np.empty(voxels, dtype=np.uint32)}
 
 
-def _colour_chunks(mesh, grid, occupancy, crossings, chunks, base, space, *, diffuse, ambient):
+def _colour_chunks(mesh, grid, occupancy, crossings, chunks, base, space, *, diffuse, ambient,
+                   sink=None):
     """Colour the inside voxels of consecutive chunks of z layers, in place.
 
     Parameters
@@ -706,11 +721,14 @@ def _colour_chunks(mesh, grid, occupancy, crossings, chunks, base, space, *, dif
     crossings : _Crossings
     chunks : list of (z0, t)
         ``t`` layers from ``z0``, each chunk following the one before.
-    base : (nz, ny, nx, 4) uint8
+    base : (nz, ny, nx, 4) uint8 or None
         The block's colours, C order (x fastest); the chunks' voxels are
         written.
     space : dict
         Work space (:func:`_work_space`).
+    sink : callable, optional
+        Instead of ``base``: given each chunk's colours (see
+        :func:`colour_volume`).
     """
     nx, ny, nz = grid.shape
     nxy = nx * ny
@@ -724,12 +742,15 @@ def _colour_chunks(mesh, grid, occupancy, crossings, chunks, base, space, *, dif
     hit_rgba, shaded, pending = space["rgba"], space["shaded"], space["pending"]
     for z0, t in chunks:
         # One uint32 per voxel: RGBA bytes in memory order, index = F-order voxel index.
-        flat = base[z0:z0 + t].reshape(-1, 4).view(np.uint32).reshape(-1)
+        flat = (space["chunk"][:nxy * t] if sink else
+                base[z0:z0 + t].reshape(-1, 4).view(np.uint32).reshape(-1))
         flat.fill(0)
         vox = np.flatnonzero(occupancy[:, :, z0:z0 + t].reshape(-1, order="F"))
         if len(vox) == 0:
             if carry is not None:
                 carry = _z_carry(along_z, nxy, z0 + t)
+            if sink:
+                sink(z0, flat.view(np.uint8).reshape(t, ny, nx, 4))
             continue
         _index_volumes(crossings, grid.shape, z0, t, volumes, carry)
         best = np.empty(len(vox), dtype=np.int32)
@@ -771,6 +792,8 @@ def _colour_chunks(mesh, grid, occupancy, crossings, chunks, base, space, *, dif
             b = closest_on_triangles(p, mesh.triangles[tri])
             rgba[near] = _pack(shade(mesh, tri, b, diffuse=diffuse, ambient=ambient))
         flat[vox] = rgba
+        if sink:
+            sink(z0, flat.view(np.uint8).reshape(t, ny, nx, 4))
 
 
 def _pack(rgb: np.ndarray) -> np.ndarray:
