@@ -18,13 +18,21 @@ themselves (every hit already carries its triangle and barycentric
 coordinates): rays are cast along all three axes, and for each inside voxel
 the crossings just before and just after it in its x, y and z columns are
 the candidates. The nearest of these six by distance to the crossing
-triangle's plane (see :func:`nearest_crossings`) is taken, and for voxels
+triangle's plane (see :func:`_nearest`) is taken, and for voxels
 within ``REFINE`` voxels of the surface the exact closest point on that
 crossing's triangle replaces the crossing. Deeper voxels take the crossing's
 own colour. The result equals the brute-force nearest point wherever the
 nearest triangle is one of the six candidates (nearly always next to the
 surface; measured in tests/test_colour.py), and is otherwise a nearby point
 of the surface.
+
+The work goes through the block in chunks of z layers (``CHUNK_VOXELS``):
+per chunk and axis, an int32 volume of "the last crossing on this voxel's
+ray at or before it" (a running maximum of crossing numbers), then the six
+candidates of each inside voxel in cache-sized blocks. Nothing the size of
+the grid is made but the colours themselves, which a caller may also take
+chunk by chunk (``sink``) or give a reused array for (``out``). Chunks run in
+tasks on the threads; no result depends on the chunking or on ``jobs``.
 
 With ``exact`` (``color="exact"``, ``--exact-color``) the nearest surface
 point is exact instead (:func:`exact_colours`): the triangle at the smallest
@@ -630,8 +638,8 @@ def colour_volume(mesh, grid, occupancy, cast=None, *, diffuse=True, ambient=Fal
     grid : Grid
     occupancy : (nx, ny, nz) bool
     cast : dict axis -> (Hits, Columns)
-        Crossings along each axis (see :func:`nearest_crossings`); not
-        needed with ``exact``.
+        Crossings along each axis (see :func:`_prepare`); not needed with
+        ``exact``.
     exact : bool
         Colour every voxel from its exact nearest surface point
         (:func:`exact_colours`) instead of the nearest of its six axis
