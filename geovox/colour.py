@@ -770,25 +770,21 @@ def _colour_chunks(mesh, grid, occupancy, crossings, chunks, base, space, *, dif
             z = q // ny
             best[s:s + BLOCK], dist[s:s + BLOCK] = _nearest(
                 crossings, grid.shape, z0, t, volumes, v, v - q * nx, q - z * ny, z, inv_scale)
-        rgba = np.empty(len(vox), dtype=np.uint32)
-        near = dist < REFINE
-        deep = np.flatnonzero(~near)
-        if len(deep):
-            # Deeper voxels take their crossing's own colour (every crossing is
-            # a surface point with a known triangle and barycentrics).
-            h = best[deep]
-            new = h[~shaded[h]]
-            if len(new):
-                # Each new crossing once: marked, then read back in order.
-                lo, hi = new.min(), new.max() + 1
-                pending[new] = True
-                new = np.flatnonzero(pending[lo:hi]) + lo
-                pending[new] = False
-                hit_rgba[new] = _pack(shade(mesh, crossings.triangle[new], crossings.bary[new],
-                                            diffuse=diffuse, ambient=ambient))
-                shaded[new] = True
-            rgba[deep] = hit_rgba[h]
-        near = np.flatnonzero(near)
+        # Deeper voxels take their crossing's own colour (every crossing is a
+        # surface point with a known triangle and barycentrics), each crossing
+        # shaded once; near voxels' entries are replaced below.
+        new = np.compress(~np.take(shaded, best), best)
+        if len(new):
+            # Each new crossing once: marked, then read back in order.
+            lo, hi = new.min(), new.max() + 1
+            pending[new] = True
+            new = np.flatnonzero(pending[lo:hi]) + lo
+            pending[new] = False
+            hit_rgba[new] = _pack(shade(mesh, crossings.triangle[new], crossings.bary[new],
+                                        diffuse=diffuse, ambient=ambient))
+            shaded[new] = True
+        rgba = np.take(hit_rgba, best)
+        near = np.flatnonzero(dist < REFINE)
         if len(near):
             # Near the surface, the exact closest point on the crossing's triangle.
             v = vox[near]
