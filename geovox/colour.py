@@ -690,17 +690,22 @@ def colour_volume(mesh, grid, occupancy, cast=None, *, diffuse=True, ambient=Fal
     tasks = [chunks[s:s + per_task] for s in range(0, len(chunks), per_task)]
     lock = threading.Lock()
     todo = iter(tasks)
+    failed = threading.Event()  # one thread's error stops the others' next tasks
 
     def worker():
         # Work space made once per thread, reused by each of its tasks.
         space = _work_space(crossings, nx * ny * t)
-        while True:
+        while not failed.is_set():
             with lock:
                 task = next(todo, None)
             if task is None:
                 return
-            _colour_chunks(mesh, grid, occupancy, crossings, task, base, space,
-                           diffuse=diffuse, ambient=ambient, sink=sink)
+            try:
+                _colour_chunks(mesh, grid, occupancy, crossings, task, base, space,
+                               diffuse=diffuse, ambient=ambient, sink=sink)
+            except BaseException:
+                failed.set()
+                raise
 
     n = min(jobs, len(tasks))
     if n <= 1:

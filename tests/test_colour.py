@@ -352,3 +352,23 @@ def test_streamed_raw_colours_written_chunk_by_chunk(tmp_path, monkeypatch):
     back = F.read(tmp_path / "s.raw")
     np.testing.assert_array_equal(back.occupancy, ref.occupancy)
     np.testing.assert_array_equal(back.colors, ref.colors)
+
+
+def test_disk_full_while_writing_colours_chunk_by_chunk(tmp_path, monkeypatch):
+    """An error in a colour thread's write stops the conversion and leaves no file."""
+    import errno
+
+    from geovox.errors import OutputError
+    from geovox.formats.raw import RawWriter
+
+    calls = []
+
+    def full(self, z, rgba):
+        calls.append(z)
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(RawWriter, "write_colours", full)
+    with pytest.raises(OutputError, match="disk full"):
+        geovox.convert_to(SPOT, tmp_path / "s.raw", shape=(16, 16, 150), color=True,
+                          budget=16 * 16 * 64 * 30, jobs=2)
+    assert calls and os.listdir(tmp_path) == []
