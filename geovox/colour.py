@@ -171,7 +171,7 @@ def shade(mesh, tri: np.ndarray, bary: np.ndarray, *, diffuse=True, ambient=Fals
         if len(sel) == 0 or not m.defined:
             continue
         if m.image is not None and mesh.corner_uv is not None:
-            uv = np.einsum("nk,nkc->nc", w[sel], mesh.corner_uv[tri[sel]])
+            uv = np.einsum("nk,nkc->nc", w[sel], np.take(mesh.corner_uv, tri[sel], axis=0))
             ok = np.isfinite(uv).all(axis=1)
             texel = sample_bilinear(m.image, uv[ok], m.wrap)
             # glTF's COLOR_0 multiplies the texture; OBJ's vertex colours give way to it.
@@ -785,7 +785,8 @@ def _colour_chunks(mesh, grid, occupancy, crossings, chunks, base, space, *, dif
             pending[new] = True
             new = np.flatnonzero(pending[lo:hi]) + lo
             pending[new] = False
-            hit_rgba[new] = _pack(shade(mesh, crossings.triangle[new], crossings.bary[new],
+            hit_rgba[new] = _pack(shade(mesh, np.take(crossings.triangle, new),
+                                        np.take(crossings.bary, new, axis=0),
                                         diffuse=diffuse, ambient=ambient))
             shaded[new] = True
         rgba = np.take(hit_rgba, best)
@@ -797,8 +798,8 @@ def _colour_chunks(mesh, grid, occupancy, crossings, chunks, base, space, *, dif
             z = q // ny
             p = np.stack([centres[0][v - q * nx], centres[1][q - z * ny], centres[2][z + z0]],
                          axis=1)
-            tri = crossings.triangle[best[near]]
-            b = closest_on_triangles(p, mesh.triangles[tri])
+            tri = np.take(crossings.triangle, np.take(best, near))
+            b = closest_on_triangles(p, np.take(mesh.triangles, tri, axis=0))
             rgba[near] = _pack(shade(mesh, tri, b, diffuse=diffuse, ambient=ambient))
         flat[vox] = rgba
         if sink:
