@@ -30,6 +30,8 @@ before and after, as the machine is shared)::
     python benchmarks/bench_cli.py --only imports
     python benchmarks/bench_cli.py --only auto-rule --res 64,256,1024
     python benchmarks/bench_cli.py --only setup --models bunny105k,spot --res 256 --repeat 5
+    python benchmarks/bench_cli.py --only e2e --models spot --res 256,512 --colour on \
+        --repeat 5 --vs /path/to/other/checkout     # A/B against another tree, pair by pair
 
 The full default run (imports and e2e, 3 runs a cell) took about 20 minutes
 under load average 8-10 on 2 cores; pick a subset with the options above.
@@ -59,8 +61,8 @@ from common import CORPUS, ROOT, SPOT  # noqa: E402
 BACKENDS = ("default", "numpy", "embree")
 
 
-def _env() -> dict:
-    return dict(os.environ, PYTHONPATH=ROOT + os.pathsep + os.environ.get("PYTHONPATH", ""))
+def _env(root=ROOT) -> dict:
+    return dict(os.environ, PYTHONPATH=root + os.pathsep + os.environ.get("PYTHONPATH", ""))
 
 
 def _geovox_cmd() -> list:
@@ -78,19 +80,21 @@ def run_timed(cmd, cwd=None) -> dict:
     return {"wall": wall, "rc": p.returncode, "out": out, "err": err}
 
 
-def run_rss(cmd, cwd=None) -> dict:
+def run_rss(cmd, cwd=None, root=ROOT) -> dict:
     """Like :func:`run_timed`, with the child's own peak RSS and CPU time (``os.wait4``,
-    which reports the one child reaped, unlike ``RUSAGE_CHILDREN``)."""
+    which reports the one child reaped, unlike ``RUSAGE_CHILDREN``); ``root``: the
+    geovox tree the child imports."""
     t = time.perf_counter()
     with tempfile.TemporaryFile("w+") as fo, tempfile.TemporaryFile("w+") as fe:
-        p = subprocess.Popen(cmd, stdout=fo, stderr=fe, env=_env(), cwd=cwd, text=True)
+        p = subprocess.Popen(cmd, stdout=fo, stderr=fe, env=_env(root), cwd=cwd, text=True)
         _, status, usage = os.wait4(p.pid, 0)
         wall = time.perf_counter() - t
         p.returncode = os.waitstatus_to_exitcode(status)
         fo.seek(0)
         fe.seek(0)
         return {"wall": wall, "rc": p.returncode, "out": fo.read(), "err": fe.read(),
-                "rss": usage.ru_maxrss * 1024, "cpu": usage.ru_utime + usage.ru_stime}
+                "rss": usage.ru_maxrss * 1024, "cpu": usage.ru_utime + usage.ru_stime,
+                "user": usage.ru_utime, "sys": usage.ru_stime}
 
 
 STAGE_RE = re.compile(r"^time ([\d.]+) s \((.*)\)$", re.M)
@@ -145,6 +149,48 @@ occ = scene.compute_occupancy(o3d.core.Tensor(pts)).numpy()
 (occ.astype(np.uint8) * np.uint8(255)).tofile(out)
 print(int(occ.sum()))
 """
+
+
+def bench_vs(args, tmp) -> None:
+    """``--vs TREE``: each e2e cell run by this tree (A) and by TREE (B) in turn, A B A B ...
+
+    The ratio A/B is taken pair by pair (a loaded machine's speed drifts, and a
+    pair shares it), and its median printed beside both medians.
+    """
+    paths = model_paths(args.models, tmp)
+    colours = {"off": [False], "on": [True], "both": [False, True]}[args.colour]
+    print(f"A = {ROOT}, B = {args.vs}; {args.repeat} pairs a cell after one warm-up pair")
+    print("| model | grid | output | colour | A wall (s) | B wall (s) | A/B wall | A user / sys (s) "
+          "| B user / sys (s) | A/B CPU | A peak (MiB) | B peak (MiB) | A stages (s), median run |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    med = statistics.median
+    for name, path in paths.items():
+        for res in args.res:
+            ext = ".h5" if res >= 1024 else ".raw"
+            for colour in colours:
+                if colour and res > args.max_colour_res:
+                    continue
+                cmd = _geovox_cmd() + ["convert", path, "-o", os.path.join(tmp, f"out{ext}"),
+                                       "-r", str(res)] + (["--color"] if colour else [])
+                runs = {"A": [], "B": []}
+                for n in range(args.repeat + 1):
+                    for side, root in (("A", ROOT), ("B", args.vs)):
+                        r = run_rss(cmd, cwd=tmp, root=root)
+                        if r["rc"] != 0:
+                            sys.exit(f"FAILED ({side}): {' '.join(cmd)}\n{r['err']}")
+                        if n:  # the first pair warms the file cache
+                            runs[side].append(r)
+                a, b = runs["A"], runs["B"]
+                wall = med(x["wall"] / y["wall"] for x, y in zip(a, b))
+                cpu = med(x["cpu"] / y["cpu"] for x, y in zip(a, b))
+                mid = min(a, key=lambda r: abs(r["wall"] - med(x["wall"] for x in a)))
+                print(f"| {name} | {res}³ | {ext} | {'yes' if colour else 'no'} "
+                      f"| {med(x['wall'] for x in a):.2f} | {med(x['wall'] for x in b):.2f} "
+                      f"| {wall:.2f} | {med(x['user'] for x in a):.2f} / {med(x['sys'] for x in a):.2f} "
+                      f"| {med(x['user'] for x in b):.2f} / {med(x['sys'] for x in b):.2f} "
+                      f"| {cpu:.2f} | {max(x['rss'] for x in a) / 2**20:.0f} "
+                      f"| {max(x['rss'] for x in b) / 2**20:.0f} | {_fmt_stages(stages_of(mid['out']))} |",
+                      flush=True)
 
 
 def bench_e2e(args, tmp) -> None:
@@ -409,6 +455,9 @@ def main() -> None:
     p.add_argument("--auto-repeat", type=int, default=2, help="auto-rule: runs per cell (best)")
     p.add_argument("--no-open3d", dest="open3d", action="store_false")
     p.add_argument("--max-open3d-res", type=int, default=512)
+    p.add_argument("--vs", metavar="TREE",
+                   help="e2e: run each cell (default backend) by this tree and by the geovox "
+                        "source tree TREE in turn, with pair-by-pair ratios")
     args = p.parse_args()
     parts = args.only or ["imports", "e2e"]
     print(f"load average before: {os.getloadavg()}, {os.cpu_count()} cores, "
@@ -421,7 +470,7 @@ def main() -> None:
         if "e2e" in parts:
             if args.res is None:
                 args.res = [128, 256, 512, 1024]
-            bench_e2e(args, tmp)
+            (bench_vs if args.vs else bench_e2e)(args, tmp)
             print()
         if "setup" in parts:
             if args.res is None:

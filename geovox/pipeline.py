@@ -210,6 +210,8 @@ def voxelize_block(
     progress=None,
     shared_crossings=None,
     out=None,
+    colour_out=None,
+    colour_sink=None,
     _stacklevel=2,
 ) -> Volume:
     """Voxelise one block of a grid -- the whole grid or a slab along z -- with every option.
@@ -245,6 +247,14 @@ def voxelize_block(
     out : (nx, ny, nz_block) bool, Fortran order, optional
         Array the parity fill writes the occupancy into (reused by a caller
         making many blocks, so its memory is not faulted in afresh each time).
+    colour_out : (nz_block, ny, nx, 4) uint8, C order, optional
+        The same for the colours (``color=True``; see
+        :func:`geovox.colour.colour_volume`).
+    colour_sink : callable, optional
+        With ``color=True``: ``sink(z0, rgba)`` is handed the colours chunk by
+        chunk (layers from the block's first) instead of the volume holding
+        them (``colors`` is then None; see
+        :func:`geovox.colour.colour_volume`).
 
     Returns
     -------
@@ -331,7 +341,9 @@ def voxelize_block(
                 crossings[a] = cast(a)
         colors = colour_volume(m, grid, occ, crossings, diffuse=diffuse, ambient=ambient,
                                jobs=jobs, exact=color == "exact",
-                               frame=(whole.lo, whole.spacing, 0 if block is None else block[0]))
+                               frame=(whole.lo, whole.spacing, 0 if block is None else block[0]),
+                               out=None if color == "exact" else colour_out,
+                               sink=None if color == "exact" else colour_sink)
         timings["colour"] = time.perf_counter() - t_fill
     dens = None
     if density == "coverage":

@@ -434,13 +434,34 @@ def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, c
             plan_left, streamed = [], True
         else:
             plan_left, streamed = plan, False
+        buffers = {}
+        if len(plan_left) > 1 and f.name != "zarr":
+            # One occupancy and one colour array, reused by every slab:
+            # faulting a slab's worth of fresh memory in for each one cost
+            # more system time than filling it (the writers are done with
+            # a slab when write returns).
+            nx, ny, _ = grid.shape
+            thick = plan_left[0][1] - plan_left[0][0]
+            buffers["out"] = np.empty((nx, ny, thick), dtype=bool, order="F")
+            if options.get("color") and options.get("color") != "exact" and f.name != "raw":
+                buffers["colour_out"] = np.empty((thick, ny, nx, 4), dtype=np.uint8)
+        # RAW colours go into their file chunk by chunk as they are made (from
+        # the colour step's threads): no slab of colours is held or copied.
+        to_file = (f.name == "raw" and options.get("color") and options.get("color") != "exact"
+                   and len(plan_left) > 1)
         for n, (z0, z1) in enumerate(plan_left):
+            slab_arrays = {"out": buffers["out"][:, :, :z1 - z0]} if buffers else {}
+            if "colour_out" in buffers:
+                slab_arrays["colour_out"] = buffers["colour_out"][:z1 - z0]
+            if to_file:
+                slab_arrays["colour_sink"] = (
+                    lambda z, rgba, z0=z0: writer.write_colours(z0 + z, rgba))
             with collect_warnings(drop=True):  # said once, above
                 # Several slabs: rays along y, so a slab's columns are its own
                 # (x, z) pairs and no ray is cast twice. One piece: voxelize's
                 # default axis, so the file equals the in-memory volume.
                 vol = voxelize_block(m, grid, (z0, z1), engine=engine, inside=method, jobs=jobs,
-                                     axis=axis, shared_crossings=reuse,
+                                     axis=axis, shared_crossings=reuse, **slab_arrays,
                                      **options)
             tb = time.perf_counter()
             writer.write(z0, vol)

@@ -293,3 +293,82 @@ def test_relevant_crossings_keeps_what_a_voxel_can_use():
         before, inner, after = on[ks[on] == 0], on[(ks[on] > 0) & (ks[on] < n)], on[ks[on] == n]
         want += list(before[-1:]) + list(inner) + list(after[:1])
     np.testing.assert_array_equal(got.triangle, s.triangle[np.array(want)])
+
+
+def _coloured_boxes(open_bottom=False, gap=False):
+    """Subdivided boxes with random vertex colours (every crossing its own colour).
+
+    ``open_bottom``: one box without its bottom face, so that the winding number
+    fills it and, along z, every inside voxel lies before the first crossing of its
+    column. ``gap``: two boxes stacked along z with empty layers between them.
+    """
+    parts = [trimesh.creation.box(extents=(2, 2, 2)).subdivide().subdivide()]
+    if open_bottom:
+        b = parts[0]
+        parts = [trimesh.Trimesh(b.vertices, b.faces[b.triangles_center[:, 2] > -0.99],
+                                 process=False)]
+    if gap:
+        top = parts[0].copy()
+        top.apply_translation((0.2, -0.1, 3.0))
+        parts.append(top)
+    mesh = trimesh.util.concatenate(parts)
+    rng = np.random.default_rng(7)
+    mesh.visual.vertex_colors = rng.integers(0, 256, (len(mesh.vertices), 4)).astype(np.uint8)
+    return mesh
+
+
+@pytest.mark.parametrize("model", ["spot", "open_box", "gap"])
+def test_colour_does_not_depend_on_chunks_or_tasks(monkeypatch, model, backend):
+    """The six-crossing colour works through chunks of z layers (carrying the
+    crossings along z from chunk to chunk), in tasks spread over the threads;
+    tiny chunks, tasks and blocks must give the one-chunk result exactly."""
+    from geovox import colour
+
+    mesh = {"spot": lambda: SPOT, "open_box": lambda: _coloured_boxes(open_bottom=True),
+            "gap": lambda: _coloured_boxes(gap=True)}[model]()
+    opts = dict(shape=(23, 19, 31), color=True, backend=backend)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", GeovoxWarning)  # the open box says it is open
+        whole = geovox.voxelize(mesh, jobs=1, **opts)  # one chunk, one task
+        monkeypatch.setattr(colour, "CHUNK_VOXELS", 23 * 19 * 2)  # 2 layers, 1 in the last
+        monkeypatch.setattr(colour, "TASK_VOXELS", 23 * 19 * 6)  # 3 chunks a task
+        monkeypatch.setattr(colour, "BLOCK", 100)
+        for jobs in (1, 3):
+            small = geovox.voxelize(mesh, jobs=jobs, **opts)
+            np.testing.assert_array_equal(small.colors, whole.colors)
+    assert len(np.unique(whole.colors[whole.occupancy], axis=0)) > 50
+
+
+def test_streamed_raw_colours_written_chunk_by_chunk(tmp_path, monkeypatch):
+    """Several slabs to .raw: each chunk's colours go straight into the file."""
+    import geovox.formats as F
+    from geovox import colour
+
+    monkeypatch.setattr(colour, "CHUNK_VOXELS", 16 * 16 * 5)
+    opts = dict(shape=(16, 16, 150), color=True)
+    ref = geovox.voxelize(SPOT, axis=1, **opts)  # several slabs cast along y
+    info = geovox.convert_to(SPOT, tmp_path / "s.raw", budget=16 * 16 * 64 * 30, jobs=2, **opts)
+    assert info["slabs"] == 3
+    back = F.read(tmp_path / "s.raw")
+    np.testing.assert_array_equal(back.occupancy, ref.occupancy)
+    np.testing.assert_array_equal(back.colors, ref.colors)
+
+
+def test_disk_full_while_writing_colours_chunk_by_chunk(tmp_path, monkeypatch):
+    """An error in a colour thread's write stops the conversion and leaves no file."""
+    import errno
+
+    from geovox.errors import OutputError
+    from geovox.formats.raw import RawWriter
+
+    calls = []
+
+    def full(self, z, rgba):
+        calls.append(z)
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(RawWriter, "write_colours", full)
+    with pytest.raises(OutputError, match="disk full"):
+        geovox.convert_to(SPOT, tmp_path / "s.raw", shape=(16, 16, 150), color=True,
+                          budget=16 * 16 * 64 * 30, jobs=2)
+    assert calls and os.listdir(tmp_path) == []

@@ -94,7 +94,7 @@ class RawWriter(SlabWriter):
             # its bytes are x fastest.
             occ = vol.occupancy[:, :, sl]
             self.files["occupancy"].write((occ.T.view(np.uint8) * np.uint8(255)).data)
-            if "color" in self.files:
+            if "color" in self.files and vol.colors is not None:
                 self.files["color"].write(
                     np.ascontiguousarray(vol.colors[:, :, sl].transpose(2, 1, 0, 3)).data)
             for name in ("density", "sdf"):
@@ -102,6 +102,26 @@ class RawWriter(SlabWriter):
                     arr = getattr(vol, name)[:, :, sl]
                     self.files[name].write(
                         np.ascontiguousarray(arr.T, dtype=arr.dtype.newbyteorder("<")).data)
+
+    def write_colours(self, z: int, rgba: np.ndarray) -> None:
+        """Put layers ``z ..`` of the colours in place, from any thread.
+
+        For a slab whose ``colors`` is None in :meth:`write` (handed over
+        chunk by chunk instead; see :func:`geovox.colour.colour_volume`).
+
+        Parameters
+        ----------
+        z : int
+            The first layer, in the whole grid.
+        rgba : (t, ny, nx, 4) uint8, C order
+        """
+        nx, ny, _ = self.meta.shape
+        fd = self.files["color"].fileno()
+        data = memoryview(rgba).cast("B")
+        offset = z * nx * ny * 4
+        while len(data):  # a regular file takes it whole; loop in case it does not
+            n = os.pwrite(fd, data, offset)
+            data, offset = data[n:], offset + n
 
     def _finish(self) -> list:
         from . import FIELD_VALUES
