@@ -452,7 +452,7 @@ def constant_colours(mesh, *, diffuse=True, ambient=False):
 
 
 def exact_colours(mesh, grid, occupancy, *, diffuse=True, ambient=False, jobs=1,
-                  frame=None) -> np.ndarray:
+                  frame=None, kernel=None) -> np.ndarray:
     """RGBA colours of the inside voxels from their exact nearest surface points; alpha 0 outside.
 
     Parameters
@@ -466,6 +466,10 @@ def exact_colours(mesh, grid, occupancy, *, diffuse=True, ambient=False, jobs=1,
         layer in it (default: this grid, layer 0). Voxel centres are
         computed from these, so a slab's colours are the whole grid's bit
         for bit.
+    kernel : {None, "auto", "compiled", "numpy"}
+        The compiled search and shading, or the NumPy ones (the same
+        colours); None reads ``GEOVOX_KERNEL`` (see
+        :func:`geovox.nearest.kernel_module`).
 
     Returns
     -------
@@ -473,15 +477,23 @@ def exact_colours(mesh, grid, occupancy, *, diffuse=True, ambient=False, jobs=1,
         Indexed ``[x, y, z, channel]``; in memory RGBA-interleaved with x
         fastest (``colors.transpose(2, 1, 0, 3)`` is C-contiguous).
     """
-    from .nearest import nearest_inside
+    from .nearest import kernel_module, nearest_inside, run_kernel
 
     nx, ny, nz = grid.shape
     base = np.zeros((nz, ny, nx, 4), dtype=np.uint8)
     colors = base.transpose(2, 1, 0, 3)
     lo, spacing, z0 = frame if frame is not None else (grid.lo, grid.spacing, 0)
-    key, key_rgba = constant_colours(mesh, diffuse=diffuse, ambient=ambient)
     # One uint32 per voxel: RGBA bytes in memory order (index = F-order voxel index).
     flat = base.reshape(-1, 4).view(np.uint32).reshape(-1)
+    module = kernel_module(kernel)
+    if module is not None:
+        # The compiled kernel finds the nearest point and shades it in one go
+        # (shading 4.4 M voxels in NumPy alone took 1.6 s, spot 256³).
+        tables = shading_tables(mesh, diffuse=diffuse, ambient=ambient)
+        run_kernel(module, mesh.triangles, occupancy, spacing, origin=lo, z0=z0, jobs=jobs,
+                   output=lambda k: k.colour_output(flat, *tables))
+        return colors
+    key, key_rgba = constant_colours(mesh, diffuse=diffuse, ambient=ambient)
 
     def emit(vox, tri, uv):
         k = key[tri]
@@ -494,8 +506,73 @@ def exact_colours(mesh, grid, occupancy, *, diffuse=True, ambient=False, jobs=1,
         flat[vox[:, 0] + nx * (vox[:, 1] + ny * vox[:, 2])] = rgba
 
     nearest_inside(mesh.triangles, occupancy, spacing, origin=lo, z0=z0, jobs=jobs, emit=emit,
-                   same=key)
+                   same=key, kernel="numpy")
     return colors
+
+
+#: Texture wrap modes as the compiled kernel numbers them.
+_WRAP_CODE = {"repeat": 0, "mirror": 1, "clamp": 2}
+
+
+def shading_tables(mesh, *, diffuse=True, ambient=False) -> tuple:
+    """What the compiled kernel needs to do :func:`shade`'s arithmetic, as flat arrays.
+
+    One row per material plus a last one for faces without a (defined)
+    material, holding exactly the factors :func:`shade` applies.
+
+    Returns
+    -------
+    fmat : (t,) int32
+        Each face's row.
+    vc : (9 t,) float64 or None
+        Corner colours ``vertex_colors[faces]`` (t, 3, 3), flattened.
+    cuv : (6 t,) float64 or None
+        Corner UVs (t, 3, 2), flattened, where some row is textured.
+    factor, add : (k, 3) float64
+        Multiplied (Kd, or the default grey) and added (Ka).
+    mint : (k, 7) int32
+        Textured, vertex tint, texture height, width, wrap along u, along v, 0.
+    moff : (k,) int64
+        Offset of each row's texture in ``tex``.
+    tex : (n,) uint8
+        The textures' (h, w, 3) texels, one after another.
+    """
+    n = len(mesh.faces)
+    nm = len(mesh.materials)
+    fm = mesh.face_material if mesh.face_material is not None else np.full(n, -1)
+    rows = np.where(fm < 0, nm, fm).astype(np.int32)
+    factor = np.ones((nm + 1, 3))
+    add = np.zeros((nm + 1, 3))
+    mint = np.zeros((nm + 1, 7), np.int32)
+    moff = np.zeros(nm + 1, np.int64)
+    images, offset = [], 0
+    vc = None
+    if mesh.vertex_colors is not None:
+        vc = np.ascontiguousarray(mesh.vertex_colors[mesh.faces], dtype=np.float64).reshape(-1)
+    if diffuse and mesh.vertex_colors is None:
+        factor[nm] = DEFAULT_GREY  # no material at all
+    for k, m in enumerate(mesh.materials):
+        if not m.defined:  # a `usemtl` name no material file defines counts as no material
+            factor[k] = factor[nm]
+            continue
+        if m.image is not None and mesh.corner_uv is not None:
+            img = np.ascontiguousarray(m.image, dtype=np.uint8)
+            if img.ndim != 3 or img.shape[2] != 3:
+                raise ValueError(f"texture of material {m.name!r} is not (h, w, 3) uint8")
+            mint[k, :6] = (1, bool(m.vertex_tint), img.shape[0], img.shape[1],
+                           _WRAP_CODE[m.wrap[0]], _WRAP_CODE[m.wrap[1]])
+            moff[k] = offset
+            images.append(img.reshape(-1))
+            offset += img.size
+        if diffuse:
+            factor[k] = m.diffuse()
+        if ambient:
+            add[k] = m.ka
+    cuv = None
+    if mint[:, 0].any():
+        cuv = np.ascontiguousarray(mesh.corner_uv, dtype=np.float64).reshape(-1)
+    tex = np.concatenate(images) if images else np.zeros(1, np.uint8)
+    return rows, vc, cuv, factor, add, mint, moff, tex
 
 
 def colour_volume(mesh, grid, occupancy, cast=None, *, diffuse=True, ambient=False, jobs=1,

@@ -1,0 +1,552 @@
+# cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True
+# cython: initializedcheck=False, nonecheck=False
+"""Compiled exact nearest triangle (and colour) of every inside voxel.
+
+The same search as :mod:`geovox.nearest` -- a branch and bound over an
+octree of voxel cells, a triangle leaving a cell's list only when one
+surface point provably dominates it over the whole cell -- written as a
+depth-first recursion per top cell, with OpenMP threads over the top cells.
+Every distance is :func:`geovox.nearest.closest`'s float64 formula operation
+for operation (built with ``-ffp-contract=off``, no fast-math), and the tie
+rule is :func:`geovox.nearest.pick`'s, so the answer is the brute-force one
+bit for bit. :meth:`Kernel.run` optionally shades each voxel too, with
+:func:`geovox.colour.shade`'s arithmetic (see ``shade_one``).
+
+Why a recursion: the NumPy search holds (cell, triangle) pairs level by
+level in arrays; here each top cell's lists live in a per-thread stack of
+buffers (a child's list is a subset of its parent's), so nothing grows with
+the grid, and the 8 corner tests of a pair stop at the first corner that
+keeps it.
+"""
+
+from cython.parallel cimport prange, parallel
+from libc.stdlib cimport malloc, free
+from libc.math cimport sqrt, floor, fmod, rint, isfinite, INFINITY
+from libc.stdint cimport int32_t, int64_t, uint8_t, uint32_t
+
+
+cdef struct Ctx:
+    const double *T        # (t, 21) rows of prepare()["crow"], one triangle a row
+    const uint8_t *flat    # (t,) zero-area triangles: no face region
+    const uint8_t *occ     # (nx, ny, nz) F-order inside flags
+    int64_t nx, ny, nz, z0
+    double h0, h1, h2
+    double m               # MARGIN in length units
+    double tieh            # TIE in length units
+    # Output: RGBA colours, or the raw triangle and barycentrics.
+    uint32_t *rgba         # (nx*ny*nz,) F-order, or NULL
+    int32_t *tri_out       # (nx*ny*nz,) or NULL
+    double *uv_out         # (nx*ny*nz, 2) or NULL
+    # Shading (see shade_one).
+    const int32_t *fmat    # (t,) material row of each face
+    const double *vc       # (t, 3, 3) corner colours, or NULL
+    const double *cuv      # (t, 3, 2) corner UVs, or NULL
+    const double *factor   # (k, 3)
+    const double *add      # (k, 3)
+    const int32_t *mint    # (k, 7): textured, tint, h, w, wrap u, wrap v, unused
+    const int64_t *moff    # (k,) offset of each texture in tex
+    const uint8_t *tex     # all textures, (h, w, 3) each
+
+
+cdef inline double closest(const double *R, uint8_t flat, double x0, double x1, double x2,
+                           double *u, double *v) noexcept nogil:
+    """geovox.nearest.closest for one point and triangle, the same operations in order."""
+    cdef double ap0 = x0 - R[0]
+    cdef double ap1 = x1 - R[1]
+    cdef double ap2 = x2 - R[2]
+    cdef double s = ap0 * R[9] + ap1 * R[10] + ap2 * R[11]
+    cdef double r = ap0 * R[12] + ap1 * R[13] + ap2 * R[14]
+    cdef double hh, w, d0, d1, d2, best, dd, st0, st1, st2, e0, e1, e2
+    if s >= 0 and r >= 0 and s + r <= 1 and not flat:
+        hh = ap0 * R[15] + ap1 * R[16] + ap2 * R[17]
+        u[0] = s
+        v[0] = r
+        return hh * hh
+    # Edge ab.
+    w = (ap0 * R[3] + ap1 * R[4] + ap2 * R[5]) * R[18]
+    w = clip01(w)
+    d0 = ap0 - w * R[3]
+    d1 = ap1 - w * R[4]
+    d2 = ap2 - w * R[5]
+    best = d0 * d0 + d1 * d1 + d2 * d2
+    u[0] = w
+    v[0] = 0.0
+    # Edge ac.
+    w = (ap0 * R[6] + ap1 * R[7] + ap2 * R[8]) * R[19]
+    w = clip01(w)
+    d0 = ap0 - w * R[6]
+    d1 = ap1 - w * R[7]
+    d2 = ap2 - w * R[8]
+    dd = d0 * d0 + d1 * d1 + d2 * d2
+    if dd < best:
+        best = dd
+        u[0] = 0.0
+        v[0] = w
+    # Edge bc, as b + w (ac - ab).
+    st0 = ap0 - R[3]
+    st1 = ap1 - R[4]
+    st2 = ap2 - R[5]
+    e0 = R[6] - R[3]
+    e1 = R[7] - R[4]
+    e2 = R[8] - R[5]
+    w = (st0 * e0 + st1 * e1 + st2 * e2) * R[20]
+    w = clip01(w)
+    d0 = st0 - w * e0
+    d1 = st1 - w * e1
+    d2 = st2 - w * e2
+    dd = d0 * d0 + d1 * d1 + d2 * d2
+    if dd < best:
+        best = dd
+        u[0] = 1.0 - w
+        v[0] = w
+    return best
+
+
+cdef inline double clip01(double w) noexcept nogil:
+    # np.clip(w, 0, 1): NaN stays NaN.
+    if w < 0.0:
+        return 0.0
+    if w > 1.0:
+        return 1.0
+    return w
+
+
+cdef inline double pymod(double a, double b) noexcept nogil:
+    """np.mod for floats and b > 0: the result has the sign of b."""
+    cdef double r = fmod(a, b)
+    if r != 0.0:
+        if r < 0.0:
+            r += b
+    else:
+        r = 0.0
+    return r
+
+
+cdef inline int64_t imod(int64_t a, int64_t b) noexcept nogil:
+    cdef int64_t r = a % b
+    if r < 0:
+        r += b
+    return r
+
+
+cdef inline void texel_axis(double t, int64_t n, int mode, int64_t *i0, int64_t *i1,
+                            double *f) noexcept nogil:
+    """geovox.colour._texel_axis for one coordinate (mode 0 repeat, 1 mirror, 2 clamp)."""
+    cdef double x, x0
+    cdef int64_t a, b
+    if mode == 2:
+        t = clip01(t)
+    elif mode == 1:
+        t = pymod(t, 2.0)
+    else:
+        t = pymod(t, 1.0)
+    x = t * <double>n - 0.5
+    x0 = floor(x)
+    f[0] = x - x0
+    a = <int64_t>x0
+    b = a + 1
+    if mode == 2:
+        a = 0 if a < 0 else (n - 1 if a > n - 1 else a)
+        b = 0 if b < 0 else (n - 1 if b > n - 1 else b)
+    elif mode == 1:
+        a = imod(a, 2 * n)
+        b = imod(b, 2 * n)
+        if a >= n:
+            a = 2 * n - 1 - a
+        if b >= n:
+            b = 2 * n - 1 - b
+    else:
+        a = imod(a, n)
+        b = imod(b, n)
+    i0[0] = a
+    i1[0] = b
+
+
+cdef inline uint32_t shade_one(const Ctx *c, int64_t t, double u, double v) noexcept nogil:
+    """geovox.colour.shade and _pack for one surface point, the same operations in order."""
+    cdef double w0 = 1.0 - u - v
+    cdef double base[3]
+    cdef double out[3]
+    cdef double tu, tv, fx, fy, top, bottom
+    cdef int64_t x0, x1, y0, y1, r0, r1, h, wd
+    cdef int ch
+    cdef int32_t mi = c.fmat[t]
+    cdef const double *q
+    cdef const uint8_t *img
+    cdef const int32_t *mt = c.mint + 7 * mi
+    cdef uint32_t rgba = 0
+    if c.vc != NULL:
+        q = c.vc + 9 * t
+        for ch in range(3):
+            base[ch] = w0 * q[ch] + u * q[3 + ch] + v * q[6 + ch]
+    else:
+        base[0] = 1.0
+        base[1] = 1.0
+        base[2] = 1.0
+    if mt[0]:
+        q = c.cuv + 6 * t
+        tu = w0 * q[0] + u * q[2] + v * q[4]
+        tv = w0 * q[1] + u * q[3] + v * q[5]
+        if isfinite(tu) and isfinite(tv):
+            h = mt[2]
+            wd = mt[3]
+            img = c.tex + c.moff[mi]
+            texel_axis(tu, wd, mt[4], &x0, &x1, &fx)
+            # Rows run down the image: row coordinate 1 - v.
+            texel_axis(1.0 - tv, h, mt[5], &y0, &y1, &fy)
+            r0 = y0 * wd
+            r1 = y1 * wd
+            for ch in range(3):
+                top = img[3 * (r0 + x0) + ch] * (1 - fx) + img[3 * (r0 + x1) + ch] * fx
+                bottom = img[3 * (r1 + x0) + ch] * (1 - fx) + img[3 * (r1 + x1) + ch] * fx
+                top = (top * (1 - fy) + bottom * fy) / 255.0
+                base[ch] = top * base[ch] if mt[1] else top
+    for ch in range(3):
+        out[ch] = clip01(base[ch] * c.factor[3 * mi + ch] + c.add[3 * mi + ch])
+        rgba |= (<uint32_t>rint(out[ch] * 255.0)) << (8 * ch)
+    return rgba | (<uint32_t>255 << 24)
+
+
+cdef inline void emit(const Ctx *c, int64_t i, int64_t j, int64_t k, int64_t t, double u,
+                      double v) noexcept nogil:
+    cdef int64_t idx = i + c.nx * (j + c.ny * k)
+    if c.rgba != NULL:
+        c.rgba[idx] = shade_one(c, t, u, v)
+    else:
+        c.tri_out[idx] = <int32_t>t
+        c.uv_out[2 * idx] = u
+        c.uv_out[2 * idx + 1] = v
+
+
+cdef inline bint any_inside(const Ctx *c, int64_t i0, int64_t i1, int64_t j0, int64_t j1,
+                            int64_t k0, int64_t k1) noexcept nogil:
+    cdef int64_t i, j, k, row
+    for k in range(k0, k1):
+        for j in range(j0, j1):
+            row = c.nx * (j + c.ny * k)
+            for i in range(i0, i1):
+                if c.occ[row + i]:
+                    return True
+    return False
+
+
+cdef void leaf(const Ctx *c, int64_t i0, int64_t i1, int64_t j0, int64_t j1, int64_t k0,
+               int64_t k1, const int32_t *cand, int64_t n, double *dbuf) noexcept nogil:
+    """Every inside voxel of the box: its candidates measured exactly, then the tie rule."""
+    cdef int64_t i, j, k, q, t, row, win
+    cdef double x0, x1, x2, u, v, d, low, far
+    for k in range(k0, k1):
+        x2 = (<double>(k + c.z0) + 0.5) * c.h2
+        for j in range(j0, j1):
+            x1 = (<double>j + 0.5) * c.h1
+            row = c.nx * (j + c.ny * k)
+            for i in range(i0, i1):
+                if not c.occ[row + i]:
+                    continue
+                x0 = (<double>i + 0.5) * c.h0
+
+                if n == 1:
+                    t = cand[0]
+                    closest(c.T + 21 * t, c.flat[t], x0, x1, x2, &u, &v)
+                    emit(c, i, j, k, t, u, v)
+                    continue
+                low = INFINITY
+                for q in range(n):
+                    t = cand[q]
+                    d = closest(c.T + 21 * t, c.flat[t], x0, x1, x2,
+                                &dbuf[3 * q + 1], &dbuf[3 * q + 2])
+                    dbuf[3 * q] = d
+                    if d < low:
+                        low = d
+                # pick(): of those within TIE of the smallest distance, the
+                # smallest index. Distances are compared as pick() does, after
+                # sqrt; the squares only skip those clearly beyond the tie.
+                low = sqrt(low) + c.tieh
+                far = low * low * (1.0 + 1e-9) + c.tieh * c.tieh
+                win = -1
+                for q in range(n):
+                    if dbuf[3 * q] <= far and sqrt(dbuf[3 * q]) <= low and (
+                            win < 0 or cand[q] < cand[win]):
+                        win = q
+                emit(c, i, j, k, cand[win], dbuf[3 * win + 1], dbuf[3 * win + 2])
+
+
+cdef void solve(const Ctx *c, int level, int64_t ci, int64_t cj, int64_t ck,
+                const int32_t *cand, int64_t n, int32_t *buf, double *dbuf) noexcept nogil:
+    """The cell of ``2**level`` voxels at (ci, cj, ck): prune its list, then its children.
+
+    A triangle ``T`` is dropped when some surface point ``p`` dominates it
+    over the cell's box: ``d(x, T)**2 - |x - p|**2`` is concave in ``x``, so
+    if it exceeds ``2 m r + m**2`` (``r`` the largest ``|corner - p|``) at
+    the 8 corners it does everywhere in the box, and then ``d(x, T) > d(x,
+    surface) + m`` there (see geovox.nearest). Nine points are tried: the
+    nearest surface point to the centre and to each corner (among the
+    candidates); a point near one corner drops what lies beyond that corner.
+    """
+    cdef int64_t s = (<int64_t>1) << level
+    cdef int64_t i0 = ci * s, j0 = cj * s, k0 = ck * s
+    cdef int64_t i1 = min(i0 + s, c.nx), j1 = min(j0 + s, c.ny), k1 = min(k0 + s, c.nz)
+    cdef double lo0, lo1, lo2, hi0, hi1, hi2, m0, m1, m2, d2, u, v, lim, rh
+    cdef double x0, x1, x2, e0, e1, e2, r2max
+    cdef double X[8][3]            # the corners
+    cdef double P[9][3]            # the dominating points: centre's, then each corner's
+    cdef double best[9]
+    cdef double pu[9]
+    cdef double pv[9]
+    cdef int64_t bt[9]
+    cdef double r2[9][8]           # |corner - point|^2
+    cdef double thresh[9]
+    cdef const double *R
+    cdef const double *D
+    cdef int64_t q, t, nn, ns, a, b, g
+    cdef int k, j
+    cdef bint drop
+    if n == 0:
+        return
+    if level <= 1 or n == 1:
+        leaf(c, i0, i1, j0, j1, k0, k1, cand, n, dbuf)
+        return
+    # The box of the cell's voxel centres (clipped to the block).
+    lo0 = (<double>i0 + 0.5) * c.h0
+    hi0 = (<double>(i1 - 1) + 0.5) * c.h0
+    lo1 = (<double>j0 + 0.5) * c.h1
+    hi1 = (<double>(j1 - 1) + 0.5) * c.h1
+    lo2 = (<double>(k0 + c.z0) + 0.5) * c.h2
+    hi2 = (<double>(k1 - 1 + c.z0) + 0.5) * c.h2
+    m0 = 0.5 * (lo0 + hi0)
+    m1 = 0.5 * (lo1 + hi1)
+    m2 = 0.5 * (lo2 + hi2)
+    for k in range(8):
+        X[k][0] = hi0 if k & 1 else lo0
+        X[k][1] = hi1 if k & 2 else lo1
+        X[k][2] = hi2 if k & 4 else lo2
+    for j in range(9):
+        best[j] = INFINITY
+        bt[j] = -1
+        pu[j] = pv[j] = 0.0
+    # The surface point nearest the centre among the candidates.
+    for q in range(n):
+        t = cand[q]
+        d2 = closest(c.T + 21 * t, c.flat[t], m0, m1, m2, &u, &v)
+        dbuf[9 * q] = d2
+        if d2 < best[0] or bt[0] < 0:
+            best[0] = d2
+            bt[0] = t
+            pu[0] = u
+            pv[0] = v
+    surface_point(c, bt[0], pu[0], pv[0], P[0])
+    r2max = corner_r2(X, P[0], r2[0])
+    # Every corner is rh from the centre, so d(corner, T) >= d(centre, T) - rh:
+    # where that alone beats every corner's |corner - p|, no corner is measured.
+    e0 = 0.5 * (hi0 - lo0)
+    e1 = 0.5 * (hi1 - lo1)
+    e2 = 0.5 * (hi2 - lo2)
+    rh = sqrt(e0 * e0 + e1 * e1 + e2 * e2)
+    lim = r2max + 2.0 * c.m * sqrt(r2max) + c.m * c.m
+    # The others: squared distances at the 8 corners (8 per survivor, in dbuf).
+    ns = 0
+    for q in range(n):
+        t = cand[q]
+        d2 = sqrt(dbuf[9 * q]) - rh
+        if d2 > 0 and d2 * d2 > lim:
+            continue
+        R = c.T + 21 * t
+        buf[ns] = <int32_t>t
+        for k in range(8):
+            d2 = closest(R, c.flat[t], X[k][0], X[k][1], X[k][2], &u, &v)
+            dbuf[8 * ns + k] = d2
+            if d2 < best[1 + k] or bt[1 + k] < 0:
+                best[1 + k] = d2
+                bt[1 + k] = t
+                pu[1 + k] = u
+                pv[1 + k] = v
+        ns += 1
+    for j in range(9):
+        if j:
+            surface_point(c, bt[j], pu[j], pv[j], P[j])
+            r2max = corner_r2(X, P[j], r2[j])
+        else:
+            r2max = 0.0
+            for k in range(8):
+                if r2[0][k] > r2max:
+                    r2max = r2[0][k]
+        thresh[j] = 2.0 * c.m * sqrt(r2max) + c.m * c.m
+    nn = 0
+    for q in range(ns):
+        D = dbuf + 8 * q
+        drop = False
+        for j in range(9):
+            drop = True
+            for k in range(8):
+                if not (D[k] - r2[j][k] > thresh[j]):  # NaN keeps the triangle
+                    drop = False
+                    break
+            if drop:
+                break
+        if not drop:
+            buf[nn] = buf[q]
+            nn += 1
+    for g in range(8):
+        a = 2 * ci + (g & 1)
+        b = 2 * cj + ((g >> 1) & 1)
+        q = 2 * ck + ((g >> 2) & 1)
+        s = (<int64_t>1) << (level - 1)
+        if a * s >= c.nx or b * s >= c.ny or q * s >= c.nz:
+            continue
+        if not any_inside(c, a * s, min(a * s + s, c.nx), b * s, min(b * s + s, c.ny),
+                          q * s, min(q * s + s, c.nz)):
+            continue
+        solve(c, level - 1, a, b, q, buf, nn, buf + nn, dbuf)
+
+
+cdef inline void surface_point(const Ctx *c, int64_t t, double u, double v,
+                               double *p) noexcept nogil:
+    cdef const double *R = c.T + 21 * t
+    p[0] = R[0] + u * R[3] + v * R[6]
+    p[1] = R[1] + u * R[4] + v * R[7]
+    p[2] = R[2] + u * R[5] + v * R[8]
+
+
+cdef inline double corner_r2(double X[8][3], const double *p, double *r2) noexcept nogil:
+    """``r2[k] = |X[k] - p|**2``; returns the largest."""
+    cdef double e0, e1, e2, top = 0.0
+    cdef int k
+    for k in range(8):
+        e0 = X[k][0] - p[0]
+        e1 = X[k][1] - p[1]
+        e2 = X[k][2] - p[2]
+        r2[k] = e0 * e0 + e1 * e1 + e2 * e2
+        if r2[k] > top:
+            top = r2[k]
+    return top
+
+
+cdef class Kernel:
+    """One block's search: triangle rows, inside flags, frame, and where answers go."""
+
+    cdef Ctx c
+    cdef object keep  # the arrays the pointers point into
+
+    def __init__(self, const double[:, ::1] rows, const uint8_t[::1] flat,
+                 const uint8_t[::1] occ, shape, int64_t z0, spacing, double margin,
+                 double tie):
+        self.keep = [rows, flat, occ]
+        self.c.T = &rows[0, 0]
+        self.c.flat = &flat[0]
+        self.c.occ = &occ[0]
+        self.c.nx, self.c.ny, self.c.nz = shape
+        self.c.z0 = z0
+        self.c.h0, self.c.h1, self.c.h2 = spacing
+        self.c.m = margin
+        self.c.tieh = tie
+        self.c.rgba = NULL
+        self.c.tri_out = NULL
+        self.c.uv_out = NULL
+        self.c.vc = NULL
+        self.c.cuv = NULL
+        if rows.shape[1] != 21 or flat.shape[0] != rows.shape[0]:
+            raise ValueError("rows must be (t, 21) and flat (t,)")
+        if occ.shape[0] != self.c.nx * self.c.ny * self.c.nz:
+            raise ValueError("occupancy size does not match the shape")
+
+    def raw_output(self, int32_t[::1] tri, double[:, ::1] uv):
+        """Write each inside voxel's triangle and barycentrics (F-order voxel index)."""
+        if tri.shape[0] != self.c.nx * self.c.ny * self.c.nz or uv.shape[0] != tri.shape[0]:
+            raise ValueError("outputs must have one row per voxel")
+        self.keep += [tri, uv]
+        self.c.tri_out = &tri[0]
+        self.c.uv_out = &uv[0, 0]
+        self.c.rgba = NULL
+
+    def colour_output(self, uint32_t[::1] rgba, const int32_t[::1] fmat, vc, cuv,
+                      const double[:, ::1] factor, const double[:, ::1] add,
+                      const int32_t[:, ::1] mint, const int64_t[::1] moff,
+                      const uint8_t[::1] tex):
+        """Shade each inside voxel into ``rgba`` (see geovox.colour._shading_tables)."""
+        cdef const double[::1] vcv
+        cdef const double[::1] cuvv
+        if rgba.shape[0] != self.c.nx * self.c.ny * self.c.nz:
+            raise ValueError("rgba must have one entry per voxel")
+        if fmat.shape[0] != self.keep[1].shape[0] or mint.shape[1] != 7:
+            raise ValueError("bad shading tables")
+        self.keep += [rgba, fmat, vc, cuv, factor, add, mint, moff, tex]
+        self.c.rgba = &rgba[0]
+        self.c.fmat = &fmat[0]
+        self.c.factor = &factor[0, 0]
+        self.c.add = &add[0, 0]
+        self.c.mint = &mint[0, 0]
+        self.c.moff = &moff[0]
+        self.c.tex = &tex[0]
+        self.c.vc = NULL
+        self.c.cuv = NULL
+        if vc is not None:
+            vcv = vc
+            if vcv.shape[0] != 9 * fmat.shape[0]:
+                raise ValueError("vertex colours must be (t, 3, 3)")
+            self.c.vc = &vcv[0]
+        if cuv is not None:
+            cuvv = cuv
+            if cuvv.shape[0] != 6 * fmat.shape[0]:
+                raise ValueError("corner UVs must be (t, 3, 2)")
+            self.c.cuv = &cuvv[0]
+
+    def run(self, const int64_t[:, ::1] cells, const int64_t[::1] start,
+            const int32_t[::1] cand, int level, int jobs):
+        """Solve the top cells ``cells`` (m, 3) of ``2**level`` voxels.
+
+        Cell ``i``'s candidate triangles are ``cand[start[i]:start[i + 1]]``.
+        Threads take cells one at a time; each voxel's answer depends only on
+        its own cell's list, so the result does not depend on ``jobs``.
+        """
+        cdef int64_t ncell = cells.shape[0]
+        cdef int64_t widest = 0, i, n
+        cdef int32_t *buf
+        cdef double *dbuf
+        cdef const Ctx *c = &self.c
+        if self.c.rgba == NULL and self.c.tri_out == NULL:
+            raise ValueError("no output set")
+        if start.shape[0] != ncell + 1 or (ncell and start[ncell] > cand.shape[0]):
+            raise ValueError("bad candidate lists")
+        if ncell == 0:
+            return
+        buf = NULL
+        dbuf = NULL
+        for i in range(ncell):
+            n = start[i + 1] - start[i]
+            if n > widest:
+                widest = n
+        with nogil, parallel(num_threads=max(1, jobs)):
+            # A list per level (each a subset of its parent's), and per
+            # candidate a distance and barycentrics at the voxels.
+            buf = <int32_t *> malloc(sizeof(int32_t) * (widest * (level + 1) + 1))
+            dbuf = <double *> malloc(sizeof(double) * (9 * widest + 9))
+            for i in prange(ncell, schedule="dynamic", chunksize=1):
+                if buf != NULL and dbuf != NULL:
+                    solve(c, level, cells[i, 0], cells[i, 1], cells[i, 2],
+                          &cand[start[i]], start[i + 1] - start[i], buf, dbuf)
+            free(buf)
+            free(dbuf)
+
+
+def top_cells(const uint8_t[::1] occ, shape, int level, int jobs):
+    """(cx, cy, cz) uint8 flags: the top cells of ``2**level`` voxels holding an inside voxel.
+
+    ``occ`` is the block's (nx, ny, nz) F-order inside flags.
+    """
+    cdef int64_t nx, ny, nz
+    nx, ny, nz = shape
+    cdef int64_t s = (<int64_t>1) << level
+    cdef int64_t cx = (nx + s - 1) // s, cy = (ny + s - 1) // s, cz = (nz + s - 1) // s
+    import numpy as np
+    out = np.zeros((cx, cy, cz), np.uint8)
+    cdef uint8_t[:, :, ::1] o = out
+    cdef int64_t a, i, j, k, row
+    with nogil:
+        for a in prange(cz, num_threads=max(1, jobs), schedule="dynamic"):
+            for k in range(a * s, min(a * s + s, nz)):
+                for j in range(ny):
+                    row = nx * (j + ny * k)
+                    for i in range(nx):
+                        if occ[row + i]:
+                            o[i // s, j // s, a] = 1
+    return out
