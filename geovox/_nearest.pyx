@@ -113,7 +113,10 @@ cdef inline double clip01(double w) noexcept nogil:
 
 cdef inline double pymod(double a, double b) noexcept nogil:
     """np.mod for floats and b > 0: the result has the sign of b."""
-    cdef double r = fmod(a, b)
+    cdef double r
+    if 0.0 <= a < b:  # fmod's own answer, without the libm call
+        return a
+    r = fmod(a, b)
     if r != 0.0:
         if r < 0.0:
             r += b
