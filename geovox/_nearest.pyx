@@ -46,6 +46,16 @@ cdef struct Ctx:
     const int32_t *mint    # (k, 7): textured, tint, h, w, wrap u, wrap v, unused
     const int64_t *moff    # (k,) offset of each texture in tex
     const uint8_t *tex     # all textures, (h, w, 3) each
+    # The top cells' first lists (see top_list).
+    const double *tlo      # (t, 3) triangle boxes
+    const double *thi
+    const double *clo      # (g, 3) cluster boxes
+    const double *chi
+    const int64_t *members # (t,) triangles by cluster
+    const int64_t *cstart  # (g + 1,)
+    int64_t ncl
+    const double *rep      # (r, 3) surface points
+    int64_t nrep
 
 
 cdef inline double closest(const double *R, uint8_t flat, double x0, double x1, double x2,
@@ -274,8 +284,109 @@ cdef void leaf(const Ctx *c, int64_t i0, int64_t i1, int64_t j0, int64_t j1, int
                 emit(c, i, j, k, cand[win], dbuf[3 * win + 1], dbuf[3 * win + 2])
 
 
+#: Cells of 4 voxels a side with at most this many candidates are finished
+#: by leaf4 (bounds interpolated from the corners); bigger lists go down to
+#: cells of 2 (a fixed per-thread buffer of 68 doubles a candidate).
+DEF LEAF_MAX = 256
+
+
+cdef void leaf4(const Ctx *c, int64_t i0, int64_t i1, int64_t j0, int64_t j1, int64_t k0,
+                int64_t k1, const int32_t *cand, int64_t n, const double *D,
+                double *wbuf) noexcept nogil:
+    """A cell of up to 4 voxels a side whose candidates' squared distances at the 8
+    corner voxels ``D`` (n, 8) are known: each voxel measures only the candidates
+    that bounds interpolated from the corners cannot rule out.
+
+    ``d(x, T)**2`` is convex, so at most its multilinear interpolation from
+    the box's corners ``I(x)``; ``d(x, T)**2 - |x|**2`` is concave, so at
+    least ``I(x) - q(x)`` with ``q(x) = sum over axes of (x - lo) (hi - x)``
+    (the same interpolation of ``|x|**2``, less ``|x|**2``). The nearest
+    distance is at most ``U = min over T of I_T(x)``; a triangle within the
+    margin of it has ``I_T(x) - q(x) <= U + 2 m sqrt(U) + m**2``, so only
+    those are measured exactly (q <= 6 voxels^2 here, 0 at the corners).
+    """
+    cdef int64_t lx = i1 - i0, ly = j1 - j0, lz = k1 - k0
+    cdef int64_t i, j, k, q, t, row, vi, cnt, win
+    cdef double *I = wbuf               # (n, 64) interpolated bounds
+    cdef double *E = wbuf + 64 * n      # (n, 4) exact distance, u, v, candidate
+    cdef double wx, wy, wz, a, b, U, lim, qx, x0, x1, x2, d, low, far, u, v
+    cdef double fx = 1.0 / (lx - 1) if lx > 1 else 0.0
+    cdef double fy = 1.0 / (ly - 1) if ly > 1 else 0.0
+    cdef double fz = 1.0 / (lz - 1) if lz > 1 else 0.0
+    cdef const double *Dq
+    for q in range(n):
+        Dq = D + 8 * q
+        for k in range(lz):
+            wz = k * fz
+            for j in range(ly):
+                wy = j * fy
+                a = ((Dq[0] * (1 - wy) + Dq[2] * wy) * (1 - wz)
+                     + (Dq[4] * (1 - wy) + Dq[6] * wy) * wz)
+                b = ((Dq[1] * (1 - wy) + Dq[3] * wy) * (1 - wz)
+                     + (Dq[5] * (1 - wy) + Dq[7] * wy) * wz)
+                for i in range(lx):
+                    wx = i * fx
+                    I[64 * q + 16 * k + 4 * j + i] = a * (1 - wx) + b * wx
+    for k in range(k0, k1):
+        x2 = (<double>(k + c.z0) + 0.5) * c.h2
+        for j in range(j0, j1):
+            x1 = (<double>j + 0.5) * c.h1
+            row = c.nx * (j + c.ny * k)
+            for i in range(i0, i1):
+                if not c.occ[row + i]:
+                    continue
+                x0 = (<double>i + 0.5) * c.h0
+                vi = 16 * (k - k0) + 4 * (j - j0) + (i - i0)
+                U = INFINITY
+                for q in range(n):
+                    if I[64 * q + vi] < U:
+                        U = I[64 * q + vi]
+                qx = (c.h0 * c.h0 * ((i - i0) * (i1 - 1 - i))
+                      + c.h1 * c.h1 * ((j - j0) * (j1 - 1 - j))
+                      + c.h2 * c.h2 * ((k - k0) * (k1 - 1 - k)))
+                # Rounding of I (about 1e-16 of it) is far inside the margin.
+                lim = U + qx + 2.0 * c.m * sqrt(U) + c.m * c.m
+                cnt = 0
+                low = INFINITY
+                for q in range(n):
+                    if not (I[64 * q + vi] <= lim):
+                        continue
+                    t = cand[q]
+                    d = closest(c.T + 21 * t, c.flat[t], x0, x1, x2, &u, &v)
+                    E[4 * cnt] = d
+                    E[4 * cnt + 1] = u
+                    E[4 * cnt + 2] = v
+                    E[4 * cnt + 3] = <double>t
+                    cnt += 1
+                    if d < low:
+                        low = d
+                if cnt == 0:  # NaN bounds only (degenerate input): measure them all
+                    for q in range(n):
+                        t = cand[q]
+                        d = closest(c.T + 21 * t, c.flat[t], x0, x1, x2, &u, &v)
+                        E[4 * cnt] = d
+                        E[4 * cnt + 1] = u
+                        E[4 * cnt + 2] = v
+                        E[4 * cnt + 3] = <double>t
+                        cnt += 1
+                        if d < low:
+                            low = d
+                # pick(), as in leaf().
+                low = sqrt(low) + c.tieh
+                far = low * low * (1.0 + 1e-9) + c.tieh * c.tieh
+                win = -1
+                for q in range(cnt):
+                    if E[4 * q] <= far and sqrt(E[4 * q]) <= low and (
+                            win < 0 or E[4 * q + 3] < E[4 * win + 3]):
+                        win = q
+                if win < 0:
+                    win = 0
+                emit(c, i, j, k, <int64_t>E[4 * win + 3], E[4 * win + 1], E[4 * win + 2])
+
+
 cdef void solve(const Ctx *c, int level, int64_t ci, int64_t cj, int64_t ck,
-                const int32_t *cand, int64_t n, int32_t *buf, double *dbuf) noexcept nogil:
+                const int32_t *cand, int64_t n, int32_t *buf, double *dbuf,
+                double *wbuf) noexcept nogil:
     """The cell of ``2**level`` voxels at (ci, cj, ck): prune its list, then its children.
 
     A triangle ``T`` is dropped when some surface point ``p`` dominates it
@@ -388,7 +499,12 @@ cdef void solve(const Ctx *c, int level, int64_t ci, int64_t cj, int64_t ck,
                 break
         if not drop:
             buf[nn] = buf[q]
+            for k in range(8):
+                dbuf[8 * nn + k] = D[k]
             nn += 1
+    if level == 2 and nn <= LEAF_MAX and nn > 1:
+        leaf4(c, i0, i1, j0, j1, k0, k1, buf, nn, dbuf, wbuf)
+        return
     for g in range(8):
         a = 2 * ci + (g & 1)
         b = 2 * cj + ((g >> 1) & 1)
@@ -399,7 +515,7 @@ cdef void solve(const Ctx *c, int level, int64_t ci, int64_t cj, int64_t ck,
         if not any_inside(c, a * s, min(a * s + s, c.nx), b * s, min(b * s + s, c.ny),
                           q * s, min(q * s + s, c.nz)):
             continue
-        solve(c, level - 1, a, b, q, buf, nn, buf + nn, dbuf)
+        solve(c, level - 1, a, b, q, buf, nn, buf + nn, dbuf, wbuf)
 
 
 cdef inline void surface_point(const Ctx *c, int64_t t, double u, double v,
@@ -447,6 +563,8 @@ cdef class Kernel:
         self.c.uv_out = NULL
         self.c.vc = NULL
         self.c.cuv = NULL
+        self.c.ncl = 0
+        self.c.nrep = 0
         if rows.shape[1] != 21 or flat.shape[0] != rows.shape[0]:
             raise ValueError("rows must be (t, 21) and flat (t,)")
         if occ.shape[0] != self.c.nx * self.c.ny * self.c.nz:
@@ -493,42 +611,143 @@ cdef class Kernel:
                 raise ValueError("corner UVs must be (t, 3, 2)")
             self.c.cuv = &cuvv[0]
 
-    def run(self, const int64_t[:, ::1] cells, const int64_t[::1] start,
-            const int32_t[::1] cand, int level, int jobs):
+    def clusters(self, const double[:, ::1] tlo, const double[:, ::1] thi,
+                 const double[:, ::1] clo, const double[:, ::1] chi,
+                 const int64_t[::1] members, const int64_t[::1] cstart,
+                 const double[:, ::1] rep):
+        """Triangle boxes ``tlo, thi`` (t, 3); clusters of triangles: boxes (g, 3),
+        ``members[cstart[i]:cstart[i + 1]]``; ``rep`` (r, 3) surface points
+        (see geovox.nearest._Search._clusters)."""
+        cdef int64_t t = self.keep[1].shape[0]
+        if (tlo.shape[0] != t or thi.shape[0] != t or members.shape[0] != t
+                or cstart.shape[0] != clo.shape[0] + 1 or chi.shape[0] != clo.shape[0]
+                or rep.shape[0] == 0 or tlo.shape[1] != 3 or clo.shape[1] != 3
+                or rep.shape[1] != 3):
+            raise ValueError("bad clusters")
+        self.keep += [tlo, thi, clo, chi, members, cstart, rep]
+        self.c.tlo = &tlo[0, 0]
+        self.c.thi = &thi[0, 0]
+        self.c.clo = &clo[0, 0]
+        self.c.chi = &chi[0, 0]
+        self.c.members = &members[0]
+        self.c.cstart = &cstart[0]
+        self.c.ncl = clo.shape[0]
+        self.c.rep = &rep[0, 0]
+        self.c.nrep = rep.shape[0]
+
+    def run(self, const int64_t[:, ::1] cells, int level, int jobs):
         """Solve the top cells ``cells`` (m, 3) of ``2**level`` voxels.
 
-        Cell ``i``'s candidate triangles are ``cand[start[i]:start[i + 1]]``.
         Threads take cells one at a time; each voxel's answer depends only on
-        its own cell's list, so the result does not depend on ``jobs``.
+        its own cell's lists, so the result does not depend on ``jobs``.
         """
         cdef int64_t ncell = cells.shape[0]
-        cdef int64_t widest = 0, i, n
+        cdef int64_t t = self.keep[1].shape[0], i, n
         cdef int32_t *buf
         cdef double *dbuf
+        cdef double *wbuf
+        cdef int failed = 0
         cdef const Ctx *c = &self.c
         if self.c.rgba == NULL and self.c.tri_out == NULL:
             raise ValueError("no output set")
-        if start.shape[0] != ncell + 1 or (ncell and start[ncell] > cand.shape[0]):
-            raise ValueError("bad candidate lists")
+        if self.c.ncl == 0:
+            raise ValueError("no clusters set")
         if ncell == 0:
             return
         buf = NULL
         dbuf = NULL
-        for i in range(ncell):
-            n = start[i + 1] - start[i]
-            if n > widest:
-                widest = n
+        wbuf = NULL
         with nogil, parallel(num_threads=max(1, jobs)):
             # A list per level (each a subset of its parent's), and per
-            # candidate a distance and barycentrics at the voxels.
-            buf = <int32_t *> malloc(sizeof(int32_t) * (widest * (level + 1) + 1))
-            dbuf = <double *> malloc(sizeof(double) * (9 * widest + 9))
+            # candidate distances and barycentrics; a few MiB at most per
+            # thread for meshes of a million triangles.
+            buf = <int32_t *> malloc(sizeof(int32_t) * (t * (level + 2) + 1))
+            dbuf = <double *> malloc(sizeof(double) * (9 * t + 9))
+            wbuf = <double *> malloc(sizeof(double) * (64 + 4) * LEAF_MAX)
             for i in prange(ncell, schedule="dynamic", chunksize=1):
-                if buf != NULL and dbuf != NULL:
-                    solve(c, level, cells[i, 0], cells[i, 1], cells[i, 2],
-                          &cand[start[i]], start[i + 1] - start[i], buf, dbuf)
+                if buf != NULL and dbuf != NULL and wbuf != NULL:
+                    n = top_list(c, level, cells[i, 0], cells[i, 1], cells[i, 2], buf)
+                    solve(c, level, cells[i, 0], cells[i, 1], cells[i, 2], buf, n, buf + n,
+                          dbuf, wbuf)
+                else:
+                    failed = 1
             free(buf)
             free(dbuf)
+            free(wbuf)
+        if failed:
+            raise MemoryError("the nearest-surface kernel could not allocate its lists")
+
+
+cdef int64_t top_list(const Ctx *c, int level, int64_t ci, int64_t cj, int64_t ck,
+                      int32_t *out) noexcept nogil:
+    """The triangles whose boxes are within reach of a top cell; returns how many.
+
+    Reach: the largest distance from the cell's corners to one surface point
+    (the nearest of ``rep`` to the centre) bounds the distance to the
+    surface everywhere in the cell (convexity), so a triangle whose box is
+    farther from the cell's box than that (plus the margin) is never the
+    nearest.
+    """
+    cdef int64_t s = (<int64_t>1) << level
+    cdef int64_t i0 = ci * s, j0 = cj * s, k0 = ck * s
+    cdef int64_t i1 = min(i0 + s, c.nx), j1 = min(j0 + s, c.ny), k1 = min(k0 + s, c.nz)
+    cdef double lo[3]
+    cdef double hi[3]
+    cdef double m[3]
+    cdef double best = INFINITY, d, e, reach2, g, gap
+    cdef int64_t r, bv = 0, q, t, n = 0
+    cdef int a, k
+    lo[0] = (<double>i0 + 0.5) * c.h0
+    hi[0] = (<double>(i1 - 1) + 0.5) * c.h0
+    lo[1] = (<double>j0 + 0.5) * c.h1
+    hi[1] = (<double>(j1 - 1) + 0.5) * c.h1
+    lo[2] = (<double>(k0 + c.z0) + 0.5) * c.h2
+    hi[2] = (<double>(k1 - 1 + c.z0) + 0.5) * c.h2
+    for a in range(3):
+        m[a] = 0.5 * (lo[a] + hi[a])
+    for r in range(c.nrep):
+        d = 0.0
+        for a in range(3):
+            e = m[a] - c.rep[3 * r + a]
+            d = d + e * e
+        if d < best:
+            best = d
+            bv = r
+    reach2 = 0.0
+    for k in range(8):
+        d = 0.0
+        for a in range(3):
+            e = (hi[a] if (k >> a) & 1 else lo[a]) - c.rep[3 * bv + a]
+            d = d + e * e
+        if d > reach2:
+            reach2 = d
+    reach2 = sqrt(reach2) + c.m
+    reach2 = reach2 * reach2
+    for q in range(c.ncl):
+        g = 0.0
+        for a in range(3):
+            gap = c.clo[3 * q + a] - hi[a]
+            e = lo[a] - c.chi[3 * q + a]
+            if e > gap:
+                gap = e
+            if gap > 0:
+                g = g + gap * gap
+        if g > reach2:
+            continue
+        for r in range(c.cstart[q], c.cstart[q + 1]):
+            t = c.members[r]
+            g = 0.0
+            for a in range(3):
+                gap = c.tlo[3 * t + a] - hi[a]
+                e = lo[a] - c.thi[3 * t + a]
+                if e > gap:
+                    gap = e
+                if gap > 0:
+                    g = g + gap * gap
+            if g <= reach2:
+                out[n] = <int32_t>t
+                n += 1
+    return n
 
 
 def top_cells(const uint8_t[::1] occ, shape, int level, int jobs):

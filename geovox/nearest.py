@@ -814,16 +814,13 @@ def run_kernel(module, triangles, occupancy, spacing, *, origin, z0=0, jobs=1, o
                            MARGIN * hmin, TIE * hmin)
     output(kernel)
     search = _Search(tris, None, spacing, z0, levels, None, pyramid=False)
+    search._clusters()
+    clo, chi, members, cstart = search._cl
+    c3 = np.ascontiguousarray
+    kernel.clusters(c3(tris["lo"]), c3(tris["hi"]), c3(clo), c3(chi), c3(members, np.int64),
+                    c3(cstart, np.int64), c3(search._rep))
     cells = np.argwhere(module.top_cells(occ, shape, levels, jobs)).astype(np.int64)
-    # Top cells a batch at a time: their first lists (from triangle boxes)
-    # are the largest arrays; the kernel then holds only a few per thread.
-    batch = max(1, TOP_PAIRS // len(triangles))
-    for a in range(0, len(cells), batch):
-        sub = np.ascontiguousarray(cells[a:a + batch])
-        pc, pt = search.top(sub)
-        order = np.argsort(pc, kind="stable")
-        start = np.searchsorted(pc[order], np.arange(len(sub) + 1)).astype(np.int64)
-        kernel.run(sub, start, pt[order].astype(np.int32), levels, jobs)
+    kernel.run(np.ascontiguousarray(cells), levels, jobs)
 
 
 def nearest_inside(triangles, occupancy, spacing, *, origin, z0=0, jobs=1, emit, same=None,

@@ -286,7 +286,13 @@ def test_kernel_checks_its_arrays(kernel):
     with pytest.raises(ValueError, match="one row per voxel"):
         k.raw_output(np.zeros(7, np.int32), np.zeros((7, 2)))
     with pytest.raises(ValueError, match="no output"):
-        k.run(np.zeros((1, 3), np.int64), np.array([0, 1]), np.zeros(1, np.int32), 3, 1)
+        k.run(np.zeros((1, 3), np.int64), 3, 1)
+    k.raw_output(np.zeros(8, np.int32), np.zeros((8, 2)))
+    with pytest.raises(ValueError, match="no clusters"):
+        k.run(np.zeros((1, 3), np.int64), 3, 1)
+    with pytest.raises(ValueError, match="bad clusters"):
+        k.clusters(t["lo"], t["hi"], t["lo"], t["hi"], np.zeros(1, np.int64),
+                   np.zeros(1, np.int64), t["lo"])
     with pytest.raises(ValueError, match="size does not match"):
         kernel.Kernel(np.ascontiguousarray(t["crow"].T), t["flat"].view(np.uint8), occ,
                       (2, 2, 3), 0, (1.0, 1.0, 1.0), 1e-6, 1e-9)
