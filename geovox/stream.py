@@ -394,7 +394,9 @@ def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, c
     h = grid.spacing
     reuse = None
     try:
-        if (options.get("color") and options.get("color") != "exact" and len(plan) > 1
+        from .colour import colour_method
+
+        if (colour_method(options.get("color")) == "fast" and len(plan) > 1
                 and method != "vote"):  # vote casts z itself; exact colour needs no rays
             # Colour wants the crossings along z as well; those rays run
             # through every slab, so they are cast once, for the whole grid,

@@ -299,3 +299,24 @@ def test_kernel_checks_its_arrays(kernel):
     # run_kernel with nothing inside does nothing.
     run_kernel(kernel, np.zeros((1, 3, 3)), np.zeros((2, 2, 2), bool), np.ones(3),
                origin=np.zeros(3), output=lambda k: None)
+
+
+def test_cli_color_is_exact_and_fast_color_is_the_crossings(tmp_path):
+    from geovox.cli import main
+
+    path = corpus("fuze", "fuze.obj")
+    got = {}
+    for flag in ("--color", "--exact-color", "--fast-color", "--fast-colour"):
+        out = tmp_path / f"t{flag}.npz"
+        assert main(["convert", path, "-r", "16", flag, "-q", "-o", str(out)]) == 0
+        got[flag] = np.load(out)["colors"]
+    exact = geovox.voxelize(path, resolution=16, color="exact")
+    fast = geovox.voxelize(path, resolution=16, color="fast")
+    np.testing.assert_array_equal(got["--color"], exact.colors)
+    np.testing.assert_array_equal(got["--exact-color"], exact.colors)
+    np.testing.assert_array_equal(got["--fast-color"], fast.colors)
+    np.testing.assert_array_equal(got["--fast-colour"], fast.colors)
+    np.testing.assert_array_equal(geovox.voxelize(path, resolution=16, color=True).colors,
+                                  exact.colors)
+    assert not np.array_equal(exact.colors, fast.colors)  # deep voxels differ
+    assert main(["convert", path, "--color", "--fast-color", "-o", str(tmp_path / "x.npz")]) == 2
