@@ -21,7 +21,7 @@ keeps it.
 
 from cython.parallel cimport prange, parallel
 from libc.stdlib cimport malloc, free
-from libc.math cimport sqrt, floor, fmod, rint, isfinite, INFINITY
+from libc.math cimport sqrt, fmod, isfinite, INFINITY
 from libc.stdint cimport int32_t, int64_t, uint8_t, uint32_t
 
 
@@ -154,7 +154,11 @@ cdef inline void texel_axis(double t, int64_t n, int mode, int64_t *i0, int64_t 
     else:
         t = pymod(t, 1.0)
     x = t * <double>n - 0.5
-    x0 = floor(x)
+    # floor(x) without a libm call (x86-64's baseline has no rounding
+    # instruction); x is within a few texture sizes of 0 here.
+    x0 = <double>(<int64_t>x)
+    if x0 > x:
+        x0 -= 1.0
     f[0] = x - x0
     a = <int64_t>x0
     b = a + 1
@@ -216,7 +220,10 @@ cdef inline uint32_t shade_one(const Ctx *c, int64_t t, double u, double v) noex
                 base[ch] = top * base[ch] if mt[1] else top
     for ch in range(3):
         out[ch] = clip01(base[ch] * c.factor[3 * mi + ch] + c.add[3 * mi + ch])
-        rgba |= (<uint32_t>rint(out[ch] * 255.0)) << (8 * ch)
+        # rint for 0 <= x <= 255 without a libm call: adding and taking
+        # away 2**52 rounds to the nearest integer, ties to even, as rint.
+        rgba |= (<uint32_t>((out[ch] * 255.0 + 4503599627370496.0) - 4503599627370496.0)
+                 ) << (8 * ch)
     return rgba | (<uint32_t>255 << 24)
 
 
