@@ -313,7 +313,7 @@ cdef void leaf4(const Ctx *c, int64_t i0, int64_t i1, int64_t j0, int64_t j1, in
     those are measured exactly (q <= 6 voxels^2 here, 0 at the corners).
     """
     cdef int64_t lx = i1 - i0, ly = j1 - j0, lz = k1 - k0
-    cdef int64_t i, j, k, q, t, row, vi, cnt, win
+    cdef int64_t i, j, k, q, t, row, vi, cnt, win, qb
     cdef double *I = wbuf               # (n, 64) interpolated bounds
     cdef double *E = wbuf + 64 * n      # (n, 4) exact distance, u, v, candidate
     cdef double wx, wy, wz, a, b, U, lim, qx, x0, x1, x2, d, low, far, u, v
@@ -345,18 +345,30 @@ cdef void leaf4(const Ctx *c, int64_t i0, int64_t i1, int64_t j0, int64_t j1, in
                 x0 = (<double>i + 0.5) * c.h0
                 vi = 16 * (k - k0) + 4 * (j - j0) + (i - i0)
                 U = INFINITY
+                qb = 0
                 for q in range(n):
                     if I[64 * q + vi] < U:
                         U = I[64 * q + vi]
+                        qb = q
+                # The candidate that looks nearest, measured first: its
+                # distance is a tighter U (at most its I, by convexity).
+                t = cand[qb]
+                d = closest(c.T + 21 * t, c.flat[t], x0, x1, x2, &u, &v)
+                E[0] = d
+                E[1] = u
+                E[2] = v
+                E[3] = <double>t
+                cnt = 1
+                low = d
+                if d < U:
+                    U = d
                 qx = (c.h0 * c.h0 * ((i - i0) * (i1 - 1 - i))
                       + c.h1 * c.h1 * ((j - j0) * (j1 - 1 - j))
                       + c.h2 * c.h2 * ((k - k0) * (k1 - 1 - k)))
                 # Rounding of I (about 1e-16 of it) is far inside the margin.
                 lim = U + qx + 2.0 * c.m * sqrt(U) + c.m * c.m
-                cnt = 0
-                low = INFINITY
                 for q in range(n):
-                    if not (I[64 * q + vi] <= lim):
+                    if q == qb or I[64 * q + vi] > lim:  # NaN keeps the candidate
                         continue
                     t = cand[q]
                     d = closest(c.T + 21 * t, c.flat[t], x0, x1, x2, &u, &v)
@@ -367,17 +379,6 @@ cdef void leaf4(const Ctx *c, int64_t i0, int64_t i1, int64_t j0, int64_t j1, in
                     cnt += 1
                     if d < low:
                         low = d
-                if cnt == 0:  # NaN bounds only (degenerate input): measure them all
-                    for q in range(n):
-                        t = cand[q]
-                        d = closest(c.T + 21 * t, c.flat[t], x0, x1, x2, &u, &v)
-                        E[4 * cnt] = d
-                        E[4 * cnt + 1] = u
-                        E[4 * cnt + 2] = v
-                        E[4 * cnt + 3] = <double>t
-                        cnt += 1
-                        if d < low:
-                            low = d
                 # pick(), as in leaf().
                 low = sqrt(low) + c.tieh
                 far = low * low * (1.0 + 1e-9) + c.tieh * c.tieh

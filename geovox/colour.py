@@ -13,29 +13,30 @@ The colour of a surface point on triangle ``t`` with barycentric weights
              use D = 0.8 grey, or 1 when the mesh has vertex colours)
     A      = the material's Ka if `ambient` else 0
 
-Finding the nearest surface point is done in columns, from the ray hits
-themselves (every hit already carries its triangle and barycentric
-coordinates): rays are cast along all three axes, and for each inside voxel
-the crossings just before and just after it in its x, y and z columns are
-the candidates. The nearest of these six by distance to the crossing
-triangle's plane (see :func:`nearest_crossings`) is taken, and for voxels
-within ``REFINE`` voxels of the surface the exact closest point on that
-crossing's triangle replaces the crossing. Deeper voxels take the crossing's
-own colour. The result equals the brute-force nearest point wherever the
-nearest triangle is one of the six candidates (nearly always next to the
-surface; measured in tests/test_colour.py), and is otherwise a nearby point
-of the surface.
+The nearest surface point is exact by default (``color=True`` or
+``"exact"``, :func:`exact_colours`): the triangle at the smallest Euclidean
+distance from the voxel centre (ties within 1e-9 voxel sizes go to the
+smallest triangle index) and the closest point on it, for every inside
+voxel. The compiled kernel (``geovox/_nearest.pyx``, built by ``pip
+install``) finds it and shades it; without it, :func:`geovox.nearest.nearest_inside`'s
+NumPy search and :func:`shade` give the same colours, slower (a branch and
+bound over voxel cells that drops a triangle only where a valid bound proves
+it farther; where every triangle still in the running for a block of voxels
+has the same constant colour, that colour is used without finding which of
+them is nearest). It needs no rays.
 
-With ``exact`` (``color="exact"``, ``--exact-color``) the nearest surface
-point is exact instead (:func:`exact_colours`): the triangle at the smallest
-Euclidean distance from the voxel centre (ties within 1e-9 voxel sizes go to
-the smallest triangle index) and the closest point on it, for every inside
-voxel, by :func:`geovox.nearest.nearest_inside` (a branch and bound over
-voxel cells that drops a triangle only where a valid bound proves it
-farther). Where every triangle still in the running for a block of voxels
-has the same constant colour (no texture, no vertex colours), that colour is
-used without finding which of them is nearest. It needs no rays, but it is
-several times slower (see benchmarks/README.md), so it is not the default.
+With ``color="fast"`` (``--fast-color``) the nearest surface point is found
+in columns, from the ray hits themselves (every hit already carries its
+triangle and barycentric coordinates): rays are cast along all three axes,
+and for each inside voxel the crossings just before and just after it in its
+x, y and z columns are the candidates. The nearest of these six by distance
+to the crossing triangle's plane (see :func:`nearest_crossings`) is taken,
+and for voxels within ``REFINE`` voxels of the surface the exact closest
+point on that crossing's triangle replaces the crossing. Deeper voxels take
+the crossing's own colour. The result equals the brute-force nearest point
+wherever the nearest triangle is one of the six candidates (nearly always
+next to the surface; measured in tests/test_colour.py), and is otherwise a
+nearby point of the surface.
 """
 
 from __future__ import annotations
