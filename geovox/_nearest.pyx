@@ -409,7 +409,7 @@ cdef void solve(const Ctx *c, int level, int64_t ci, int64_t cj, int64_t ck,
     cdef int64_t i0 = ci * s, j0 = cj * s, k0 = ck * s
     cdef int64_t i1 = min(i0 + s, c.nx), j1 = min(j0 + s, c.ny), k1 = min(k0 + s, c.nz)
     cdef double lo0, lo1, lo2, hi0, hi1, hi2, m0, m1, m2, d2, u, v, lim, rh
-    cdef double x0, x1, x2, e0, e1, e2, r2max
+    cdef double x0, x1, x2, e0, e1, e2, r2max, dc, th0
     cdef double X[8][3]            # the corners
     cdef double P[9][3]            # the dominating points: centre's, then each corner's
     cdef double best[9]
@@ -451,6 +451,8 @@ cdef void solve(const Ctx *c, int level, int64_t ci, int64_t cj, int64_t ck,
         t = cand[q]
         d2 = closest(c.T + 21 * t, c.flat[t], m0, m1, m2, &u, &v)
         dbuf[9 * q] = d2
+        dbuf[9 * q + 1] = u
+        dbuf[9 * q + 2] = v
         if d2 < best[0] or bt[0] < 0:
             best[0] = d2
             bt[0] = t
@@ -465,14 +467,35 @@ cdef void solve(const Ctx *c, int level, int64_t ci, int64_t cj, int64_t ck,
     e2 = 0.5 * (hi2 - lo2)
     rh = sqrt(e0 * e0 + e1 * e1 + e2 * e2)
     lim = r2max + 2.0 * c.m * sqrt(r2max) + c.m * c.m
+    th0 = 2.0 * c.m * sqrt(r2max) + c.m * c.m
     # The others: squared distances at the 8 corners (8 per survivor, in dbuf).
     ns = 0
     for q in range(n):
         t = cand[q]
-        d2 = sqrt(dbuf[9 * q]) - rh
+        dc = sqrt(dbuf[9 * q])
+        d2 = dc - rh
         if d2 > 0 and d2 * d2 > lim:
             continue
         R = c.T + 21 * t
+        if dc > 0:
+            # T lies behind the plane through its closest point to the
+            # centre, facing the centre (T is convex): the distance to that
+            # plane bounds d(corner, T) from below; if it alone lets the
+            # centre's point dominate T at every corner, T is dropped unmeasured.
+            u = dbuf[9 * q + 1]
+            v = dbuf[9 * q + 2]
+            e0 = (m0 - (R[0] + u * R[3] + v * R[6])) / dc
+            e1 = (m1 - (R[1] + u * R[4] + v * R[7])) / dc
+            e2 = (m2 - (R[2] + u * R[5] + v * R[8])) / dc
+            drop = True
+            for k in range(8):
+                d2 = dc + (X[k][0] - m0) * e0 + (X[k][1] - m1) * e1 + (X[k][2] - m2) * e2
+                d2 = d2 * d2 if d2 > 0 else 0.0
+                if not (d2 - r2[0][k] > th0):
+                    drop = False
+                    break
+            if drop:
+                continue
         buf[ns] = <int32_t>t
         for k in range(8):
             d2 = closest(R, c.flat[t], X[k][0], X[k][1], X[k][2], &u, &v)
