@@ -19,8 +19,8 @@ the grid, and the 8 corner tests of a pair stop at the first corner that
 keeps it.
 """
 
-from cython.parallel cimport prange, parallel
-from libc.stdlib cimport malloc, free
+from cython.parallel cimport prange, parallel, threadid
+from libc.stdlib cimport malloc, calloc, free
 from libc.math cimport sqrt, fmod, isfinite, INFINITY
 from libc.stdint cimport int32_t, int64_t, uint8_t, uint32_t
 
@@ -673,38 +673,64 @@ cdef class Kernel:
         its own cell's lists, so the result does not depend on ``jobs``.
         """
         cdef int64_t ncell = cells.shape[0]
-        cdef int64_t t = self.keep[1].shape[0], i, n
-        cdef int32_t *buf
-        cdef double *dbuf
-        cdef double *wbuf
+        cdef int64_t i, n, need
+        cdef int nt = max(1, jobs), tid
         cdef int failed = 0
         cdef const Ctx *c = &self.c
+        cdef int32_t **bufs
+        cdef double **dbufs
+        cdef double **wbufs
+        cdef int64_t *caps
         if self.c.rgba == NULL and self.c.tri_out == NULL:
             raise ValueError("no output set")
         if self.c.ncl == 0:
             raise ValueError("no clusters set")
         if ncell == 0:
             return
-        buf = NULL
-        dbuf = NULL
-        wbuf = NULL
-        with nogil, parallel(num_threads=max(1, jobs)):
-            # A list per level (each a subset of its parent's), and per
-            # candidate distances and barycentrics; a few MiB at most per
-            # thread for meshes of a million triangles.
-            buf = <int32_t *> malloc(sizeof(int32_t) * (t * (level + 2) + 1))
-            dbuf = <double *> malloc(sizeof(double) * (9 * t + 9))
-            wbuf = <double *> malloc(sizeof(double) * (64 + 4) * LEAF_MAX)
-            for i in prange(ncell, schedule="dynamic", chunksize=1):
-                if buf != NULL and dbuf != NULL and wbuf != NULL:
-                    n = top_list(c, level, cells[i, 0], cells[i, 1], cells[i, 2], buf)
-                    solve(c, level, cells[i, 0], cells[i, 1], cells[i, 2], buf, n, buf + n,
-                          dbuf, wbuf)
-                else:
+        # Per thread: a list per level (each a subset of its parent's) and per
+        # candidate distances and barycentrics, grown to the longest top list
+        # the thread meets (not the mesh's size: many threads, big meshes).
+        bufs = <int32_t **> calloc(nt, sizeof(int32_t *))
+        dbufs = <double **> calloc(nt, sizeof(double *))
+        wbufs = <double **> calloc(nt, sizeof(double *))
+        caps = <int64_t *> calloc(nt, sizeof(int64_t))
+        try:
+            if bufs == NULL or dbufs == NULL or wbufs == NULL or caps == NULL:
+                raise MemoryError("the nearest-surface kernel could not allocate its lists")
+            for tid in range(nt):
+                wbufs[tid] = <double *> malloc(sizeof(double) * (64 + 4) * LEAF_MAX)
+                if wbufs[tid] == NULL:
+                    raise MemoryError("the nearest-surface kernel could not allocate its lists")
+            for i in prange(ncell, nogil=True, num_threads=nt, schedule="dynamic", chunksize=1):
+                tid = threadid()
+                n = top_list(c, level, cells[i, 0], cells[i, 1], cells[i, 2], NULL)
+                if n > caps[tid]:
+                    need = n + n // 2 + 16
+                    free(bufs[tid])
+                    free(dbufs[tid])
+                    bufs[tid] = <int32_t *> malloc(sizeof(int32_t) * (need * (level + 2) + 1))
+                    dbufs[tid] = <double *> malloc(sizeof(double) * (9 * need + 9))
+                    caps[tid] = need
+                    if bufs[tid] == NULL or dbufs[tid] == NULL:
+                        caps[tid] = 0
+                if caps[tid] == 0:
                     failed = 1
-            free(buf)
-            free(dbuf)
-            free(wbuf)
+                else:
+                    n = top_list(c, level, cells[i, 0], cells[i, 1], cells[i, 2], bufs[tid])
+                    solve(c, level, cells[i, 0], cells[i, 1], cells[i, 2], bufs[tid], n,
+                          bufs[tid] + n, dbufs[tid], wbufs[tid])
+        finally:
+            for tid in range(nt):
+                if bufs != NULL:
+                    free(bufs[tid])
+                if dbufs != NULL:
+                    free(dbufs[tid])
+                if wbufs != NULL:
+                    free(wbufs[tid])
+            free(bufs)
+            free(dbufs)
+            free(wbufs)
+            free(caps)
         if failed:
             raise MemoryError("the nearest-surface kernel could not allocate its lists")
 
@@ -776,7 +802,8 @@ cdef int64_t top_list(const Ctx *c, int level, int64_t ci, int64_t cj, int64_t c
                 if gap > 0:
                     g = g + gap * gap
             if g <= reach2:
-                out[n] = <int32_t>t
+                if out != NULL:  # NULL: count only
+                    out[n] = <int32_t>t
                 n += 1
     return n
 
