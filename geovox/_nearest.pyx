@@ -136,7 +136,16 @@ cdef inline double pymod(double a, double b) noexcept nogil:
 
 
 cdef inline int64_t imod(int64_t a, int64_t b) noexcept nogil:
-    cdef int64_t r = a % b
+    """a mod b in [0, b), as np.mod; the texel indices here are nearly always
+    within one period, where no (slow) integer division is needed."""
+    cdef int64_t r
+    if 0 <= a < b:
+        return a
+    if -b <= a < 0:
+        return a + b
+    if b <= a < 2 * b:
+        return a - b
+    r = a % b
     if r < 0:
         r += b
     return r
