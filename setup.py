@@ -27,7 +27,11 @@ ext = []
 if cythonize is not None:
     ext = cythonize(
         [Extension("geovox._nearest", ["geovox/_nearest.pyx"], extra_compile_args=flags,
-                   extra_link_args=link, optional=True)],
+                   extra_link_args=link)],
         compiler_directives={"language_level": 3}, quiet=True)
+    for e in ext:
+        # cythonize does not carry `optional` over: set it on what it returns.
+        # A failed compile is then a warning and geovox uses its NumPy search.
+        e.optional = True
 
 setup(ext_modules=ext)
