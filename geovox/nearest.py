@@ -49,6 +49,12 @@ of voxels across (about 1e-13 voxel sizes; slivers below a relative area of
 1e-6 are measured by their edges, see :func:`prepare`) and above ``TIE``, so
 a dropped triangle is never the float argmin nor within ``TIE`` of it.
 
+The compiled kernel (``geovox/_nearest.pyx``, :func:`run_kernel`) runs the
+same search with these bounds and more (see its notes), in C with threads,
+and gives the same answers bit for bit; this module's NumPy search is the
+reference it is tested against and the fallback where it is not built
+(:func:`kernel_module`, ``GEOVOX_KERNEL=numpy``).
+
 All coordinates are taken relative to the whole grid's low corner, voxel
 centres as ``(index + 0.5) * spacing`` with global indices, so a slab of a
 grid computes every voxel bit for bit as the whole grid does.
