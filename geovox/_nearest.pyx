@@ -67,6 +67,7 @@ cdef struct Ctx:
     int64_t ncl
     const double *rep      # (r, 3) surface points
     int64_t nrep
+    int64_t leaf_max       # leaf4 takes lists up to this long (LEAF_MAX)
 
 
 cdef inline double closest(const double *R, uint8_t flat, double x0, double x1, double x2,
@@ -553,7 +554,7 @@ cdef void solve(const Ctx *c, int level, int64_t ci, int64_t cj, int64_t ck,
             for k in range(8):
                 dbuf[8 * nn + k] = D[k]
             nn += 1
-    if level == 2 and nn <= LEAF_MAX and nn > 1:
+    if level == 2 and nn <= c.leaf_max and nn > 1:
         leaf4(c, i0, i1, j0, j1, k0, k1, buf, nn, dbuf, wbuf)
         return
     for g in range(8):
@@ -616,6 +617,7 @@ cdef class Kernel:
         self.c.cuv = NULL
         self.c.ncl = 0
         self.c.nrep = 0
+        self.c.leaf_max = LEAF_MAX
         if rows.shape[1] != 21 or flat.shape[0] != rows.shape[0]:
             raise ValueError("rows must be (t, 21) and flat (t,)")
         if occ.shape[0] != self.c.nx * self.c.ny * self.c.nz:
@@ -661,6 +663,11 @@ cdef class Kernel:
             if cuvv.shape[0] != 6 * fmat.shape[0]:
                 raise ValueError("corner UVs must be (t, 3, 2)")
             self.c.cuv = &cuvv[0]
+
+    def limit_leaf4(self, int64_t n):
+        """Let cells of 4 voxels finish by interpolated bounds only with at most
+        ``n`` candidates (0: never; the others go down to cells of 2). For tests."""
+        self.c.leaf_max = max(0, min(n, LEAF_MAX))
 
     def clusters(self, const double[:, ::1] tlo, const double[:, ::1] thi,
                  const double[:, ::1] clo, const double[:, ::1] chi,
