@@ -54,7 +54,8 @@ cdef struct Ctx:
     const double *cuv      # (t, 3, 2) corner UVs, or NULL
     const double *factor   # (k, 3)
     const double *add      # (k, 3)
-    const int32_t *mint    # (k, 7): textured, tint, h, w, wrap u, wrap v, unused
+    const int32_t *mint    # (k, 7): textured, tint, h, w, wrap u, wrap v (0 repeat,
+                           # 1 mirror, 2 clamp, 3 border), unused
     const int64_t *moff    # (k,) offset of each texture in tex
     const uint8_t *tex     # all textures, (h, w, 3) each
     # The top cells' first lists (see top_list).
@@ -165,9 +166,12 @@ cdef inline int64_t imod(int64_t a, int64_t b) noexcept nogil:
 
 cdef inline void texel_axis(double t, int64_t n, int mode, int64_t *i0, int64_t *i1,
                             double *f) noexcept nogil:
-    """geovox.colour._texel_axis for one coordinate (mode 0 repeat, 1 mirror, 2 clamp)."""
+    """geovox.colour._texel_axis for one coordinate (mode 0 repeat, 1 mirror, 2 clamp,
+    3 border, sampled as clamp)."""
     cdef double x, x0
     cdef int64_t a, b
+    if mode == 3:
+        mode = 2
     if mode == 2:
         t = clip01(t)
     elif mode == 1:
@@ -225,7 +229,11 @@ cdef inline uint32_t shade_one(const Ctx *c, int64_t t, double u, double v) noex
         q = c.cuv + 6 * t
         tu = w0 * q[0] + u * q[2] + v * q[4]
         tv = w0 * q[1] + u * q[3] + v * q[5]
-        if isfinite(tu) and isfinite(tv):
+        # geovox.colour.on_texture: finite, and within [0, 1] (a margin of
+        # 1e-9) along a "border" axis; elsewhere the face is as if untextured.
+        if isfinite(tu) and isfinite(tv) and (
+                mt[4] != 3 or (tu >= -1e-9 and tu <= 1.0 + 1e-9)) and (
+                mt[5] != 3 or (tv >= -1e-9 and tv <= 1.0 + 1e-9)):
             h = mt[2]
             wd = mt[3]
             img = c.tex + c.moff[mi]

@@ -508,10 +508,12 @@ def exact_colours(mesh, grid, occupancy, *, diffuse=True, ambient=False, jobs=1,
     # One uint32 per voxel: RGBA bytes in memory order (index = F-order voxel index).
     flat = base.reshape(-1, 4).view(np.uint32).reshape(-1)
     module = kernel_module(kernel)
+    tables = None
     if module is not None:
+        tables = shading_tables(mesh, diffuse=diffuse, ambient=ambient)
+    if tables is not None:
         # The compiled kernel finds the nearest point and shades it in one go
         # (shading 4.4 M voxels in NumPy alone took 1.6 s, spot 256³).
-        tables = shading_tables(mesh, diffuse=diffuse, ambient=ambient)
         run_kernel(module, mesh.triangles, occupancy, spacing, origin=lo, z0=z0, jobs=jobs,
                    output=lambda k: k.colour_output(flat, *tables))
         return colors
@@ -533,7 +535,7 @@ def exact_colours(mesh, grid, occupancy, *, diffuse=True, ambient=False, jobs=1,
 
 
 #: Texture wrap modes as the compiled kernel numbers them.
-_WRAP_CODE = {"repeat": 0, "mirror": 1, "clamp": 2}
+_WRAP_CODE = {"repeat": 0, "mirror": 1, "clamp": 2, "border": 3}
 
 
 def shading_tables(mesh, *, diffuse=True, ambient=False) -> tuple:
@@ -544,6 +546,10 @@ def shading_tables(mesh, *, diffuse=True, ambient=False) -> tuple:
 
     Returns
     -------
+    None, where a material has something the kernel does not do (a wrap
+    mode it does not know, a texture not (h, w, 3) uint8): :func:`shade` then
+    colours the voxels. Otherwise:
+
     fmat : (t,) int32
         Each face's row.
     vc : (9 t,) float64 or None
@@ -578,9 +584,10 @@ def shading_tables(mesh, *, diffuse=True, ambient=False) -> tuple:
             factor[k] = factor[nm]
             continue
         if m.image is not None and mesh.corner_uv is not None:
-            img = np.ascontiguousarray(m.image, dtype=np.uint8)
-            if img.ndim != 3 or img.shape[2] != 3:
-                raise ValueError(f"texture of material {m.name!r} is not (h, w, 3) uint8")
+            img = np.ascontiguousarray(m.image)
+            if (img.dtype != np.uint8 or img.ndim != 3 or img.shape[2] != 3
+                    or any(w not in _WRAP_CODE for w in m.wrap)):
+                return None
             mint[k, :6] = (1, bool(m.vertex_tint), img.shape[0], img.shape[1],
                            _WRAP_CODE[m.wrap[0]], _WRAP_CODE[m.wrap[1]])
             moff[k] = offset

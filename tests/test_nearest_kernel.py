@@ -343,3 +343,71 @@ def test_cli_color_is_exact_and_fast_color_is_the_crossings(tmp_path):
                                   exact.colors)
     assert not np.array_equal(exact.colors, fast.colors)  # deep voxels differ
     assert main(["convert", path, "--color", "--fast-color", "-o", str(tmp_path / "x.npz")]) == 2
+
+
+def _sphere_with(material, uv_scale, uv_shift):
+    s = trimesh.creation.icosphere(subdivisions=2)
+    v, f = np.asarray(s.vertices, float), np.asarray(s.faces, np.int64)
+    rng = np.random.default_rng(7)
+    uv = rng.random((len(f), 3, 2)) * uv_scale + uv_shift
+    return Mesh(v, f, source="s", face_material=np.zeros(len(f), np.int64),
+                materials=[material], corner_uv=uv)
+
+
+def test_border_wrap_mode(kernel):
+    # MTL `-clamp on` ("border", from main's materials work): sampled as
+    # clamp on the texture, untextured (Kd alone) off it.
+    import geovox.colour as colour
+
+    img = np.random.default_rng(3).integers(0, 256, size=(6, 9, 3), dtype=np.uint8)
+    kd = np.array([0.5, 0.25, 1.0])
+
+    def colours(mesh):
+        vol = geovox.voxelize(mesh, resolution=12)
+        return vol, exact_colours(mesh, vol.grid, vol.occupancy, kernel="compiled")
+
+    # All UVs off the texture: every inside voxel is Kd.
+    off = _sphere_with(Material(kd=kd, image=img, texture_file="x.png", wrap=("border", "border")),
+                       0.5, 1.2)
+    vol, got = colours(off)
+    np.testing.assert_array_equal(got[vol.occupancy][:, :3],
+                                  np.broadcast_to(np.rint(kd * 255), (vol.inside_count, 3)))
+    # All on it: the same as clamp.
+    on = _sphere_with(Material(kd=kd, image=img, texture_file="x.png", wrap=("border", "border")),
+                      0.8, 0.1)
+    clamp = _sphere_with(Material(kd=kd, image=img, texture_file="x.png", wrap=("clamp", "clamp")),
+                         0.8, 0.1)
+    np.testing.assert_array_equal(colours(on)[1], colours(clamp)[1])
+    if hasattr(colour, "on_texture"):  # NumPy's shade knows "border" (main since 2026-11-30)
+        mixed = _sphere_with(Material(kd=kd, image=img, texture_file="x.png",
+                                      wrap=("border", "repeat")), 1.6, -0.3)
+        vol = geovox.voxelize(mixed, resolution=16)
+        np.testing.assert_array_equal(
+            exact_colours(mixed, vol.grid, vol.occupancy, kernel="compiled"),
+            exact_colours(mixed, vol.grid, vol.occupancy, kernel="numpy"))
+
+
+def test_a_material_the_kernel_does_not_know_is_shaded_by_numpy(kernel, monkeypatch):
+    # A wrap mode the tables have no code for: the NumPy search and shade()
+    # colour the voxels instead of a wrong or failed kernel run.
+    import geovox.colour as colour
+
+    mesh = _sphere_with(Material(image=np.zeros((4, 4, 3), np.uint8), texture_file="x.png",
+                                 wrap=("spiral", "repeat")), 1.0, 0.0)
+    assert colour.shading_tables(mesh) is None
+    import geovox.nearest as nearest
+
+    def refuse(*a, **k):
+        raise AssertionError("the compiled kernel ran")
+
+    monkeypatch.setattr(nearest, "run_kernel", refuse)
+    monkeypatch.setattr(colour, "_texel_axis", lambda t, n, mode: colour_axis(t, n))
+    vol = geovox.voxelize(mesh, resolution=10)
+    got = exact_colours(mesh, vol.grid, vol.occupancy)
+    assert np.all(got[vol.occupancy][:, 3] == 255)
+
+
+def colour_axis(t, n):
+    """A stand-in _texel_axis for a made-up wrap mode: texel 0 always."""
+    z = np.zeros(len(t), np.int64)
+    return z, z, np.zeros(len(t))
