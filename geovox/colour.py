@@ -56,27 +56,6 @@ BLOCK = 1 << 19
 DEFAULT_GREY = 0.8
 
 
-def colour_method(color):
-    """Which colour method ``color`` asks for: None (no colour), ``"exact"`` or ``"fast"``.
-
-    True means the default, ``"exact"`` (every voxel from its exact nearest
-    surface point); ``"fast"`` is the nearest of the six axis crossings
-    around each voxel (:func:`nearest_crossings`).
-
-    Raises
-    ------
-    ParameterError
-        Anything else.
-    """
-    from .errors import ParameterError
-
-    if color is None or isinstance(color, (bool, np.bool_, int)) and not isinstance(color, str):
-        return "exact" if color else None
-    if color in ("exact", "fast"):
-        return color
-    raise ParameterError(f"`color` must be True, False, 'exact' or 'fast', got {color!r}")
-
-
 def load_textures(mesh) -> None:
     """Read each material's texture once; warn about what is missing or unreadable."""
     from PIL import Image
@@ -471,6 +450,27 @@ def constant_colours(mesh, *, diffuse=True, ambient=False):
     values, inverse = np.unique(rgba, return_inverse=True)
     key[sel] = inverse.reshape(-1)
     return key, values
+
+
+def colour_method(color):
+    """Which colour method ``color`` asks for: None (no colour), ``"exact"`` or ``"fast"``.
+
+    True means the default, ``"exact"`` (every voxel from its exact nearest
+    surface point); ``"fast"`` is the nearest of the six axis crossings
+    around each voxel (:func:`nearest_crossings`).
+
+    Raises
+    ------
+    ParameterError
+        Anything else.
+    """
+    from .errors import ParameterError
+
+    if color is None or isinstance(color, (bool, np.bool_, int)) and not isinstance(color, str):
+        return "exact" if color else None
+    if color in ("exact", "fast"):
+        return color
+    raise ParameterError(f"`color` must be True, False, 'exact' or 'fast', got {color!r}")
 
 
 def exact_colours(mesh, grid, occupancy, *, diffuse=True, ambient=False, jobs=1,
