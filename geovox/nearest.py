@@ -859,6 +859,10 @@ def nearest_inside(triangles, occupancy, spacing, *, origin, z0=0, jobs=1, emit,
         compiled one always finds the nearest). Default: all distinct.
     kernel : {None, "auto", "compiled", "numpy"}
         Which search (see :func:`kernel_module`); the answers are the same.
+        The compiled one answers into arrays over the whole block (20 bytes
+        a voxel) before calling ``emit``; the colour step does not use this
+        function with it (it shades in the kernel, see
+        :func:`geovox.colour.exact_colours`).
     """
     from .parallel import for_blocks
 
