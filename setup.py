@@ -20,7 +20,9 @@ else:
     # -ffp-contract=off: no fused multiply-adds, so every distance rounds as
     # NumPy's separate operations do (the exact search's tie rule and the
     # colours must match the NumPy reference bit for bit); no -ffast-math.
-    flags = ["-O3", "-fopenmp", "-ffp-contract=off", "-fno-fast-math"]
+    # -fno-math-errno changes no value (sqrt is correctly rounded either way),
+    # it only spares each sqrt a branch for errno (6 % of the kernel's time).
+    flags = ["-O3", "-fopenmp", "-ffp-contract=off", "-fno-fast-math", "-fno-math-errno"]
     link = ["-fopenmp"]
 
 ext = []
