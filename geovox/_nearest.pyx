@@ -323,7 +323,8 @@ cdef void leaf(const Ctx *c, int64_t i0, int64_t i1, int64_t j0, int64_t j1, int
 #: Cells of 4 voxels a side with at most this many candidates are finished
 #: by leaf4 (bounds interpolated from the corners); bigger lists go down to
 #: cells of 2 (a fixed per-thread buffer of 68 doubles a candidate).
-DEF LEAF_MAX = 256
+cdef enum:
+    LEAF_MAX = 256
 
 
 cdef void leaf4(const Ctx *c, int64_t i0, int64_t i1, int64_t j0, int64_t j1, int64_t k0,
