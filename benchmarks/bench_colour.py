@@ -2,8 +2,9 @@
 
 Accuracy (``--accuracy``): for each corpus model with colour, every inside
 voxel of a 64³ grid (the whole volume, not a sample) is coloured by both
-methods -- ``color=True`` (the nearest of the six axis crossings, the
-default) and ``color="exact"`` (the exact nearest surface point) -- and
+methods -- ``color="fast"`` (the nearest of the six axis crossings, the
+default until 2026-11-30) and ``color="exact"`` (the exact nearest surface
+point, the default since) -- and
 compared with a brute-force reference: the closest point over *every*
 triangle (:func:`geovox.nearest.brute_force`, no pruning), its barycentrics,
 UVs, bilinear texel x Kd. Per model: the share of inside voxels within 2
@@ -11,13 +12,17 @@ levels per channel, and the median and 90th percentile of the largest
 per-channel error.
 
 Times (``--times``): wall clock of a fresh interpreter running ``geovox
-convert data/spot/spot.obj -o spot.raw -r N --color`` (or ``--exact-color``)
+convert data/spot/spot.obj -o spot.raw -r N --color`` (or ``--fast-color``)
 (imports, OBJ and texture loading, rays, fill, colour, writing the RAW + RGBA
-RAW files), best of ``--repeat`` runs; peak memory is the process's peak RSS
-(VmHWM, what ``/usr/bin/time -v`` reports as maximum resident set size).
+RAW files; ``--h5 N`` writes ``spot.h5`` instead at those sizes, slab by
+slab), best of ``--repeat`` runs; peak memory is the process's peak RSS
+(VmHWM, what ``/usr/bin/time -v`` reports as maximum resident set size), and
+CPU time the child's user + system seconds. ``--kernel numpy`` times exact
+colour without the compiled kernel (``GEOVOX_KERNEL=numpy``, what an install
+without a C compiler runs).
 
 Usage: python benchmarks/bench_colour.py [--accuracy] [--times] [--res 128 256]
-       [--methods color exact-color] [--repeat 3]
+       [--h5 1024] [--methods color fast-color] [--repeat 3] [--kernel auto|numpy]
 """
 
 from __future__ import annotations
@@ -65,7 +70,7 @@ def accuracy(path, res=64):
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        before = geovox.voxelize(path, resolution=res, color=True)
+        before = geovox.voxelize(path, resolution=res, color="fast")
         t0 = time.perf_counter()
         after = geovox.voxelize(path, resolution=res, color="exact")
         t_exact = time.perf_counter() - t0
@@ -85,18 +90,24 @@ def accuracy(path, res=64):
     return out
 
 
-def run(res, flag, out_dir):
-    out = os.path.join(out_dir, f"spot_{res}.raw")
+def run(res, flag, out_dir, ext="raw", kernel="auto"):
+    out = os.path.join(out_dir, f"spot_{res}.{ext}")
     args = ["convert", SPOT, "-o", out, "-r", str(res), f"--{flag}", "-q"]
+    env = dict(os.environ, GEOVOX_KERNEL=kernel)
     t0 = time.perf_counter()
-    p = subprocess.run([sys.executable, "-c", CHILD, *args], capture_output=True, text=True)
+    before = os.times()
+    p = subprocess.run([sys.executable, "-c", CHILD, *args], capture_output=True, text=True,
+                       env=env)
     wall = time.perf_counter() - t0
+    after = os.times()
+    cpu = (after.children_user - before.children_user
+           + after.children_system - before.children_system)
     if p.returncode != 0:
         return {"error": p.stderr.strip().splitlines()[-1]}
     info = json.loads(p.stdout.strip().splitlines()[-1])
     for f in os.listdir(out_dir):
         os.remove(os.path.join(out_dir, f))
-    return {"wall": wall, "peak": info["peak_kib"] * 1024}
+    return {"wall": wall, "cpu": cpu, "peak": info["peak_kib"] * 1024}
 
 
 def main():
@@ -106,7 +117,9 @@ def main():
     p.add_argument("--models", nargs="+", default=list(MODELS))
     p.add_argument("--grid", type=int, default=64, help="accuracy grid (default 64)")
     p.add_argument("--res", type=int, nargs="+", default=[128, 256])
-    p.add_argument("--methods", nargs="+", default=["color", "exact-color"])
+    p.add_argument("--h5", type=int, nargs="*", default=[], help="sizes written to .h5")
+    p.add_argument("--methods", nargs="+", default=["color", "fast-color"])
+    p.add_argument("--kernel", default="auto", choices=["auto", "numpy"])
     p.add_argument("--repeat", type=int, default=3)
     args = p.parse_args()
     if not (args.accuracy or args.times):
@@ -124,22 +137,26 @@ def main():
                   f"| {b[1]:.0f} | {a[1]:.0f} | {b[2]:.0f} | {a[2]:.0f} | {r['exact_s']:.2f} "
                   f"| {r['brute_s']:.1f} |", flush=True)
     if args.times:
-        print(f"# bench_colour --times {today}")
-        print("| model | grid | option | end to end (s), best of runs | peak RSS (MiB) |")
-        print("|---|---|---|---|---|")
+        print(f"# bench_colour --times {today}, kernel {args.kernel}, load average "
+              f"{os.getloadavg()[0]:.1f} at the start")
+        print("| model | grid | output | option | end to end (s), best of runs "
+              "| CPU (s), that run | peak RSS (MiB) |")
+        print("|---|---|---|---|---|---|---|")
+        jobs = [(r, "raw") for r in args.res] + [(r, "h5") for r in args.h5]
         with tempfile.TemporaryDirectory() as tmp:
-            for res in args.res:
+            for res, ext in jobs:
                 for flag in args.methods:
                     n = args.repeat if res <= 256 else 1
-                    runs = [run(res, flag, tmp) for _ in range(n)]
+                    runs = [run(res, flag, tmp, ext, args.kernel) for _ in range(n)]
                     ok = [r for r in runs if "error" not in r]
                     if not ok:
-                        print(f"| spot | {res}³ | --{flag} | error: {runs[0]['error']} | |")
+                        print(f"| spot | {res}³ | .{ext} | --{flag} | error: {runs[0]['error']} "
+                              f"| | |")
                         continue
-                    best = min(r["wall"] for r in ok)
+                    best = min(ok, key=lambda r: r["wall"])
                     peak = max(r["peak"] for r in ok)
-                    print(f"| spot | {res}³ | --{flag} | {best:.2f} | {peak / 2**20:.0f} |",
-                          flush=True)
+                    print(f"| spot | {res}³ | .{ext} | --{flag} | {best['wall']:.2f} "
+                          f"| {best['cpu']:.2f} | {peak / 2**20:.0f} |", flush=True)
 
 
 if __name__ == "__main__":

@@ -167,10 +167,14 @@ def _grid_options(c):
     # One of the two: both share `color`, and argparse would let the last one win silently.
     colour = c.add_mutually_exclusive_group()
     colour.add_argument("--color", "--colour", dest="color", action="store_true",
-                        help="also colour the voxels from the model's materials and textures")
+                        help="also colour the voxels from the model's materials and textures, "
+                        "every voxel from its exact nearest surface point")
     colour.add_argument("--exact-color", "--exact-colour", dest="color", action="store_const",
-                        const="exact", help="as --color, every voxel from its exact nearest "
-                        "surface point (slower; instead of --color)")
+                        const="exact", help="the same as --color (exact is its method)")
+    colour.add_argument("--fast-color", "--fast-colour", dest="color", action="store_const",
+                        const="fast", help="as --color, from the nearest of the six axis "
+                        "crossings around each voxel (a nearby surface point, not always the "
+                        "nearest; faster without the compiled kernel)")
     c.add_argument("--no-diffuse", dest="diffuse", action="store_false",
                    help="with --color: do not multiply by the material's Kd")
     c.add_argument("--ambient", action="store_true",

@@ -49,6 +49,12 @@ of voxels across (about 1e-13 voxel sizes; slivers below a relative area of
 1e-6 are measured by their edges, see :func:`prepare`) and above ``TIE``, so
 a dropped triangle is never the float argmin nor within ``TIE`` of it.
 
+The compiled kernel (``geovox/_nearest.pyx``, :func:`run_kernel`) runs the
+same search with these bounds and more (see its notes), in C with threads,
+and gives the same answers bit for bit; this module's NumPy search is the
+reference it is tested against and the fallback where it is not built
+(:func:`kernel_module`, ``GEOVOX_KERNEL=numpy``).
+
 All coordinates are taken relative to the whole grid's low corner, voxel
 centres as ``(index + 0.5) * spacing`` with global indices, so a slab of a
 grid computes every voxel bit for bit as the whole grid does.
@@ -429,7 +435,7 @@ def _cell_chunks(pc):
 class _Search:
     """The branch and bound over one block's inside voxels (see the module notes)."""
 
-    def __init__(self, tris, occupancy, spacing, z0, levels, emit, same=None):
+    def __init__(self, tris, occupancy, spacing, z0, levels, emit, same=None, pyramid=True):
         self.tris = tris
         n = len(tris["a"])
         self.same = np.full(n, -1, np.int64) if same is None else np.asarray(same, np.int64)
@@ -438,7 +444,8 @@ class _Search:
         self.hmin = float(self.h.min())
         self.z0 = int(z0)
         self.levels = levels
-        self.has = _pyramid(occupancy, levels)
+        # The compiled kernel finds inside cells itself (pyramid=False).
+        self.has = _pyramid(occupancy, levels) if pyramid else None
         self.emit = emit
         self.m = MARGIN * self.hmin
 
@@ -745,7 +752,85 @@ class _Search:
         return 2 * self.m * np.sqrt(d2) + self.m * self.m
 
 
-def nearest_inside(triangles, occupancy, spacing, *, origin, z0=0, jobs=1, emit, same=None):
+#: Environment variable choosing the search: ``numpy`` forces the NumPy one
+#: below even where the compiled kernel is built (``compiled`` insists on
+#: it; ``auto``, the default, uses it when it imports).
+KERNEL_ENV = "GEOVOX_KERNEL"
+
+
+def kernel_module(kernel=None):
+    """The compiled kernel (``geovox._nearest``), or None for the NumPy search.
+
+    Parameters
+    ----------
+    kernel : {None, "auto", "compiled", "numpy"}
+        None reads :data:`KERNEL_ENV` (default ``auto``: the compiled one
+        where it was built, see setup.py).
+
+    Raises
+    ------
+    ParameterError
+        An unknown choice, or ``compiled`` where it was not built.
+    """
+    import os
+
+    from .errors import ParameterError
+
+    choice = kernel if kernel is not None else (os.environ.get(KERNEL_ENV) or "auto")
+    if choice not in ("auto", "compiled", "numpy"):
+        raise ParameterError(f"the nearest-surface kernel must be auto, compiled or numpy, "
+                             f"got {choice!r}")
+    if choice == "numpy":
+        return None
+    try:
+        from . import _nearest
+    except ImportError:
+        if choice == "compiled":
+            raise ParameterError("the compiled nearest-surface kernel is not built "
+                                 "(pip install . with a C compiler builds it)") from None
+        return None
+    return _nearest
+
+
+def run_kernel(module, triangles, occupancy, spacing, *, origin, z0=0, jobs=1, output):
+    """The compiled search over one block (same answers as :func:`nearest_inside`'s NumPy one).
+
+    Parameters
+    ----------
+    module : the compiled module (from :func:`kernel_module`)
+    triangles, occupancy, spacing, origin, z0, jobs
+        As for :func:`nearest_inside`.
+    output : callable
+        ``output(kernel)`` sets where the answers go: ``kernel.raw_output``
+        or ``kernel.colour_output`` (see ``geovox/_nearest.pyx``).
+    """
+    occupancy = np.asarray(occupancy, bool)
+    if not occupancy.any() or len(triangles) == 0:
+        return
+    shape = occupancy.shape
+    occ = occupancy.reshape(-1, order="F")  # a view when F-contiguous, as the pipeline's are
+    occ = np.ascontiguousarray(occ).view(np.uint8)
+    origin = np.asarray(origin, float)
+    tris = prepare(np.asarray(triangles, float), origin)
+    spacing = np.asarray(spacing, float)
+    hmin = float(spacing.min())
+    levels = max(3, int(np.ceil(np.log2(max(shape) / 16.0))))
+    kernel = module.Kernel(np.ascontiguousarray(tris["crow"].T), tris["flat"].view(np.uint8),
+                           occ, shape, int(z0), tuple(float(h) for h in spacing),
+                           MARGIN * hmin, TIE * hmin)
+    output(kernel)
+    search = _Search(tris, None, spacing, z0, levels, None, pyramid=False)
+    search._clusters()
+    clo, chi, members, cstart = search._cl
+    c3 = np.ascontiguousarray
+    kernel.clusters(c3(tris["lo"]), c3(tris["hi"]), c3(clo), c3(chi), c3(members, np.int64),
+                    c3(cstart, np.int64), c3(search._rep))
+    cells = np.argwhere(module.top_cells(occ, shape, levels, jobs)).astype(np.int64)
+    kernel.run(np.ascontiguousarray(cells), levels, jobs)
+
+
+def nearest_inside(triangles, occupancy, spacing, *, origin, z0=0, jobs=1, emit, same=None,
+                   kernel=None):
     """Exact nearest triangle and closest-point barycentrics of every inside voxel.
 
     Parameters
@@ -770,12 +855,32 @@ def nearest_inside(triangles, occupancy, spacing, *, origin, z0=0, jobs=1, emit,
         Triangles with the same key >= 0 are interchangeable (the same
         constant colour): where every candidate of a cell shares a key, its
         voxels are reported with the first such triangle and ``uv = 0``
-        without finding which one is nearest. Default: all distinct.
+        without finding which one is nearest (NumPy search only; the
+        compiled one always finds the nearest). Default: all distinct.
+    kernel : {None, "auto", "compiled", "numpy"}
+        Which search (see :func:`kernel_module`); the answers are the same.
+        The compiled one answers into arrays over the whole block (20 bytes
+        a voxel) before calling ``emit``; the colour step does not use this
+        function with it (it shades in the kernel, see
+        :func:`geovox.colour.exact_colours`).
     """
     from .parallel import for_blocks
 
     occupancy = np.asarray(occupancy, bool)
     if not occupancy.any() or len(triangles) == 0:
+        return
+    module = kernel_module(kernel)
+    if module is not None:
+        n = occupancy.size
+        tri = np.full(n, -1, np.int32)
+        uv = np.zeros((n, 2))
+        run_kernel(module, triangles, occupancy, spacing, origin=origin, z0=z0, jobs=jobs,
+                   output=lambda k: k.raw_output(tri, uv))
+        inside = np.flatnonzero(occupancy.reshape(-1, order="F"))
+        for s in range(0, len(inside), CHUNK):
+            lin = inside[s:s + CHUNK]
+            vox = np.stack(np.unravel_index(lin, occupancy.shape, order="F"), axis=1)
+            emit(vox, tri[lin].astype(np.int64), uv[lin])
         return
     origin = np.asarray(origin, float)
     tris = prepare(np.asarray(triangles, float), origin)

@@ -72,11 +72,13 @@ def voxelize(
         use y, see :mod:`geovox.stream`). Occupancy is the same up to ties on
         the surface; coverage density, sampled across the rays, can differ
         by a step or so where the surface is steep.
-    color : bool or "exact"
+    color : bool, "exact" or "fast"
         Also fill ``Volume.colors`` from the model's materials, textures or
-        vertex colours (see :mod:`geovox.colour` for the exact rule);
-        ``"exact"`` takes every voxel's colour from its exact nearest
-        surface point (slower).
+        vertex colours (see :mod:`geovox.colour` for the exact rule): True
+        or ``"exact"`` takes every voxel's colour from its exact nearest
+        surface point; ``"fast"`` from the nearest of the six axis
+        crossings around it (a nearby surface point, not always the
+        nearest).
     diffuse : bool
         Multiply by the material's ``Kd`` (MTL semantics for ``map_Kd``).
     ambient : bool
@@ -280,8 +282,9 @@ def voxelize_block(
     step = progress or (lambda stage: None)
     whole, grid = grid, block_grid(grid, block)
     supersample, band = _check_options(density, density_dtype, supersample, sdf, band)
-    if not (color is None or isinstance(color, (bool, np.bool_, int)) or color == "exact"):
-        raise ParameterError(f"`color` must be True, False or 'exact', got {color!r}")
+    from .colour import colour_method
+
+    color = colour_method(color)  # None, "exact" (True) or "fast"
     check_memory(grid, bytes_per_voxel(color, density, sdf))
 
     from . import inside as inside_tests

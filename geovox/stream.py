@@ -394,7 +394,9 @@ def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, c
     h = grid.spacing
     reuse = None
     try:
-        if (options.get("color") and options.get("color") != "exact" and len(plan) > 1
+        from .colour import colour_method
+
+        if (colour_method(options.get("color")) == "fast" and len(plan) > 1
                 and method != "vote"):  # vote casts z itself; exact colour needs no rays
             # Colour wants the crossings along z as well; those rays run
             # through every slab, so they are cast once, for the whole grid,
@@ -443,11 +445,11 @@ def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, c
             nx, ny, _ = grid.shape
             thick = plan_left[0][1] - plan_left[0][0]
             buffers["out"] = np.empty((nx, ny, thick), dtype=bool, order="F")
-            if options.get("color") and options.get("color") != "exact" and f.name != "raw":
+            if colour_method(options.get("color")) == "fast" and f.name != "raw":
                 buffers["colour_out"] = np.empty((thick, ny, nx, 4), dtype=np.uint8)
         # RAW colours go into their file chunk by chunk as they are made (from
         # the colour step's threads): no slab of colours is held or copied.
-        to_file = (f.name == "raw" and options.get("color") and options.get("color") != "exact"
+        to_file = (f.name == "raw" and colour_method(options.get("color")) == "fast"
                    and len(plan_left) > 1)
         for n, (z0, z1) in enumerate(plan_left):
             slab_arrays = {"out": buffers["out"][:, :, :z1 - z0]} if buffers else {}

@@ -70,7 +70,7 @@ def centres_of(vol, idx):
 def test_textured_tetrahedron_faces_get_their_quadrant(tmp_path, backend):
     obj, v, faces = write_tetrahedron(tmp_path)
     write_quadrant_texture(tmp_path / "quad.png")
-    vol = geovox.voxelize(obj, resolution=24, color=True, backend=backend)
+    vol = geovox.voxelize(obj, resolution=24, color="fast", backend=backend)
     idx = np.argwhere(vol.occupancy)
     face, gap = nearest_face(centres_of(vol, idx), v, faces)
     quad_colour = np.array(list(QUADRANTS.values()))
@@ -85,7 +85,7 @@ def test_textured_tetrahedron_faces_get_their_quadrant(tmp_path, backend):
 
 
 def test_outside_voxels_have_alpha_zero(backend):
-    vol = geovox.voxelize(SPOT, resolution=20, color=True, backend=backend)
+    vol = geovox.voxelize(SPOT, resolution=20, color="fast", backend=backend)
     assert vol.colors.shape == (20, 20, 20, 4) and vol.colors.dtype == np.uint8
     np.testing.assert_array_equal(vol.colors[..., 3], np.where(vol.occupancy, 255, 0))
     assert np.all(vol.colors[~vol.occupancy] == 0)
@@ -125,7 +125,7 @@ def write_two_material_cube(folder):
 
 def test_two_material_cube(tmp_path, backend):
     obj = write_two_material_cube(tmp_path)
-    vol = geovox.voxelize(obj, resolution=10, color=True, backend=backend)
+    vol = geovox.voxelize(obj, resolution=10, color="fast", backend=backend)
     assert vol.inside_count == 1000
     c = vol.colors
     # The top layer is nearest the red face; the middle of the bottom layer
@@ -133,7 +133,7 @@ def test_two_material_cube(tmp_path, backend):
     assert np.all(c[2:8, 2:8, 9, :3] == (255, 0, 0))
     assert np.all(c[:, :, 0, :3] == (0, 0, 255))
     assert np.all(c[0, 3:7, 3:6, :3] == (0, 0, 255))
-    amb = geovox.voxelize(obj, resolution=10, color=True, ambient=True, backend=backend)
+    amb = geovox.voxelize(obj, resolution=10, color="fast", ambient=True, backend=backend)
     assert np.all(amb.colors[2:8, 2:8, 9, :3] == (255, 128, 0))
 
 
@@ -213,7 +213,7 @@ def _reference_colours(mesh, points, image):
 
 
 def test_spot_matches_brute_force_nearest_point():
-    vol = geovox.voxelize(SPOT, resolution=24, color=True, backend="numpy")
+    vol = geovox.voxelize(SPOT, resolution=24, color="fast", backend="numpy")
     mesh = geovox.load_mesh(SPOT)
     image = np.asarray(Image.open(os.path.join(os.path.dirname(SPOT), "spot_texture.png")).convert("RGB"))
     idx = np.argwhere(vol.occupancy)
@@ -233,8 +233,8 @@ def test_spot_matches_brute_force_nearest_point():
 @pytest.mark.parametrize("rel", ["spot/spot.obj", "fuze/fuze.obj", "trimesh_edge_cases/box.obj"])
 def test_backends_give_the_same_colours(rel):
     path = corpus(rel)
-    a = geovox.voxelize(path, resolution=40, color=True, backend="numpy")
-    b = geovox.voxelize(path, resolution=40, color=True, backend="embree")
+    a = geovox.voxelize(path, resolution=40, color="fast", backend="numpy")
+    b = geovox.voxelize(path, resolution=40, color="fast", backend="embree")
     same = a.occupancy == b.occupancy
     assert same.all()
     diff = np.abs(a.colors.astype(int) - b.colors.astype(int))
@@ -261,8 +261,8 @@ def test_colour_layout_is_rgba_interleaved_x_fastest():
 
 @pytest.mark.parametrize("jobs", [2, 3])
 def test_result_does_not_depend_on_jobs(jobs, backend):
-    one = geovox.voxelize(SPOT, resolution=48, color=True, jobs=1, backend=backend)
-    many = geovox.voxelize(SPOT, resolution=48, color=True, jobs=jobs, backend=backend)
+    one = geovox.voxelize(SPOT, resolution=48, color="fast", jobs=1, backend=backend)
+    many = geovox.voxelize(SPOT, resolution=48, color="fast", jobs=jobs, backend=backend)
     np.testing.assert_array_equal(one.occupancy, many.occupancy)
     np.testing.assert_array_equal(one.colors, many.colors)
 
@@ -326,7 +326,7 @@ def test_colour_does_not_depend_on_chunks_or_tasks(monkeypatch, model, backend):
 
     mesh = {"spot": lambda: SPOT, "open_box": lambda: _coloured_boxes(open_bottom=True),
             "gap": lambda: _coloured_boxes(gap=True)}[model]()
-    opts = dict(shape=(23, 19, 31), color=True, backend=backend)
+    opts = dict(shape=(23, 19, 31), color="fast", backend=backend)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", GeovoxWarning)  # the open box says it is open
         whole = geovox.voxelize(mesh, jobs=1, **opts)  # one chunk, one task
@@ -345,7 +345,7 @@ def test_streamed_raw_colours_written_chunk_by_chunk(tmp_path, monkeypatch):
     from geovox import colour
 
     monkeypatch.setattr(colour, "CHUNK_VOXELS", 16 * 16 * 5)
-    opts = dict(shape=(16, 16, 150), color=True)
+    opts = dict(shape=(16, 16, 150), color="fast")
     ref = geovox.voxelize(SPOT, axis=1, **opts)  # several slabs cast along y
     info = geovox.convert_to(SPOT, tmp_path / "s.raw", budget=16 * 16 * 64 * 30, jobs=2, **opts)
     assert info["slabs"] == 3
@@ -369,6 +369,6 @@ def test_disk_full_while_writing_colours_chunk_by_chunk(tmp_path, monkeypatch):
 
     monkeypatch.setattr(RawWriter, "write_colours", full)
     with pytest.raises(OutputError, match="disk full"):
-        geovox.convert_to(SPOT, tmp_path / "s.raw", shape=(16, 16, 150), color=True,
+        geovox.convert_to(SPOT, tmp_path / "s.raw", shape=(16, 16, 150), color="fast",
                           budget=16 * 16 * 64 * 30, jobs=2)
     assert calls and os.listdir(tmp_path) == []

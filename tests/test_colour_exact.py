@@ -195,7 +195,7 @@ def test_corpus_textured_tetrahedron():
                              exact_ties=True)
 
 
-def _nearest_triangles(mesh, res):
+def _nearest_triangles(mesh, res, kernel=None):
     """Nearest triangle of every inside voxel, from nearest_inside, and the reference."""
     vol = geovox.voxelize(mesh, resolution=res)
     got = np.full(vol.shape, -1)
@@ -206,7 +206,8 @@ def _nearest_triangles(mesh, res):
         got[tuple(vox.T)] = t
         uv[tuple(vox.T)] = b
 
-    nearest_inside(mesh.triangles, vol.occupancy, vol.grid.spacing, origin=vol.grid.lo, emit=emit)
+    nearest_inside(mesh.triangles, vol.occupancy, vol.grid.spacing, origin=vol.grid.lo, emit=emit,
+                   kernel=kernel)
     idx = np.argwhere(vol.occupancy)
     assert np.all(got[vol.occupancy] >= 0) and np.all(got[~vol.occupancy] == -1)
     ref = reference_nearest(mesh.triangles, _centres(vol, idx), float(min(vol.spacing)))
@@ -326,7 +327,8 @@ def test_random_hulls_pick_the_reference_triangle(seed, res):
     hull = trimesh.convex.convex_hull(rng.normal(size=(int(rng.integers(5, 40)), 3))
                                       * rng.uniform(0.2, 3.0, size=3))
     mesh = Mesh(np.asarray(hull.vertices, float), np.asarray(hull.faces, np.int64), source="hull")
-    got, uv, (tri, bary, dist, tie) = _nearest_triangles(mesh, res)
+    # The NumPy search (tests/test_nearest_kernel.py checks the compiled one).
+    got, uv, (tri, bary, dist, tie) = _nearest_triangles(mesh, res, kernel="numpy")
     assert np.all((got == tri) | tie)
 
 
@@ -363,4 +365,5 @@ def test_small_chunks_never_split_a_voxels_candidates(monkeypatch):
     # chunks of 64 pairs, splitting them coloured voxels from a partial list).
     import geovox.nearest as nearest
     monkeypatch.setattr(nearest, "CHUNK", 64)
+    monkeypatch.setenv("GEOVOX_KERNEL", "numpy")  # chunks are the NumPy search's
     _check_against_reference(SPOT, 16)

@@ -1,0 +1,868 @@
+# cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True
+# cython: initializedcheck=False, nonecheck=False
+"""Compiled exact nearest triangle (and colour) of every inside voxel.
+
+The same search as :mod:`geovox.nearest` -- a branch and bound over an
+octree of voxel cells, a triangle leaving a cell's list only when a surface
+point provably dominates it over the whole cell -- written as a depth-first
+recursion per top cell, with OpenMP threads over the top cells. Every
+distance is :func:`geovox.nearest.closest`'s float64 formula operation for
+operation (built with ``-ffp-contract=off``, no fast-math), and the tie rule
+is :func:`geovox.nearest.pick`'s, so the answer is the brute-force one bit
+for bit. :meth:`Kernel.run` optionally shades each voxel too, with
+:func:`geovox.colour.shade`'s arithmetic (see ``shade_one``).
+
+Per cell (see ``solve``): the top cells' lists come from triangle boxes
+within reach (``top_list``); a cell measures its candidates at its centre,
+drops those a plane bound or a Lipschitz bound already rules out, measures
+the rest at its 8 corners and drops those dominated by one of nine surface
+points (the nearest to the centre and to each corner). Cells of 4 voxels a
+side then finish their voxels with bounds interpolated from the corner
+distances (``leaf4``), so a voxel measures about two triangles exactly.
+
+Why a recursion: the NumPy search holds (cell, triangle) pairs level by
+level in arrays; here each top cell's lists live in per-thread buffers (a
+child's list is a subset of its parent's), so nothing grows with the grid.
+
+Bounds only ever drop a triangle that is farther than the nearest by more
+than the margin (1e-6 voxel sizes, far above float64 rounding here) at
+every point of a cell, so every triangle within the tie distance of a
+voxel's nearest is measured exactly, with the reference formula.
+"""
+
+from cython.parallel cimport prange, parallel, threadid
+from libc.stdlib cimport malloc, calloc, free
+from libc.math cimport sqrt, fmod, isfinite, INFINITY
+from libc.stdint cimport int32_t, int64_t, uint8_t, uint32_t
+
+
+cdef struct Ctx:
+    const double *T        # (t, 21) rows of prepare()["crow"], one triangle a row
+    const uint8_t *flat    # (t,) zero-area triangles: no face region
+    const uint8_t *occ     # (nx, ny, nz) F-order inside flags
+    int64_t nx, ny, nz, z0
+    double h0, h1, h2
+    double m               # MARGIN in length units
+    double tieh            # TIE in length units
+    # Output: RGBA colours, or the raw triangle and barycentrics.
+    uint32_t *rgba         # (nx*ny*nz,) F-order, or NULL
+    int32_t *tri_out       # (nx*ny*nz,) or NULL
+    double *uv_out         # (nx*ny*nz, 2) or NULL
+    # Shading (see shade_one).
+    const int32_t *fmat    # (t,) material row of each face
+    const double *vc       # (t, 3, 3) corner colours, or NULL
+    const double *cuv      # (t, 3, 2) corner UVs, or NULL
+    const double *factor   # (k, 3)
+    const double *add      # (k, 3)
+    const int32_t *mint    # (k, 7): textured, tint, h, w, wrap u, wrap v (0 repeat,
+                           # 1 mirror, 2 clamp, 3 border), unused
+    const int64_t *moff    # (k,) offset of each texture in tex
+    const uint8_t *tex     # all textures, (h, w, 3) each
+    # The top cells' first lists (see top_list).
+    const double *tlo      # (t, 3) triangle boxes
+    const double *thi
+    const double *clo      # (g, 3) cluster boxes
+    const double *chi
+    const int64_t *members # (t,) triangles by cluster
+    const int64_t *cstart  # (g + 1,)
+    int64_t ncl
+    const double *rep      # (r, 3) surface points
+    int64_t nrep
+    int64_t leaf_max       # leaf4 takes lists up to this long (LEAF_MAX)
+
+
+cdef inline double closest(const double *R, uint8_t flat, double x0, double x1, double x2,
+                           double *u, double *v) noexcept nogil:
+    """geovox.nearest.closest for one point and triangle, the same operations in order."""
+    cdef double ap0 = x0 - R[0]
+    cdef double ap1 = x1 - R[1]
+    cdef double ap2 = x2 - R[2]
+    cdef double s = ap0 * R[9] + ap1 * R[10] + ap2 * R[11]
+    cdef double r = ap0 * R[12] + ap1 * R[13] + ap2 * R[14]
+    cdef double hh, w, d0, d1, d2, best, dd, st0, st1, st2, e0, e1, e2
+    if s >= 0 and r >= 0 and s + r <= 1 and not flat:
+        hh = ap0 * R[15] + ap1 * R[16] + ap2 * R[17]
+        u[0] = s
+        v[0] = r
+        return hh * hh
+    # Edge ab.
+    w = (ap0 * R[3] + ap1 * R[4] + ap2 * R[5]) * R[18]
+    w = clip01(w)
+    d0 = ap0 - w * R[3]
+    d1 = ap1 - w * R[4]
+    d2 = ap2 - w * R[5]
+    best = d0 * d0 + d1 * d1 + d2 * d2
+    u[0] = w
+    v[0] = 0.0
+    # Edge ac.
+    w = (ap0 * R[6] + ap1 * R[7] + ap2 * R[8]) * R[19]
+    w = clip01(w)
+    d0 = ap0 - w * R[6]
+    d1 = ap1 - w * R[7]
+    d2 = ap2 - w * R[8]
+    dd = d0 * d0 + d1 * d1 + d2 * d2
+    if dd < best:
+        best = dd
+        u[0] = 0.0
+        v[0] = w
+    # Edge bc, as b + w (ac - ab).
+    st0 = ap0 - R[3]
+    st1 = ap1 - R[4]
+    st2 = ap2 - R[5]
+    e0 = R[6] - R[3]
+    e1 = R[7] - R[4]
+    e2 = R[8] - R[5]
+    w = (st0 * e0 + st1 * e1 + st2 * e2) * R[20]
+    w = clip01(w)
+    d0 = st0 - w * e0
+    d1 = st1 - w * e1
+    d2 = st2 - w * e2
+    dd = d0 * d0 + d1 * d1 + d2 * d2
+    if dd < best:
+        best = dd
+        u[0] = 1.0 - w
+        v[0] = w
+    return best
+
+
+cdef inline double clip01(double w) noexcept nogil:
+    # np.clip(w, 0, 1): NaN stays NaN.
+    if w < 0.0:
+        return 0.0
+    if w > 1.0:
+        return 1.0
+    return w
+
+
+cdef inline double pymod(double a, double b) noexcept nogil:
+    """np.mod for floats and b > 0: the result has the sign of b."""
+    cdef double r
+    if 0.0 <= a < b:  # fmod's own answer, without the libm call
+        return a
+    r = fmod(a, b)
+    if r != 0.0:
+        if r < 0.0:
+            r += b
+    else:
+        r = 0.0
+    return r
+
+
+cdef inline int64_t imod(int64_t a, int64_t b) noexcept nogil:
+    """a mod b in [0, b), as np.mod; the texel indices here are nearly always
+    within one period, where no (slow) integer division is needed."""
+    cdef int64_t r
+    if 0 <= a < b:
+        return a
+    if -b <= a < 0:
+        return a + b
+    if b <= a < 2 * b:
+        return a - b
+    r = a % b
+    if r < 0:
+        r += b
+    return r
+
+
+cdef inline void texel_axis(double t, int64_t n, int mode, int64_t *i0, int64_t *i1,
+                            double *f) noexcept nogil:
+    """geovox.colour._texel_axis for one coordinate (mode 0 repeat, 1 mirror, 2 clamp,
+    3 border, sampled as clamp)."""
+    cdef double x, x0
+    cdef int64_t a, b
+    if mode == 3:
+        mode = 2
+    if mode == 2:
+        t = clip01(t)
+    elif mode == 1:
+        t = pymod(t, 2.0)
+    else:
+        t = pymod(t, 1.0)
+    x = t * <double>n - 0.5
+    # floor(x) without a libm call (x86-64's baseline has no rounding
+    # instruction); x is within a few texture sizes of 0 here.
+    x0 = <double>(<int64_t>x)
+    if x0 > x:
+        x0 -= 1.0
+    f[0] = x - x0
+    a = <int64_t>x0
+    b = a + 1
+    if mode == 2:
+        a = 0 if a < 0 else (n - 1 if a > n - 1 else a)
+        b = 0 if b < 0 else (n - 1 if b > n - 1 else b)
+    elif mode == 1:
+        a = imod(a, 2 * n)
+        b = imod(b, 2 * n)
+        if a >= n:
+            a = 2 * n - 1 - a
+        if b >= n:
+            b = 2 * n - 1 - b
+    else:
+        a = imod(a, n)
+        b = imod(b, n)
+    i0[0] = a
+    i1[0] = b
+
+
+cdef inline uint32_t shade_one(const Ctx *c, int64_t t, double u, double v) noexcept nogil:
+    """geovox.colour.shade and _pack for one surface point, the same operations in order."""
+    cdef double w0 = 1.0 - u - v
+    cdef double base[3]
+    cdef double out[3]
+    cdef double tu, tv, fx, fy, top, bottom
+    cdef int64_t x0, x1, y0, y1, r0, r1, h, wd
+    cdef int ch
+    cdef int32_t mi = c.fmat[t]
+    cdef const double *q
+    cdef const uint8_t *img
+    cdef const int32_t *mt = c.mint + 7 * mi
+    cdef uint32_t rgba = 0
+    if c.vc != NULL:
+        q = c.vc + 9 * t
+        for ch in range(3):
+            base[ch] = w0 * q[ch] + u * q[3 + ch] + v * q[6 + ch]
+    else:
+        base[0] = 1.0
+        base[1] = 1.0
+        base[2] = 1.0
+    if mt[0]:
+        q = c.cuv + 6 * t
+        tu = w0 * q[0] + u * q[2] + v * q[4]
+        tv = w0 * q[1] + u * q[3] + v * q[5]
+        # geovox.colour.on_texture: finite, and within [0, 1] (a margin of
+        # 1e-9) along a "border" axis; elsewhere the face is as if untextured.
+        if isfinite(tu) and isfinite(tv) and (
+                mt[4] != 3 or (tu >= -1e-9 and tu <= 1.0 + 1e-9)) and (
+                mt[5] != 3 or (tv >= -1e-9 and tv <= 1.0 + 1e-9)):
+            h = mt[2]
+            wd = mt[3]
+            img = c.tex + c.moff[mi]
+            texel_axis(tu, wd, mt[4], &x0, &x1, &fx)
+            # Rows run down the image: row coordinate 1 - v.
+            texel_axis(1.0 - tv, h, mt[5], &y0, &y1, &fy)
+            r0 = y0 * wd
+            r1 = y1 * wd
+            for ch in range(3):
+                top = img[3 * (r0 + x0) + ch] * (1 - fx) + img[3 * (r0 + x1) + ch] * fx
+                bottom = img[3 * (r1 + x0) + ch] * (1 - fx) + img[3 * (r1 + x1) + ch] * fx
+                top = (top * (1 - fy) + bottom * fy) / 255.0
+                base[ch] = top * base[ch] if mt[1] else top
+    for ch in range(3):
+        out[ch] = clip01(base[ch] * c.factor[3 * mi + ch] + c.add[3 * mi + ch])
+        # rint for 0 <= x <= 255 without a libm call: adding and taking
+        # away 2**52 rounds to the nearest integer, ties to even, as rint.
+        rgba |= (<uint32_t>((out[ch] * 255.0 + 4503599627370496.0) - 4503599627370496.0)
+                 ) << (8 * ch)
+    return rgba | (<uint32_t>255 << 24)
+
+
+cdef inline void emit(const Ctx *c, int64_t i, int64_t j, int64_t k, int64_t t, double u,
+                      double v) noexcept nogil:
+    cdef int64_t idx = i + c.nx * (j + c.ny * k)
+    if c.rgba != NULL:
+        c.rgba[idx] = shade_one(c, t, u, v)
+    else:
+        c.tri_out[idx] = <int32_t>t
+        c.uv_out[2 * idx] = u
+        c.uv_out[2 * idx + 1] = v
+
+
+cdef inline bint any_inside(const Ctx *c, int64_t i0, int64_t i1, int64_t j0, int64_t j1,
+                            int64_t k0, int64_t k1) noexcept nogil:
+    cdef int64_t i, j, k, row
+    for k in range(k0, k1):
+        for j in range(j0, j1):
+            row = c.nx * (j + c.ny * k)
+            for i in range(i0, i1):
+                if c.occ[row + i]:
+                    return True
+    return False
+
+
+cdef void leaf(const Ctx *c, int64_t i0, int64_t i1, int64_t j0, int64_t j1, int64_t k0,
+               int64_t k1, const int32_t *cand, int64_t n, double *dbuf) noexcept nogil:
+    """Every inside voxel of the box: its candidates measured exactly, then the tie rule."""
+    cdef int64_t i, j, k, q, t, row, win
+    cdef double x0, x1, x2, u, v, d, low, far
+    for k in range(k0, k1):
+        x2 = (<double>(k + c.z0) + 0.5) * c.h2
+        for j in range(j0, j1):
+            x1 = (<double>j + 0.5) * c.h1
+            row = c.nx * (j + c.ny * k)
+            for i in range(i0, i1):
+                if not c.occ[row + i]:
+                    continue
+                x0 = (<double>i + 0.5) * c.h0
+
+                if n == 1:
+                    t = cand[0]
+                    closest(c.T + 21 * t, c.flat[t], x0, x1, x2, &u, &v)
+                    emit(c, i, j, k, t, u, v)
+                    continue
+                low = INFINITY
+                for q in range(n):
+                    t = cand[q]
+                    d = closest(c.T + 21 * t, c.flat[t], x0, x1, x2,
+                                &dbuf[3 * q + 1], &dbuf[3 * q + 2])
+                    dbuf[3 * q] = d
+                    if d < low:
+                        low = d
+                # pick(): of those within TIE of the smallest distance, the
+                # smallest index. Distances are compared as pick() does, after
+                # sqrt; the squares only skip those clearly beyond the tie.
+                low = sqrt(low) + c.tieh
+                far = low * low * (1.0 + 1e-9) + c.tieh * c.tieh
+                win = -1
+                for q in range(n):
+                    if dbuf[3 * q] <= far and sqrt(dbuf[3 * q]) <= low and (
+                            win < 0 or cand[q] < cand[win]):
+                        win = q
+                emit(c, i, j, k, cand[win], dbuf[3 * win + 1], dbuf[3 * win + 2])
+
+
+#: Cells of 4 voxels a side with at most this many candidates are finished
+#: by leaf4 (bounds interpolated from the corners); bigger lists go down to
+#: cells of 2 (a fixed per-thread buffer of 68 doubles a candidate).
+cdef enum:
+    LEAF_MAX = 256
+
+
+cdef void leaf4(const Ctx *c, int64_t i0, int64_t i1, int64_t j0, int64_t j1, int64_t k0,
+                int64_t k1, const int32_t *cand, int64_t n, const double *D,
+                double *wbuf) noexcept nogil:
+    """A cell of up to 4 voxels a side whose candidates' squared distances at the 8
+    corner voxels ``D`` (n, 8) are known: each voxel measures only the candidates
+    that bounds interpolated from the corners cannot rule out.
+
+    ``d(x, T)**2`` is convex, so at most its multilinear interpolation from
+    the box's corners ``I(x)``; ``d(x, T)**2 - |x|**2`` is concave, so at
+    least ``I(x) - q(x)`` with ``q(x) = sum over axes of (x - lo) (hi - x)``
+    (the same interpolation of ``|x|**2``, less ``|x|**2``). The nearest
+    distance is at most ``U = min over T of I_T(x)``; a triangle within the
+    margin of it has ``I_T(x) - q(x) <= U + 2 m sqrt(U) + m**2``, so only
+    those are measured exactly (q <= 6 voxels^2 here, 0 at the corners).
+    """
+    cdef int64_t lx = i1 - i0, ly = j1 - j0, lz = k1 - k0
+    cdef int64_t i, j, k, q, t, row, vi, cnt, win, qb
+    cdef double *I = wbuf               # (n, 64) interpolated bounds
+    cdef double *E = wbuf + 64 * n      # (n, 4) exact distance, u, v, candidate
+    cdef double wx, wy, wz, a, b, U, lim, qx, x0, x1, x2, d, low, far, u, v
+    cdef double fx = 1.0 / (lx - 1) if lx > 1 else 0.0
+    cdef double fy = 1.0 / (ly - 1) if ly > 1 else 0.0
+    cdef double fz = 1.0 / (lz - 1) if lz > 1 else 0.0
+    cdef const double *Dq
+    for q in range(n):
+        Dq = D + 8 * q
+        for k in range(lz):
+            wz = k * fz
+            for j in range(ly):
+                wy = j * fy
+                a = ((Dq[0] * (1 - wy) + Dq[2] * wy) * (1 - wz)
+                     + (Dq[4] * (1 - wy) + Dq[6] * wy) * wz)
+                b = ((Dq[1] * (1 - wy) + Dq[3] * wy) * (1 - wz)
+                     + (Dq[5] * (1 - wy) + Dq[7] * wy) * wz)
+                for i in range(lx):
+                    wx = i * fx
+                    I[64 * q + 16 * k + 4 * j + i] = a * (1 - wx) + b * wx
+    for k in range(k0, k1):
+        x2 = (<double>(k + c.z0) + 0.5) * c.h2
+        for j in range(j0, j1):
+            x1 = (<double>j + 0.5) * c.h1
+            row = c.nx * (j + c.ny * k)
+            for i in range(i0, i1):
+                if not c.occ[row + i]:
+                    continue
+                x0 = (<double>i + 0.5) * c.h0
+                vi = 16 * (k - k0) + 4 * (j - j0) + (i - i0)
+                U = INFINITY
+                qb = 0
+                for q in range(n):
+                    if I[64 * q + vi] < U:
+                        U = I[64 * q + vi]
+                        qb = q
+                # The candidate that looks nearest, measured first: its
+                # distance is a tighter U (at most its I, by convexity).
+                t = cand[qb]
+                d = closest(c.T + 21 * t, c.flat[t], x0, x1, x2, &u, &v)
+                E[0] = d
+                E[1] = u
+                E[2] = v
+                E[3] = <double>t
+                cnt = 1
+                low = d
+                if d < U:
+                    U = d
+                qx = (c.h0 * c.h0 * ((i - i0) * (i1 - 1 - i))
+                      + c.h1 * c.h1 * ((j - j0) * (j1 - 1 - j))
+                      + c.h2 * c.h2 * ((k - k0) * (k1 - 1 - k)))
+                # Rounding of I (about 1e-16 of it) is far inside the margin.
+                lim = U + qx + 2.0 * c.m * sqrt(U) + c.m * c.m
+                for q in range(n):
+                    if q == qb or I[64 * q + vi] > lim:  # NaN keeps the candidate
+                        continue
+                    t = cand[q]
+                    d = closest(c.T + 21 * t, c.flat[t], x0, x1, x2, &u, &v)
+                    E[4 * cnt] = d
+                    E[4 * cnt + 1] = u
+                    E[4 * cnt + 2] = v
+                    E[4 * cnt + 3] = <double>t
+                    cnt += 1
+                    if d < low:
+                        low = d
+                # pick(), as in leaf().
+                low = sqrt(low) + c.tieh
+                far = low * low * (1.0 + 1e-9) + c.tieh * c.tieh
+                win = -1
+                for q in range(cnt):
+                    if E[4 * q] <= far and sqrt(E[4 * q]) <= low and (
+                            win < 0 or E[4 * q + 3] < E[4 * win + 3]):
+                        win = q
+                if win < 0:
+                    win = 0
+                emit(c, i, j, k, <int64_t>E[4 * win + 3], E[4 * win + 1], E[4 * win + 2])
+
+
+cdef void solve(const Ctx *c, int level, int64_t ci, int64_t cj, int64_t ck,
+                const int32_t *cand, int64_t n, int32_t *buf, double *dbuf,
+                double *wbuf) noexcept nogil:
+    """The cell of ``2**level`` voxels at (ci, cj, ck): prune its list, then its children.
+
+    A triangle ``T`` is dropped when some surface point ``p`` dominates it
+    over the cell's box: ``d(x, T)**2 - |x - p|**2`` is concave in ``x``, so
+    if it exceeds ``2 m r + m**2`` (``r`` the largest ``|corner - p|``) at
+    the 8 corners it does everywhere in the box, and then ``d(x, T) > d(x,
+    surface) + m`` there (see geovox.nearest). Nine points are tried: the
+    nearest surface point to the centre and to each corner (among the
+    candidates); a point near one corner drops what lies beyond that corner.
+    """
+    cdef int64_t s = (<int64_t>1) << level
+    cdef int64_t i0 = ci * s, j0 = cj * s, k0 = ck * s
+    cdef int64_t i1 = min(i0 + s, c.nx), j1 = min(j0 + s, c.ny), k1 = min(k0 + s, c.nz)
+    cdef double lo0, lo1, lo2, hi0, hi1, hi2, m0, m1, m2, d2, u, v, lim, rh
+    cdef double x0, x1, x2, e0, e1, e2, r2max, dc, th0
+    cdef double X[8][3]            # the corners
+    cdef double P[9][3]            # the dominating points: centre's, then each corner's
+    cdef double best[9]
+    cdef double pu[9]
+    cdef double pv[9]
+    cdef int64_t bt[9]
+    cdef double r2[9][8]           # |corner - point|^2
+    cdef double thresh[9]
+    cdef const double *R
+    cdef const double *D
+    cdef int64_t q, t, nn, ns, a, b, g
+    cdef int k, j
+    cdef bint drop
+    if n == 0:
+        return
+    if level <= 1 or n == 1:
+        leaf(c, i0, i1, j0, j1, k0, k1, cand, n, dbuf)
+        return
+    # The box of the cell's voxel centres (clipped to the block).
+    lo0 = (<double>i0 + 0.5) * c.h0
+    hi0 = (<double>(i1 - 1) + 0.5) * c.h0
+    lo1 = (<double>j0 + 0.5) * c.h1
+    hi1 = (<double>(j1 - 1) + 0.5) * c.h1
+    lo2 = (<double>(k0 + c.z0) + 0.5) * c.h2
+    hi2 = (<double>(k1 - 1 + c.z0) + 0.5) * c.h2
+    m0 = 0.5 * (lo0 + hi0)
+    m1 = 0.5 * (lo1 + hi1)
+    m2 = 0.5 * (lo2 + hi2)
+    for k in range(8):
+        X[k][0] = hi0 if k & 1 else lo0
+        X[k][1] = hi1 if k & 2 else lo1
+        X[k][2] = hi2 if k & 4 else lo2
+    for j in range(9):
+        best[j] = INFINITY
+        bt[j] = -1
+        pu[j] = pv[j] = 0.0
+    # The surface point nearest the centre among the candidates.
+    for q in range(n):
+        t = cand[q]
+        d2 = closest(c.T + 21 * t, c.flat[t], m0, m1, m2, &u, &v)
+        dbuf[9 * q] = d2
+        dbuf[9 * q + 1] = u
+        dbuf[9 * q + 2] = v
+        if d2 < best[0] or bt[0] < 0:
+            best[0] = d2
+            bt[0] = t
+            pu[0] = u
+            pv[0] = v
+    surface_point(c, bt[0], pu[0], pv[0], P[0])
+    r2max = corner_r2(X, P[0], r2[0])
+    # Every corner is rh from the centre, so d(corner, T) >= d(centre, T) - rh:
+    # where that alone beats every corner's |corner - p|, no corner is measured.
+    e0 = 0.5 * (hi0 - lo0)
+    e1 = 0.5 * (hi1 - lo1)
+    e2 = 0.5 * (hi2 - lo2)
+    rh = sqrt(e0 * e0 + e1 * e1 + e2 * e2)
+    lim = r2max + 2.0 * c.m * sqrt(r2max) + c.m * c.m
+    th0 = 2.0 * c.m * sqrt(r2max) + c.m * c.m
+    # The others: squared distances at the 8 corners (8 per survivor, in dbuf).
+    ns = 0
+    for q in range(n):
+        t = cand[q]
+        dc = sqrt(dbuf[9 * q])
+        d2 = dc - rh
+        if d2 > 0 and d2 * d2 > lim:
+            continue
+        R = c.T + 21 * t
+        if dc > 0:
+            # T lies behind the plane through its closest point to the
+            # centre, facing the centre (T is convex): the distance to that
+            # plane bounds d(corner, T) from below; if it alone lets the
+            # centre's point dominate T at every corner, T is dropped unmeasured.
+            u = dbuf[9 * q + 1]
+            v = dbuf[9 * q + 2]
+            e0 = (m0 - (R[0] + u * R[3] + v * R[6])) / dc
+            e1 = (m1 - (R[1] + u * R[4] + v * R[7])) / dc
+            e2 = (m2 - (R[2] + u * R[5] + v * R[8])) / dc
+            drop = True
+            for k in range(8):
+                d2 = dc + (X[k][0] - m0) * e0 + (X[k][1] - m1) * e1 + (X[k][2] - m2) * e2
+                d2 = d2 * d2 if d2 > 0 else 0.0
+                if not (d2 - r2[0][k] > th0):
+                    drop = False
+                    break
+            if drop:
+                continue
+        buf[ns] = <int32_t>t
+        for k in range(8):
+            d2 = closest(R, c.flat[t], X[k][0], X[k][1], X[k][2], &u, &v)
+            dbuf[8 * ns + k] = d2
+            if d2 < best[1 + k] or bt[1 + k] < 0:
+                best[1 + k] = d2
+                bt[1 + k] = t
+                pu[1 + k] = u
+                pv[1 + k] = v
+        ns += 1
+    for j in range(9):
+        if j:
+            surface_point(c, bt[j], pu[j], pv[j], P[j])
+            r2max = corner_r2(X, P[j], r2[j])
+        else:
+            r2max = 0.0
+            for k in range(8):
+                if r2[0][k] > r2max:
+                    r2max = r2[0][k]
+        thresh[j] = 2.0 * c.m * sqrt(r2max) + c.m * c.m
+    nn = 0
+    for q in range(ns):
+        D = dbuf + 8 * q
+        drop = False
+        for j in range(9):
+            drop = True
+            for k in range(8):
+                if not (D[k] - r2[j][k] > thresh[j]):  # NaN keeps the triangle
+                    drop = False
+                    break
+            if drop:
+                break
+        if not drop:
+            buf[nn] = buf[q]
+            for k in range(8):
+                dbuf[8 * nn + k] = D[k]
+            nn += 1
+    if level == 2 and nn <= c.leaf_max and nn > 1:
+        leaf4(c, i0, i1, j0, j1, k0, k1, buf, nn, dbuf, wbuf)
+        return
+    for g in range(8):
+        a = 2 * ci + (g & 1)
+        b = 2 * cj + ((g >> 1) & 1)
+        q = 2 * ck + ((g >> 2) & 1)
+        s = (<int64_t>1) << (level - 1)
+        if a * s >= c.nx or b * s >= c.ny or q * s >= c.nz:
+            continue
+        if not any_inside(c, a * s, min(a * s + s, c.nx), b * s, min(b * s + s, c.ny),
+                          q * s, min(q * s + s, c.nz)):
+            continue
+        solve(c, level - 1, a, b, q, buf, nn, buf + nn, dbuf, wbuf)
+
+
+cdef inline void surface_point(const Ctx *c, int64_t t, double u, double v,
+                               double *p) noexcept nogil:
+    cdef const double *R = c.T + 21 * t
+    p[0] = R[0] + u * R[3] + v * R[6]
+    p[1] = R[1] + u * R[4] + v * R[7]
+    p[2] = R[2] + u * R[5] + v * R[8]
+
+
+cdef inline double corner_r2(double X[8][3], const double *p, double *r2) noexcept nogil:
+    """``r2[k] = |X[k] - p|**2``; returns the largest."""
+    cdef double e0, e1, e2, top = 0.0
+    cdef int k
+    for k in range(8):
+        e0 = X[k][0] - p[0]
+        e1 = X[k][1] - p[1]
+        e2 = X[k][2] - p[2]
+        r2[k] = e0 * e0 + e1 * e1 + e2 * e2
+        if r2[k] > top:
+            top = r2[k]
+    return top
+
+
+cdef class Kernel:
+    """One block's search: triangle rows, inside flags, frame, and where answers go."""
+
+    cdef Ctx c
+    cdef object keep  # the arrays the pointers point into
+
+    def __init__(self, const double[:, ::1] rows, const uint8_t[::1] flat,
+                 const uint8_t[::1] occ, shape, int64_t z0, spacing, double margin,
+                 double tie):
+        self.keep = [rows, flat, occ]
+        self.c.T = &rows[0, 0]
+        self.c.flat = &flat[0]
+        self.c.occ = &occ[0]
+        self.c.nx, self.c.ny, self.c.nz = shape
+        self.c.z0 = z0
+        self.c.h0, self.c.h1, self.c.h2 = spacing
+        self.c.m = margin
+        self.c.tieh = tie
+        self.c.rgba = NULL
+        self.c.tri_out = NULL
+        self.c.uv_out = NULL
+        self.c.vc = NULL
+        self.c.cuv = NULL
+        self.c.ncl = 0
+        self.c.nrep = 0
+        self.c.leaf_max = LEAF_MAX
+        if rows.shape[1] != 21 or flat.shape[0] != rows.shape[0]:
+            raise ValueError("rows must be (t, 21) and flat (t,)")
+        if occ.shape[0] != self.c.nx * self.c.ny * self.c.nz:
+            raise ValueError("occupancy size does not match the shape")
+
+    def raw_output(self, int32_t[::1] tri, double[:, ::1] uv):
+        """Write each inside voxel's triangle and barycentrics (F-order voxel index)."""
+        if tri.shape[0] != self.c.nx * self.c.ny * self.c.nz or uv.shape[0] != tri.shape[0]:
+            raise ValueError("outputs must have one row per voxel")
+        self.keep += [tri, uv]
+        self.c.tri_out = &tri[0]
+        self.c.uv_out = &uv[0, 0]
+        self.c.rgba = NULL
+
+    def colour_output(self, uint32_t[::1] rgba, const int32_t[::1] fmat, vc, cuv,
+                      const double[:, ::1] factor, const double[:, ::1] add,
+                      const int32_t[:, ::1] mint, const int64_t[::1] moff,
+                      const uint8_t[::1] tex):
+        """Shade each inside voxel into ``rgba`` (see geovox.colour._shading_tables)."""
+        cdef const double[::1] vcv
+        cdef const double[::1] cuvv
+        if rgba.shape[0] != self.c.nx * self.c.ny * self.c.nz:
+            raise ValueError("rgba must have one entry per voxel")
+        if fmat.shape[0] != self.keep[1].shape[0] or mint.shape[1] != 7:
+            raise ValueError("bad shading tables")
+        self.keep += [rgba, fmat, vc, cuv, factor, add, mint, moff, tex]
+        self.c.rgba = &rgba[0]
+        self.c.fmat = &fmat[0]
+        self.c.factor = &factor[0, 0]
+        self.c.add = &add[0, 0]
+        self.c.mint = &mint[0, 0]
+        self.c.moff = &moff[0]
+        self.c.tex = &tex[0]
+        self.c.vc = NULL
+        self.c.cuv = NULL
+        if vc is not None:
+            vcv = vc
+            if vcv.shape[0] != 9 * fmat.shape[0]:
+                raise ValueError("vertex colours must be (t, 3, 3)")
+            self.c.vc = &vcv[0]
+        if cuv is not None:
+            cuvv = cuv
+            if cuvv.shape[0] != 6 * fmat.shape[0]:
+                raise ValueError("corner UVs must be (t, 3, 2)")
+            self.c.cuv = &cuvv[0]
+
+    def limit_leaf4(self, int64_t n):
+        """Let cells of 4 voxels finish by interpolated bounds only with at most
+        ``n`` candidates (0: never; the others go down to cells of 2). For tests."""
+        self.c.leaf_max = max(0, min(n, LEAF_MAX))
+
+    def clusters(self, const double[:, ::1] tlo, const double[:, ::1] thi,
+                 const double[:, ::1] clo, const double[:, ::1] chi,
+                 const int64_t[::1] members, const int64_t[::1] cstart,
+                 const double[:, ::1] rep):
+        """Triangle boxes ``tlo, thi`` (t, 3); clusters of triangles: boxes (g, 3),
+        ``members[cstart[i]:cstart[i + 1]]``; ``rep`` (r, 3) surface points
+        (see geovox.nearest._Search._clusters)."""
+        cdef int64_t t = self.keep[1].shape[0]
+        if (tlo.shape[0] != t or thi.shape[0] != t or members.shape[0] != t
+                or cstart.shape[0] != clo.shape[0] + 1 or chi.shape[0] != clo.shape[0]
+                or rep.shape[0] == 0 or tlo.shape[1] != 3 or clo.shape[1] != 3
+                or rep.shape[1] != 3):
+            raise ValueError("bad clusters")
+        self.keep += [tlo, thi, clo, chi, members, cstart, rep]
+        self.c.tlo = &tlo[0, 0]
+        self.c.thi = &thi[0, 0]
+        self.c.clo = &clo[0, 0]
+        self.c.chi = &chi[0, 0]
+        self.c.members = &members[0]
+        self.c.cstart = &cstart[0]
+        self.c.ncl = clo.shape[0]
+        self.c.rep = &rep[0, 0]
+        self.c.nrep = rep.shape[0]
+
+    def run(self, const int64_t[:, ::1] cells, int level, int jobs):
+        """Solve the top cells ``cells`` (m, 3) of ``2**level`` voxels.
+
+        Threads take cells one at a time; each voxel's answer depends only on
+        its own cell's lists, so the result does not depend on ``jobs``.
+        """
+        cdef int64_t ncell = cells.shape[0]
+        cdef int64_t i, n, need
+        cdef int nt = max(1, jobs), tid
+        cdef int failed = 0
+        cdef const Ctx *c = &self.c
+        cdef int32_t **bufs
+        cdef double **dbufs
+        cdef double **wbufs
+        cdef int64_t *caps
+        if self.c.rgba == NULL and self.c.tri_out == NULL:
+            raise ValueError("no output set")
+        if self.c.ncl == 0:
+            raise ValueError("no clusters set")
+        if ncell == 0:
+            return
+        # Per thread: a list per level (each a subset of its parent's) and per
+        # candidate distances and barycentrics, grown to the longest top list
+        # the thread meets (not the mesh's size: many threads, big meshes).
+        bufs = <int32_t **> calloc(nt, sizeof(int32_t *))
+        dbufs = <double **> calloc(nt, sizeof(double *))
+        wbufs = <double **> calloc(nt, sizeof(double *))
+        caps = <int64_t *> calloc(nt, sizeof(int64_t))
+        try:
+            if bufs == NULL or dbufs == NULL or wbufs == NULL or caps == NULL:
+                raise MemoryError("the nearest-surface kernel could not allocate its lists")
+            for tid in range(nt):
+                wbufs[tid] = <double *> malloc(sizeof(double) * (64 + 4) * LEAF_MAX)
+                if wbufs[tid] == NULL:
+                    raise MemoryError("the nearest-surface kernel could not allocate its lists")
+            for i in prange(ncell, nogil=True, num_threads=nt, schedule="dynamic", chunksize=1):
+                tid = threadid()
+                n = top_list(c, level, cells[i, 0], cells[i, 1], cells[i, 2], NULL)
+                if n > caps[tid]:
+                    need = n + n // 2 + 16
+                    free(bufs[tid])
+                    free(dbufs[tid])
+                    bufs[tid] = <int32_t *> malloc(sizeof(int32_t) * (need * (level + 2) + 1))
+                    dbufs[tid] = <double *> malloc(sizeof(double) * (9 * need + 9))
+                    caps[tid] = need
+                    if bufs[tid] == NULL or dbufs[tid] == NULL:
+                        caps[tid] = 0
+                if caps[tid] == 0:
+                    failed = 1
+                else:
+                    n = top_list(c, level, cells[i, 0], cells[i, 1], cells[i, 2], bufs[tid])
+                    solve(c, level, cells[i, 0], cells[i, 1], cells[i, 2], bufs[tid], n,
+                          bufs[tid] + n, dbufs[tid], wbufs[tid])
+        finally:
+            for tid in range(nt):
+                if bufs != NULL:
+                    free(bufs[tid])
+                if dbufs != NULL:
+                    free(dbufs[tid])
+                if wbufs != NULL:
+                    free(wbufs[tid])
+            free(bufs)
+            free(dbufs)
+            free(wbufs)
+            free(caps)
+        if failed:
+            raise MemoryError("the nearest-surface kernel could not allocate its lists")
+
+
+cdef int64_t top_list(const Ctx *c, int level, int64_t ci, int64_t cj, int64_t ck,
+                      int32_t *out) noexcept nogil:
+    """The triangles whose boxes are within reach of a top cell; returns how many.
+
+    Reach: the largest distance from the cell's corners to one surface point
+    (the nearest of ``rep`` to the centre) bounds the distance to the
+    surface everywhere in the cell (convexity), so a triangle whose box is
+    farther from the cell's box than that (plus the margin) is never the
+    nearest.
+    """
+    cdef int64_t s = (<int64_t>1) << level
+    cdef int64_t i0 = ci * s, j0 = cj * s, k0 = ck * s
+    cdef int64_t i1 = min(i0 + s, c.nx), j1 = min(j0 + s, c.ny), k1 = min(k0 + s, c.nz)
+    cdef double lo[3]
+    cdef double hi[3]
+    cdef double m[3]
+    cdef double best = INFINITY, d, e, reach2, g, gap
+    cdef int64_t r, bv = 0, q, t, n = 0
+    cdef int a, k
+    lo[0] = (<double>i0 + 0.5) * c.h0
+    hi[0] = (<double>(i1 - 1) + 0.5) * c.h0
+    lo[1] = (<double>j0 + 0.5) * c.h1
+    hi[1] = (<double>(j1 - 1) + 0.5) * c.h1
+    lo[2] = (<double>(k0 + c.z0) + 0.5) * c.h2
+    hi[2] = (<double>(k1 - 1 + c.z0) + 0.5) * c.h2
+    for a in range(3):
+        m[a] = 0.5 * (lo[a] + hi[a])
+    for r in range(c.nrep):
+        d = 0.0
+        for a in range(3):
+            e = m[a] - c.rep[3 * r + a]
+            d = d + e * e
+        if d < best:
+            best = d
+            bv = r
+    reach2 = 0.0
+    for k in range(8):
+        d = 0.0
+        for a in range(3):
+            e = (hi[a] if (k >> a) & 1 else lo[a]) - c.rep[3 * bv + a]
+            d = d + e * e
+        if d > reach2:
+            reach2 = d
+    reach2 = sqrt(reach2) + c.m
+    reach2 = reach2 * reach2
+    for q in range(c.ncl):
+        g = 0.0
+        for a in range(3):
+            gap = c.clo[3 * q + a] - hi[a]
+            e = lo[a] - c.chi[3 * q + a]
+            if e > gap:
+                gap = e
+            if gap > 0:
+                g = g + gap * gap
+        if g > reach2:
+            continue
+        for r in range(c.cstart[q], c.cstart[q + 1]):
+            t = c.members[r]
+            g = 0.0
+            for a in range(3):
+                gap = c.tlo[3 * t + a] - hi[a]
+                e = lo[a] - c.thi[3 * t + a]
+                if e > gap:
+                    gap = e
+                if gap > 0:
+                    g = g + gap * gap
+            if g <= reach2:
+                if out != NULL:  # NULL: count only
+                    out[n] = <int32_t>t
+                n += 1
+    return n
+
+
+def top_cells(const uint8_t[::1] occ, shape, int level, int jobs):
+    """(cx, cy, cz) uint8 flags: the top cells of ``2**level`` voxels holding an inside voxel.
+
+    ``occ`` is the block's (nx, ny, nz) F-order inside flags.
+    """
+    cdef int64_t nx, ny, nz
+    nx, ny, nz = shape
+    cdef int64_t s = (<int64_t>1) << level
+    cdef int64_t cx = (nx + s - 1) // s, cy = (ny + s - 1) // s, cz = (nz + s - 1) // s
+    import numpy as np
+    out = np.zeros((cx, cy, cz), np.uint8)
+    cdef uint8_t[:, :, ::1] o = out
+    cdef int64_t a, i, j, k, row
+    with nogil:
+        for a in prange(cz, num_threads=max(1, jobs), schedule="dynamic"):
+            for k in range(a * s, min(a * s + s, nz)):
+                for j in range(ny):
+                    row = nx * (j + ny * k)
+                    for i in range(nx):
+                        if occ[row + i]:
+                            o[i // s, j // s, a] = 1
+    return out

@@ -1,0 +1,413 @@
+"""The compiled nearest-surface kernel (geovox/_nearest.pyx) against the NumPy reference.
+
+The kernel must give what :func:`geovox.nearest.brute_force` gives -- every
+triangle measured with :func:`geovox.nearest.closest`'s float64 formula, the
+tie rule of :func:`geovox.nearest.pick` -- bit for bit: the same triangle and
+the same barycentrics for every inside voxel, and so the same colours as the
+NumPy search and :func:`geovox.colour.shade`. CI builds the kernel (``pip
+install -e .``, gcc is there): these tests fail, not skip, where a C
+compiler exists and the kernel was not built.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import sysconfig
+import warnings
+
+import numpy as np
+import pytest
+import trimesh
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+import geovox
+from geovox.colour import exact_colours, load_textures, shade
+from geovox.errors import GeovoxWarning, ParameterError
+from geovox.mesh import Mesh
+from geovox.nearest import brute_force, kernel_module, nearest_inside, prepare, run_kernel
+from geovox.surface import Material
+from geovox.stream import convert_to
+import geovox.formats as F
+
+from conftest import SPOT, corpus
+from test_colour import write_quadrant_texture, write_tetrahedron, write_two_material_cube
+
+
+def _have_compiler():
+    return bool(shutil.which(sysconfig.get_config_var("CC").split()[0] if sysconfig.get_config_var(
+        "CC") else "cc")) and os.path.exists(os.path.join(sysconfig.get_paths()["include"],
+                                                          "Python.h"))
+
+
+@pytest.fixture(scope="module")
+def kernel():
+    """The compiled module: a failure where it should have been built, a skip elsewhere."""
+    try:
+        return kernel_module("compiled")
+    except ParameterError:
+        if _have_compiler():
+            pytest.fail("a C compiler and Python's headers are here, but geovox._nearest "
+                        "was not built (pip install -e . builds it)")
+        pytest.skip("no C compiler: the compiled kernel is optional")
+
+
+def test_the_kernel_is_built_where_a_compiler_exists(kernel):
+    assert kernel.__name__ == "geovox._nearest"
+
+
+def test_kernel_choice_is_checked(monkeypatch):
+    with pytest.raises(ParameterError, match="auto, compiled or numpy"):
+        kernel_module("fast")
+    monkeypatch.setenv("GEOVOX_KERNEL", "numpy")
+    assert kernel_module() is None
+    monkeypatch.setenv("GEOVOX_KERNEL", "nonsense")
+    with pytest.raises(ParameterError):
+        kernel_module()
+
+
+def _kernel_answers(triangles, occupancy, spacing, origin, z0=0, jobs=1, kernel="compiled"):
+    """(tri, uv) of every inside voxel (in argwhere order) from nearest_inside."""
+    got = np.full(occupancy.shape, -1, np.int64)
+    uv = np.full(occupancy.shape + (2,), np.nan)
+
+    def emit(vox, t, b):
+        assert np.all(got[tuple(vox.T)] == -1)  # every voxel once
+        got[tuple(vox.T)] = t
+        uv[tuple(vox.T)] = b
+
+    nearest_inside(triangles, occupancy, spacing, origin=origin, z0=z0, jobs=jobs, emit=emit,
+                   kernel=kernel)
+    assert np.all(got[occupancy] >= 0) and np.all(got[~occupancy] == -1)
+    idx = np.argwhere(occupancy)
+    return got[tuple(idx.T)], uv[tuple(idx.T)]
+
+
+def _brute(triangles, occupancy, spacing, origin, z0=0):
+    idx = np.argwhere(occupancy)
+    pts = (idx + [0.5, 0.5, 0.5] + [0, 0, z0]) * spacing
+    return brute_force(pts, prepare(np.asarray(triangles, float), origin), float(min(spacing)))
+
+
+def _check_mesh(mesh, res=None, shape=None, jobs=1):
+    vol = geovox.voxelize(mesh, resolution=res, shape=shape)
+    args = (mesh.triangles, vol.occupancy, vol.grid.spacing, vol.grid.lo)
+    tri, uv = _kernel_answers(*args, jobs=jobs)
+    ref_t, ref_uv = _brute(*args)
+    np.testing.assert_array_equal(tri, ref_t)
+    np.testing.assert_array_equal(uv, ref_uv)  # the same formula: bit for bit
+    return vol
+
+
+@pytest.mark.parametrize("rel,res", [
+    ("spot/spot.obj", 14),
+    ("fuze/fuze.obj", 18),
+    ("suzanne/suzanne.obj", 28),
+    ("cornell_box/cornell_box.obj", 32),
+    ("trimesh_edge_cases/textured_tetrahedron.obj", 32),
+])
+def test_every_inside_voxel_is_the_brute_force_answer(kernel, rel, res):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", GeovoxWarning)  # suzanne is open
+        mesh = geovox.load_mesh(corpus(*rel.split("/")))
+        vol = _check_mesh(mesh, res)
+    assert vol.inside_count > 500
+
+
+def _mesh(m, name):
+    return Mesh(np.asarray(m.vertices, float), np.asarray(m.faces, np.int64), source=name)
+
+
+@pytest.mark.parametrize("name", ["cube", "cube_odd", "sphere", "slab", "sliver", "duplicates",
+                                  "coplanar"])
+def test_adversarial_fixtures(kernel, name):
+    # cube: medial planes through voxel centres (exact ties, smallest index
+    # wins); sphere: the centre equidistant from everything; slab: thin, the
+    # far side 3 voxels away; sliver: a near-zero-area triangle along the
+    # box's edge; duplicates: every face twice (the lower index must win);
+    # coplanar: the top face split into many thin triangles.
+    if name in ("cube", "cube_odd"):
+        mesh, res = _mesh(trimesh.creation.box(extents=(2, 2, 2)), name), (12 if name == "cube"
+                                                                           else 9)
+    elif name == "sphere":
+        mesh, res = _mesh(trimesh.creation.icosphere(subdivisions=2), name), 21
+    elif name == "slab":
+        mesh, res = _mesh(trimesh.creation.box(extents=(4, 4, 0.3)), name), 40
+    else:
+        m = trimesh.creation.box(extents=(2, 2, 2))
+        v, f = np.asarray(m.vertices, float), np.asarray(m.faces, np.int64)
+        if name == "sliver":
+            # A degenerate triangle on an edge of the box (zero area) and a
+            # needle nearly on it.
+            v = np.r_[v, [[1, 1, 0.0], [1, 1, 1e-7 * 2 - 1]]]
+            e = np.flatnonzero((np.abs(v[:, 0] - 1) < 1e-12) & (np.abs(v[:, 1] - 1) < 1e-12))
+            f = np.r_[f, [[e[0], e[1], len(v) - 2], [e[0], len(v) - 1, e[1]]]]
+        elif name == "duplicates":
+            f = np.r_[f, f[::-1]]
+        else:
+            top = np.linspace(-1, 1, 9)
+            v = np.r_[v, np.c_[top, np.full(9, -1.0), np.ones(9)],
+                      np.c_[top, np.full(9, 1.0), np.ones(9)]]
+            fan = [(len(m.vertices) + i, len(m.vertices) + i + 1, len(m.vertices) + 9 + i)
+                   for i in range(8)]
+            f = np.r_[f, np.array(fan)]
+        mesh, res = Mesh(v, f, source=name), 12
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", GeovoxWarning)
+        _check_mesh(mesh, res)
+
+
+@pytest.mark.parametrize("limit", [0, 3])
+def test_cells_of_2_give_the_same_answers(kernel, limit):
+    # Cells of 4 voxels with long lists go down to cells of 2 measured voxel by
+    # voxel (rare on real models): forced here, all or most of the time.
+    mesh = geovox.load_mesh(corpus("fuze", "fuze.obj"))
+    vol = geovox.voxelize(mesh, resolution=20)
+    n = vol.occupancy.size
+    tri = np.full(n, -1, np.int32)
+    uv = np.zeros((n, 2))
+
+    def output(k):
+        k.raw_output(tri, uv)
+        k.limit_leaf4(limit)
+
+    run_kernel(kernel, mesh.triangles, vol.occupancy, vol.grid.spacing, origin=vol.grid.lo,
+               output=output)
+    inside = np.argwhere(vol.occupancy)
+    lin = np.ravel_multi_index(inside.T, vol.shape, order="F")
+    ref_t, ref_uv = _brute(mesh.triangles, vol.occupancy, vol.grid.spacing, vol.grid.lo)
+    np.testing.assert_array_equal(tri[lin], ref_t)
+    np.testing.assert_array_equal(uv[lin], ref_uv)
+
+
+def test_the_centre_of_a_cube_goes_to_triangle_0(kernel):
+    mesh = _mesh(trimesh.creation.box(extents=(2, 2, 2)), "cube")
+    vol = geovox.voxelize(mesh, resolution=9)
+    occ = np.zeros_like(vol.occupancy)
+    occ[4, 4, 4] = True  # equidistant from all 12 triangles
+    tri, _ = _kernel_answers(mesh.triangles, occ, vol.grid.spacing, vol.grid.lo)
+    assert tri.tolist() == [0]
+
+
+@settings(max_examples=20, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), res=st.integers(5, 26), jobs=st.sampled_from([1, 2, 3]))
+def test_random_hulls(kernel, seed, res, jobs):
+    # Convex hulls of random, stretched point sets: slivers, needles, many
+    # unlike triangles, grids from 5 to 26 voxels.
+    rng = np.random.default_rng(seed)
+    hull = trimesh.convex.convex_hull(rng.normal(size=(int(rng.integers(5, 40)), 3))
+                                      * rng.uniform(0.2, 3.0, size=3))
+    _check_mesh(_mesh(hull, "hull"), res, jobs=jobs)
+
+
+def test_a_block_of_a_grid_is_the_whole_grids_answers(kernel):
+    mesh = geovox.load_mesh(SPOT)
+    vol = geovox.voxelize(mesh, shape=(20, 18, 40))
+    occ = vol.occupancy
+    whole = _kernel_answers(mesh.triangles, occ, vol.grid.spacing, vol.grid.lo)
+    tri = np.full(occ.shape, -1)
+    uv = np.zeros(occ.shape + (2,))
+    for z0, z1 in ((0, 7), (7, 25), (25, 40)):
+        block = occ[:, :, z0:z1]
+        t, b = _kernel_answers(mesh.triangles, block, vol.grid.spacing, vol.grid.lo, z0=z0,
+                               jobs=2)
+        idx = np.argwhere(block) + [0, 0, z0]
+        tri[tuple(idx.T)] = t
+        uv[tuple(idx.T)] = b
+    idx = np.argwhere(occ)
+    np.testing.assert_array_equal(tri[tuple(idx.T)], whole[0])
+    np.testing.assert_array_equal(uv[tuple(idx.T)], whole[1])
+
+
+def _coloured_meshes(tmp_path):
+    """Meshes that use every branch of shade(): textures with each wrap mode, vertex
+    colours (replaced by, or tinting, the texture), Ka, undefined and missing materials."""
+    out = {}
+    obj, _, _ = write_tetrahedron(tmp_path)
+    write_quadrant_texture(tmp_path / "quad.png")
+    out["tetrahedron"] = geovox.load_mesh(obj)
+    out["two_material"] = geovox.load_mesh(write_two_material_cube(tmp_path))
+    out["spot"] = geovox.load_mesh(SPOT)
+    out["fuze"] = geovox.load_mesh(corpus("fuze", "fuze.obj"))
+    # An icosphere with UVs far outside [0, 1], a texture, vertex colours and
+    # four materials: repeat, mirror, clamp (tinted by the vertex colours), and
+    # one that no file defines; some faces without a material, some without UVs.
+    s = trimesh.creation.icosphere(subdivisions=2)
+    v, f = np.asarray(s.vertices, float), np.asarray(s.faces, np.int64)
+    rng = np.random.default_rng(5)
+    img = rng.integers(0, 256, size=(7, 5, 3), dtype=np.uint8)
+    mats = [Material(name="rep", kd=np.array([0.9, 0.5, 0.7]), ka=np.array([0.1, 0.0, 0.2]),
+                     image=img, texture_file="x.png"),
+            Material(name="mir", image=img, texture_file="x.png", wrap=("mirror", "repeat")),
+            Material(name="clamp", image=img[::-1].copy(), texture_file="x.png",
+                     wrap=("clamp", "mirror"), vertex_tint=True, ka=np.array([0.3, 0.3, 0.3])),
+            Material(name="nowhere", defined=False)]
+    fm = rng.integers(-1, 4, size=len(f))
+    uv = rng.normal(size=(len(f), 3, 2)) * 3
+    uv[rng.random(len(f)) < 0.1] = np.nan
+    vc = rng.random((len(v), 3))
+    out["sphere_vc"] = Mesh(v, f, source="s", face_material=fm, materials=mats, corner_uv=uv,
+                            vertex_colors=vc)
+    out["sphere"] = Mesh(v, f, source="s2", face_material=fm, materials=mats, corner_uv=uv)
+    out["plain"] = Mesh(v, f, source="s3")
+    return out
+
+
+@pytest.mark.parametrize("opts", [{}, {"diffuse": False, "ambient": True}])
+def test_both_kernels_give_the_same_colours(kernel, tmp_path, opts):
+    for name, mesh in _coloured_meshes(tmp_path).items():
+        load_textures(mesh)
+        vol = geovox.voxelize(mesh, resolution=16)
+        a = exact_colours(mesh, vol.grid, vol.occupancy, kernel="compiled", **opts)
+        b = exact_colours(mesh, vol.grid, vol.occupancy, kernel="numpy", **opts)
+        assert vol.inside_count > 100
+        np.testing.assert_array_equal(a, b, err_msg=name)
+        if len(mesh.faces) > 400:
+            continue  # the corpus models' nearest points are checked above
+        # And both are shade() at the brute-force nearest point.
+        idx = np.argwhere(vol.occupancy)
+        t, uv = _brute(mesh.triangles, vol.occupancy, vol.grid.spacing, vol.grid.lo)
+        ref = np.rint(shade(mesh, t, uv, **opts) * 255)
+        np.testing.assert_array_equal(a[tuple(idx.T)][:, :3], ref, err_msg=name)
+
+
+def test_colours_do_not_depend_on_jobs_or_slabs(kernel, tmp_path):
+    opts = dict(shape=(12, 10, 140), color="exact")
+    ref = geovox.voxelize(SPOT, axis=1, jobs=1, **opts)
+    for jobs in (2, 3):
+        np.testing.assert_array_equal(geovox.voxelize(SPOT, axis=1, jobs=jobs, **opts).colors,
+                                      ref.colors)
+    info = convert_to(SPOT, tmp_path / "s.h5", budget=12 * 10 * 64 * 22, **opts)
+    assert info["slabs"] == 3
+    back = F.read(tmp_path / "s.h5")
+    np.testing.assert_array_equal(back.colors, ref.colors)
+
+
+def test_the_numpy_search_is_used_when_asked(monkeypatch, tmp_path):
+    # GEOVOX_KERNEL=numpy: the fallback (what an install without a compiler
+    # runs) gives the same colours, and is what runs (the compiled run_kernel
+    # is never called).
+    import geovox.nearest as nearest
+
+    ref = geovox.voxelize(SPOT, resolution=16, color="exact")
+    monkeypatch.setenv("GEOVOX_KERNEL", "numpy")
+
+    def refuse(*a, **k):
+        raise AssertionError("the compiled kernel ran")
+
+    monkeypatch.setattr(nearest, "run_kernel", refuse)
+    got = geovox.voxelize(SPOT, resolution=16, color="exact")
+    np.testing.assert_array_equal(got.colors, ref.colors)
+
+
+def test_kernel_checks_its_arrays(kernel):
+    t = prepare(np.zeros((1, 3, 3)), np.zeros(3))
+    occ = np.ones(8, np.uint8)
+    k = kernel.Kernel(np.ascontiguousarray(t["crow"].T), t["flat"].view(np.uint8), occ,
+                      (2, 2, 2), 0, (1.0, 1.0, 1.0), 1e-6, 1e-9)
+    with pytest.raises(ValueError, match="one row per voxel"):
+        k.raw_output(np.zeros(7, np.int32), np.zeros((7, 2)))
+    with pytest.raises(ValueError, match="no output"):
+        k.run(np.zeros((1, 3), np.int64), 3, 1)
+    k.raw_output(np.zeros(8, np.int32), np.zeros((8, 2)))
+    with pytest.raises(ValueError, match="no clusters"):
+        k.run(np.zeros((1, 3), np.int64), 3, 1)
+    with pytest.raises(ValueError, match="bad clusters"):
+        k.clusters(t["lo"], t["hi"], t["lo"], t["hi"], np.zeros(1, np.int64),
+                   np.zeros(1, np.int64), t["lo"])
+    with pytest.raises(ValueError, match="size does not match"):
+        kernel.Kernel(np.ascontiguousarray(t["crow"].T), t["flat"].view(np.uint8), occ,
+                      (2, 2, 3), 0, (1.0, 1.0, 1.0), 1e-6, 1e-9)
+    # run_kernel with nothing inside does nothing.
+    run_kernel(kernel, np.zeros((1, 3, 3)), np.zeros((2, 2, 2), bool), np.ones(3),
+               origin=np.zeros(3), output=lambda k: None)
+
+
+def test_cli_color_is_exact_and_fast_color_is_the_crossings(tmp_path):
+    from geovox.cli import main
+
+    path = corpus("fuze", "fuze.obj")
+    got = {}
+    for flag in ("--color", "--exact-color", "--fast-color", "--fast-colour"):
+        out = tmp_path / f"t{flag}.npz"
+        assert main(["convert", path, "-r", "16", flag, "-q", "-o", str(out)]) == 0
+        got[flag] = np.load(out)["colors"]
+    exact = geovox.voxelize(path, resolution=16, color="exact")
+    fast = geovox.voxelize(path, resolution=16, color="fast")
+    np.testing.assert_array_equal(got["--color"], exact.colors)
+    np.testing.assert_array_equal(got["--exact-color"], exact.colors)
+    np.testing.assert_array_equal(got["--fast-color"], fast.colors)
+    np.testing.assert_array_equal(got["--fast-colour"], fast.colors)
+    np.testing.assert_array_equal(geovox.voxelize(path, resolution=16, color=True).colors,
+                                  exact.colors)
+    assert not np.array_equal(exact.colors, fast.colors)  # deep voxels differ
+    assert main(["convert", path, "--color", "--fast-color", "-o", str(tmp_path / "x.npz")]) == 2
+
+
+def _sphere_with(material, uv_scale, uv_shift):
+    s = trimesh.creation.icosphere(subdivisions=2)
+    v, f = np.asarray(s.vertices, float), np.asarray(s.faces, np.int64)
+    rng = np.random.default_rng(7)
+    uv = rng.random((len(f), 3, 2)) * uv_scale + uv_shift
+    return Mesh(v, f, source="s", face_material=np.zeros(len(f), np.int64),
+                materials=[material], corner_uv=uv)
+
+
+def test_border_wrap_mode(kernel):
+    # MTL `-clamp on` ("border", from main's materials work): sampled as
+    # clamp on the texture, untextured (Kd alone) off it.
+    import geovox.colour as colour
+
+    img = np.random.default_rng(3).integers(0, 256, size=(6, 9, 3), dtype=np.uint8)
+    kd = np.array([0.5, 0.25, 1.0])
+
+    def colours(mesh):
+        vol = geovox.voxelize(mesh, resolution=12)
+        return vol, exact_colours(mesh, vol.grid, vol.occupancy, kernel="compiled")
+
+    # All UVs off the texture: every inside voxel is Kd.
+    off = _sphere_with(Material(kd=kd, image=img, texture_file="x.png", wrap=("border", "border")),
+                       0.5, 1.2)
+    vol, got = colours(off)
+    np.testing.assert_array_equal(got[vol.occupancy][:, :3],
+                                  np.broadcast_to(np.rint(kd * 255), (vol.inside_count, 3)))
+    # All on it: the same as clamp.
+    on = _sphere_with(Material(kd=kd, image=img, texture_file="x.png", wrap=("border", "border")),
+                      0.8, 0.1)
+    clamp = _sphere_with(Material(kd=kd, image=img, texture_file="x.png", wrap=("clamp", "clamp")),
+                         0.8, 0.1)
+    np.testing.assert_array_equal(colours(on)[1], colours(clamp)[1])
+    if hasattr(colour, "on_texture"):  # NumPy's shade knows "border" (main since 2026-11-30)
+        mixed = _sphere_with(Material(kd=kd, image=img, texture_file="x.png",
+                                      wrap=("border", "repeat")), 1.6, -0.3)
+        vol = geovox.voxelize(mixed, resolution=16)
+        np.testing.assert_array_equal(
+            exact_colours(mixed, vol.grid, vol.occupancy, kernel="compiled"),
+            exact_colours(mixed, vol.grid, vol.occupancy, kernel="numpy"))
+
+
+def test_a_material_the_kernel_does_not_know_is_shaded_by_numpy(kernel, monkeypatch):
+    # A wrap mode the tables have no code for: the NumPy search and shade()
+    # colour the voxels instead of a wrong or failed kernel run.
+    import geovox.colour as colour
+
+    mesh = _sphere_with(Material(image=np.zeros((4, 4, 3), np.uint8), texture_file="x.png",
+                                 wrap=("spiral", "repeat")), 1.0, 0.0)
+    assert colour.shading_tables(mesh) is None
+    import geovox.nearest as nearest
+
+    def refuse(*a, **k):
+        raise AssertionError("the compiled kernel ran")
+
+    monkeypatch.setattr(nearest, "run_kernel", refuse)
+    monkeypatch.setattr(colour, "_texel_axis", lambda t, n, mode: colour_axis(t, n))
+    vol = geovox.voxelize(mesh, resolution=10)
+    got = exact_colours(mesh, vol.grid, vol.occupancy)
+    assert np.all(got[vol.occupancy][:, 3] == 255)
+
+
+def colour_axis(t, n):
+    """A stand-in _texel_axis for a made-up wrap mode: texel 0 always."""
+    z = np.zeros(len(t), np.int64)
+    return z, z, np.zeros(len(t))
