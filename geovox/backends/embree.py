@@ -32,6 +32,8 @@ restart step (1e-6 of the mesh size) on the same ray, twice.
 
 from __future__ import annotations
 
+import threading
+
 import numpy as np
 
 from ..exact import Projection
@@ -48,9 +50,11 @@ NEAR_EDGE = 1e-3
 MAX_RESTARTS = 2000
 #: A lattice whose rays can meet at most this share of the mesh's triangles
 #: gets a scene of those alone (see :meth:`EmbreeBackend.setup`).
-SUBSET_SCENE = 0.5
+SUBSET_SCENE = 0.75
 #: Per-lattice set-ups kept with a mesh (one per axis of a colour run).
 KEEP_LATTICES = 3
+
+_SETUP_LOCK = threading.Lock()
 
 
 def _vertex_faces(geometric_faces: np.ndarray):
@@ -219,10 +223,16 @@ def _normals(mesh) -> np.ndarray:
 REACH = 1e-5
 
 
+def _coords(mesh, axis: int):
+    """The triangles' vertex coordinates along ``axis``: three (m,) float64 arrays."""
+    x = np.ascontiguousarray(mesh.vertices[:, axis])
+    f = mesh.faces
+    return x[f[:, 0]], x[f[:, 1]], x[f[:, 2]]
+
+
 def _extent(mesh, axis: int):
     """(lo, hi): each triangle's smallest and largest coordinate along ``axis``, (m,) float64."""
-    t = mesh.triangles
-    x0, x1, x2 = t[:, 0, axis], t[:, 1, axis], t[:, 2, axis]
+    x0, x1, x2 = _coords(mesh, axis)
     return np.minimum(np.minimum(x0, x1), x2), np.maximum(np.maximum(x0, x1), x2)
 
 
@@ -241,13 +251,13 @@ def reach(mesh, columns: Columns):
     for ax, o, d, n in ((columns.u_axis, columns.u0, columns.du, columns.nu),
                         (columns.v_axis, columns.v0, columns.dv, columns.nv)):
         lo, hi = _extent(mesh, ax)
-        # Column i's centre is at o + (i + 0.5) d.
-        with np.errstate(invalid="ignore", over="ignore"):
+        # Column i's centre is at o + (i + 0.5) d. Clipped as floats, so
+        # that a far-away triangle's huge quotient never reaches the cast.
+        with np.errstate(over="ignore"):
             first = np.ceil((lo - pad - o) / d - 0.5)
             last = np.floor((hi + pad - o) / d - 0.5)
-        first = np.clip(np.nan_to_num(first, nan=n, posinf=n, neginf=0), 0, n).astype(np.int64)
-        last = np.clip(np.nan_to_num(last, nan=-1, posinf=n - 1, neginf=-1), -1, n - 1).astype(np.int64)
-        out += [first, last]
+        out.append(np.minimum(np.maximum(first, 0.0), float(n)).astype(np.int64))
+        out.append(np.minimum(np.maximum(last, -1.0), float(n - 1)).astype(np.int64))
     return out[0], out[1], out[2], out[3]
 
 
@@ -263,27 +273,29 @@ def _column_entries(mesh, columns, ranges, ok):
     count = ci * cj
     k = np.repeat(np.arange(len(ok)), count)
     local = np.arange(len(k)) - np.repeat(np.cumsum(count) - count, count)
-    ii = i0[k] + local % ci[k]
-    jj = j0[k] + local // ci[k]
+    cik = ci[k]
+    row = local // cik
+    ii = i0[k] + local - row * cik
+    jj = j0[k] + row
     # Keep the column centres within the triangle grown by the reach: each
     # edge line's signed distance above -pad, in column units (a disc of
     # radius REACH across the rays lies within pad = REACH / min(du, dv)
     # of its centre there, whatever the voxels' shape).
-    t = mesh.triangles
-    u = [(t[ok, v, columns.u_axis] - columns.u0) / columns.du - 0.5 for v in range(3)]
-    w = [(t[ok, v, columns.v_axis] - columns.v0) / columns.dv - 0.5 for v in range(3)]
+    u = [(x[ok] - columns.u0) / columns.du - 0.5 for x in _coords(mesh, columns.u_axis)]
+    w = [(x[ok] - columns.v0) / columns.dv - 0.5 for x in _coords(mesh, columns.v_axis)]
     area = (u[1] - u[0]) * (w[2] - w[0]) - (w[1] - w[0]) * (u[2] - u[0])
-    longest = np.maximum(np.maximum(np.hypot(u[1] - u[0], w[1] - w[0]), np.hypot(u[2] - u[1], w[2] - w[1])),
-                         np.hypot(u[0] - u[2], w[0] - w[2]))
+    edges = []
+    for e in range(3):
+        a, b = (e + 1) % 3, (e + 2) % 3
+        eu, ew = u[b] - u[a], w[b] - w[a]
+        edges.append((a, eu, ew, np.sqrt(eu * eu + ew * ew)))
+    longest = np.maximum(np.maximum(edges[0][3], edges[1][3]), edges[2][3])
     # Slivers across the rays (and points) keep every column of their box:
     # their orientation could be rounding's.
     good = np.abs(area) > 1e-6 * longest * longest + 1e-9
     pad = REACH * mesh.scale / min(columns.du, columns.dv)
     keep = np.ones(len(k), dtype=bool)
-    for e in range(3):
-        a, b = (e + 1) % 3, (e + 2) % 3
-        eu, ew = u[b] - u[a], w[b] - w[a]
-        length = np.hypot(eu, ew)
+    for a, eu, ew, length in edges:
         s = np.where(good, np.sign(area) / np.where(length > 0, length, 1.0), 0.0)
         nu, nw = -ew * s, eu * s  # inner unit normal (zero for slivers: passes)
         off = -(nu * u[a] + nw * w[a])
@@ -410,7 +422,7 @@ def _hiding(mesh, a: np.ndarray, b: np.ndarray, unit: np.ndarray, plane: float, 
     return hide
 
 
-def coplanar_overlaps(mesh, columns: Columns | None = None, ranges=None) -> np.ndarray:
+def coplanar_overlaps(mesh, columns: Columns | None = None) -> np.ndarray:
     """(m,) bool: triangles that a restart past another, coplanar one could hide.
 
     A restart just past a hit skips every triangle the ray meets at (nearly)
@@ -430,9 +442,15 @@ def coplanar_overlaps(mesh, columns: Columns | None = None, ranges=None) -> np.n
     small fraction of them (a mesh of flat 16-triangle patches at 256³: 112 k
     pairs of 84 % of its triangles, against 636 k pairs of all of them).
     Without ``columns``, every pair whose boxes meet is settled: the flags
-    for every lattice at once. ``ranges``: :func:`reach` for ``columns``,
-    if the caller has it.
+    for every lattice at once.
     """
+    return _check(mesh, columns)[0]
+
+
+def _check(mesh, columns: Columns | None):
+    """``(flags, near)``: :func:`coplanar_overlaps`, and (m,) bool marking
+    the triangles some ray of ``columns`` passes within ``REACH`` of (every
+    triangle with an area where ``columns`` is None)."""
     t = mesh.triangles
     m = len(t)
     flags = np.zeros(m, dtype=bool)
@@ -443,13 +461,15 @@ def coplanar_overlaps(mesh, columns: Columns | None = None, ranges=None) -> np.n
     plane = 2 * STEP * mesh.scale
     ok = length > 0
     crowded: list = []
+    near = ok.copy()
     if columns is None:
         ok = np.flatnonzero(ok)
         chunks = box_pair_chunks(t[ok].min(axis=1) - plane, t[ok].max(axis=1) + plane, crowded=crowded)
     else:
-        ranges = reach(mesh, columns) if ranges is None else ranges
+        ranges = reach(mesh, columns)
         i0, i1, j0, j1 = ranges
-        ok = np.flatnonzero(ok & (i0 <= i1) & (j0 <= j1))
+        near &= (i0 <= i1) & (j0 <= j1)
+        ok = np.flatnonzero(near)
         w_lo, w_hi = _extent(mesh, columns.axis)
         w_lo, w_hi = w_lo - plane, w_hi + plane
         cells = ((i1 - i0 + 1) * (j1 - j0 + 1))[ok].sum()
@@ -458,6 +478,8 @@ def coplanar_overlaps(mesh, columns: Columns | None = None, ranges=None) -> np.n
             # ray by ray, keeping only rays that pass within the reach of
             # the triangle itself (most neighbours then share no ray).
             tri, col = _column_entries(mesh, columns, ranges, ok)
+            near[:] = False
+            near[ok[tri]] = True
             chunks = _column_pair_chunks(tri, col, w_lo[ok], w_hi[ok], crowded)
         else:
             # A fine lattice: boxes in column units (along the rays too, so
@@ -473,7 +495,7 @@ def coplanar_overlaps(mesh, columns: Columns | None = None, ranges=None) -> np.n
         flags[b[hide]] = True
     for boxes in crowded:
         flags[ok[boxes]] = True
-    return flags
+    return flags, near
 
 
 class EmbreeBackend(Backend):
@@ -522,29 +544,29 @@ class EmbreeBackend(Backend):
 
         ``flagged`` (m,) bool: :func:`coplanar_overlaps` for this lattice.
         ``faces``: the mesh triangles the intersector holds, in its order --
-        only those this lattice's rays can meet (:func:`reach`) when they are
+        only those some ray of this lattice passes near (see :func:`_check`) when they are
         at most ``SUBSET_SCENE`` of the mesh (a coarse lattice: a smaller
         scene to copy and build), else ``None`` for one scene of the whole
         mesh, shared by every lattice. A triangle left out is one no ray
         comes within ``REACH`` of, so Embree could never report it.
         """
         key = (columns.axis, columns.u0, columns.v0, columns.du, columns.dv, columns.nu, columns.nv)
-        kept = mesh._cache.setdefault("embree_lattices", {})
-        if key not in kept:
-            ranges = reach(mesh, columns)
-            flagged = coplanar_overlaps(mesh, columns, ranges=ranges)
-            i0, i1, j0, j1 = ranges
-            seen = np.flatnonzero((i0 <= i1) & (j0 <= j1))
-            if len(seen) > SUBSET_SCENE * len(mesh.faces):
-                if "embree" not in mesh._cache:
-                    mesh._cache["embree"] = self._scene(mesh)
-                state = (mesh._cache["embree"], None, flagged)
-            else:
-                state = (self._scene(mesh, seen), seen, flagged)
-            while len(kept) >= KEEP_LATTICES:
-                kept.pop(next(iter(kept)))
-            kept[key] = state
-        return kept[key]
+        # One set-up at a time: a colour run casts two axes on threads.
+        with _SETUP_LOCK:
+            kept = mesh._cache.setdefault("embree_lattices", {})
+            if key not in kept:
+                flagged, near = _check(mesh, columns)
+                seen = np.flatnonzero(near)
+                if len(seen) > SUBSET_SCENE * len(mesh.faces):
+                    if "embree" not in mesh._cache:
+                        mesh._cache["embree"] = self._scene(mesh)
+                    state = (mesh._cache["embree"], None, flagged)
+                else:
+                    state = (self._scene(mesh, seen), seen, flagged)
+                while len(kept) >= KEEP_LATTICES:
+                    kept.pop(next(iter(kept)))
+                kept[key] = state
+            return kept[key]
 
     def cast(self, mesh, columns: Columns, jobs: int = 1) -> Hits:
         proj = Projection(mesh.triangles, columns)
