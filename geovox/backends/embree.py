@@ -561,8 +561,10 @@ class EmbreeBackend(Backend):
                     if "embree" not in mesh._cache:
                         mesh._cache["embree"] = self._scene(mesh)
                     state = (mesh._cache["embree"], None, flagged)
-                else:
+                elif len(seen):
                     state = (self._scene(mesh, seen), seen, flagged)
+                else:
+                    state = (None, seen, flagged)
                 while len(kept) >= KEEP_LATTICES:
                     kept.pop(next(iter(kept)))
                 kept[key] = state
@@ -573,6 +575,8 @@ class EmbreeBackend(Backend):
         if len(proj) == 0:
             return Hits.empty()
         intersector, faces, flagged = self.setup(mesh, columns)
+        if faces is not None and len(faces) == 0:
+            return Hits.empty()  # no ray passes near a triangle: nothing to cross
         centre, factor, v0 = self._frame(mesh)
         # Depths along a ray use only ratios of the normal's components,
         # so the unscaled normal (shared with the coplanar check) serves.
