@@ -19,7 +19,11 @@ each ray meets; every decision is settled by the exact shared predicate in
    sharing a vertex (T-junctions) would hide each other from a restart that
    steps past the first: their crossings are found by the exact rasteriser
    instead of by Embree. Pieces of a flat region that meet only at shared
-   vertices and edges are left to step 2.
+   vertices and edges are left to step 2. Only pairs that a ray of the
+   lattice being cast can see are settled, and the scene holds only the
+   triangles its rays pass near when they are few: both are set up once per
+   lattice (:meth:`EmbreeBackend.setup`), so a coarse grid pays for the few
+   triangles it meets, not for the whole mesh.
 4. A ray with an odd number of exact crossings (impossible on a closed mesh
    when no crossing was lost), or one that ran out of restarts, is redone by
    the exact NumPy rasteriser.
@@ -433,14 +437,15 @@ def coplanar_overlaps(mesh, columns: Columns | None = None) -> np.ndarray:
     crossings are found by the exact rasteriser instead.
 
     With ``columns``, only pairs that one of its rays can see are settled:
-    both triangles' boxes (grown by ``REACH`` across the rays, by the plane
-    tolerance along them) must reach the centre of one column, and so the
-    pairing runs on boxes in column units. A ray that meets neither
-    triangle of a pair, or meets them at depths further apart than a
-    restart step, cannot lose either to the other, so this is as exact for
-    that lattice as settling every pair, and on a coarse lattice it settles a
-    small fraction of them (a mesh of flat 16-triangle patches at 256³: 112 k
-    pairs of 84 % of its triangles, against 636 k pairs of all of them).
+    a ray that passes near neither triangle of a pair, or meets them at
+    depths further apart than a restart step, cannot lose either to the
+    other, so this is as exact for that lattice as settling every pair. On a
+    coarse lattice (a few column centres in each triangle's box) the pairs
+    come from (triangle, ray) entries, the rays that pass within ``REACH`` of
+    the triangle itself, sorted by ray and depth: two triangles that share
+    an edge then rarely share a ray, and a mesh of flat 16-triangle patches
+    at 256³ settles 2.4 k pairs instead of 636 k. On a finer lattice, from
+    boxes in column units that must hold one column centre together.
     Without ``columns``, every pair whose boxes meet is settled: the flags
     for every lattice at once.
     """
