@@ -325,7 +325,7 @@ def _column_pair_chunks(tri, col, lo, hi, crowded: list, chunk: int = PAIR_CHUNK
         return
     m = np.int64(len(lo))
     base = float(lo[tri].min())
-    span = 2.0 * (float(hi[tri].max()) - base) + 1.0
+    span = 2.0 * (float(hi[tri].max()) - base) or 1.0  # keys of one column stay apart
     # One float key: column, then depth. Keys round by about 2**-52 of
     # col * span; the margin lets the sweep reach further than that (more
     # pairs, settled exactly afterwards, never fewer).
