@@ -234,12 +234,15 @@ def test_coplanar_overlaps_flags_only_what_a_restart_can_hide():
 
 @needs_two
 @pytest.mark.parametrize("inside", ["parity", "winding"])
-def test_backends_agree_through_t_junctions(inside):
+def test_backends_agree_through_t_junctions(inside, monkeypatch):
     # Column centres on the T-junction diagonal at many resolutions. The
     # mesh is closed only geometrically, so `winding` caps its "holes" with
     # flat fans along the diagonal: without flagging triangles that touch
     # without sharing a vertex, Embree lost crossings there (17 of these 78
-    # grids differed).
+    # grids differed). Each lattice's own pairing, not the tiny meshes' every pair.
+    from geovox.backends import embree as E
+
+    monkeypatch.setattr(E, "FEW", 0)
     mesh = t_junction_box()
     for res in range(1, 40):
         for bounds in [(0, 0, -0.5, 1, 1, 1.5), (-0.01, -0.01, -0.5, 1.01, 1.01, 1.5)]:
@@ -293,6 +296,7 @@ def test_fans_flagged_where_they_overlap(monkeypatch):
         f = [[0, i, i + 1] for i in range(1, nv - 1)]
         f += [list(rng.choice(nv, 3, replace=False)) for _ in range(int(rng.integers(0, 4)))]
         meshes.append(Mesh(v, np.array(f)))
+    monkeypatch.setattr(E, "FEW", 0)  # each lattice's own pairing
     got = [E.coplanar_overlaps(m) for m in meshes]
     assert got[0].all()
     assert sum(g.any() for g in got) > 20
@@ -309,9 +313,13 @@ def test_fans_flagged_where_they_overlap(monkeypatch):
 
 @needs_two
 @pytest.mark.filterwarnings("ignore:.*the volume is empty:geovox.errors.GeovoxWarning")
-def test_backends_agree_where_no_ray_passes_near_a_triangle():
+def test_backends_agree_where_no_ray_passes_near_a_triangle(monkeypatch):
     # The one column centre lies in the triangles' boxes but outside the
-    # tetrahedron's shadow: Embree's scene for this lattice holds nothing.
+    # tetrahedron's shadow: Embree's scene for this lattice holds nothing
+    # (with the lattice's own pairing, not the tiny meshes' every pair).
+    from geovox.backends import embree as E
+
+    monkeypatch.setattr(E, "FEW", 0)
     tet = geovox.Mesh(np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1.0]]),
                       np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]]), source="tet")
     kw = dict(shape=(1, 1, 4), bounds=(0.8, 0.8, -0.5, 1.0, 1.0, 1.5), inside="parity")

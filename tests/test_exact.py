@@ -288,14 +288,15 @@ def _seen_hiding(mesh, columns):
     return flags
 
 
-@pytest.mark.parametrize("pairing", ["by rays", "by boxes"])
+@pytest.mark.parametrize("pairing", ["by rays", "by boxes", "every pair"])
 def test_lattice_flags_hold_every_pair_its_rays_see(pairing, monkeypatch):
     # For one lattice, only pairs that its rays can see are settled: the flags
     # must hold every flagged pair that a ray meets at one depth, and never
-    # more than the flags for every lattice. Both pairings: ray by ray
-    # (coarse lattices) and column boxes (fine ones).
+    # more than the flags for every lattice. Each pairing: ray by ray
+    # (coarse lattices), column boxes (fine ones), every pair (tiny meshes).
     from geovox.backends import embree as E
 
+    monkeypatch.setattr(E, "FEW", 10**9 if pairing == "every pair" else 0)
     if pairing == "by boxes":
         monkeypatch.setattr(E, "COLUMN_ENTRIES", -10**9)
     rng = np.random.default_rng(11)
@@ -311,10 +312,13 @@ def test_lattice_flags_hold_every_pair_its_rays_see(pairing, monkeypatch):
     assert seen > 20
 
 
-def test_t_junctions_flagged_for_a_lattice_through_them():
+def test_t_junctions_flagged_for_a_lattice_through_them(monkeypatch):
+    from geovox.backends import embree as E
     from geovox.backends.embree import coplanar_overlaps
 
     from test_backends import t_junction_box
+
+    monkeypatch.setattr(E, "FEW", 0)  # the lattice's own pairing, not every pair
 
     mesh = t_junction_box()
     grid = make_grid(mesh.bounds, bounds=(0, 0, -0.5, 1, 1, 1.5), shape=(3, 3, 4))

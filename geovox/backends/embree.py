@@ -94,6 +94,11 @@ PAIR_CHUNK = 1 << 19
 COLUMN_ENTRIES = 8
 
 
+#: Meshes of at most this many triangles have every pair settled, for
+#: every lattice at once (see :func:`_check`).
+FEW = 32
+
+
 #: Boxes in one hash cell beyond which the cell's boxes are reported as
 #: crowded instead of paired (see :func:`box_pair_chunks`).
 MAX_RUN = 1024
@@ -467,7 +472,13 @@ def _check(mesh, columns: Columns | None):
     ok = length > 0
     crowded: list = []
     near = ok.copy()
-    if columns is None:
+    if len(t) <= FEW:
+        # A handful of triangles: every pair, for every lattice (more flags
+        # than a lattice needs is always safe), without the per-lattice
+        # bookkeeping that would cost more than the pairs.
+        ok = np.flatnonzero(ok)
+        chunks = iter([np.argwhere(np.triu(np.ones((len(ok), len(ok)), dtype=bool), 1))])
+    elif columns is None:
         ok = np.flatnonzero(ok)
         chunks = box_pair_chunks(t[ok].min(axis=1) - plane, t[ok].max(axis=1) + plane, crowded=crowded)
     else:
