@@ -275,7 +275,8 @@ def _seen_hiding(mesh, columns):
         hair = 1e-9 * mesh.scale * np.linalg.norm(q[1] - q[0])
         ins = np.all([di * np.sign(s) >= -hair for di in d], axis=0) if s != 0 else np.zeros(len(p), bool)
         with np.errstate(divide="ignore", invalid="ignore"):
-            depth = t[x, 0, ax] - (n[x, ua] * (p[:, 0] - t[x, 0, ua]) + n[x, va] * (p[:, 1] - t[x, 0, va])) / n[x, ax]
+            across = n[x, ua] * (p[:, 0] - t[x, 0, ua]) + n[x, va] * (p[:, 1] - t[x, 0, va])
+            depth = t[x, 0, ax] - across / n[x, ax]
         return ins, depth
 
     for x, y in zip(a[hide], b[hide]):

@@ -460,7 +460,8 @@ def coplanar_overlaps(mesh, columns: Columns | None = None) -> np.ndarray:
 def _check(mesh, columns: Columns | None):
     """``(flags, near)``: :func:`coplanar_overlaps`, and (m,) bool marking
     the triangles some ray of ``columns`` passes within ``REACH`` of (every
-    triangle with an area where ``columns`` is None)."""
+    triangle with an area where ``columns`` is None or the mesh has at most
+    ``FEW`` triangles)."""
     t = mesh.triangles
     m = len(t)
     flags = np.zeros(m, dtype=bool)
