@@ -141,32 +141,26 @@ def test_snapping_keeps_far_away_mesh_exact(backend):
     assert vol.inside_count == 4 * 2 * 6
 
 
-# --- The Embree backend's coplanar check: its filters drop no pair the exact
-# tests would flag (the check decides which triangles the exact rasteriser
-# takes over, so a lost pair is a lost crossing).
+# --- The Embree backend's coplanar check: its pairing loses no pair the exact
+# pair test would flag (the check decides which triangles the exact rasteriser
+# takes over, so a lost pair is a lost crossing), for every lattice at once and
+# for the rays of one lattice.
 
-def _tilted_pairs(rng, side, count, size=0.5):
-    """Pairs of triangles in (nearly) one plane, each plane's 4-D point
-    ``(normal, offset / 20 sqrt 3)`` within a hair of the hyperplane
-    ``side . p = 0`` that splits the two orientations, every other pair wound
-    the other way; in a cube of side 20 centred on the origin (whose corners
-    the caller adds, to fix the mesh's centre and size)."""
+def _tilted_pairs(rng, count, size=0.5):
+    """Pairs of triangles in (nearly) one plane: every vertex within a few
+    restart steps of the other's plane, some wound the other way; in a cube of
+    side 20 centred on the origin (whose corners the caller adds, to fix the
+    mesh's centre and size)."""
     from geovox.backends.embree import STEP
 
-    s3, s4 = side[:3], side[3]
-    hat = s3 / np.linalg.norm(s3)
     tris = []
     for k in range(count):
-        offset = rng.uniform(-0.2, 0.2)
-        # side . (n, offset) = 0 up to noise of 1e-5, by n's part along s3.
-        along = (-offset * s4 + rng.normal() * 1e-5) / np.linalg.norm(s3)
-        perp = np.cross(hat, rng.normal(size=3))
-        perp /= np.linalg.norm(perp)
-        n = along * hat + np.sqrt(1 - along**2) * perp
+        n = rng.normal(size=3)
+        n /= np.linalg.norm(n)
         u = np.cross(n, rng.normal(size=3))
         u /= np.linalg.norm(u)
         w = np.cross(n, u)
-        centre = offset * 20 * np.sqrt(3) * n + rng.uniform(-1, 1) * u
+        centre = rng.uniform(-5, 5, 3)
         for j in range(2):
             p = rng.uniform(-size, size, (3, 2))
             tri = centre + p[:, :1] * u + p[:, 1:] * w + rng.uniform(-1, 1, (3, 1)) * 10 * STEP * n
@@ -182,113 +176,238 @@ def _with_corners(t):
     return Mesh(t.reshape(-1, 3), np.arange(len(t) * 3).reshape(-1, 3)), t
 
 
-def test_plane_filter_finds_neighbours_across_the_orientation_split():
-    # Each triangle is entered in the k-d search on one side of PLANE_SIDE;
-    # a neighbour whose point lies on the other side (the same plane wound the
-    # other way, or a normal tilted across the split) is reached through its
-    # mirror. Without the mirrors, some of these pairs are lost.
+def _coplanar_cases(seed=7, count=45):
+    """Small meshes of flat patches, folds, duplicates, T-junctions and
+    reversed copies, tilted and placed anywhere; and soups of nearly coplanar
+    pairs."""
+    from geovox.mesh import Mesh
+
+    rng = np.random.default_rng(seed)
+    cases = []
+    for k in range(count):
+        if k % 3 == 0:
+            cases.append(_with_corners(_tilted_pairs(rng, 15, size=3.0))[0])
+            continue
+        # A flat triangulated grid patch, some faces duplicated, reversed or
+        # folded over, a second patch laid on part of it.
+        nx = int(rng.integers(2, 5))
+        xy = np.stack(np.meshgrid(np.arange(nx + 1), np.arange(nx + 1), indexing="ij"), -1).reshape(-1, 2)
+        v = np.c_[xy + rng.normal(size=xy.shape) * 0.1, np.zeros(len(xy))]
+        q = np.arange(nx * (nx + 1)).reshape(nx, nx + 1)[:, :nx].reshape(-1)
+        f = np.r_[np.c_[q, q + nx + 1, q + 1], np.c_[q + 1, q + nx + 1, q + nx + 2]]
+        extra = f[rng.choice(len(f), int(rng.integers(0, 4)))]
+        f = np.r_[f, extra[:, ::-1] if k % 2 else extra]
+        shifted = v[:, :2] * rng.uniform(0.3, 1.0) + rng.uniform(0, nx / 2, 2)
+        v = np.r_[v, np.c_[shifted, np.zeros(len(v))]]
+        f = np.r_[f, f[: int(rng.integers(0, len(f)))] + len(xy)]
+        if k % 4 == 1:
+            # Lying in a grid plane, so that rays run through its edges and
+            # vertices (the lattices below have centres at half-integers).
+            cases.append(Mesh(np.round(v * 2) / 2 + 0.5, f))
+            continue
+        rot, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+        cases.append(Mesh(v @ rot.T + rng.normal(size=3), f))
+    return cases
+
+
+def _all_pairs(lo, hi, *args, **kwargs):
+    """A stand-in for the box hash: every pair, once."""
+    return iter([np.argwhere(np.triu(np.ones((len(lo),) * 2, bool), 1))])
+
+
+def test_box_hash_loses_no_coplanar_pair(monkeypatch):
+    # For every lattice at once: the box hash keeps every pair the pair test
+    # flags (the same flags as settling every pair).
     from geovox.backends import embree as E
 
-    rng = np.random.default_rng(3)
-    mesh, t = _with_corners(_tilted_pairs(rng, E.PLANE_SIDE, 300))
-    assert np.allclose(mesh.bounds, [[-10] * 3, [10] * 3]) and np.isclose(mesh.scale, 20 * np.sqrt(3))
-    plane = 2 * E.STEP * mesh.scale
-    n = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
+    flagged = 0
+    for mesh in _coplanar_cases():
+        got = E.coplanar_overlaps(mesh)
+        with monkeypatch.context() as m:
+            m.setattr(E, "box_pair_chunks", _all_pairs)
+            want = E.coplanar_overlaps(mesh)
+        np.testing.assert_array_equal(got, want)
+        flagged += want.any()
+    assert flagged > 15
+
+
+def _lattices(mesh, rng, count):
+    """Random lattices over the mesh: any axis, 1-24 columns a side, some
+    with centres on the grid planes' half-integers."""
+    for k in range(count):
+        axis = int(rng.integers(0, 3))
+        if k % 2:
+            lo = np.floor(mesh.bounds[0]) - 1
+            shape = np.ceil(mesh.bounds[1] - lo).astype(int) + 1
+            grid = make_grid(mesh.bounds, bounds=np.r_[lo, lo + shape], shape=tuple(shape))
+        else:
+            grid = make_grid(mesh.bounds, resolution=int(rng.integers(1, 25)))
+        yield grid.columns(axis, start=mesh.bounds[0, axis] - 1)
+
+
+def _seen_hiding(mesh, columns):
+    """(m,) bool, by brute force: triangles of pairs that the pair test flags
+    and that some column centre lies in both (closed, with a hair to spare)
+    at depths within a restart step."""
+    from geovox.backends import embree as E
+
+    t = mesh.triangles
+    n = E._normals(mesh)
     length = np.linalg.norm(n, axis=1)
-    unit = n / length[:, None]
-    pairs = np.arange(len(t) - 1).reshape(-1, 2)
+    unit = n / np.where(length > 0, length, 1)[:, None]
+    ok = np.flatnonzero(length > 0)
+    a, b = np.triu_indices(len(ok), 1)
+    a, b = ok[a], ok[b]
+    hide = E._hiding(mesh, a, b, unit, 2 * E.STEP * mesh.scale, 1e-9 * mesh.scale)
+    flags = np.zeros(len(t), bool)
+    cu, cv = np.meshgrid(columns.centres_u(), columns.centres_v(), indexing="ij")
+    p = np.c_[cu.ravel(), cv.ravel()]
+    ua, va, ax = columns.u_axis, columns.v_axis, columns.axis
 
-    def near(x, y):
-        return all(abs(np.dot(t[x, v] - t[y, 0], unit[y])) <= plane for v in range(3))
+    def inside(x):  # (columns,) bool: centres in triangle x's projection, and its depth there
+        q = t[x][:, [ua, va]]
 
-    pairs = np.array([(a, b) for a, b in pairs if near(a, b) and near(b, a)])
-    assert len(pairs) > 150  # most constructed pairs pass the exact test
-    found = E._plane_neighbours(t, unit, length, mesh, plane)
-    assert found[pairs].all()
-    # Many pairs have their points on opposite sides of the split (so their
-    # entered points are about 2 apart): only the mirrors bring them together.
-    p = np.column_stack([unit, np.einsum("ij,ij->i", unit, t[:, 0]) / mesh.scale])
-    q = p * np.where(p @ E.PLANE_SIDE < 0, -1.0, 1.0)[:, None]
-    assert (np.linalg.norm(q[pairs[:, 0]] - q[pairs[:, 1]], axis=1) > 1).sum() > 50
+        def cross(e, r):
+            return e[0] * r[..., 1] - e[1] * r[..., 0]
 
+        d = [cross(q[(i + 1) % 3] - q[i], p - q[i]) for i in range(3)]
+        s = cross(q[1] - q[0], q[2] - q[0])
+        hair = 1e-9 * mesh.scale * np.linalg.norm(q[1] - q[0])
+        ins = np.all([di * np.sign(s) >= -hair for di in d], axis=0) if s != 0 else np.zeros(len(p), bool)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            across = n[x, ua] * (p[:, 0] - t[x, 0, ua]) + n[x, va] * (p[:, 1] - t[x, 0, va])
+            depth = t[x, 0, ax] - across / n[x, ax]
+        return ins, depth
 
-def _flags_without_filters(mesh, monkeypatch):
-    """coplanar_overlaps with every pair of triangles settled by the exact
-    tests: no plane filter, no box hash, no clean vertex."""
-    from geovox.backends import embree as E
-
-    with monkeypatch.context() as m:
-        m.setattr(E, "_plane_neighbours", lambda t, *a: np.ones(len(t), bool))
-        m.setattr(E, "_clean_vertices", lambda t, unit, g: np.zeros(int(g.max()) + 1, bool))
-        m.setattr(E, "box_pair_chunks",
-                  lambda lo, hi, *a, **k: iter([np.argwhere(np.triu(np.ones((len(lo),) * 2, bool), 1))]))
-        mesh._cache.pop("coplanar", None)
-        flags = E.coplanar_overlaps(mesh)
-        mesh._cache.pop("coplanar", None)
+    for x, y in zip(a[hide], b[hide]):
+        ix, dx = inside(x)
+        iy, dy = inside(y)
+        with np.errstate(invalid="ignore"):  # triangles along the rays: no depth, never inside
+            close = np.abs(dx - dy) <= E.STEP * mesh.scale
+        if np.any(ix & iy & close):
+            flags[x] = flags[y] = True
     return flags
 
 
-def test_coplanar_filters_lose_no_pair(monkeypatch):
-    # Small meshes of flat patches, folds, duplicates, T-junctions and
-    # reversed copies, some with planes at the orientation split: the filters
-    # (plane search, box hash kept once per pair, clean vertices) must give
-    # exactly the flags of settling every pair.
-    from geovox.backends import embree as E
-    from geovox.mesh import Mesh
-
-    rng = np.random.default_rng(7)
-    cases = []
-    for k in range(60):
-        if k % 3 == 0:
-            mesh = _with_corners(_tilted_pairs(rng, E.PLANE_SIDE, 20, size=3.0))[0]
-        else:
-            # A flat triangulated grid patch, some faces duplicated, reversed
-            # or folded over, a second patch laid on part of it.
-            nx = int(rng.integers(2, 5))
-            xy = np.stack(np.meshgrid(np.arange(nx + 1), np.arange(nx + 1), indexing="ij"), -1).reshape(-1, 2)
-            v = np.c_[xy + rng.normal(size=xy.shape) * 0.1, np.zeros(len(xy))]
-            q = np.arange(nx * (nx + 1)).reshape(nx, nx + 1)[:, :nx].reshape(-1)
-            f = np.r_[np.c_[q, q + nx + 1, q + 1], np.c_[q + 1, q + nx + 1, q + nx + 2]]
-            extra = f[rng.choice(len(f), int(rng.integers(0, 4)))]
-            f = np.r_[f, extra[:, ::-1] if k % 2 else extra]
-            shifted = v[:, :2] * rng.uniform(0.3, 1.0) + rng.uniform(0, nx / 2, 2)
-            v = np.r_[v, np.c_[shifted, np.zeros(len(v))]]
-            f = np.r_[f, f[: int(rng.integers(0, len(f)))] + len(xy)]
-            # Tilt and place the whole thing anywhere.
-            rot, _ = np.linalg.qr(rng.normal(size=(3, 3)))
-            mesh = Mesh(v @ rot.T + rng.normal(size=3), f)
-        cases.append(mesh)
-    flagged = 0
-    for mesh in cases:
-        got = E.coplanar_overlaps(mesh)
-        want = _flags_without_filters(mesh, monkeypatch)
-        np.testing.assert_array_equal(got, want)
-        flagged += want.any()
-    assert flagged > 20
-
-
-def test_plane_filter_passes_flat_patch_meshes_whole(monkeypatch):
-    # A subdivided box (every face has coplanar siblings) passes whole, by a
-    # sample, without a search per face; the flags are those of the full
-    # search. A smooth sphere is filtered face by face.
+@pytest.mark.parametrize("pairing", ["by rays", "by boxes", "every pair"])
+def test_lattice_flags_hold_every_pair_its_rays_see(pairing, monkeypatch):
+    # For one lattice, only pairs that its rays can see are settled: the flags
+    # must hold every flagged pair that a ray meets at one depth, and never
+    # more than the flags for every lattice. Each pairing: ray by ray
+    # (coarse lattices), column boxes (fine ones), every pair (tiny meshes).
     from geovox.backends import embree as E
 
-    box = trimesh.creation.box((1, 1, 1))
-    for _ in range(5):
-        box = box.subdivide()
-    faces = np.concatenate([box.faces, box.faces[:40], box.faces[100:120, ::-1]])
-    mesh = geovox.Mesh(np.asarray(box.vertices), faces)
-    sphere = from_tm(trimesh.creation.icosphere(subdivisions=4), "sphere")
-    assert len(mesh.faces) > 4096 and len(sphere.faces) > 4096
-    for m, whole in ((mesh, True), (sphere, False)):
-        t = m.triangles
-        n = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
-        length = np.linalg.norm(n, axis=1)
-        found = E._plane_neighbours(t, n / length[:, None], length, m, 2 * E.STEP * m.scale)
-        assert found.all() if whole else found.mean() < 0.01
-    monkeypatch.setattr(E, "MAX_RUN", 10**9)  # no cell flagged wholesale: exact flags
-    got = E.coplanar_overlaps(mesh)
-    mesh._cache.pop("coplanar")
-    monkeypatch.setattr(E, "PASS_ALL", 2.0)  # never pass whole
-    np.testing.assert_array_equal(E.coplanar_overlaps(mesh), got)
-    assert got.sum() == 120  # the duplicated faces and their originals
+    monkeypatch.setattr(E, "FEW", 10**9 if pairing == "every pair" else 0)
+    if pairing == "by boxes":
+        monkeypatch.setattr(E, "COLUMN_ENTRIES", -10**9)
+    rng = np.random.default_rng(11)
+    seen = 0
+    for mesh in _coplanar_cases(seed=5, count=24):
+        every = E.coplanar_overlaps(mesh)
+        for columns in _lattices(mesh, rng, 4):
+            got = E.coplanar_overlaps(mesh, columns)
+            want = _seen_hiding(mesh, columns)
+            assert not (want & ~got).any()
+            assert not (got & ~every).any()
+            seen += want.any()
+    assert seen > 20
+
+
+def test_t_junctions_flagged_for_a_lattice_through_them(monkeypatch):
+    from geovox.backends import embree as E
+    from geovox.backends.embree import coplanar_overlaps
+
+    from test_backends import t_junction_box
+
+    monkeypatch.setattr(E, "FEW", 0)  # the lattice's own pairing, not every pair
+
+    mesh = t_junction_box()
+    grid = make_grid(mesh.bounds, bounds=(0, 0, -0.5, 1, 1, 1.5), shape=(3, 3, 4))
+    flags = coplanar_overlaps(mesh, grid.columns(2, start=-1.0))
+    assert set(np.flatnonzero(flags)) == {0, 2, 4, 6}
+
+
+@pytest.mark.parametrize("res,axis", [(7, 2), (40, 0), (130, 1)])
+def test_column_entries_hold_every_crossing(res, axis):
+    # The entries a coarse lattice is paired from, and the triangles a subset
+    # scene holds, include every (ray, triangle) crossing the exact
+    # rasteriser finds; and the reach holds every column range it scans.
+    from geovox.backends import embree as E
+    from geovox.backends.numpy import rasterise
+
+    from conftest import SPOT
+
+    mesh = geovox.load_mesh(SPOT)
+    grid = make_grid(mesh.bounds, resolution=res)
+    columns = grid.columns(axis, start=mesh.bounds[0, axis] - 1)
+    proj = Projection(mesh.triangles, columns)
+    i0, i1, j0, j1 = E.reach(mesh, columns)
+    assert np.all((i0[proj.tri] <= proj.imin) & (proj.imax <= i1[proj.tri]))
+    assert np.all((j0[proj.tri] <= proj.jmin) & (proj.jmax <= j1[proj.tri]))
+    hits = rasterise(proj)
+    ok = np.flatnonzero((i0 <= i1) & (j0 <= j1))
+    tri, col = E._column_entries(mesh, columns, (i0, i1, j0, j1), ok)
+    entries = set(zip(ok[tri].tolist(), col.tolist()))
+    assert len(hits) > 50
+    assert set(zip(hits.triangle.tolist(), hits.ray.tolist())) <= entries
+    assert len(entries) < 3 * ((i1 - i0 + 1) * (j1 - j0 + 1))[ok].sum()  # most box columns go
+    near = E._check(mesh, columns)[1]
+    assert near[hits.triangle].all()
+
+
+def test_column_pairs_match_brute_force():
+    from geovox.backends import embree as E
+
+    rng = np.random.default_rng(2)
+    n = 300
+    lo = rng.uniform(0, 10, n)
+    hi = lo + rng.exponential(0.3, n)
+    hi[:5] = lo[:5]  # some points
+    tri = rng.integers(0, n, 2000)
+    col = rng.integers(0, 40, 2000)
+    key = np.unique(tri * 40 + col)  # a triangle is entered once per column
+    tri, col = key // 40, key % 40
+    got = set()
+    for chunk in (7, 1 << 19):
+        pairs = np.concatenate(list(E._column_pair_chunks(tri, col, lo, hi, [], chunk=chunk)))
+        assert np.all(pairs[:, 0] < pairs[:, 1])
+        got.add(frozenset(map(tuple, pairs.tolist())))
+    assert len(got) == 1
+    cols = {}
+    for t_, c in zip(tri.tolist(), col.tolist()):
+        cols.setdefault(c, []).append(t_)
+    want = {(min(a, b), max(a, b)) for members in cols.values() for a in members for b in members
+            if a != b and lo[a] <= hi[b] and lo[b] <= hi[a]}
+    assert set(got.pop()) == want
+
+
+def test_crowded_columns_are_flagged_not_paired(monkeypatch):
+    from geovox.backends import embree as E
+
+    monkeypatch.setattr(E, "MAX_RUN", 5)
+    crowded = []
+    tri = np.arange(8)
+    pairs = list(E._column_pair_chunks(tri, np.zeros(8, np.int64), np.zeros(8), np.ones(8), crowded))
+    # The first entries have 7, 6 partners: not paired; the last ones are.
+    assert {tuple(p) for c in pairs for p in c} <= {(a, b) for a in range(2, 8) for b in range(a + 1, 8)}
+    np.testing.assert_array_equal(np.concatenate(crowded), np.arange(8))
+
+
+@pytest.mark.skipif("embree" not in geovox.available_backends(), reason="needs embreex")
+def test_coarse_lattice_scene_holds_only_the_triangles_near_its_rays():
+    # A coarse lattice gets a scene of the triangles some ray passes near
+    # (fewer to copy into Embree and to build), a fine one the whole mesh's,
+    # shared; both give the NumPy backend's volume.
+    from conftest import SPOT
+
+    embree = get_backend("embree")
+    mesh = geovox.load_mesh(SPOT)
+    for res, whole in ((9, False), (200, True)):
+        grid = make_grid(mesh.bounds, resolution=res)
+        _, faces, _ = embree.setup(mesh, grid.columns(2, start=mesh.bounds[0, 2] - 1))
+        assert (faces is None) == whole
+        if not whole:
+            assert 0 < len(faces) < len(mesh.faces) / 2
+        a = geovox.voxelize(mesh, resolution=res, backend="numpy")
+        b = geovox.voxelize(mesh, resolution=res, backend="embree")
+        np.testing.assert_array_equal(a.occupancy, b.occupancy)
