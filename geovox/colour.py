@@ -665,6 +665,13 @@ def exact_colours(mesh, grid, occupancy, *, diffuse=True, ambient=False, jobs=1,
     lo, spacing, z0 = frame if frame is not None else (grid.lo, grid.spacing, 0)
     # One uint32 per voxel: RGBA bytes in memory order (index = F-order voxel index).
     flat = base.reshape(-1, 4).view(np.uint32).reshape(-1)
+    key, key_rgba = constant_colours(mesh, diffuse=diffuse, ambient=ambient)
+    if len(key) and len(key_rgba) == 1 and (key >= 0).all():
+        # One colour over the whole surface (an STL, an uncoloured scan, a
+        # single untextured material): every nearest point has it, so no
+        # search is needed (bunny105k at 256³: 3.4 s of search for one grey).
+        np.copyto(flat.reshape((nx, ny, nz), order="F"), key_rgba[0], where=occupancy)
+        return colors
     module = kernel_module(kernel)
     tables = None
     if module is not None:
@@ -675,7 +682,6 @@ def exact_colours(mesh, grid, occupancy, *, diffuse=True, ambient=False, jobs=1,
         run_kernel(module, mesh.triangles, occupancy, spacing, origin=lo, z0=z0, jobs=jobs,
                    output=lambda k: k.colour_output(flat, *tables))
         return colors
-    key, key_rgba = constant_colours(mesh, diffuse=diffuse, ambient=ambient)
 
     def emit(vox, tri, uv):
         k = key[tri]

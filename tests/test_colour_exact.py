@@ -367,3 +367,32 @@ def test_small_chunks_never_split_a_voxels_candidates(monkeypatch):
     monkeypatch.setattr(nearest, "CHUNK", 64)
     monkeypatch.setenv("GEOVOX_KERNEL", "numpy")  # chunks are the NumPy search's
     _check_against_reference(SPOT, 16)
+
+
+@pytest.mark.parametrize("kd", [None, (0.2, 0.4, 0.6)])
+def test_one_colour_over_the_whole_surface_needs_no_search(monkeypatch, kd):
+    # An uncoloured mesh (the default grey) or one untextured material: every
+    # inside voxel takes that colour at once, the same as the search gives.
+    import geovox.colour as C
+    from geovox.surface import Material
+
+    box = trimesh.creation.icosphere(subdivisions=2)
+    mesh = Mesh(vertices=np.asarray(box.vertices), faces=np.asarray(box.faces))
+    if kd is not None:
+        mesh.materials = [Material(name="m", kd=np.array(kd))]
+        mesh.face_material = np.zeros(len(mesh.faces), np.int64)
+    fast = geovox.voxelize(mesh, resolution=24, color="exact")
+    expect = (204, 204, 204) if kd is None else (51, 102, 153)
+    inside = fast.occupancy
+    assert inside.sum() > 1000
+    assert (fast.colors[inside] == expect + (255,)).all() and (fast.colors[~inside] == 0).all()
+    called = []
+
+    def no_shortcut(*a, **k):  # every face "varies": the search runs
+        called.append(1)
+        return np.full(len(mesh.faces), -1, np.int64), np.zeros(0, np.uint32)
+
+    monkeypatch.setattr(C, "constant_colours", no_shortcut)
+    searched = geovox.voxelize(mesh, resolution=24, color="exact")
+    assert called
+    np.testing.assert_array_equal(searched.colors, fast.colors)
