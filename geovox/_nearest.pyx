@@ -69,6 +69,7 @@ cdef struct Ctx:
     const double *rep      # (r, 3) surface points
     int64_t nrep
     int64_t leaf_max       # leaf4 takes lists up to this long (LEAF_MAX)
+    int64_t fail_cell      # tests: the top cell whose lists count as not allocated (-1: none)
 
 
 cdef inline double closest(const double *R, uint8_t flat, double x0, double x1, double x2,
@@ -627,6 +628,7 @@ cdef class Kernel:
         self.c.ncl = 0
         self.c.nrep = 0
         self.c.leaf_max = LEAF_MAX
+        self.c.fail_cell = -1
         if rows.shape[1] != 21 or flat.shape[0] != rows.shape[0]:
             raise ValueError("rows must be (t, 21) and flat (t,)")
         if occ.shape[0] != self.c.nx * self.c.ny * self.c.nz:
@@ -677,6 +679,11 @@ cdef class Kernel:
         """Let cells of 4 voxels finish by interpolated bounds only with at most
         ``n`` candidates (0: never; the others go down to cells of 2). For tests."""
         self.c.leaf_max = max(0, min(n, LEAF_MAX))
+
+    def fail_allocation_at(self, int64_t cell):
+        """Let top cell number ``cell`` (a row of :meth:`run`'s ``cells``) find its
+        lists not allocated, as when malloc fails (-1: none). For tests."""
+        self.c.fail_cell = cell
 
     def clusters(self, const double[:, ::1] tlo, const double[:, ::1] thi,
                  const double[:, ::1] clo, const double[:, ::1] chi,
@@ -749,8 +756,12 @@ cdef class Kernel:
                     caps[tid] = need
                     if bufs[tid] == NULL or dbufs[tid] == NULL:
                         caps[tid] = 0
-                if caps[tid] == 0:
-                    failed = 1
+                if caps[tid] == 0 or i == c.fail_cell:
+                    # A reduction (+=): a plain assignment in a prange is
+                    # lastprivate, so a failure on any thread but the one
+                    # that ran the last cell would be lost, its voxels left
+                    # unanswered without an error.
+                    failed += 1
                 else:
                     n = top_list(c, level, cells[i, 0], cells[i, 1], cells[i, 2], bufs[tid])
                     solve(c, level, cells[i, 0], cells[i, 1], cells[i, 2], bufs[tid], n,

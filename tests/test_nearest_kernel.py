@@ -411,3 +411,23 @@ def colour_axis(t, n):
     """A stand-in _texel_axis for a made-up wrap mode: texel 0 always."""
     z = np.zeros(len(t), np.int64)
     return z, z, np.zeros(len(t))
+
+
+@pytest.mark.parametrize("jobs", [1, 4])
+def test_a_failed_allocation_on_any_thread_is_an_error(kernel, jobs):
+    # A cell whose lists could not be allocated leaves its voxels unanswered:
+    # that must raise, whichever thread met it (a prange's plain assignment to
+    # the flag kept only the value of the thread that ran the last cell).
+    mesh = geovox.load_mesh(corpus("fuze", "fuze.obj"))
+    vol = geovox.voxelize(mesh, resolution=64)
+    n = vol.occupancy.size
+    tri = np.full(n, -1, np.int32)
+    uv = np.zeros((n, 2))
+
+    def output(k):
+        k.raw_output(tri, uv)
+        k.fail_allocation_at(0)  # the first top cell, not the last one
+
+    with pytest.raises(MemoryError, match="could not allocate"):
+        run_kernel(kernel, mesh.triangles, vol.occupancy, vol.grid.spacing,
+                   origin=vol.grid.lo, jobs=jobs, output=output)
