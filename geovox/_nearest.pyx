@@ -318,6 +318,8 @@ cdef void leaf(const Ctx *c, int64_t i0, int64_t i1, int64_t j0, int64_t j1, int
                     if dbuf[3 * q] <= far and sqrt(dbuf[3 * q]) <= low and (
                             win < 0 or cand[q] < cand[win]):
                         win = q
+                if win < 0:  # every distance NaN: never index cand[-1]
+                    win = 0
                 emit(c, i, j, k, cand[win], dbuf[3 * win + 1], dbuf[3 * win + 2])
 
 

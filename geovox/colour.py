@@ -55,7 +55,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .errors import warn
+from .errors import ParameterError, warn
 
 #: Voxels whose nearest axis crossing is closer than this many voxels get the
 #: exact closest point on that crossing's triangle.
@@ -622,8 +622,6 @@ def colour_method(color):
     ParameterError
         Anything else.
     """
-    from .errors import ParameterError
-
     if color is None or isinstance(color, (bool, np.bool_, int)) and not isinstance(color, str):
         return "exact" if color else None
     if color in ("exact", "fast"):
@@ -656,6 +654,12 @@ def exact_colours(mesh, grid, occupancy, *, diffuse=True, ambient=False, jobs=1,
     colors : (nx, ny, nz, 4) uint8
         Indexed ``[x, y, z, channel]``; in memory RGBA-interleaved with x
         fastest (``colors.transpose(2, 1, 0, 3)`` is C-contiguous).
+
+    Raises
+    ------
+    ParameterError
+        Lengths outside ``1 / EXACT_RANGE .. EXACT_RANGE`` (see there), for
+        a mesh of more than one colour.
     """
     from .nearest import kernel_module, nearest_inside, run_kernel
 
@@ -672,6 +676,18 @@ def exact_colours(mesh, grid, occupancy, *, diffuse=True, ambient=False, jobs=1,
         # search is needed (bunny105k at 256³: 3.4 s of search for one grey).
         np.copyto(flat.reshape((nx, ny, nz), order="F"), key_rgba[0], where=occupancy)
         return colors
+    # The search's float64 formulas take fourth powers of lengths (the
+    # triangles' Gram determinants): beyond about 1e77 they overflow, below
+    # about 1e-77 they underflow, and the nearest points come out wrong (from
+    # 1e150, NaN: inside voxels left uncoloured). 1e60 leaves a wide margin.
+    span = max(float(np.abs(mesh.triangles - np.asarray(lo, float)).max(initial=0.0)),
+               float(np.abs(np.asarray(grid.hi, float) - np.asarray(lo, float)).max()))
+    hmin = float(np.min(spacing))
+    if not (span <= EXACT_RANGE and hmin >= 1.0 / EXACT_RANGE):
+        raise ParameterError(
+            f"exact colour needs lengths between {1 / EXACT_RANGE:g} and {EXACT_RANGE:g} "
+            f"(this mesh and grid span {span:.3g} in voxels of {hmin:.3g}); scale the mesh, "
+            f"or use fast colour (--fast-color, color='fast')")
     module = kernel_module(kernel)
     tables = None
     if module is not None:
@@ -697,6 +713,10 @@ def exact_colours(mesh, grid, occupancy, *, diffuse=True, ambient=False, jobs=1,
                    same=key, kernel="numpy")
     return colors
 
+
+#: Exact colour works with lengths (the mesh's extent and the voxel size,
+#: relative to the grid's corner) within 1 / EXACT_RANGE .. EXACT_RANGE.
+EXACT_RANGE = 1e60
 
 #: Texture wrap modes as the compiled kernel numbers them.
 _WRAP_CODE = {"repeat": 0, "mirror": 1, "clamp": 2, "border": 3}

@@ -396,3 +396,46 @@ def test_one_colour_over_the_whole_surface_needs_no_search(monkeypatch, kd):
     searched = geovox.voxelize(mesh, resolution=24, color="exact")
     assert called
     np.testing.assert_array_equal(searched.colors, fast.colors)
+
+
+def _coloured_sphere(scale):
+    m = trimesh.creation.icosphere(2)
+    m.apply_scale(scale)
+    rng = np.random.default_rng(0)
+    return Mesh(m.vertices, m.faces, vertex_colors=rng.random((len(m.vertices), 3)),
+                source="sphere")
+
+
+@pytest.mark.parametrize("kernel", ["numpy", "auto"])
+@pytest.mark.parametrize("scale", [1e100, 1e-100])
+def test_exact_colour_refuses_lengths_its_formulas_cannot_hold(monkeypatch, kernel, scale):
+    # Fourth powers of 1e100 overflow and of 1e-100 underflow: wrong nearest
+    # points (from 1e150 the distances were NaN: the NumPy search left every
+    # inside voxel uncoloured, the compiled one read before its buffers).
+    monkeypatch.setenv("GEOVOX_KERNEL", kernel)
+    with pytest.raises(geovox.errors.ParameterError, match="exact colour needs lengths"):
+        geovox.voxelize(_coloured_sphere(scale), resolution=8, color=True)
+
+
+def test_exact_colour_holds_wide_scales(monkeypatch):
+    ref = geovox.voxelize(_coloured_sphere(1.0), resolution=10, color=True).colors
+    for scale in (1e50, 1e-50):
+        vol = geovox.voxelize(_coloured_sphere(scale), resolution=10, color=True)
+        np.testing.assert_array_equal(vol.colors, ref)
+
+
+def test_cli_exact_colour_of_a_huge_mesh_is_one_line(tmp_path, capsys):
+    from geovox.cli import main
+
+    m = _coloured_sphere(1e100)
+    lines = [f"v {x:.17g} {y:.17g} {z:.17g} {r:.3f} {g:.3f} {b:.3f}"
+             for (x, y, z), (r, g, b) in zip(m.vertices, m.vertex_colors)]
+    lines += [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in m.faces]
+    (tmp_path / "huge.obj").write_text("\n".join(lines) + "\n")
+    out = tmp_path / "huge.npz"
+    assert main(["convert", str(tmp_path / "huge.obj"), "-o", str(out), "--color", "-r", "8",
+                 "-q"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].startswith("geovox: error: exact colour needs lengths")
+    assert "Traceback" not in "\n".join(err)
+    assert not out.exists()
