@@ -62,6 +62,8 @@ grid computes every voxel bit for bit as the whole grid does.
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 
 #: Triangles within this many voxel sizes of the nearest are tied; the one
@@ -772,8 +774,6 @@ def kernel_module(kernel=None):
     ParameterError
         An unknown choice, or ``compiled`` where it was not built.
     """
-    import os
-
     from .errors import ParameterError
 
     choice = kernel if kernel is not None else (os.environ.get(KERNEL_ENV) or "auto")
@@ -790,6 +790,26 @@ def kernel_module(kernel=None):
                                  "(pip install . with a C compiler builds it)") from None
         return None
     return _nearest
+
+
+#: Whether this process has started the compiled kernel's OpenMP threads, and
+#: whether it is a fork of one that had (see :func:`_after_fork`).
+_threads_started = False
+_forked_after_threads = False
+
+
+def _after_fork():
+    # GNU OpenMP is not fork-safe: a child forked after the parent's threads
+    # started hangs forever at its first parallel region (a batch's process
+    # pool, or any multiprocessing "fork" pool, after a colour run in the
+    # same process). Such a child runs the kernel on one thread, which never
+    # enters the inherited thread pool.
+    global _forked_after_threads
+    _forked_after_threads = _forked_after_threads or _threads_started
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_after_fork)
 
 
 def run_kernel(module, triangles, occupancy, spacing, *, origin, z0=0, jobs=1, output):
@@ -825,6 +845,11 @@ def run_kernel(module, triangles, occupancy, spacing, *, origin, z0=0, jobs=1, o
     c3 = np.ascontiguousarray
     kernel.clusters(c3(tris["lo"]), c3(tris["hi"]), c3(clo), c3(chi), c3(members, np.int64),
                     c3(cstart, np.int64), c3(search._rep))
+    global _threads_started
+    if _forked_after_threads:
+        jobs = 1
+    elif jobs > 1:
+        _threads_started = True
     cells = np.argwhere(module.top_cells(occ, shape, levels, jobs)).astype(np.int64)
     kernel.run(np.ascontiguousarray(cells), levels, jobs)
 

@@ -431,3 +431,25 @@ def test_a_failed_allocation_on_any_thread_is_an_error(kernel, jobs):
     with pytest.raises(MemoryError, match="could not allocate"):
         run_kernel(kernel, mesh.triangles, vol.occupancy, vol.grid.spacing,
                    origin=vol.grid.lo, jobs=jobs, output=output)
+
+
+def _colour_in_child():
+    vol = geovox.voxelize(corpus("fuze", "fuze.obj"), resolution=24, color=True, jobs=2)
+    os._exit(0 if (vol.colors[..., 3][vol.occupancy] == 255).all() else 1)
+
+
+def test_a_process_forked_after_the_kernel_ran_on_threads_does_not_hang(kernel):
+    # GNU OpenMP is not fork-safe: a child forked after the parent started
+    # the kernel's threads hung at its first parallel region (a batch's
+    # process pool after a colour run in the same process).
+    import multiprocessing
+
+    geovox.voxelize(corpus("fuze", "fuze.obj"), resolution=24, color=True, jobs=2)
+    child = multiprocessing.get_context("fork").Process(target=_colour_in_child)
+    child.start()
+    child.join(60)
+    if child.is_alive():
+        child.kill()
+        child.join()
+        pytest.fail("the forked child hung in the compiled kernel")
+    assert child.exitcode == 0
