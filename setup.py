@@ -5,6 +5,7 @@ without Cython) the install still succeeds and geovox uses its NumPy search
 (:mod:`geovox.nearest`), which gives the same answers.
 """
 
+import os
 import sys
 
 from setuptools import Extension, setup
@@ -26,7 +27,8 @@ else:
     link = ["-fopenmp"]
 
 ext = []
-if cythonize is not None:
+# A tree without the .pyx (an old source distribution) installs without the kernel.
+if cythonize is not None and os.path.exists("geovox/_nearest.pyx"):
     ext = cythonize(
         [Extension("geovox._nearest", ["geovox/_nearest.pyx"], extra_compile_args=flags,
                    extra_link_args=link)],

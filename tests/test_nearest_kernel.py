@@ -453,3 +453,23 @@ def test_a_process_forked_after_the_kernel_ran_on_threads_does_not_hang(kernel):
         child.join()
         pytest.fail("the forked child hung in the compiled kernel")
     assert child.exitcode == 0
+
+
+def test_the_source_distribution_carries_the_kernel_source(tmp_path):
+    # setup.py cythonizes geovox/_nearest.pyx; setuptools puts only the
+    # generated .c in an sdist by itself, and installing that sdist failed
+    # ("'geovox/_nearest.pyx' doesn't match any files"). MANIFEST.in adds it.
+    import subprocess
+    import sys
+    import tarfile
+
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    if not os.path.exists(os.path.join(root, "setup.py")):
+        pytest.skip("not run from a source tree")
+    subprocess.run([sys.executable, "setup.py", "-q", "sdist", "-d", str(tmp_path)], cwd=root,
+                   check=True, capture_output=True)
+    (archive,) = tmp_path.glob("*.tar.gz")
+    with tarfile.open(archive) as tar:
+        names = tar.getnames()
+    assert any(n.endswith("/geovox/_nearest.pyx") for n in names)
+    assert any(n.endswith("/MANIFEST.in") for n in names)
