@@ -30,6 +30,7 @@ exactly the candidates the whole grid's colour step would use.
 
 from __future__ import annotations
 
+import os
 import threading
 import time
 
@@ -436,6 +437,11 @@ def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, c
             plan_left, streamed = [], True
         else:
             plan_left, streamed = plan, False
+        # RAW colours go into their file chunk by chunk as they are made (from
+        # the colour step's threads): no slab of colours is held or copied.
+        # Not where the OS has no positional write (os.pwrite: Windows).
+        to_file = (f.name == "raw" and colour_method(options.get("color")) == "fast"
+                   and len(plan_left) > 1 and hasattr(os, "pwrite"))
         buffers = {}
         if len(plan_left) > 1 and f.name != "zarr":
             # One occupancy and one colour array, reused by every slab:
@@ -445,12 +451,8 @@ def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, c
             nx, ny, _ = grid.shape
             thick = plan_left[0][1] - plan_left[0][0]
             buffers["out"] = np.empty((nx, ny, thick), dtype=bool, order="F")
-            if colour_method(options.get("color")) == "fast" and f.name != "raw":
+            if colour_method(options.get("color")) == "fast" and not to_file:
                 buffers["colour_out"] = np.empty((thick, ny, nx, 4), dtype=np.uint8)
-        # RAW colours go into their file chunk by chunk as they are made (from
-        # the colour step's threads): no slab of colours is held or copied.
-        to_file = (f.name == "raw" and colour_method(options.get("color")) == "fast"
-                   and len(plan_left) > 1)
         for n, (z0, z1) in enumerate(plan_left):
             slab_arrays = {"out": buffers["out"][:, :, :z1 - z0]} if buffers else {}
             if "colour_out" in buffers:

@@ -372,3 +372,17 @@ def test_disk_full_while_writing_colours_chunk_by_chunk(tmp_path, monkeypatch):
         geovox.convert_to(SPOT, tmp_path / "s.raw", shape=(16, 16, 150), color="fast",
                           budget=16 * 16 * 64 * 30, jobs=2)
     assert calls and os.listdir(tmp_path) == []
+
+
+def test_streamed_raw_colours_without_positional_writes(tmp_path, monkeypatch):
+    """Where os.pwrite does not exist (Windows), slabs' colours are written whole."""
+    import geovox.formats as F
+
+    monkeypatch.delattr(os, "pwrite")
+    opts = dict(shape=(16, 16, 150), color="fast")
+    ref = geovox.voxelize(SPOT, axis=1, **opts)
+    info = geovox.convert_to(SPOT, tmp_path / "s.raw", budget=16 * 16 * 64 * 30, jobs=2, **opts)
+    assert info["slabs"] == 3
+    back = F.read(tmp_path / "s.raw")
+    np.testing.assert_array_equal(back.occupancy, ref.occupancy)
+    np.testing.assert_array_equal(back.colors, ref.colors)
