@@ -394,6 +394,7 @@ def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, c
     timings = {"load": 0.0, "rays": 0.0, "fill": 0.0, "write": 0.0}
     h = grid.spacing
     reuse = None
+    pool = pending = None  # exact colour's slab writes on a thread (see below)
     try:
         from .colour import colour_method
 
@@ -443,6 +444,12 @@ def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, c
         to_file = (f.name == "raw" and colour_method(options.get("color")) == "fast"
                    and len(plan_left) > 1 and hasattr(os, "pwrite"))
         buffers = {}
+        # Exact colour: a slab is written on a thread while the next one is
+        # computed (the kernel runs without the GIL), as the fast colour's
+        # chunks are; two occupancy buffers take turns, and a slab's write
+        # is finished before its buffer is filled again.
+        overlap = (len(plan_left) > 1 and f.name != "zarr"
+                   and colour_method(options.get("color")) == "exact")
         if len(plan_left) > 1 and f.name != "zarr":
             # One occupancy and one colour array, reused by every slab:
             # faulting a slab's worth of fresh memory in for each one cost
@@ -451,10 +458,13 @@ def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, c
             nx, ny, _ = grid.shape
             thick = plan_left[0][1] - plan_left[0][0]
             buffers["out"] = np.empty((nx, ny, thick), dtype=bool, order="F")
+            if overlap:
+                buffers["out2"] = np.empty((nx, ny, thick), dtype=bool, order="F")
             if colour_method(options.get("color")) == "fast" and not to_file:
                 buffers["colour_out"] = np.empty((thick, ny, nx, 4), dtype=np.uint8)
         for n, (z0, z1) in enumerate(plan_left):
-            slab_arrays = {"out": buffers["out"][:, :, :z1 - z0]} if buffers else {}
+            turn = "out2" if overlap and n % 2 else "out"
+            slab_arrays = {"out": buffers[turn][:, :, :z1 - z0]} if buffers else {}
             if "colour_out" in buffers:
                 slab_arrays["colour_out"] = buffers["colour_out"][:z1 - z0]
             if to_file:
@@ -468,7 +478,16 @@ def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, c
                                      axis=axis, shared_crossings=reuse, **slab_arrays,
                                      **options)
             tb = time.perf_counter()
-            writer.write(z0, vol)
+            if overlap:
+                if pending is not None:
+                    pending.result()  # the slab before: done (and its error raised)
+                if pool is None:
+                    from concurrent.futures import ThreadPoolExecutor
+
+                    pool = ThreadPoolExecutor(1)
+                pending = pool.submit(writer.write, z0, vol)
+            else:
+                writer.write(z0, vol)
             for key, value in vol.timings.items():
                 if key != "total":
                     timings[key] = timings.get(key, 0.0) + value
@@ -477,12 +496,21 @@ def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, c
             del vol
             if progress:
                 progress(n + 1, len(plan))
+        if pending is not None:
+            tb = time.perf_counter()
+            pending.result()
+            timings["write"] += time.perf_counter() - tb
         files = writer.close(client) if f.name == "zarr" else writer.close()
         if inside == 0 and np.all(m.bounds[0] <= grid.hi) and np.all(m.bounds[1] >= grid.lo):
             warn(empty_reason(m, grid, method), stacklevel=2)
     except BaseException:
+        if pool is not None:
+            pool.shutdown(wait=True)  # no write may still run into the files abort removes
         writer.abort()
         raise
+    finally:
+        if pool is not None:
+            pool.shutdown(wait=True)
     timings["load"] += t_load - t0
     timings["total"] = time.perf_counter() - t0
     return {"shape": tuple(grid.shape), "spacing": tuple(float(x) for x in h),

@@ -10,6 +10,7 @@ counted, shown to be rare, and not held to the colour check.
 
 from __future__ import annotations
 
+import os
 import warnings
 
 import numpy as np
@@ -439,3 +440,39 @@ def test_cli_exact_colour_of_a_huge_mesh_is_one_line(tmp_path, capsys):
     assert err[-1].startswith("geovox: error: exact colour needs lengths")
     assert "Traceback" not in "\n".join(err)
     assert not out.exists()
+
+
+@pytest.mark.parametrize("ext", [".raw", ".h5"])
+def test_slab_writes_on_a_thread_equal_the_whole_grid_and_fail_cleanly(tmp_path, monkeypatch, ext):
+    # Exact colour writes each slab on a thread while the next is computed:
+    # the file equals the whole grid, and a failed write (the disk full at
+    # the second slab) stops the conversion and leaves no file behind.
+    import errno
+
+    from geovox.errors import OutputError
+
+    opts = dict(shape=(12, 10, 140), color="exact")
+    ref = geovox.voxelize(SPOT, axis=1, **opts)
+    info = convert_to(SPOT, tmp_path / f"s{ext}", budget=12 * 10 * 64 * 22, jobs=2, **opts)
+    assert info["slabs"] == 3
+    back = F.read(tmp_path / f"s{ext}")
+    np.testing.assert_array_equal(back.occupancy, ref.occupancy)
+    np.testing.assert_array_equal(back.colors, ref.colors)
+
+    writer = {".raw": "geovox.formats.raw.RawWriter", ".h5": "geovox.formats.hdf5.HDF5Writer"}[ext]
+    module, name = writer.rsplit(".", 1)
+    cls = getattr(__import__(module, fromlist=[name]), name)
+    original, calls = cls.write, []
+
+    def full_at_second(self, z0, vol):
+        calls.append(z0)
+        if len(calls) == 2:
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return original(self, z0, vol)
+
+    monkeypatch.setattr(cls, "write", full_at_second)
+    out = tmp_path / "full"
+    out.mkdir()
+    with pytest.raises((OutputError, OSError)):
+        convert_to(SPOT, out / f"s{ext}", budget=12 * 10 * 64 * 22, jobs=2, **opts)
+    assert len(calls) == 2 and os.listdir(out) == []
