@@ -1,11 +1,17 @@
 """Command-line interface: a thin layer over the library.
 
+One function that adds its arguments and one that runs it, per subcommand
+(:data:`COMMANDS`); ``choices`` come from the registries; a conversion is
+:class:`~geovox.Options` from the arguments, a plan and a run, its warnings
+printed by :func:`collecting` and its summary by :meth:`geovox.volume.Report.summary`.
+
 Only :func:`main` turns exceptions into one line on stderr and exit status 2.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import math
 import os
 import sys
@@ -13,6 +19,7 @@ import time
 
 from . import __version__
 from .errors import GeovoxError
+from .options import Options
 
 EXIT_OK, EXIT_ERROR, EXIT_USAGE = 0, 2, 2
 
@@ -73,12 +80,100 @@ _positive_float = _number(positive=True)
 _finite_float = _number(positive=False)
 
 
-def build_parser() -> argparse.ArgumentParser:
-    p = _Parser(prog="geovox", description="Turn polygon meshes into voxel volumes.")
-    p.add_argument("--version", action="version", version=f"geovox {__version__}")
-    p.add_argument("--debug", action="store_true", help="show tracebacks on errors")
-    sub = p.add_subparsers(dest="command", parser_class=_Parser)
+class _Choices:
+    """argparse ``choices`` read from a registry only when first needed.
 
+    Parsing ``geovox --help`` or ``geovox formats`` must not import the
+    backends (NumPy) to list the names a ``convert`` option takes.
+    """
+
+    def __init__(self, names):
+        self._names, self._list = names, None
+
+    def _get(self):
+        if self._list is None:
+            self._list = list(self._names())
+        return self._list
+
+    def __contains__(self, item):
+        return item in self._get()
+
+    def __iter__(self):
+        return iter(self._get())
+
+    def __len__(self):
+        return len(self._get())
+
+
+def _backend_names():
+    from .backends import REGISTRY
+
+    return ["auto", *REGISTRY]
+
+
+def _inside_names():
+    from .options import Inside
+
+    return [m.value for m in Inside]
+
+
+def _format_names():
+    from .formats import formats
+
+    return [f.name for f in formats()]
+
+
+def add_grid_arguments(c, *, grid_only=False):
+    """The conversion options (one argument per :class:`geovox.Options` field the CLI sets)."""
+    res = c.add_mutually_exclusive_group()
+    res.add_argument("-r", "--resolution", type=_positive_int, metavar="N",
+                     help="N voxels on every axis (default 128)")
+    res.add_argument("--shape", type=_positive_int, nargs=3, metavar=("NX", "NY", "NZ"),
+                     help="voxels along x, y, z")
+    res.add_argument("--voxel-size", type=_positive_float, metavar="S",
+                     help="edge of a cubic voxel; the region grows to fit whole voxels")
+    c.add_argument("--bounds", type=_finite_float, nargs=6,
+                   metavar=("XMIN", "YMIN", "ZMIN", "XMAX", "YMAX", "ZMAX"),
+                   help="region of interest (default: the mesh's bounding box)")
+    if grid_only:
+        return
+    c.add_argument("--backend", default="auto", choices=_Choices(_backend_names),
+                   help="ray-casting backend (default: auto = numpy, the faster one for these "
+                        "column rays; embree gives the same volume)")
+    c.add_argument("--inside", default="auto", choices=_Choices(_inside_names),
+                   help="inside test (default: auto = parity for closed meshes, winding number "
+                        "otherwise)")
+    # One of the two: both share `color`, and argparse would let the last one win silently.
+    colour = c.add_mutually_exclusive_group()
+    colour.add_argument("--color", "--colour", dest="color", action="store_true",
+                        help="also colour the voxels from the model's materials and textures, "
+                        "every voxel from its exact nearest surface point")
+    colour.add_argument("--exact-color", "--exact-colour", dest="color", action="store_const",
+                        const="exact", help="the same as --color (exact is its method)")
+    colour.add_argument("--fast-color", "--fast-colour", dest="color", action="store_const",
+                        const="fast", help="as --color, from the nearest of the six axis "
+                        "crossings around each voxel (a nearby surface point, not always the "
+                        "nearest; faster without the compiled kernel)")
+    c.add_argument("--no-diffuse", dest="diffuse", action="store_false",
+                   help="with --color: do not multiply by the material's Kd")
+    c.add_argument("--ambient", action="store_true",
+                   help="with --color: add the material's Ka")
+    c.add_argument("--density", choices=["coverage"], default=None,
+                   help="also compute each voxel's inside fraction (anti-aliased density)")
+    c.add_argument("--supersample", type=_positive_int, default=4, metavar="K",
+                   help="with --density: K x K rays per voxel column (default 4)")
+    c.add_argument("--density-float", action="store_true",
+                   help="with --density: store float32 0..1 instead of uint8 0..255")
+    c.add_argument("--sdf", action="store_true",
+                   help="also compute the signed distance (float32, negative inside)")
+    c.add_argument("--band", type=_positive_float, default=3.0, metavar="VOXELS",
+                   help="with --sdf: half-width of the exact band, in voxels (default 3)")
+    c.add_argument("-j", "--jobs", type=int, default=None, metavar="N",
+                   help="threads to use (default: one per core); with several models, worker "
+                        "processes; the result does not depend on it")
+
+
+def add_convert(sub):
     c = sub.add_parser("convert", help="voxelise a mesh and write the volume")
     c.add_argument("input", nargs="+",
                    help="mesh files (OBJ, STL, PLY, GLB, ... anything trimesh reads) or folders of "
@@ -89,8 +184,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "size and type such as spot_128x128x128_uint8.raw; either may be an "
                         "fsspec URL (s3://bucket/spot.zarr, gs://bucket/out/; the cloud extra), "
                         "written here first and then copied up")
-    _grid_options(c)
-    c.add_argument("--format", dest="fmt", help="output format, overriding the extension")
+    add_grid_arguments(c)
+    c.add_argument("--format", dest="fmt", choices=_Choices(_format_names), metavar="FORMAT",
+                   help="output format, overriding the extension (see `geovox formats`)")
     c.add_argument("--shell", action="store_true",
                    help=".vox: keep only the voxels with a face on the outside")
     c.add_argument("--pack-bits", action="store_true",
@@ -121,132 +217,102 @@ def build_parser() -> argparse.ArgumentParser:
                       help="convert only part K of N (K from 1) of the inputs, for array jobs")
     c.add_argument("-q", "--quiet", action="store_true", help="print nothing on success")
 
+
+def add_preview(sub):
     pv = sub.add_parser("preview", help="write a PNG picture of a volume (or of a mesh, voxelised)")
     pv.add_argument("input", help="a volume written by geovox, or a mesh")
     pv.add_argument("-o", "--output", required=True, help="PNG file to write")
-    _grid_options(pv)
+    add_grid_arguments(pv)
 
+
+def add_view(sub):
     vw = sub.add_parser("view", help="interactive 3D view of a volume (needs the 'view' extra)")
     vw.add_argument("input", help="a volume written by geovox, or a mesh")
     vw.add_argument("--mesh", help="show this mesh beside the volume")
     vw.add_argument("--screenshot", metavar="PNG", help="render off-screen into PNG instead")
-    _grid_options(vw)
+    add_grid_arguments(vw)
 
+
+def add_info(sub):
     info = sub.add_parser("info", help="what a mesh is like, and what a grid would cost")
     info.add_argument("input", help="mesh file")
-    res = info.add_mutually_exclusive_group()
-    res.add_argument("-r", "--resolution", type=_positive_int, metavar="N",
-                     help="grid to cost (default 128)")
-    res.add_argument("--shape", type=_positive_int, nargs=3, metavar=("NX", "NY", "NZ"))
-    res.add_argument("--voxel-size", type=_positive_float, metavar="S")
-    info.add_argument("--bounds", type=_finite_float, nargs=6,
-                      metavar=("XMIN", "YMIN", "ZMIN", "XMAX", "YMAX", "ZMAX"))
+    add_grid_arguments(info, grid_only=True)
 
+
+def add_backends(sub):
     sub.add_parser("backends", help="list the ray-casting backends and whether each can run")
+
+
+def add_formats(sub):
     sub.add_parser("formats", help="list the output formats")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = _Parser(prog="geovox", description="Turn polygon meshes into voxel volumes.")
+    p.add_argument("--version", action="version", version=f"geovox {__version__}")
+    p.add_argument("--debug", action="store_true", help="show tracebacks on errors")
+    sub = p.add_subparsers(dest="command", parser_class=_Parser)
+    for add, _ in COMMANDS.values():
+        add(sub)
     return p
 
 
-def _grid_options(c):
-    res = c.add_mutually_exclusive_group()
-    res.add_argument("-r", "--resolution", type=_positive_int, metavar="N",
-                     help="N voxels on every axis (default 128)")
-    res.add_argument("--shape", type=_positive_int, nargs=3, metavar=("NX", "NY", "NZ"),
-                     help="voxels along x, y, z")
-    res.add_argument("--voxel-size", type=_positive_float, metavar="S",
-                     help="edge of a cubic voxel; the region grows to fit whole voxels")
-    c.add_argument("--bounds", type=_finite_float, nargs=6,
-                   metavar=("XMIN", "YMIN", "ZMIN", "XMAX", "YMAX", "ZMAX"),
-                   help="region of interest (default: the mesh's bounding box)")
-    c.add_argument("--backend", default="auto", choices=["auto", "embree", "numpy", "webgpu"],
-                   help="ray-casting backend (default: auto = numpy, the faster one for these "
-                        "column rays; embree gives the same volume)")
-    c.add_argument("--inside", default="auto", choices=["auto", "parity", "vote", "winding"],
-                   help="inside test (default: auto = parity for closed meshes, winding number "
-                        "otherwise)")
-    # One of the two: both share `color`, and argparse would let the last one win silently.
-    colour = c.add_mutually_exclusive_group()
-    colour.add_argument("--color", "--colour", dest="color", action="store_true",
-                        help="also colour the voxels from the model's materials and textures, "
-                        "every voxel from its exact nearest surface point")
-    colour.add_argument("--exact-color", "--exact-colour", dest="color", action="store_const",
-                        const="exact", help="the same as --color (exact is its method)")
-    colour.add_argument("--fast-color", "--fast-colour", dest="color", action="store_const",
-                        const="fast", help="as --color, from the nearest of the six axis "
-                        "crossings around each voxel (a nearby surface point, not always the "
-                        "nearest; faster without the compiled kernel)")
-    c.add_argument("--no-diffuse", dest="diffuse", action="store_false",
-                   help="with --color: do not multiply by the material's Kd")
-    c.add_argument("--ambient", action="store_true",
-                   help="with --color: add the material's Ka")
-    c.add_argument("--density", choices=["coverage"], default=None,
-                   help="also compute each voxel's inside fraction (anti-aliased density)")
-    c.add_argument("--supersample", type=_positive_int, default=4, metavar="K",
-                   help="with --density: K x K rays per voxel column (default 4)")
-    c.add_argument("--density-float", action="store_true",
-                   help="with --density: store float32 0..1 instead of uint8 0..255")
-    c.add_argument("--sdf", action="store_true",
-                   help="also compute the signed distance (float32, negative inside)")
-    c.add_argument("--band", type=_positive_float, default=3.0, metavar="VOXELS",
-                   help="with --sdf: half-width of the exact band, in voxels (default 3)")
-    c.add_argument("-j", "--jobs", type=int, default=None, metavar="N",
-                   help="threads to use (default: one per core); the result does not depend on it")
+# --- what every handler shares --------------------------------------------
+
+@contextlib.contextmanager
+def collecting():
+    """Print geovox's warnings of the block as ``geovox: warning: ...`` lines when it ends.
+
+    The one place the CLI reads warnings: :func:`geovox.errors.collect_warnings`
+    for this thread, plus the GeovoxWarnings said on the library's worker
+    threads (which the collector, being per thread, does not see). Other
+    warnings pass through as Python shows them.
+    """
+    import warnings
+
+    from .errors import GeovoxWarning, collect_warnings
+
+    with warnings.catch_warnings(record=True) as caught, collect_warnings() as said:
+        warnings.simplefilter("always", GeovoxWarning)
+        try:
+            yield said
+        finally:
+            lines = list(said)
+    for w in caught:
+        if issubclass(w.category, GeovoxWarning):
+            lines.append(str(w.message))
+        else:
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    for line in lines:
+        print(f"geovox: warning: {line}", file=sys.stderr)
 
 
-def _stage_bar(args):
-    """A progress bar over the conversion's stages, on a terminal only (tqdm)."""
+def _progress_bar(args, options):
+    """``(bar, progress)``: a bar over the stages or the slabs, on a terminal only (tqdm)."""
     if getattr(args, "quiet", False) or not sys.stderr.isatty():
         return None, None
     try:
         from tqdm import tqdm
     except ImportError:
         return None, None
-    stages = ["load", "rays"] + [s for s, on in (("colour", args.color), ("density", args.density),
-                                                 ("sdf", args.sdf)) if on]
+    stages = ["load", "rays"] + [s for s, on in (("colour", options.color),
+                                                 ("density", options.density),
+                                                 ("sdf", options.sdf)) if on]
     bar = tqdm(total=len(stages) + 1, file=sys.stderr, leave=False,
-               bar_format="{desc:<8} {bar} {n_fmt}/{total_fmt} stages {elapsed}")
+               bar_format="{desc:<8} {bar} {n_fmt}/{total_fmt} {elapsed}")
     started = []
 
-    def progress(stage):
+    def progress(event):
+        if event.stage == "slab":
+            bar.total = event.total
+            bar.update(event.done - bar.n)
+            return
         if started:
             bar.update(1)
-        started.append(stage)
-        bar.set_description_str(stage)
+        started.append(event.stage)
+        bar.set_description_str(event.stage)
 
     return bar, progress
-
-
-def _options(args) -> dict:
-    """The keyword arguments of voxelize / convert_to that the CLI options set."""
-    return dict(resolution=args.resolution, shape=args.shape, voxel_size=args.voxel_size,
-                bounds=args.bounds, backend=args.backend, color=args.color, diffuse=args.diffuse,
-                ambient=args.ambient, inside=args.inside, density=args.density,
-                supersample=args.supersample,
-                density_dtype="float32" if args.density_float else "uint8",
-                sdf=args.sdf, band=args.band)
-
-
-def _voxelize(args, path):
-    """voxelize() with the CLI's grid options, printing GeovoxWarnings as one line each."""
-    import warnings
-
-    from .errors import GeovoxWarning
-    from .pipeline import voxelize
-
-    bar, progress = _stage_bar(args)
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always", GeovoxWarning)
-        vol = voxelize(path, jobs=args.jobs, progress=progress, **_options(args))
-    if bar is not None:
-        bar.update(bar.total - bar.n - 1)
-        bar.set_description_str("write")
-        bar.close()
-    for w in caught:
-        if issubclass(w.category, GeovoxWarning):
-            print(f"geovox: warning: {w.message}", file=sys.stderr)
-        else:
-            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
-    return vol
 
 
 def _volume_or_mesh(args, path, largest=None):
@@ -261,7 +327,17 @@ def _volume_or_mesh(args, path, largest=None):
         if lower.rstrip("/").endswith(".zarr") and largest is not None:
             return formats.read(path, max_side=largest)
         return formats.read(path)
-    return _voxelize(args, path)
+    return _voxelize(path, Options.from_args(args))
+
+
+def _voxelize(mesh, options):
+    """The volume of ``mesh`` in memory (a plan and a run), its warnings printed."""
+    from .mesh import load_mesh
+    from .pipeline import plan, run
+
+    with collecting():
+        m = load_mesh(mesh)
+        return run(m, plan(m, options)).volume
 
 
 def _output_path(args, input_path, shape) -> str:
@@ -289,15 +365,24 @@ def _write_options(args, fmt) -> dict:
             **({"pack_bits": True} if args.pack_bits else {})}
 
 
+def _cluster(args):
+    """``client_from_options`` for the cluster arguments ($DASK_SCHEDULER_ADDRESS included)."""
+    from .cluster import client_from_options
+
+    return client_from_options(getattr(args, "scheduler", None),
+                               getattr(args, "scheduler_file", None),
+                               getattr(args, "local_cluster", None))
+
+
+# --- convert --------------------------------------------------------------
+
 def _batch(args) -> int:
     from . import formats
     from .batch import convert_many, find_inputs, is_url, parse_shard, summary_table
-    from .cluster import client_from_options
     from .errors import ParameterError
-    from .parallel import resolve_jobs
 
     inputs = find_inputs(args.input)  # a missing input or an empty folder says so before anything else
-    parse_shard(args.shard)
+    shard = parse_shard(args.shard)
     if args.output is None:
         args.output = os.getcwd()
     if not (is_url(args.output) or os.path.isdir(args.output)
@@ -308,13 +393,13 @@ def _batch(args) -> int:
         raise ParameterError("--preview takes one input; run geovox preview on each output instead")
     fmt = formats.format_for("x.raw", args.fmt)
     write_options = _write_options(args, fmt)
-    with client_from_options(args.scheduler, args.scheduler_file, args.local_cluster) as client:
+    options = Options.from_args(args)
+    with _cluster(args) as client:
         bar = None
         if not args.quiet and sys.stderr.isatty():
             try:
                 from tqdm import tqdm
 
-                shard = parse_shard(args.shard)
                 total = len(inputs) if shard is None else len(range(shard[0] - 1, len(inputs),
                                                                     shard[1]))
                 bar = tqdm(total=total, unit="model", file=sys.stderr)
@@ -322,90 +407,27 @@ def _batch(args) -> int:
                 bar = None
         failed = []
 
-        def progress(r):
-            failed.append(r.status == "failed")
+        def progress(event):
+            failed.append(event.result.status == "failed")
             bar.update(1)
             bar.set_postfix_str(f"{sum(failed)} failed")
 
+        from .parallel import resolve_jobs
+
         try:
+            # -j is processes here: each model runs single-threaded.
             results = convert_many(args.input, args.output, client=client, fmt=fmt.name,
-                                   overwrite=args.overwrite, jobs=resolve_jobs(args.jobs),
+                                   overwrite=args.overwrite, workers=resolve_jobs(args.jobs),
                                    retries=args.retries, manifest=args.manifest, shard=args.shard,
                                    progress=progress if bar else None,
-                                   write_options=write_options, **_options(args))
+                                   write_options=write_options,
+                                   **{k: v for k, v in options.to_kwargs().items() if k != "jobs"})
         finally:
             if bar:
                 bar.close()
     if not args.quiet or any(r.status == "failed" for r in results):
         print(summary_table(results))
     return EXIT_ERROR if any(r.status == "failed" for r in results) else EXIT_OK
-
-
-def _convert_streaming(args, mesh, output, t0, t_read=0.0) -> int:
-    """A grid too big for one piece: slab by slab into .h5 or .raw."""
-    import warnings
-
-    from .errors import GeovoxWarning
-    from .stream import convert_to
-
-    bar = None
-    if not args.quiet and sys.stderr.isatty():
-        try:
-            from tqdm import tqdm
-
-            bar = tqdm(total=1, unit="slab", file=sys.stderr, leave=False)
-        except ImportError:
-            bar = None
-
-    def progress(done, total):
-        if bar is not None:
-            bar.total = total
-            bar.update(done - bar.n)
-
-    import contextlib
-
-    from . import formats
-    from .cluster import client_from_options
-
-    # Only a .zarr runs on a cluster ($DASK_SCHEDULER_ADDRESS included).
-    cluster = client_from_options(
-        getattr(args, "scheduler", None), getattr(args, "scheduler_file", None),
-        getattr(args, "local_cluster", None)) if formats.format_for(output, args.fmt).name == "zarr" \
-        else contextlib.nullcontext()
-    with warnings.catch_warnings(record=True) as caught, cluster as client:
-        warnings.simplefilter("always", GeovoxWarning)
-        info = convert_to(mesh, output, args.fmt, jobs=args.jobs, progress=progress,
-                          **({"client": client} if client is not None else {}), **_options(args))
-    if bar is not None:
-        bar.close()
-    for w in caught:
-        if issubclass(w.category, GeovoxWarning):
-            print(f"geovox: warning: {w.message}", file=sys.stderr)
-    written = info["files"]
-    if args.preview:
-        # The preview of a grid this size is drawn from a 256³ conversion of the same model.
-        from .preview import write_preview
-
-        small = _voxelize(argparse.Namespace(**{**vars(args), "resolution": 256, "shape": None,
-                                                 "voxel_size": None, "quiet": True}), mesh)
-        written.append(write_preview(small, args.preview))
-    if not args.quiet:
-        nx, ny, nz = info["shape"]
-        dx, dy, dz = info["spacing"]
-        t = dict(info["timings"])
-        t["load"] = t.get("load", 0.0) + t_read  # the file was read before convert_to
-        slabs = (f" in {info['slabs']} slabs" if info["slabs"] > 1 else
-                 " in 64-slice slabs" if info.get("filled_in_slabs") else "")
-        print(f"{os.path.basename(info['source'])}: grid {nx} x {ny} x {nz}{slabs}")
-        print(f"voxel size {dx:.6g} x {dy:.6g} x {dz:.6g}, backend {info['backend']}, "
-              f"inside test {info['inside_test']}")
-        print(f"inside {info['inside']:,} of {nx * ny * nz:,} voxels "
-              f"({100.0 * info['inside'] / (nx * ny * nz):.2f}%)")
-        stages = ", ".join(f"{k} {t[k]:.2f}" for k in ("load", "rays", "fill", "colour", "density",
-                                                        "sdf", "write") if k in t)
-        print(f"time {time.perf_counter() - t0:.2f} s ({stages})")
-        print("wrote " + ", ".join(written))
-    return EXIT_OK
 
 
 def _names_a_file(url: str) -> bool:
@@ -420,7 +442,6 @@ def _convert_to_url(args) -> int:
     the volume (a ``.zarr``'s root ``zarr.json``) last, so nothing half-written
     is taken for a volume. What the local run prints is reprinted with the URL.
     """
-    import contextlib
     import io
     import shutil
     import tempfile
@@ -443,7 +464,7 @@ def _convert_to_url(args) -> int:
         args.output = os.path.join(tmp, name)
         said = io.StringIO()
         with contextlib.redirect_stdout(said):
-            rc = _convert(args)
+            rc = run_convert(args)
         if rc == EXIT_OK:
             local = sorted(os.path.join(tmp, f) for f in os.listdir(tmp))
             _upload(local, args.output, parent)
@@ -453,20 +474,20 @@ def _convert_to_url(args) -> int:
         shutil.rmtree(tmp, ignore_errors=True)
 
 
-def _convert(args) -> int:
+def _is_batch(args) -> bool:
+    """Many models, or one sent as a batch of one to a cluster."""
+    cluster = args.scheduler or args.scheduler_file or args.local_cluster
+    out = args.output
+    return bool(len(args.input) > 1 or os.path.isdir(args.input[0]) or args.manifest or args.shard
+                or (cluster and (out is None or out.endswith(("/", os.sep))
+                                 or (os.path.isdir(out) and not out.lower().endswith(".zarr"))))
+                or (out and "://" in out and not _names_a_file(out)))
+
+
+def _check_outputs(args) -> None:
+    """Fail before any work where the outputs cannot be written."""
     from . import formats
 
-    if (len(args.input) > 1 or os.path.isdir(args.input[0]) or args.manifest or args.shard
-            or ((args.scheduler or args.scheduler_file or args.local_cluster)
-                and (args.output is None or args.output.endswith(("/", os.sep))
-                     or (os.path.isdir(args.output)
-                         and not args.output.lower().endswith(".zarr"))))
-            or (args.output and "://" in args.output and not _names_a_file(args.output))):
-        return _batch(args)  # many models, or one sent as a batch of one to a cluster
-    if "://" in (args.output or ""):
-        return _convert_to_url(args)
-    args.input = args.input[0]
-    t0 = time.perf_counter()
     default_out = args.output is None or args.output.endswith(("/", os.sep)) or (
         os.path.isdir(args.output) and not args.output.lower().endswith(".zarr"))
     if not default_out:
@@ -476,67 +497,58 @@ def _convert(args) -> int:
         formats.check_writable(os.path.join(args.output, "x"))
     if args.preview:
         formats.check_writable(args.preview)
-    from .grid import make_grid
-    from .mesh import load_mesh
-    from .stream import streams
 
+
+def run_convert(args) -> int:
+    """``geovox convert``: one model a plan and a run; many models a batch."""
+    from . import formats
+    from .errors import ParameterError
+    from .mesh import load_mesh
+    from .pipeline import grid_of, plan, run
+
+    if _is_batch(args):
+        return _batch(args)
+    if "://" in (args.output or ""):
+        return _convert_to_url(args)
+    args.input = args.input[0] if isinstance(args.input, list) else args.input
+    t0 = time.perf_counter()
+    _check_outputs(args)
+    options = Options.from_args(args)
     mesh = load_mesh(args.input)
     t_read = time.perf_counter() - t0
-    grid = make_grid(mesh.bounds, bounds=args.bounds, resolution=args.resolution,
-                     shape=args.shape, voxel_size=args.voxel_size)
-    output = _output_path(args, args.input, grid.shape)
+    output = _output_path(args, args.input, grid_of(mesh, options).shape)
     fmt = formats.format_for(output, args.fmt)
     write_options = _write_options(args, fmt)  # a bad combination fails before any work
     if (args.scheduler or args.scheduler_file or args.local_cluster) and fmt.name != "zarr":
-        from .errors import ParameterError
-
         raise ParameterError(f"a cluster writes one volume only into .zarr, not {fmt.name}; "
                              f"give -o a folder to send models to it as tasks")
-    if fmt.check is not None:
-        fmt.check(grid)  # e.g. binvox needs cubic voxels
-    if streams(grid, fmt.name, args.color, args.density, args.sdf):
-        return _convert_streaming(args, mesh, output, t0, t_read)
-    vol = _voxelize(args, mesh)
-    t1 = time.perf_counter()
-    import warnings
+    bar, progress = _progress_bar(args, options)
+    # Only a .zarr runs on a cluster ($DASK_SCHEDULER_ADDRESS included).
+    cluster = _cluster(args) if fmt.name == "zarr" else contextlib.nullcontext()
+    with collecting(), cluster as client:
+        p = plan(mesh, options, output, fmt=args.fmt, cluster=client is not None)
+        report = run(mesh, p, progress=progress, client=client, write_options=write_options)
+        if bar is not None:
+            bar.close()
+        if args.preview:
+            from .preview import write_preview
 
-    from .errors import GeovoxWarning
-
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always", GeovoxWarning)
-        written = formats.write(vol, output, fmt=args.fmt, **write_options)
-    for w in caught:  # e.g. binvox padding a grid to a cube
-        if issubclass(w.category, GeovoxWarning):
-            print(f"geovox: warning: {w.message}", file=sys.stderr)
-        else:
-            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
-    if args.preview:
-        from .preview import write_preview
-
-        written.append(write_preview(vol, args.preview))
-    t2 = time.perf_counter()
+            vol = report.volume
+            if vol is None:
+                # The preview of a grid this size is drawn from a 256³ conversion of the same model.
+                small = options.replace(resolution=256, shape=None, voxel_size=None)
+                vol = run(mesh, plan(mesh, small)).volume
+            report.files.append(write_preview(vol, args.preview))
     if not args.quiet:
-        nx, ny, nz = vol.shape
-        dx, dy, dz = vol.spacing
-        lo, hi = vol.bounds
-        inside = vol.inside_count
-        t = vol.timings
-        print(f"{os.path.basename(vol.source)}: grid {nx} x {ny} x {nz} "
-              f"over ({lo[0]:.6g}, {lo[1]:.6g}, {lo[2]:.6g})..({hi[0]:.6g}, {hi[1]:.6g}, {hi[2]:.6g})")
-        print(f"voxel size {dx:.6g} x {dy:.6g} x {dz:.6g}, backend {vol.backend}, "
-              f"inside test {vol.inside}")
-        print(f"inside {inside:,} of {nx * ny * nz:,} voxels ({100.0 * inside / (nx * ny * nz):.2f}%)")
-        extra = "".join(f", {k} {t[k]:.2f}" for k in ("colour", "density", "sdf") if k in t)
-        print(f"time {t2 - t0:.2f} s (load {t_read + t['load']:.2f}, rays {t['rays']:.2f}, "
-              f"fill {t['fill']:.2f}{extra}, write {t2 - t1:.2f})")
-        print("wrote " + ", ".join(written))
+        print("\n".join(report.summary(time.perf_counter() - t0, t_read)))
     return EXIT_OK
 
 
-def _preview(args) -> int:
-    from .preview import LARGEST, write_preview
+# --- the other subcommands ------------------------------------------------
 
+def run_preview(args) -> int:
     from . import formats
+    from .preview import LARGEST, write_preview
 
     formats.check_writable(args.output)
     vol = _volume_or_mesh(args, args.input, LARGEST)
@@ -544,7 +556,7 @@ def _preview(args) -> int:
     return EXIT_OK
 
 
-def _view(args) -> int:
+def run_view(args) -> int:
     from .mesh import load_mesh
     from .view import LARGEST, show
 
@@ -556,18 +568,22 @@ def _view(args) -> int:
     return EXIT_OK
 
 
-def _info(args) -> int:
+def run_info(args) -> int:
+    from .errors import collect_warnings
     from .mesh import load_mesh
+    from .pipeline import plan
     from .report import format_report, grid_cost, mesh_report
 
     mesh = load_mesh(args.input)
-    cost = grid_cost(mesh, bounds=args.bounds, resolution=args.resolution, shape=args.shape,
-                     voxel_size=args.voxel_size)
-    print(format_report(mesh_report(mesh), cost))
+    options = Options.from_args(args)
+    with collect_warnings(drop=True):  # the report says what a repair does
+        p = plan(mesh, options)
+    print(format_report(mesh_report(mesh), grid_cost(mesh, options)))
+    print("\n".join(p.describe()))
     return EXIT_OK
 
 
-def _backends(args) -> int:
+def run_backends(args) -> int:
     from .backends import PREFERENCE, REGISTRY, available_backends
 
     have = available_backends()
@@ -581,12 +597,23 @@ def _backends(args) -> int:
     return EXIT_OK
 
 
-def _formats(args) -> int:
+def run_formats(args) -> int:
     from .formats import formats
 
     for f in formats():
         print(f"{f.name:6s} {' '.join(f.extensions):12s} {f.description}")
     return EXIT_OK
+
+
+#: subcommand -> (adds its arguments, runs it)
+COMMANDS = {
+    "convert": (add_convert, run_convert),
+    "preview": (add_preview, run_preview),
+    "view": (add_view, run_view),
+    "info": (add_info, run_info),
+    "backends": (add_backends, run_backends),
+    "formats": (add_formats, run_formats),
+}
 
 
 def main(argv=None) -> int:
@@ -599,10 +626,8 @@ def main(argv=None) -> int:
     if args.command is None:
         parser.print_help()
         return EXIT_USAGE
-    handler = {"convert": _convert, "preview": _preview, "view": _view, "info": _info,
-               "backends": _backends, "formats": _formats}[args.command]
     try:
-        return handler(args)
+        return COMMANDS[args.command][1](args)
     except GeovoxError as exc:
         if args.debug:
             raise
