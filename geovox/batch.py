@@ -189,8 +189,9 @@ def _convert_one(task) -> Result:
         _check_worker(task)
         from .formats.headers import default_name
         from .mesh import load_mesh
-        from .pipeline import grid_of, plan, run
+        from .pipeline import as_options, grid_of, plan, run
 
+        options = as_options(options)
         remote = is_url(out_dir)
         # geovox's own collector, not warnings.catch_warnings: tasks may run
         # side by side on threads of one worker (see geovox.errors.warn).
@@ -611,16 +612,20 @@ def _record(opts, ext, write_options) -> dict:
 def _same_options(old, recorded) -> bool:
     """Whether a manifest's ``options`` record asks for what ``recorded`` does.
 
-    Records written by the Python API before :class:`~geovox.Options` held
-    only the options given; they are read with the others at their defaults.
+    A record holds the options the run named; two are the same where they
+    are with the others at their defaults (``resolution=8`` and
+    ``resolution=8, backend="auto"`` make the same files).
     """
     if old == recorded:
         return True
     try:
         from .options import Options
 
-        opts = Options.from_kwargs(**old["options"])
-        return _canonical(dict(old, options=opts.to_record())) == recorded
+        def full(rec):
+            return _canonical(dict(rec, options=Options.from_kwargs(**rec["options"])
+                                   .to_record(full=True)))
+
+        return full(old) == full(recorded)
     except (GeovoxError, TypeError, KeyError, AttributeError):
         return False
 

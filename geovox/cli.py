@@ -421,7 +421,8 @@ def _batch(args) -> int:
                                    retries=args.retries, manifest=args.manifest, shard=args.shard,
                                    progress=progress if bar else None,
                                    write_options=write_options,
-                                   **{k: v for k, v in options.to_kwargs().items() if k != "jobs"})
+                                   **{k: v for k, v in options.given_kwargs().items()
+                                      if k != "jobs"})
         finally:
             if bar:
                 bar.close()

@@ -98,6 +98,14 @@ class Options:
 
     def __post_init__(self):
         _validate(self)
+        # Plain tuples, so that options compare, hash and pickle as values.
+        if self.bounds is not None:
+            import numpy as np
+
+            object.__setattr__(self, "bounds", tuple(
+                float(x) for x in np.asarray(self.bounds, dtype=np.float64).reshape(-1)))
+        if self.shape is not None:
+            object.__setattr__(self, "shape", tuple(self.shape))
 
     # --- building ---------------------------------------------------------
 
@@ -121,7 +129,7 @@ class Options:
         unknown = [k for k in kw if k not in cls.names()]
         if unknown:
             raise ParameterError(unknown_option_message(unknown[0], cls.names()))
-        return cls(**kw)
+        return cls(**kw)._given_as(kw)
 
     @classmethod
     def from_args(cls, args) -> "Options":
@@ -131,13 +139,20 @@ class Options:
         the grid's alone); ``--density-float`` is ``density_dtype='float32'``.
         """
         given = {n: getattr(args, n) for n in cls.names() if hasattr(args, n)}
-        if getattr(args, "density_float", False):
-            given["density_dtype"] = "float32"
-        return cls(**given)
+        if hasattr(args, "density_float"):
+            given["density_dtype"] = "float32" if args.density_float else "uint8"
+        return cls(**given)._given_as(given)
 
     def replace(self, **changes) -> "Options":
         """A copy with ``changes`` (validated like any other)."""
-        return replace(self, **changes)
+        new = replace(self, **changes)
+        given = getattr(self, "_given", None)
+        return new if given is None else new._given_as(given | set(changes))
+
+    def _given_as(self, names) -> "Options":
+        # Which options the caller named: what a manifest records (see to_record).
+        object.__setattr__(self, "_given", frozenset(names))
+        return self
 
     # --- reading ----------------------------------------------------------
 
@@ -145,27 +160,38 @@ class Options:
         """Every option as a keyword (``Options(**o.to_kwargs()) == o``)."""
         return {f.name: getattr(self, f.name) for f in fields(self)}
 
+    def given_kwargs(self) -> dict:
+        """The options the caller named (all of them for Options built directly), as keywords."""
+        given = getattr(self, "_given", None)
+        return {k: v for k, v in self.to_kwargs().items() if given is None or k in given}
+
     def grid_options(self) -> dict:
         """``bounds``, ``resolution``, ``shape``, ``voxel_size``: the keywords of :func:`make_grid`."""
         return {"bounds": self.bounds, "resolution": self.resolution, "shape": self.shape,
                 "voxel_size": self.voxel_size}
 
-    def to_record(self) -> dict:
-        """The canonical, JSON-ready form a batch manifest stores.
+    def to_record(self, full: bool = False) -> dict:
+        """The JSON-ready form a batch manifest stores (tuples as lists, keys sorted).
 
-        The fourteen options a manifest has always held, plus ``axis`` and
-        ``kernel`` only where they differ from their defaults (so records
-        written before they were options still match). Tuples are lists.
+        The options the caller named (all of the command line's; those given
+        to :meth:`from_kwargs`), as manifests have always recorded them;
+        ``jobs`` never (the files do not depend on it). With ``full``, or
+        for Options built directly, every option that decides the files:
+        all but ``jobs``, with ``axis`` and ``kernel`` only where they are
+        not their defaults -- the canonical form two records are compared
+        in (:func:`geovox.batch._same_options`).
         """
+        given = None if full else getattr(self, "_given", None)
         out = {}
         for f in fields(self):
             value = getattr(self, f.name)
-            if f.name == "axis" and value == 2:
+            if f.name == "jobs" or (given is not None and f.name not in given):
+                continue
+            if given is None and ((f.name == "axis" and value == 2)
+                                  or (f.name == "kernel" and value == "auto")):
                 continue
             if f.name == "backend" and not isinstance(value, str):
                 value = value.name
-            if not f.metadata["record"] and not (f.name == "kernel" and value != "auto"):
-                continue
             out[f.name] = _json(value)
         return dict(sorted(out.items()))
 

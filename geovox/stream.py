@@ -52,6 +52,9 @@ SLAB_BUDGET = 1 << 30
 #: took 5.2-6.8 s where one piece took 8.4 s (its 1 GiB array is touched
 #: fresh), and 256 layers still write pyramid levels 0-2 in the slab.
 LOCAL_ZARR_SLAB = 256
+#: Voxels from which a one-piece occupancy is filled and written 64 slices at a
+#: time anyway (512³; see :func:`streams_whole`).
+WHOLE_STREAM_VOXELS = 1 << 27
 #: Memory one slab task may take on a cluster worker (its occupancy and working arrays).
 WORKER_SLAB_BUDGET = 1 << 30
 
@@ -103,7 +106,8 @@ def streams_whole(grid: Grid, color=False, density=None, sdf=False) -> bool:
     array, which on a 1024³ grid costs 0.2-2.5 s by itself, depending on
     the machine's memory state.
     """
-    return not (color or density or sdf) and grid.size >= 1 << 27 and grid.shape[2] > 64
+    return (not (color or density or sdf) and grid.size >= WHOLE_STREAM_VOXELS
+            and grid.shape[2] > 64)
 
 
 def cluster_thick(grid: Grid, per_voxel: float, budget: float = WORKER_SLAB_BUDGET) -> int:

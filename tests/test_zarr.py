@@ -311,10 +311,25 @@ def test_levels_from_full_and_empty_chunks(tmp_path, small_top):
     assert a["3"][120 // 8, 5 // 8, 3 // 8] == 255 and a["3"][17].max() == 0
 
 
-def test_scheduler_variable_is_only_for_zarr(tmp_path, monkeypatch):
+def test_scheduler_variable_is_only_for_zarr(tmp_path, monkeypatch, capsys):
+    import geovox.cluster
     import geovox.stream
 
-    # A big .h5 streams here even with a scheduler in the environment.
+    # A big .h5 streams here even with a scheduler in the environment: no
+    # client is asked for (the address answers nothing), the file is the
+    # in-memory volume's.
     monkeypatch.setenv("DASK_SCHEDULER_ADDRESS", "tcp://127.0.0.1:1")
     monkeypatch.setattr(geovox.stream, "streams", lambda *a, **k: True)
-    assert main(["convert", SPOT, "-o", str(tmp_path / "v.h5"), "-r", "16", "-q"]) == 0
+    asked = []
+    monkeypatch.setattr(geovox.cluster, "client_from_options", lambda *a: asked.append(a))
+    out = tmp_path / "v.h5"
+    capsys.readouterr()
+    assert main(["convert", SPOT, "-o", str(out), "-r", "16"]) == 0
+    printed = capsys.readouterr().out
+    assert asked == [] and "in 64-slice slabs" in printed
+    np.testing.assert_array_equal(geovox.formats.read(out).occupancy,
+                                  geovox.voxelize(SPOT, resolution=16).occupancy)
+    # A .zarr does ask for it.
+    with pytest.raises(TypeError):  # the stand-in above is no context manager
+        main(["convert", SPOT, "-o", str(tmp_path / "v.zarr"), "-r", "16", "-q"])
+    assert len(asked) == 1
