@@ -264,3 +264,17 @@ def test_info_prints_the_plan(capsys):
     out = capsys.readouterr().out
     assert "plan: backend numpy, inside test parity" in out
     assert "route: in memory, one block; rays along z" in out
+
+
+def test_readme_signature_is_voxelize():
+    import ast
+    import os
+
+    with open(os.path.join(os.path.dirname(__file__), "..", "README.md"), encoding="utf-8") as f:
+        [line] = [x for x in f.read().splitlines() if x.startswith("`voxelize(mesh")]
+    fn = ast.parse(f"def {line.strip('`')}: pass").body[0]
+    names = [a.arg for a in fn.args.args + fn.args.kwonlyargs]
+    defaults = [ast.literal_eval(d) for d in fn.args.defaults + fn.args.kw_defaults]
+    real = inspect.signature(geovox.voxelize).parameters
+    assert names == list(real)
+    assert defaults == [p.default for p in real.values() if p.default is not p.empty]
