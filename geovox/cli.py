@@ -19,7 +19,6 @@ import time
 
 from . import __version__
 from .errors import GeovoxError
-from .options import Options
 
 EXIT_OK, EXIT_ERROR, EXIT_USAGE = 0, 2, 2
 
@@ -84,7 +83,10 @@ class _Choices:
     """argparse ``choices`` read from a registry only when first needed.
 
     Parsing ``geovox --help`` or ``geovox formats`` must not import the
-    backends (NumPy) to list the names a ``convert`` option takes.
+    backends (NumPy) to list the names a ``convert`` option takes. (An
+    argument with these choices needs a ``metavar``: argparse lists the
+    choices of one without it as soon as it is added; its help shows them
+    through ``%(choices)s``, formatted only when that help is printed.)
     """
 
     def __init__(self, names):
@@ -103,6 +105,9 @@ class _Choices:
 
     def __len__(self):
         return len(self._get())
+
+    def __str__(self):
+        return ", ".join(self._get())
 
 
 def _backend_names():
@@ -137,12 +142,12 @@ def add_grid_arguments(c, *, grid_only=False):
                    help="region of interest (default: the mesh's bounding box)")
     if grid_only:
         return
-    c.add_argument("--backend", default="auto", choices=_Choices(_backend_names),
-                   help="ray-casting backend (default: auto = numpy, the faster one for these "
-                        "column rays; embree gives the same volume)")
-    c.add_argument("--inside", default="auto", choices=_Choices(_inside_names),
-                   help="inside test (default: auto = parity for closed meshes, winding number "
-                        "otherwise)")
+    c.add_argument("--backend", default="auto", choices=_Choices(_backend_names), metavar="NAME",
+                   help="ray-casting backend: %(choices)s (default: auto = numpy, the faster one "
+                        "for these column rays; all give the same volume)")
+    c.add_argument("--inside", default="auto", choices=_Choices(_inside_names), metavar="TEST",
+                   help="inside test: %(choices)s (default: auto = parity for closed meshes, "
+                        "winding number otherwise)")
     # One of the two: both share `color`, and argparse would let the last one win silently.
     colour = c.add_mutually_exclusive_group()
     colour.add_argument("--color", "--colour", dest="color", action="store_true",
@@ -186,7 +191,8 @@ def add_convert(sub):
                         "written here first and then copied up")
     add_grid_arguments(c)
     c.add_argument("--format", dest="fmt", choices=_Choices(_format_names), metavar="FORMAT",
-                   help="output format, overriding the extension (see `geovox formats`)")
+                   help="output format, overriding the extension: %(choices)s (see "
+                        "`geovox formats`)")
     c.add_argument("--shell", action="store_true",
                    help=".vox: keep only the voxels with a face on the outside")
     c.add_argument("--pack-bits", action="store_true",
@@ -259,6 +265,13 @@ def build_parser() -> argparse.ArgumentParser:
 
 # --- what every handler shares --------------------------------------------
 
+def _options(args):
+    """The :class:`geovox.Options` the arguments set (imported here: ``--help`` needs none)."""
+    from .options import Options
+
+    return Options.from_args(args)
+
+
 @contextlib.contextmanager
 def collecting():
     """Print geovox's warnings of the block as ``geovox: warning: ...`` lines when it ends.
@@ -327,7 +340,7 @@ def _volume_or_mesh(args, path, largest=None):
         if lower.rstrip("/").endswith(".zarr") and largest is not None:
             return formats.read(path, max_side=largest)
         return formats.read(path)
-    return _voxelize(path, Options.from_args(args))
+    return _voxelize(path, _options(args))
 
 
 def _voxelize(mesh, options):
@@ -393,7 +406,7 @@ def _batch(args) -> int:
         raise ParameterError("--preview takes one input; run geovox preview on each output instead")
     fmt = formats.format_for("x.raw", args.fmt)
     write_options = _write_options(args, fmt)
-    options = Options.from_args(args)
+    options = _options(args)
     with _cluster(args) as client:
         bar = None
         if not args.quiet and sys.stderr.isatty():
@@ -514,7 +527,7 @@ def run_convert(args) -> int:
     args.input = args.input[0] if isinstance(args.input, list) else args.input
     t0 = time.perf_counter()
     _check_outputs(args)
-    options = Options.from_args(args)
+    options = _options(args)
     mesh = load_mesh(args.input)
     t_read = time.perf_counter() - t0
     output = _output_path(args, args.input, grid_of(mesh, options).shape)
@@ -576,7 +589,7 @@ def run_info(args) -> int:
     from .report import format_report, grid_cost, mesh_report
 
     mesh = load_mesh(args.input)
-    options = Options.from_args(args)
+    options = _options(args)
     with collect_warnings(drop=True):  # the report says what a repair does
         p = plan(mesh, options)
     print(format_report(mesh_report(mesh), grid_cost(mesh, options)))
