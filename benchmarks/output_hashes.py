@@ -26,7 +26,7 @@ What is hashed, per file:
 
 Usage::
 
-    python benchmarks/output_hashes.py --root /work/main --out before.json
+    python benchmarks/output_hashes.py --root ../old-checkout --out before.json
     python benchmarks/output_hashes.py --root . --compare before.json
     python benchmarks/output_hashes.py --only occ_raw,zarr_colour   # a few cases
 
