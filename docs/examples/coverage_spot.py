@@ -7,6 +7,7 @@ density (``density="coverage"``, each voxel's inside fraction from 4 × 4 rays p
 a renderer draws as a smooth surface. PyVista renders off screen (the ``view`` extra).
 """
 
+import os
 import sys
 from pathlib import Path
 
@@ -16,6 +17,8 @@ import pyvista as pv
 import geovox
 
 ROOT = Path(__file__).resolve().parents[2]
+#: Relative to the repository root, so that the pictures show this path, not the machine's.
+SPOT = "data/spot/spot.obj"
 
 
 def image(vol, values):
@@ -27,7 +30,9 @@ def image(vol, values):
 
 
 def main(out=ROOT / "docs" / "spot_coverage_vs_binary.png"):
-    vol = geovox.voxelize(ROOT / "data" / "spot" / "spot.obj", resolution=64,
+    out = Path(out).resolve()  # before the chdir: a relative OUT is the caller's
+    os.chdir(ROOT)
+    vol = geovox.voxelize(SPOT, resolution=64,
                           density="coverage", supersample=4, density_dtype="float32")
     plotter = pv.Plotter(shape=(1, 2), off_screen=True, window_size=(1200, 600))
     for col, (title, values) in enumerate((("binary occupancy", vol.occupancy),

@@ -10,6 +10,7 @@ voxel has its nearest surface point's colour; with fast colour, axis-aligned str
 deeper in, where the six crossings miss the nearest triangle.
 """
 
+import os
 import sys
 from pathlib import Path
 
@@ -17,14 +18,18 @@ import geovox
 from geovox.preview import write_preview
 
 ROOT = Path(__file__).resolve().parents[2]
+#: Relative to the repository root, so that the pictures show this path, not the machine's.
+SPOT = "data/spot/spot.obj"
 BOUNDS = (-0.471552, -0.736784, -0.668909, 0.0, 0.953646, 1.049)
 
 
 def main(folder=ROOT / "docs"):
+    folder = Path(folder).resolve()
+    os.chdir(ROOT)
     for name, color in (("exact", True), ("fast", "fast")):
-        vol = geovox.voxelize(ROOT / "data" / "spot" / "spot.obj", resolution=128, bounds=BOUNDS,
+        vol = geovox.voxelize(SPOT, resolution=128, bounds=BOUNDS,
                               color=color)
-        print("wrote", write_preview(vol, Path(folder) / f"spot_cut_{name}.png"))
+        print("wrote", write_preview(vol, folder / f"spot_cut_{name}.png"))
 
 
 if __name__ == "__main__":

@@ -6,6 +6,7 @@ The same picture as ``geovox preview data/spot/spot.obj -r 128 --color -o docs/s
 spot voxelised at 128³ with exact colour, drawn with NumPy and Pillow alone (no display needed).
 """
 
+import os
 import sys
 from pathlib import Path
 
@@ -13,10 +14,14 @@ import geovox
 from geovox.preview import write_preview
 
 ROOT = Path(__file__).resolve().parents[2]
+#: Relative to the repository root, so that the pictures show this path, not the machine's.
+SPOT = "data/spot/spot.obj"
 
 
 def main(out=ROOT / "docs" / "spot_preview.png"):
-    vol = geovox.voxelize(ROOT / "data" / "spot" / "spot.obj", resolution=128, color=True)
+    out = Path(out).resolve()  # before the chdir: a relative OUT is the caller's
+    os.chdir(ROOT)
+    vol = geovox.voxelize(SPOT, resolution=128, color=True)
     print("wrote", write_preview(vol, out))
 
 

@@ -7,6 +7,7 @@ The same as ``geovox view data/spot/spot.obj -r 128 --color --mesh data/spot/spo
 -e '.[view]'``), no display needed.
 """
 
+import os
 import sys
 from pathlib import Path
 
@@ -14,10 +15,14 @@ import geovox
 from geovox.view import show
 
 ROOT = Path(__file__).resolve().parents[2]
+#: Relative to the repository root, so that the pictures show this path, not the machine's.
+SPOT = "data/spot/spot.obj"
 
 
 def main(out=ROOT / "docs" / "spot_view.png"):
-    spot = ROOT / "data" / "spot" / "spot.obj"
+    out = Path(out).resolve()  # before the chdir: a relative OUT is the caller's
+    os.chdir(ROOT)
+    spot = SPOT
     vol = geovox.voxelize(spot, resolution=128, color=True)
     show(vol, mesh=geovox.load_mesh(spot), screenshot=str(out))
     print("wrote", out)
