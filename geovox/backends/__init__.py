@@ -46,7 +46,18 @@ def _present(module: str) -> bool:
 
 
 def available_backends() -> list:
-    """Names of the backends whose packages are installed, in preference order."""
+    """Names of the backends whose packages are installed, in preference order.
+
+    Nothing is imported: each backend's package is looked up with
+    :func:`importlib.util.find_spec`. ``geovox backends`` also says whether
+    each can run here (the WebGPU backend needs an adapter as well).
+
+    Returns
+    -------
+    list of str
+        E.g. ``["numpy", "embree", "webgpu"]``: first those ``"auto"`` tries,
+        in its order, then the others.
+    """
     return [name for name in PREFERENCE if _present(REGISTRY[name][0])]
 
 
@@ -62,7 +73,14 @@ def get_backend(name: str = "auto") -> Backend:
 
     Parameters
     ----------
-    name : {"auto", "embree", "numpy"}
+    name : {"auto", "numpy", "embree", "webgpu"}
+        A name of :data:`REGISTRY`, or ``"auto"`` for the first of
+        :data:`PREFERENCE` that imports.
+
+    Returns
+    -------
+    Backend
+        One shared instance per name.
 
     Raises
     ------
