@@ -40,6 +40,20 @@ class Result:
     one line). ``outputs`` lists every file written, the volume first (local
     paths, or URLs where the output folder is one). ``seconds`` is the time
     the model took where it ran; ``note`` the inside count and any warning.
+
+    Attributes
+    ----------
+    input : str
+        The input path, as found.
+    status : {"ok", "skipped", "failed"}
+    outputs : list of str
+        Files written, the volume first.
+    error : str
+        One line; empty unless failed.
+    seconds : float
+        The model's own time, where it ran.
+    note : str
+        Inside count and warnings.
     """
 
     input: str

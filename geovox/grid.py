@@ -63,7 +63,13 @@ class Grid:
         start : float, optional
             Coordinate along ``axis`` where the rays begin; it must lie outside
             the whole mesh (not merely outside the grid) so that a grid that
-            cuts through the mesh is still classified correctly.
+            cuts through the mesh is still classified correctly. Default: the
+            grid's low face.
+
+        Returns
+        -------
+        Columns
+            ``shape[u] * shape[v]`` rays, one per voxel column.
         """
         u, v = (a for a in range(3) if a != axis)
         return Columns(

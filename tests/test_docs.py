@@ -217,3 +217,36 @@ def test_backend_example_gives_the_numpy_backends_crossings(axis):
     assert len(mine) == len(ref) > 0
     for name in ("ray", "triangle", "depth", "bary"):
         assert (getattr(mine, name) == getattr(ref, name)).all(), name
+
+
+def _readme():
+    """The short README: docs/README_new.md until it replaces README.md, then README.md."""
+    new = os.path.join(ROOT, "docs", "README_new.md")
+    return new if os.path.exists(new) else os.path.join(ROOT, "README.md")
+
+
+def test_short_readme_keeps_its_limits():
+    """At most 200 lines and 16 KB, the two commands as Getting started gives them, a Python
+    example of at most 15 lines, no dated figures, and links that point at files."""
+    path = _readme()
+    with open(path, encoding="utf-8") as f:
+        text = f.read()
+    assert len(text.splitlines()) <= 200 and len(text.encode()) <= 16 * 1024
+    with open(os.path.join(ROOT, "docs", "getting-started.md"), encoding="utf-8") as f:
+        commands = [line for line in f.read().splitlines() if line.startswith("python3 -m venv")
+                    and ("geovox convert" in line or "pytest" in line)]
+    assert len(commands) == 2
+    for command in commands:
+        assert command in text.splitlines(), command
+    python = _python_blocks_of(text)
+    assert python and len(python[0].rstrip("\n").splitlines()) <= 15
+    import re
+
+    assert not re.search(r"20\d\d-\d\d-\d\d|\d\d:\d\d UTC", text), "dated figures"
+    assert "docs/benchmarks.md" in text and "Open3D" in text
+    for target in re.findall(r"\]\(([^)#:]+)(?:#[^)]*)?\)", text):
+        assert os.path.exists(os.path.join(ROOT, target)), target
+
+
+def _python_blocks_of(text):
+    return [b.split("```", 1)[0] for b in text.split("```python\n")[1:]]
