@@ -136,9 +136,23 @@ def plot(result, path):
 
     spec = result["plot"]
     fig, ax = plt.subplots(figsize=(6.4, 4.0), dpi=120)
+    # Labels read "TOOL, MODEL (...)": one colour per model, one line style per geovox
+    # variant, peers dashed with square markers.
+    models, tools = [], []
     for series in spec["series"]:
-        style = "--" if series.get("peer") else "-"
-        ax.plot(series["x"], series["y"], style, marker="o", label=series["label"])
+        tool, _, rest = series["label"].partition(", ")
+        model = rest.split(" (")[0]
+        models += [model] if model not in models else []
+        tools += [tool] if tool not in tools and not series.get("peer") else []
+    for series in spec["series"]:
+        tool, _, rest = series["label"].partition(", ")
+        colour = f"C{models.index(rest.split(' (')[0])}"
+        if series.get("peer"):
+            style, marker = "--", "s"
+        else:
+            style, marker = ("-", "-.", ":")[tools.index(tool) % 3], "o"
+        ax.plot(series["x"], series["y"], style, marker=marker, label=series["label"],
+                color=colour)
     ax.set_xscale("log", base=2)
     ax.set_yscale("log")
     grids = sorted({x for s in spec["series"] for x in s["x"]})
