@@ -357,7 +357,7 @@ def _submit_dask(client, tasks, retries, on_result):
     more, they would be blamed too (Dask queues only large groups of tasks
     on its side). It also keeps a run of 100,000 models from putting them
     all on the scheduler at once; the cost is one message round trip between
-    two models on a thread (a few ms, see benchmarks/README.md).
+    two models on a thread (a few ms, see docs/benchmarks.md).
     """
     from asyncio import CancelledError
     from collections import deque
