@@ -40,6 +40,20 @@ class Result:
     one line). ``outputs`` lists every file written, the volume first (local
     paths, or URLs where the output folder is one). ``seconds`` is the time
     the model took where it ran; ``note`` the inside count and any warning.
+
+    Attributes
+    ----------
+    input : str
+        The input path, as found.
+    status : {"ok", "skipped", "failed"}
+    outputs : list of str
+        Files written, the volume first.
+    error : str
+        One line; empty unless failed.
+    seconds : float
+        The model's own time, where it ran.
+    note : str
+        Inside count and warnings.
     """
 
     input: str
@@ -343,7 +357,7 @@ def _submit_dask(client, tasks, retries, on_result):
     more, they would be blamed too (Dask queues only large groups of tasks
     on its side). It also keeps a run of 100,000 models from putting them
     all on the scheduler at once; the cost is one message round trip between
-    two models on a thread (a few ms, see benchmarks/README.md).
+    two models on a thread (a few ms, see docs/benchmarks.md).
     """
     from asyncio import CancelledError
     from collections import deque

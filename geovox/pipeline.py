@@ -59,9 +59,10 @@ def voxelize(
     bounds : sequence of 6 float, optional
         Region ``(xmin, ymin, zmin, xmax, ymax, zmax)``; default: the mesh's
         bounding box. The region may cut through the mesh.
-    backend : {"auto", "embree", "numpy"}
+    backend : {"auto", "numpy", "embree", "webgpu"}
         Ray-casting engine; ``"auto"`` is NumPy, measured the faster one for
-        column rays (see :mod:`geovox.backends`); both give the same volume.
+        column rays (see :mod:`geovox.backends`); all give the same volume.
+        ``"webgpu"`` (the ``gpu`` extra) is used only when named.
     shape : (3,) int, optional
         Voxels along x, y, z (instead of ``resolution``).
     voxel_size : float, optional
@@ -108,6 +109,30 @@ def voxelize(
     Returns
     -------
     Volume
+        ``occupancy`` an ``(nx, ny, nz)`` bool array indexed ``[x, y, z]``
+        (Fortran order); ``colors`` ``(nx, ny, nz, 4)`` uint8 RGBA (alpha 255
+        inside, 0 outside), ``density`` ``(nx, ny, nz)`` uint8 or float32 and
+        ``sdf`` ``(nx, ny, nz)`` float32 where asked for, else None; the
+        ``grid``, the ``backend`` and ``inside`` test that ran, and
+        ``timings`` in seconds per stage.
+
+    Raises
+    ------
+    InputNotFoundError
+        ``mesh`` is a path that does not exist.
+    MeshError
+        The file cannot be read as a triangle mesh (the message says why).
+    ParameterError
+        A bad value: ``resolution``, ``shape`` or ``voxel_size`` not
+        positive (or more than one given), ``bounds`` with min >= max,
+        ``axis``, ``backend``, ``inside``, ``color``, ``density``,
+        ``supersample``, ``density_dtype`` or ``band``.
+    BackendUnavailableError
+        The named backend cannot run here (its package or a driver is
+        missing); the message says what to install.
+    GridTooLargeError
+        The arrays would not fit in the available memory (raised before
+        anything is allocated, with the size needed).
     """
     t0 = time.perf_counter()
     if axis not in (0, 1, 2):

@@ -291,11 +291,18 @@ def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, c
 
     Parameters
     ----------
-    mesh : path, trimesh object or Mesh
-    path : str
-        Output file (``.h5`` / ``.hdf5`` / ``.raw``) or folder (``.zarr``).
+    mesh : str, os.PathLike, trimesh.Trimesh, trimesh.Scene or geovox.mesh.Mesh
+        The model, as for :func:`geovox.voxelize`.
+    path : str or os.PathLike
+        Output file (``.h5`` / ``.hdf5`` / ``.vtkhdf`` / ``.hdf`` / ``.raw``)
+        or folder (``.zarr``).
+    fmt : str, optional
+        Format name instead of the extension (``"hdf5"``, ``"vtkhdf"``,
+        ``"raw"``, ``"zarr"``).
     budget : float, optional
         Bytes one slab's arrays may take (default ``SLAB_BUDGET``).
+    jobs : int, optional
+        Threads (default: one per core); the file is the same for any value.
     progress : callable, optional
         Called with ``(slabs_done, n_slabs)`` after each slab.
     client : dask.distributed.Client, optional
@@ -316,6 +323,24 @@ def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, c
     ``inside_test``, ``backend``, ``slabs``, ``files`` and ``timings``;
     ``filled_in_slabs`` is True where a one-piece occupancy was filled and
     written 64 slices at a time (see :func:`geovox.parity.fill_slabs`).
+    ``shape`` is a tuple of 3 int, ``spacing`` of 3 float, ``bounds`` two
+    tuples of 3 float (low and high corners), ``files`` a list of str and
+    ``timings`` seconds per stage.
+
+    Raises
+    ------
+    ParameterError
+        A format that cannot be written slab by slab, ``client`` or ``slab``
+        without ``.zarr``, a ``slab`` that is not a multiple of 64, or a bad
+        option as for :func:`geovox.voxelize`.
+    InputNotFoundError, MeshError, BackendUnavailableError
+        As for :func:`geovox.voxelize`.
+    OutputError
+        The output cannot be written (missing folder, no permission, disk
+        full; nothing is left behind), or the cluster's workers cannot see
+        the output folder.
+    GridTooLargeError
+        Even one slab would not fit in the available memory.
     """
     from . import formats
     from . import inside as inside_tests

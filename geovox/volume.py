@@ -23,9 +23,12 @@ class Volume:
         True inside. Indexed ``[x, y, z]``; x is fastest in memory, so
         ``occupancy.T.tobytes()`` is the x-fastest byte order of RAW files.
     grid : Grid
+        The grid the arrays live on: ``lo``, ``hi`` (3,) float64 and
+        ``shape``.
     backend : str
         Name of the backend that ran.
     source : str
+        Where the mesh came from (its path, or a description).
     colors : (nx, ny, nz, 4) uint8 or None
         RGBA colour per voxel, when colour was asked for.
     inside : str
