@@ -10,7 +10,7 @@ import os
 
 import numpy as np
 
-from .errors import GeovoxError, OutputError
+from ..errors import GeovoxError, OutputError
 
 #: Above this many inside voxels only the visible shell is drawn.
 SHELL_ABOVE = 200_000
@@ -36,7 +36,7 @@ def _pyvista():
 def voxel_cells(volume):
     """The inside voxels as a PyVista UnstructuredGrid of hexahedra (shell only when large)."""
     pv = _pyvista()
-    from .formats.vox import shell_mask
+    from ..formats.vox import shell_mask
 
     occ = volume.occupancy
     keep = shell_mask(occ) if np.count_nonzero(occ) > SHELL_ABOVE else occ
@@ -98,7 +98,7 @@ def show(volume, mesh=None, screenshot=None, window_size=(1200, 600)):
         plotter.link_views()
     plotter.view_isometric()
     if screenshot is not None:
-        from .formats import atomic_outputs, check_writable
+        from ..formats import atomic_outputs, check_writable
 
         check_writable(screenshot)
         png = None
