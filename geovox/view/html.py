@@ -157,6 +157,16 @@ def page_fields(volume, max_side: int = MAX_SIDE) -> tuple:
     return {name: downsample(name, arr, f) for name, arr in fields.items()}, f
 
 
+def _deflate(raw: bytes) -> bytes:
+    """A zlib stream of ``raw``: ISA-L's level 1 where installed (spot 256³'s colour in 0.12 s
+    instead of zlib's 2.1 s at level 6, 1.31 MB instead of 1.15), else zlib's level 6."""
+    try:
+        from isal import isal_zlib
+    except ImportError:  # pragma: no cover - isal has wheels for the common platforms
+        return zlib.compress(raw, 6)
+    return isal_zlib.compress(raw, 1)
+
+
 def _encode(name: str, arr: np.ndarray) -> tuple:
     """``(dtype name, base64 text)`` of one field, as the module docstring lays it out."""
     if name == "occupancy":
@@ -165,7 +175,7 @@ def _encode(name: str, arr: np.ndarray) -> tuple:
         dtype = arr.dtype.newbyteorder("<") if arr.dtype.itemsize > 1 else arr.dtype
         flat = arr.reshape(-1, 4, order="F") if name == "colors" else arr.ravel(order="F")
         raw, dtype = flat.astype(dtype, copy=False).tobytes(), np.dtype(dtype).name
-    return dtype, base64.b64encode(zlib.compress(raw, 6)).decode("ascii")
+    return dtype, base64.b64encode(_deflate(raw)).decode("ascii")
 
 
 def _script_json(obj) -> str:

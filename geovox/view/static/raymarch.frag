@@ -12,6 +12,7 @@ out vec4 outColor;
 uniform sampler3D uField;   // R8, linear: coverage, visible labels, distance or density
 uniform sampler3D uSmooth;  // R8, linear: uField smoothed, for the normals
 uniform sampler3D uColor;   // RGBA8, nearest: the voxels' colours
+uniform sampler3D uCoarse;  // R8, nearest: max of uField over each BLOCK³ block and a voxel around
 uniform mat4 uInvViewProj;
 uniform vec3 uEye;          // camera position, normalised world (the box is uExt wide)
 uniform vec3 uExt;          // the shown grid's extent, its longest side 1
@@ -28,6 +29,23 @@ uniform bool uShowBox;
 uniform float uPixel;       // a pixel's width at distance 1
 uniform vec3 uLight1;       // towards the key light, world
 uniform vec3 uLight2;       // towards the fill light, world
+uniform float uSkipBelow;   // a block whose max is below this holds nothing to draw
+
+const float BLOCK = 8.0;
+
+// Where the ray leaves the block holding o + d * t (empty-space skipping), at least t.
+float blockExit(vec3 o, vec3 d, vec3 invd, float t) {
+  vec3 bi = floor((o + d * t) * uShape / BLOCK);
+  vec3 far = (bi + step(0.0, d)) * BLOCK / uShape;
+  vec3 tb = (far - o) * invd;
+  return max(min(min(tb.x, tb.y), tb.z), t);
+}
+
+bool emptyBlock(vec3 p) {
+  ivec3 last = textureSize(uCoarse, 0) - 1;
+  ivec3 bi = clamp(ivec3(floor(p * uShape / BLOCK)), ivec3(0), last);
+  return texelFetch(uCoarse, bi, 0).r < uSkipBelow;
+}
 
 vec2 boxHit(vec3 o, vec3 invd, vec3 lo, vec3 hi, out int axis) {
   vec3 t0 = (lo - o) * invd;
@@ -56,7 +74,7 @@ vec3 normalAt(vec3 p, vec3 dirT) {
 
 vec4 colourAt(vec3 p, vec3 stepT, vec3 inward) {
   // Nearest voxel: step into the solid until a voxel with colour is found.
-  for (int k = 1; k <= 3; k++) {
+  for (int k = 1; k <= 6; k++) {
     vec4 c = texture(uColor, p + stepT * float(k) * 0.6 + inward * float(k) * 0.3);
     if (c.a > 0.0) return c;
   }
@@ -104,15 +122,21 @@ void main() {
       vec3 n = vec3(0.0);
       n[axis] = -sign(d[axis]);
       vec4 c = uHasColor ? colourAt(p, stepT, -n / uShape) : vec4(uBaseColor, 1.0);
-      col = shade(c.a > 0.0 ? c.rgb : uBaseColor, normalize(n / uExt), view);
+      // Flatter light than on the surface: a cut face is read for its colours.
+      float lit = max(dot(normalize(n / uExt), uLight1), 0.0);
+      col = (c.a > 0.0 ? c.rgb : uBaseColor) * (0.62 + 0.38 * lit);
       hit = true;
     } else {
-      float tt = tn;
+      float tt = tn;  // below the threshold here, and at every tt after
       for (int i = 0; i < 4096; i++) {
-        tt += stepLen;
-        if (tt > t.y) break;
-        if (field(o + d * tt) >= uThreshold) {
-          float lo = tt - stepLen, hi = tt;
+        float next = tt + stepLen;
+        if (next > t.y) break;
+        if (emptyBlock(o + d * next)) {
+          tt = blockExit(o, d, invd, next);
+          continue;
+        }
+        if (field(o + d * next) >= uThreshold) {
+          float lo = tt, hi = next;
           for (int k = 0; k < 7; k++) {
             float m = 0.5 * (lo + hi);
             if (field(o + d * m) >= uThreshold) hi = m; else lo = m;
@@ -125,6 +149,7 @@ void main() {
           hit = true;
           break;
         }
+        tt = next;
       }
     }
   } else {
@@ -134,6 +159,10 @@ void main() {
     for (int i = 0; i < 4096; i++) {
       if (tt > t.y || alpha > 0.985) break;
       vec3 p = o + d * tt;
+      if (emptyBlock(p)) {
+        tt = blockExit(o, d, invd, tt) + 0.01 * stepLen;
+        continue;
+      }
       float v = field(p);
       if (v > 0.002) {
         float s = 1.0 - exp(-v * uOpacity * 40.0 * stepLen);

@@ -135,6 +135,31 @@
     return out;
   }
 
+  // Max of the field over each BLOCK³ block widened by a voxel on every side (what trilinear
+  // samples inside the block read): a block whose max is below the threshold is skipped whole.
+  const BLOCK = 8;
+  function coarseMax(src, dims) {
+    let cur = src, shape = dims.slice();
+    for (let axis = 0; axis < 3; axis++) {
+      const n = shape[axis], c = Math.ceil(n / BLOCK);
+      const out = shape.slice(); out[axis] = c;
+      const dst = new Uint8Array(out[0] * out[1] * out[2]);
+      const sIn = [1, shape[0], shape[0] * shape[1]], sOut = [1, out[0], out[0] * out[1]];
+      const [a1, a2] = [0, 1, 2].filter((a) => a !== axis);
+      for (let j = 0; j < shape[a2]; j++) for (let i = 0; i < shape[a1]; i++) {
+        const baseIn = i * sIn[a1] + j * sIn[a2], baseOut = i * sOut[a1] + j * sOut[a2];
+        for (let b = 0; b < c; b++) {
+          let m = 0;
+          const lo = Math.max(0, b * BLOCK - 1), hi = Math.min(n - 1, b * BLOCK + BLOCK);
+          for (let x = lo; x <= hi; x++) { const v = cur[baseIn + x * sIn[axis]]; if (v > m) m = v; }
+          dst[baseOut + b * sOut[axis]] = m;
+        }
+      }
+      cur = dst; shape = out;
+    }
+    return { data: cur, shape };
+  }
+
   function autoColour(value) {
     const h = (value * 137.508) % 360, s = 0.65, l = 0.55;
     const k = (n) => (n + h / 30) % 12, a = s * Math.min(l, 1 - l);
@@ -161,6 +186,13 @@
       if (o) { rgba[4 * i] = lut[o]; rgba[4 * i + 1] = lut[o + 1]; rgba[4 * i + 2] = lut[o + 2]; rgba[4 * i + 3] = 255; }
     }
     return { list, lut, rgba, size };
+  }
+
+  function gl3D(gl, t, shape, bytes) {
+    gl.bindTexture(gl.TEXTURE_3D, t);
+    gl.texParameteri(gl.TEXTURE_3D, gl.TEXTURE_MIN_FILTER, gl.NEAREST);
+    gl.texParameteri(gl.TEXTURE_3D, gl.TEXTURE_MAG_FILTER, gl.NEAREST);
+    gl.texImage3D(gl.TEXTURE_3D, 0, gl.R8, shape[0], shape[1], shape[2], 0, gl.RED, gl.UNSIGNED_BYTE, bytes);
   }
 
   // ---- the viewer ---------------------------------------------------------------------------
@@ -232,6 +264,7 @@
         return t;
       };
       this.texField = tex(gl.RED, gl.R8, true, null);
+      this.texCoarse = gl.createTexture();
       this.texSmooth = tex(gl.RED, gl.R8, true, null);
       this.texColor = this.data.colors ? tex(gl.RGBA, gl.RGBA8, false, this.data.colors) : null;
       this.texLabels = this.labels ? tex(gl.RGBA, gl.RGBA8, false, this.labels.rgba) : null;
@@ -264,6 +297,8 @@
         for (let i = 0; i < n; i++) field[i] = d.occupancy[i] * 255;
       }
       this.upload(this.texField, field);
+      const coarse = coarseMax(field, this.shape);
+      gl3D(this.gl, this.texCoarse, coarse.shape, coarse.data);
       // Twice: a 5-voxel kernel, so that the normals of a voxel staircase turn smoothly.
       this.upload(this.texSmooth, smoothIt ? smooth(smooth(field, mx, my, mz), mx, my, mz) : field);
       this.fieldBytes = field;
@@ -332,7 +367,7 @@
       gl.uniform1f(u.uPixel, 2 * Math.tan(fov / 2) / this.canvas.height);
       const fwd = V.norm(V.sub(this.target, eye)), right = V.norm(V.cross(fwd, up)), camUp = V.cross(right, fwd);
       const light = (r, uu, b) => V.norm(V.add(V.add(V.mul(right, r), V.mul(camUp, uu)), V.mul(fwd, -b)));
-      gl.uniform3fv(u.uLight1, light(-0.45, 0.6, 0.75));
+      gl.uniform3fv(u.uLight1, light(-0.4, 0.5, 0.9));
       gl.uniform3fv(u.uLight2, light(0.7, -0.2, 0.4));
       const bind = (unit, tex, name) => {
         gl.activeTexture(gl.TEXTURE0 + unit);
@@ -342,6 +377,8 @@
       bind(0, this.texField, "uField");
       bind(1, this.texSmooth, "uSmooth");
       bind(2, colourTex || this.texField, "uColor");
+      bind(3, this.texCoarse, "uCoarse");
+      gl.uniform1f(u.uSkipBelow, this.mode === "density" ? 0.003 : this.threshold());
       gl.bindVertexArray(this.vao);
       gl.drawArrays(gl.TRIANGLES, 0, 3);
       this.frames++;
@@ -567,6 +604,8 @@
       label.className = "gv-row";
       const name = document.createElement("span");
       name.style.textAlign = "left";
+      name.style.whiteSpace = "nowrap";
+      name.style.minWidth = "80px";
       const s = document.createElement("input");
       s.type = "range"; s.min = 0; s.max = vw.shape[a] - 1; s.value = vw.slice[a]; s.id = "gv-slice-" + a;
       s.oninput = () => { vw.slice[a] = Number(s.value); drawSlice(vw, a); };
@@ -605,7 +644,9 @@
       px[o] = rgb[0]; px[o + 1] = rgb[1]; px[o + 2] = rgb[2]; px[o + 3] = 255;
     }
     ctx.putImageData(img, 0, 0);
-    c.previousSibling.firstChild.textContent = "xyz"[a] + " = " + k + " / " + vw.shape[a] + "  (" + "xyz"[u] + " →, " + "xyz"[v] + " ↑)";
+    const name = c.previousSibling.firstChild;
+    name.textContent = "xyz"[a] + " " + k + " / " + vw.shape[a];
+    name.title = "xyz"[u] + " to the right, " + "xyz"[v] + " up";
     void mz;
   }
 
