@@ -126,7 +126,8 @@ def build_parser() -> argparse.ArgumentParser:
     pv.add_argument("-o", "--output", required=True, help="PNG file to write")
     _grid_options(pv)
 
-    vw = sub.add_parser("view", help="interactive 3D view of a volume (needs the 'view' extra)")
+    vw = sub.add_parser("view", help="interactive 3D view of a volume (needs the 'view' extra), "
+                                     "or with --html one self-contained page for any browser")
     vw.add_argument("input", help="a volume written by geovox, or a mesh")
     vw.add_argument("--mesh", help="show this mesh beside the volume")
     vw.add_argument("--screenshot", metavar="PNG", help="render off-screen into PNG instead")

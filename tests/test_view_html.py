@@ -126,6 +126,11 @@ def test_page_holds_no_external_url(tmp_path):
     assert not re.search(r"""\b(?:src|href)\s*=""", text), "nothing is loaded by reference"
     # The viewer really is inlined, not referenced.
     assert "geovoxViewer" in text and "#version 300 es" in text and "gv-canvas" in text
+    # What goes into the page is text there, markers and tags included.
+    odd = H.render_page(two_material_box(4), title="a /*@@CSS@@*/ <script>", source="</script>")
+    assert odd.count("#gv-main {") == 1  # the style sheet went in once, where it belongs
+    assert "a /*@@CSS@@*/ &lt;script&gt; - geovox" in odd and odd.count("</script>") == text.count(
+        "</script>") - 3
 
 
 def test_embedded_data_decodes_to_exactly_the_arrays():

@@ -39,6 +39,7 @@ import html
 import json
 import math
 import os
+import re
 import zlib
 from importlib import resources
 
@@ -232,16 +233,15 @@ def render_page(volume, *, max_side: int = MAX_SIDE, title: str | None = None,
     shaders = "".join(
         f'<script type="x-shader/x-{kind}" id="geovox-{kind}">\n{_static(fname)}</script>\n'
         for kind, fname in (("vertex", "raymarch.vert"), ("fragment", "raymarch.frag")))
-    page = _static("viewer.html")
-    # The data goes in last, so that no marker can turn up inside it.
-    for marker, text in (("@@TITLE@@", html.escape(f"{name} - geovox")),
-                         ("/*@@CSS@@*/", _static("viewer.css")),
-                         ("<!--@@SHADERS@@-->", shaders),
-                         ("/*@@JS@@*/", js),
-                         ("@@META@@", _script_json(meta)),
-                         ("<!--@@DATA@@-->", "\n".join(blocks))):
-        page = page.replace(marker, text, 1)
-    return page
+    parts = {"@@TITLE@@": html.escape(f"{name} - geovox"),
+             "/*@@CSS@@*/": _static("viewer.css"),
+             "<!--@@SHADERS@@-->": shaders,
+             "/*@@JS@@*/": js,
+             "@@META@@": _script_json(meta),
+             "<!--@@DATA@@-->": "\n".join(blocks)}
+    # One pass over the template: a marker inside what is put in (a title, say) stays text.
+    pattern = "|".join(re.escape(m) for m in parts)
+    return re.sub(pattern, lambda m: parts[m.group(0)], _static("viewer.html"))
 
 
 def to_html(volume, path, *, max_side: int = MAX_SIDE, title: str | None = None,

@@ -231,6 +231,11 @@
       const gl = canvas.getContext("webgl2", { antialias: false, alpha: false, preserveDrawingBuffer: false });
       if (!gl) throw new Error("this browser cannot show the volume: WebGL2 is not available");
       this.gl = gl;
+      const most = gl.getParameter(gl.MAX_3D_TEXTURE_SIZE);
+      if (Math.max(...this.shape) > most) {
+        throw new Error("this GPU holds 3D textures of at most " + most + " voxels a side; the page has " +
+          this.shape.join(" x ") + ": write it again with geovox view --html --max-side " + most);
+      }
       const compile = (type, id) => {
         const s = gl.createShader(type);
         gl.shaderSource(s, $(id).textContent.trim());
