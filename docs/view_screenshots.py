@@ -12,8 +12,8 @@ import time
 import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))  # this checkout's geovox
-import geovox  # noqa: E402
-from geovox.view.html import to_html  # noqa: E402
+import geovox
+from geovox.view.html import to_html
 
 FLAGS = ("--headless --no-sandbox --disable-gpu --disable-quic --no-first-run "
          "--disable-background-networking --disable-component-update --disable-sync "
@@ -48,7 +48,7 @@ def shoot(driver, page, png, *scripts):
 
 def spot_labels(vol):
     """Spot's parts as labels, by position (y up, the head towards -z)."""
-    x, y, z = np.meshgrid(*(vol.grid.centres(a) for a in range(3)), indexing="ij")
+    _, y, z = np.meshgrid(*(vol.grid.centres(a) for a in range(3)), indexing="ij")
     labels = np.where(vol.occupancy, 2, 0).astype(np.uint8)  # body
     labels[vol.occupancy & (z < -0.1) & (y > -0.3)] = 1  # head
     labels[vol.occupancy & (y < -0.38)] = 3  # legs

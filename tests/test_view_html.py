@@ -84,7 +84,7 @@ def labelled_scene(n=48, dtype=np.uint16):
 def decode_page(text):
     """``(meta, {name: array})`` from a page's embedded blocks."""
     meta = json.loads(re.search(r'<script type="application/json" id="geovox-meta">(.*?)</script>',
-                                text, re.S).group(1))
+                                text, re.DOTALL).group(1))
     shape = tuple(meta["shape"])
     out = {}
     for name, info in meta["fields"].items():
@@ -122,7 +122,7 @@ def test_page_holds_no_external_url(tmp_path):
     for pattern in (r"""(?:src|href)\s*=\s*["']?\s*(?!#)[a-z]*:?//""",
                     r"""url\(\s*["']?\s*[a-z]*:?//""", r"""\bimport\s*\(|\bimport\s+[^;]*\bfrom\b""",
                     r"""\bfetch\s*\(""", r"""https?:|wss?:|ftp:"""):
-        assert not re.search(pattern, text, re.I), pattern
+        assert not re.search(pattern, text, re.IGNORECASE), pattern
     assert not re.search(r"""\b(?:src|href)\s*=""", text), "nothing is loaded by reference"
     # The viewer really is inlined, not referenced.
     assert "geovoxViewer" in text and "#version 300 es" in text and "gv-canvas" in text

@@ -29,6 +29,8 @@ uniform bool uShowBox;
 uniform float uPixel;       // a pixel's width at distance 1
 uniform vec3 uLight1;       // towards the key light, world
 uniform vec3 uLight2;       // towards the fill light, world
+uniform bool uShowSlices;   // tint the three slices' planes
+uniform vec3 uSlice;        // their positions (voxel centres)
 uniform float uSkipBelow;   // a block whose max is below this holds nothing to draw
 
 const float BLOCK = 8.0;
@@ -98,6 +100,19 @@ bool nearEdge(vec3 p, float width) {
   return count >= 2;
 }
 
+// Where the three slices are: a faint tint where the ray crosses one in front of the surface
+// (the slices themselves are drawn beside the view).
+vec3 slices(vec3 o, vec3 invd, float tn, float tEnd, vec3 col) {
+  for (int a = 0; a < 3; a++) {
+    float tp = (uSlice[a] - o[a]) * invd[a];
+    vec3 p = o + tp / invd;
+    if (tp > tn && tp < tEnd && all(greaterThanEqual(p, uClipLo - 1e-6)) && all(lessThanEqual(p, uClipHi + 1e-6))) {
+      col = mix(col, vec3(0.4, 0.6, 0.9), 0.16);
+    }
+  }
+  return col;
+}
+
 void main() {
   vec4 a = uInvViewProj * vec4(vNdc, -1.0, 1.0);
   vec4 b = uInvViewProj * vec4(vNdc, 1.0, 1.0);
@@ -115,6 +130,7 @@ void main() {
   vec3 stepT = d * stepLen;
   vec3 view = -dir;
   bool hit = false;
+  float tHit = t.y;
   if (uMode == 0) {
     vec3 p = o + d * tn;
     if (field(p) >= uThreshold) {
@@ -126,6 +142,7 @@ void main() {
       float lit = max(dot(normalize(n / uExt), uLight1), 0.0);
       col = (c.a > 0.0 ? c.rgb : uBaseColor) * (0.62 + 0.38 * lit);
       hit = true;
+      tHit = tn;
     } else {
       float tt = tn;  // below the threshold here, and at every tt after
       for (int i = 0; i < 4096; i++) {
@@ -147,6 +164,7 @@ void main() {
           vec4 c = uHasColor ? colourAt(p, stepT, -nT / uShape) : vec4(uBaseColor, 1.0);
           col = shade(c.a > 0.0 ? c.rgb : uBaseColor, n, view);
           hit = true;
+          tHit = hi;
           break;
         }
         tt = next;
@@ -176,6 +194,7 @@ void main() {
     col = acc + (1.0 - alpha) * uBg;
     hit = alpha > 0.5;
   }
+  if (uShowSlices && uMode == 0) col = slices(o, invd, tn, tHit, col);
   if (uShowBox) {
     if (t.x > 0.0 && nearEdge(o + d * t.x, uPixel * t.x * 1.6)) col = mix(col, vec3(1.0, 0.75, 0.25), 0.9);
     else if (!hit && nearEdge(o + d * t.y, uPixel * t.y * 1.2)) col = mix(col, vec3(1.0, 0.75, 0.25), 0.45);

@@ -219,6 +219,7 @@
       this.opacity = 0.4;
       this.up = "y";
       this.showBox = true;
+      this.showSlices = false;
       this.initGL();
       this.resetCamera(false);
       this.buildField();
@@ -383,6 +384,8 @@
       bind(1, this.texSmooth, "uSmooth");
       bind(2, colourTex || this.texField, "uColor");
       bind(3, this.texCoarse, "uCoarse");
+      gl.uniform1i(u.uShowSlices, this.showSlices ? 1 : 0);
+      gl.uniform3fv(u.uSlice, (this.slice || [0, 0, 0]).map((k, i) => (k + 0.5) / this.shape[i]));
       gl.uniform1f(u.uSkipBelow, this.mode === "density" ? 0.003 : this.threshold());
       gl.bindVertexArray(this.vao);
       gl.drawArrays(gl.TRIANGLES, 0, 3);
@@ -513,6 +516,7 @@
     mode.onchange = () => vw.setMode(mode.value);
     $("gv-up").onchange = (e) => { vw.up = e.target.value; vw.requestRender(); };
     $("gv-showbox").onchange = (e) => { vw.showBox = e.target.checked; vw.requestRender(); };
+    $("gv-showslices").onchange = (e) => { vw.showSlices = e.target.checked; vw.requestRender(); };
     $("gv-reset-camera").onclick = () => vw.resetCamera();
     initSliders(vw);
     initClip(vw);
@@ -613,7 +617,7 @@
       name.style.minWidth = "80px";
       const s = document.createElement("input");
       s.type = "range"; s.min = 0; s.max = vw.shape[a] - 1; s.value = vw.slice[a]; s.id = "gv-slice-" + a;
-      s.oninput = () => { vw.slice[a] = Number(s.value); drawSlice(vw, a); };
+      s.oninput = () => { vw.slice[a] = Number(s.value); drawSlice(vw, a); if (vw.showSlices) vw.requestRender(); };
       label.append(name, s);
       const c = document.createElement("canvas");
       c.id = "gv-slice-canvas-" + a;
@@ -708,7 +712,8 @@
       setOpacity: (o) => { vw.opacity = o; vw.requestRender(); },
       setCamera: (cam) => { Object.assign(vw, cam); vw.requestRender(); },
       resetCamera: () => vw.resetCamera(),
-      setSlice: (axis, index) => { vw.slice[axis] = index; $("gv-slice-" + axis).value = index; drawSlice(vw, axis); },
+      setSlice: (axis, index) => { vw.slice[axis] = index; $("gv-slice-" + axis).value = index; drawSlice(vw, axis); vw.requestRender(); },
+      showSlices: (on) => { vw.showSlices = !!on; $("gv-showslices").checked = vw.showSlices; vw.requestRender(); },
       snapshot: () => vw.snapshot(),
       frames: () => vw.frames,
     });
