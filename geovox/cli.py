@@ -134,7 +134,7 @@ def build_parser() -> argparse.ArgumentParser:
     vw.add_argument("--html", metavar="OUT.html",
                     help="write one self-contained page that shows the volume in any browser "
                          "(WebGL2; no PyVista, no network) instead of opening a window")
-    vw.add_argument("--max-side", type=_positive_int, default=256, metavar="N",
+    vw.add_argument("--max-side", type=_positive_int, default=None, metavar="N",
                     help="with --html: show a volume with a side above N voxels downsampled "
                          "(default 256)")
     _grid_options(vw)
@@ -575,14 +575,15 @@ def _view_html(args) -> int:
     from . import formats
     from .errors import ParameterError
     from .view import LARGEST
-    from .view.html import to_html
+    from .view.html import MAX_SIDE, to_html
 
     if args.mesh or args.screenshot:
         raise ParameterError("--html writes a page on its own: drop --mesh and --screenshot")
     formats.check_writable(args.html)
     t0 = time.perf_counter()
-    vol = _volume_or_mesh(args, _sidecar_volume(args.input), max(LARGEST, args.max_side))
-    out = to_html(vol, args.html, max_side=args.max_side, source=args.input)
+    max_side = args.max_side or MAX_SIDE
+    vol = _volume_or_mesh(args, _sidecar_volume(args.input), max(LARGEST, max_side))
+    out = to_html(vol, args.html, max_side=max_side, source=args.input)
     size = os.path.getsize(out)
     print(f"wrote {out} ({size / 1e6:.2f} MB, {time.perf_counter() - t0:.2f} s); open it in a browser")
     return EXIT_OK
@@ -591,6 +592,10 @@ def _view_html(args) -> int:
 def _view(args) -> int:
     if args.html:
         return _view_html(args)
+    if args.max_side is not None:
+        from .errors import ParameterError
+
+        raise ParameterError("--max-side is for --html")
     from .mesh import load_mesh
     from .view import LARGEST, show
 

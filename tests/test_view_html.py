@@ -250,7 +250,9 @@ def test_cli_bad_input_one_line_status_2_nothing_left(tmp_path, capsys):
             ([SPOT, "-r", "8", "--html", str(tmp_path / "folder.html")], "is a folder"),
             ([SPOT, "-r", "8", "--html", str(tmp_path / "o.html"), "--mesh", SPOT], "--html"),
             ([SPOT, "-r", "8", "--html", str(tmp_path / "o.html"), "--max-side", "0"],
-             "--max-side")):
+             "--max-side"),
+            ([SPOT, "-r", "8", "--screenshot", str(tmp_path / "o.png"), "--max-side", "64"],
+             "--max-side is for --html")):
         assert main(["view", *argv]) == 2
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and words in err and "Traceback" not in err, err
@@ -282,8 +284,8 @@ FLAGS = ("--headless --no-sandbox --disable-gpu --disable-quic --no-first-run "
          "--use-angle=swiftshader --enable-unsafe-swiftshader --window-size=640,520").split()
 
 
-@pytest.fixture(scope="module")
-def browser():
+def _chromium(extra=()):
+    """A headless Chromium driven through the system chromedriver, and its profile folder."""
     if not (os.path.isfile(CHROMIUM) and os.path.isfile(CHROMEDRIVER)):
         pytest.skip("needs Debian's chromium and chromium-driver (apt-get install chromium "
                     "chromium-driver; .ci/run installs them as root)")
@@ -293,9 +295,14 @@ def browser():
     profile = tempfile.mkdtemp(prefix="geovox-chromium-")
     options = webdriver.ChromeOptions()
     options.binary_location = CHROMIUM
-    for flag in FLAGS + [f"--user-data-dir={profile}"]:
+    for flag in [*FLAGS, *extra, f"--user-data-dir={profile}"]:
         options.add_argument(flag)
-    driver = webdriver.Chrome(service=Service(CHROMEDRIVER), options=options)
+    return webdriver.Chrome(service=Service(CHROMEDRIVER), options=options), profile
+
+
+@pytest.fixture(scope="module")
+def browser():
+    driver, profile = _chromium()
     yield driver
     driver.quit()
     shutil.rmtree(profile, ignore_errors=True)
@@ -405,3 +412,15 @@ def test_chromium_says_what_went_wrong(browser, tmp_path):
     error = open_page(browser, tmp_path / "broken.html")
     assert error and "colors" in error
     assert browser.find_element("id", "gv-error").is_displayed()
+
+
+def test_chromium_without_webgl2_says_so(tmp_path):
+    driver, profile = _chromium(["--disable-webgl", "--disable-3d-apis"])
+    try:
+        error = open_page(driver, H.to_html(two_material_box(8), tmp_path / "box.html"))
+        assert error and "WebGL2" in error
+        assert "WebGL2" in driver.find_element("id", "gv-error").text
+        assert driver.execute_script("return document.body.dataset.rendered") is None
+    finally:
+        driver.quit()
+        shutil.rmtree(profile, ignore_errors=True)

@@ -220,6 +220,7 @@
       this.up = "y";
       this.showBox = true;
       this.showSlices = false;
+      this.dragScale = 1;
       this.initGL();
       this.resetCamera(false);
       this.buildField();
@@ -346,8 +347,7 @@
 
     draw() {
       const gl = this.gl, u = this.u;
-      const big = this.shape[0] * this.shape[1] * this.shape[2] > 2e6;
-      this.resize(this.dragging && big ? 0.5 : 1);
+      this.resize(this.dragging ? this.dragScale : 1);
       gl.viewport(0, 0, this.canvas.width, this.canvas.height);
       const fov = 35 * Math.PI / 180, aspect = this.canvas.width / this.canvas.height;
       const { eye, up } = this.camera();
@@ -396,8 +396,16 @@
     requestRender() {
       if (this.pending) return;
       this.pending = true;
-      requestAnimationFrame(() => {
+      requestAnimationFrame((now) => {
         this.pending = false;
+        // While the camera moves, fewer pixels when frames come slower than about 30 a second
+        // (the browser paces animation frames to what the GPU finishes), more when faster.
+        if (this.dragging && this.lastFrame !== undefined) {
+          const dt = now - this.lastFrame;
+          if (dt > 45) this.dragScale = Math.max(0.3, this.dragScale * 0.75);
+          else if (dt < 22) this.dragScale = Math.min(1, this.dragScale * 1.1);
+        }
+        this.lastFrame = this.dragging ? now : undefined;
         this.draw();
         if (!body.dataset.rendered) {
           const px = new Uint8Array(4);
