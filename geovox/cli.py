@@ -126,10 +126,17 @@ def build_parser() -> argparse.ArgumentParser:
     pv.add_argument("-o", "--output", required=True, help="PNG file to write")
     _grid_options(pv)
 
-    vw = sub.add_parser("view", help="interactive 3D view of a volume (needs the 'view' extra)")
+    vw = sub.add_parser("view", help="interactive 3D view of a volume (needs the 'view' extra), "
+                                     "or with --html one self-contained page for any browser")
     vw.add_argument("input", help="a volume written by geovox, or a mesh")
     vw.add_argument("--mesh", help="show this mesh beside the volume")
     vw.add_argument("--screenshot", metavar="PNG", help="render off-screen into PNG instead")
+    vw.add_argument("--html", metavar="OUT.html",
+                    help="write one self-contained page that shows the volume in any browser "
+                         "(WebGL2; no PyVista, no network) instead of opening a window")
+    vw.add_argument("--max-side", type=_positive_int, default=None, metavar="N",
+                    help="with --html: show a volume with a side above N voxels downsampled "
+                         "(default 256)")
     _grid_options(vw)
 
     info = sub.add_parser("info", help="what a mesh is like, and what a grid would cost")
@@ -544,7 +551,51 @@ def _preview(args) -> int:
     return EXIT_OK
 
 
+def _sidecar_volume(path: str) -> str:
+    """The RAW file a ``.json`` sidecar written by geovox describes, else ``path`` itself.
+
+    ``geovox convert -o NAME.raw`` writes ``NAME.json`` beside it; the registry reads the
+    volume from the ``.raw``.
+    """
+    import json
+
+    if not path.lower().endswith(".json") or not os.path.isfile(path):
+        return path
+    try:
+        with open(path) as fh:
+            data_file = json.load(fh)["data_file"]
+    except (OSError, ValueError, KeyError, TypeError):
+        from .errors import MeshError
+
+        raise MeshError(f"{path}: not a geovox .json sidecar (no data_file)") from None
+    return os.path.join(os.path.dirname(path), os.path.basename(str(data_file)))
+
+
+def _view_html(args) -> int:
+    from . import formats
+    from .errors import ParameterError
+    from .view import LARGEST
+    from .view.html import MAX_SIDE, to_html
+
+    if args.mesh or args.screenshot:
+        raise ParameterError("--html writes a page on its own: drop --mesh and --screenshot")
+    formats.check_writable(args.html)
+    t0 = time.perf_counter()
+    max_side = args.max_side or MAX_SIDE
+    vol = _volume_or_mesh(args, _sidecar_volume(args.input), max(LARGEST, max_side))
+    out = to_html(vol, args.html, max_side=max_side, source=args.input)
+    size = os.path.getsize(out)
+    print(f"wrote {out} ({size / 1e6:.2f} MB, {time.perf_counter() - t0:.2f} s); open it in a browser")
+    return EXIT_OK
+
+
 def _view(args) -> int:
+    if args.html:
+        return _view_html(args)
+    if args.max_side is not None:
+        from .errors import ParameterError
+
+        raise ParameterError("--max-side is for --html")
     from .mesh import load_mesh
     from .view import LARGEST, show
 
