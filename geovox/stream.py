@@ -335,16 +335,26 @@ def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, c
     m = load_mesh(mesh)
     engine = get_backend(options.pop("backend", "auto"))
     t_load = time.perf_counter()
-    grid = make_grid(m.bounds, bounds=options.pop("bounds", None),
-                     resolution=options.pop("resolution", None), shape=options.pop("shape", None),
-                     voxel_size=options.pop("voxel_size", None))
+    grid_options = {k: options.pop(k, None) for k in ("bounds", "resolution", "shape", "voxel_size")}
+    like, mesh_space, used = options.pop("like", None), options.pop("mesh_space", None), None
+    if like is not None:
+        from .reference import prepare
+
+        m, grid, used = prepare(m, like, mesh_space, sdf=options.get("sdf"),
+                                color=options.get("color"), **grid_options)
+    elif mesh_space is not None:
+        raise ParameterError("`mesh_space` (--mesh-space) applies only onto a reference grid "
+                             "(`like`, --like)")
+    else:
+        grid = make_grid(m.bounds, **grid_options)
     method = inside_tests.choose(m, options.pop("inside", "auto"))
     # Said once here; the slabs below are silenced.
     if options.get("color"):
         for problem in m.problems:
             warn(problem, stacklevel=2)
     if not (np.all(m.bounds[0] <= grid.hi) and np.all(m.bounds[1] >= grid.lo)):
-        warn("the region misses the mesh; the volume is empty", stacklevel=2)
+        warn(empty_reason(m, grid, method) if grid.reference is not None else
+             "the region misses the mesh; the volume is empty", stacklevel=2)
     per = bytes_per_voxel(options.get("color"), options.get("density"), options.get("sdf"))
     per += inside_tests.working_bytes(m, method)
     if budget is None:
@@ -517,4 +527,4 @@ def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, c
             "bounds": meta.bounds, "inside": inside, "inside_test": method,
             "backend": engine.name, "slabs": len(plan), "files": files, "timings": timings,
             "filled_in_slabs": streamed,
-            "grid": grid, "source": m.source}
+            "grid": grid, "source": m.source, "mesh_space": used}

@@ -28,11 +28,12 @@ def _write_one(path, arr, volume, components: int = 1, times: int = 1) -> None:
     of a gzip-encoded file, so a gzip RGBA file opens with three quarters of
     its voxels black.
     """
-    from .headers import nhdr_header, origin_of
+    from .headers import frame_of, nhdr_header
 
     encoding = "gzip" if components == 1 else "raw"
-    header = nhdr_header(volume.shape, volume.spacing, origin_of(volume), str(arr.dtype), None,
-                         components=components, encoding=encoding)
+    origin, spacing, direction, space = frame_of(volume)
+    header = nhdr_header(volume.shape, spacing, origin, str(arr.dtype), None,
+                         components=components, encoding=encoding, direction=direction, space=space)
     nx, ny, nz = volume.shape
     per = max(1, SLAB_VOXELS // max(1, nx * ny))
     # wbits 31: the gzip container, which NRRD's "gzip" encoding names; level 1
