@@ -496,3 +496,42 @@ def test_preview_like_draws_the_mask_over_the_reference(refs, tmp_path):
 def test_mhd_parser_reads_fields_until_the_data_file():
     fields = parse_mhd("ObjectType = Image\nNDims = 3\nElementDataFile = LOCAL\nbinary = junk\n")
     assert fields == {"ObjectType": "Image", "NDims": "3", "ElementDataFile": "LOCAL"}
+
+
+def test_a_mirrored_grid_gives_the_mirrored_volume_for_an_open_mesh():
+    # det < 0: the move into the local frame reflects the mesh; the winding number's
+    # repair re-orients the copy, so inside, coverage, distance and colour just mirror.
+    m = sphere(radius=10.0)
+    m = trimesh.Trimesh(m.vertices, m.faces[5:], process=False)  # five faces missing
+    n = np.array([30, 28, 26])
+    a = np.eye(4)
+    a[:3, :3] = np.diag([0.9, 1.0, 1.1])
+    a[:3, 3] = -a[:3, :3] @ ((n - 1) / 2) + [0.3, 0.2, 0.1]
+    b = a.copy()
+    b[0, 0] = -a[0, 0]
+    b[0, 3] = a[0, 0] * (n[0] - 1) + a[0, 3]  # b's voxel i is a's voxel n - 1 - i
+    opts = dict(density="coverage", sdf=True, color=True)
+    with pytest.warns(GeovoxWarning):
+        va = geovox.voxelize(m, like=(a, tuple(n)), **opts)
+    with pytest.warns(GeovoxWarning):
+        vb = geovox.voxelize(m, like=(b, tuple(n)), **opts)
+    assert va.inside == vb.inside == "winding" and va.inside_count > 3000
+    np.testing.assert_array_equal(va.occupancy, vb.occupancy[::-1])
+    np.testing.assert_array_equal(va.density, vb.density[::-1])
+    np.testing.assert_allclose(va.sdf, vb.sdf[::-1], rtol=0, atol=1e-6)
+    np.testing.assert_array_equal(va.colors, vb.colors[::-1])
+
+
+def test_many_meshes_onto_one_reference(refs, tmp_path):
+    small = sphere(radius=5.0)
+    small.apply_translation([4.0, 0, 0])
+    a = _stl(tmp_path, b"", "a.stl")
+    b = _stl(tmp_path, b"SPACE=RAS", "b.stl", small)
+    results = geovox.convert_many([str(a), str(b)], str(tmp_path / "out"), fmt="nifti",
+                                  like=refs["nrrd"])
+    assert [r.status for r in results] == ["ok", "ok"], [r.error for r in results]
+    for r, mesh in zip(results, (str(a), str(b))):
+        img = nibabel.load(r.outputs[0])
+        np.testing.assert_allclose(img.affine, RAS_FROM_LPS @ AFFINE, atol=1e-5)
+        np.testing.assert_array_equal(np.asarray(img.dataobj) > 0,
+                                      geovox.voxelize(mesh, like=refs["nrrd"]).occupancy)

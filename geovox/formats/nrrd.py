@@ -98,5 +98,10 @@ def read_nrrd(path):
         fpath = field_path(os.fspath(path), name)
         if os.path.exists(fpath):
             extra[name] = np.asfortranarray(nrrd.read(fpath)[0])
-    return Volume(occupancy=occ, grid=Grid(lo, lo + spacing * np.asarray(occ.shape), occ.shape),
-                  backend="?", source=os.fspath(path), colors=colors, **extra)
+    grid = Grid(lo, lo + spacing * np.asarray(occ.shape), occ.shape)
+    if "space" in header:  # written onto a reference grid (like=): oblique, perhaps
+        from ..reference import load_reference
+
+        grid = load_reference(os.fspath(path)).local_grid()
+    return Volume(occupancy=occ, grid=grid, backend="?", source=os.fspath(path), colors=colors,
+                  **extra)
