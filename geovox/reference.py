@@ -418,7 +418,10 @@ def _read_geovox(path) -> Reference:
                 affine = np.eye(4)
                 affine[:3, :3] = direction.reshape(3, 3) * spacing
                 affine[:3, 3] = origin
-                space = str(f.attrs.get("space", "LPS")) if "occupancy" in f else "LPS"
+                space = str(g.attrs.get("space", f.attrs.get("space", "LPS")))
+                exact = g.attrs.get("affine", f.attrs.get("affine"))
+                if exact is not None:  # written onto a reference: its affine as it was
+                    affine = np.asarray(exact, dtype=np.float64)
         elif lower.endswith(".npz"):
             with np.load(path) as d:
                 shape = d["shape"] if "shape" in d else d["occupancy"].shape
