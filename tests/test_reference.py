@@ -538,3 +538,18 @@ def test_many_meshes_onto_one_reference(refs, tmp_path):
         np.testing.assert_allclose(img.affine, RAS_FROM_LPS @ AFFINE, atol=1e-5)
         np.testing.assert_array_equal(np.asarray(img.dataobj) > 0,
                                       geovox.voxelize(mesh, like=refs["nrrd"]).occupancy)
+
+
+def test_seg_nrrd_output_is_a_slicer_segmentation_on_the_reference(refs, tmp_path):
+    out = str(tmp_path / "liver.seg.nrrd")
+    assert main(["convert", os.fspath(_stl(tmp_path)), "--like", refs["nii.gz"], "-o", out, "-q"]) == 0
+    data, h = nrrd.read(out)
+    assert set(np.unique(data)) == {0, 1}  # label value 1, not 0/255
+    assert h["Segment0_LabelValue"] == "1" and h["Segment0_Name"] == "sphere"
+    assert h["Segmentation_MasterRepresentation"] == "Binary labelmap"
+    nz = np.nonzero(data)
+    assert h["Segment0_Extent"] == " ".join(str(int(f(nz[a]))) for a in range(3) for f in (np.min, np.max))
+    assert h["space"] == "right-anterior-superior"
+    np.testing.assert_allclose(h["space directions"], load_reference(refs["nii.gz"]).affine[:3, :3].T)
+    # Read back as a reference (a segmentation of the scan is one too).
+    np.testing.assert_allclose(load_reference(out).affine_in("LPS"), AFFINE, atol=1e-5)
