@@ -503,10 +503,13 @@ def resolve_mesh_space(mesh, mesh_space=None) -> tuple:
         if space not in ("LPS", "RAS"):
             raise ParameterError(f"`mesh_space` must be 'lps' or 'ras', got {mesh_space!r}")
         return space, "given"
-    mark = mesh_space_mark(getattr(mesh, "source", None))
+    source = getattr(mesh, "source", None)
+    mark = mesh_space_mark(source)
     if mark is not None:
         return mark, f"the file's SPACE={mark} mark"
-    return "LPS", "assumed: the file has no SPACE= mark"
+    if isinstance(source, (str, os.PathLike)) and os.path.isfile(source):
+        return "LPS", "assumed: the file has no SPACE= mark"
+    return "LPS", "assumed: no file to read a SPACE= mark from"
 
 
 def to_local(mesh, ref: Reference, mesh_space=None):
@@ -563,7 +566,8 @@ def field_of_view(mesh, ref: Reference, mesh_space=None) -> dict:
     -------
     dict with ``space``, ``how``, ``vertices_inside`` (fraction of the used
     vertices), ``area_inside`` (fraction of the surface area, by each
-    triangle's centroid), ``inside`` ("all", "part" or "none") and the mesh's
+    triangle's centroid), ``inside`` ("all", "part", "around": no surface inside but
+    the boxes meet, or "none") and the mesh's
     extent in index coordinates ``index_lo``, ``index_hi``.
     """
     moved, (space, how) = to_local(mesh, ref, mesh_space)
@@ -578,7 +582,8 @@ def field_of_view(mesh, ref: Reference, mesh_space=None) -> dict:
     area = np.linalg.norm(np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), axis=1)
     total = float(area.sum()) or 1.0
     frac_v = float(vin.mean())
-    inside = "all" if vin.all() else "none" if not vin.any() and not _boxes_meet(v, lo, hi) else "part"
+    inside = ("all" if vin.all() else "part" if vin.any() or cin.any()
+              else "around" if _boxes_meet(v, lo, hi) else "none")
     return {"space": space, "how": how, "vertices_inside": frac_v,
             "area_inside": float(area[cin].sum()) / total, "inside": inside,
             "index_lo": (v.min(axis=0) / s).tolist(), "index_hi": (v.max(axis=0) / s).tolist()}
@@ -601,6 +606,9 @@ def format_field_of_view(ref: Reference, fov: dict) -> str:
     elif fov["inside"] == "none":
         lines.append("field of view: the mesh lies entirely outside the image; the volume "
                      "would be empty (check --mesh-space)")
+    elif fov["inside"] == "around":
+        lines.append("field of view: no part of the mesh's surface lies inside the image, but its "
+                     "bounding box meets the image (the image may lie inside the mesh)")
     else:
         lines.append(f"field of view: part of the mesh lies inside the image: "
                      f"{100 * fov['vertices_inside']:.1f}% of its vertices, "

@@ -109,7 +109,7 @@ def test_mask_equals_the_mesh_voxelised_in_index_space(refs, kind):
     # and on this fixture nothing does (counted, not assumed).
     assert differ == 0, differ
     assert 3000 < vol.inside_count < SHAPE[0] * SHAPE[1] * SHAPE[2]
-    assert vol.mesh_space == ("LPS", "assumed: the file has no SPACE= mark")
+    assert vol.mesh_space == ("LPS", "assumed: no file to read a SPACE= mark from")
 
 
 def test_spot_on_an_oblique_grid_matches_index_space():
@@ -465,7 +465,11 @@ def test_info_like_says_how_much_lies_in_the_field_of_view(refs, tmp_path, capsy
     text = capsys.readouterr().out
     assert "the whole mesh lies inside the image" in text
     assert "mesh space LPS (assumed: the file has no SPACE= mark)" in text
-    half = sphere(radius=40.0)  # bigger than the image: partly inside
+    huge = sphere(radius=400.0)  # around the image: its surface nowhere inside
+    assert main(["info", os.fspath(_stl(tmp_path, b"", "huge.stl", huge)), "--like",
+                 refs["nii.gz"]]) == 0
+    assert "the image may lie inside the mesh" in capsys.readouterr().out
+    half = sphere(radius=20.0)  # wider than the image in places: partly inside
     assert main(["info", os.fspath(_stl(tmp_path, b"SPACE=RAS", "big.stl", half)), "--like",
                  refs["nii.gz"]]) == 0
     text = capsys.readouterr().out
