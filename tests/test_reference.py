@@ -100,9 +100,9 @@ def test_reference_is_read_with_its_oblique_affine(refs, kind):
 
 
 @pytest.mark.parametrize("kind", ["nii.gz", "nrrd", "mhd"])
-def test_mask_equals_the_mesh_voxelised_in_index_space(refs, kind):
+def test_mask_equals_the_mesh_voxelised_in_index_space(refs, kind, backend):
     mesh = sphere()
-    vol = geovox.voxelize(mesh, like=refs[kind])
+    vol = geovox.voxelize(mesh, like=refs[kind], backend=backend)
     truth = index_space_truth(mesh, load_reference(refs[kind]).affine_in("LPS"), SHAPE)
     differ = int(np.count_nonzero(vol.occupancy ^ truth.occupancy))
     # The local frame is index space scaled per axis: only float rounding can differ,
@@ -557,3 +557,16 @@ def test_seg_nrrd_output_is_a_slicer_segmentation_on_the_reference(refs, tmp_pat
     np.testing.assert_allclose(h["space directions"], load_reference(refs["nii.gz"]).affine[:3, :3].T)
     # Read back as a reference (a segmentation of the scan is one too).
     np.testing.assert_allclose(load_reference(out).affine_in("LPS"), AFFINE, atol=1e-5)
+
+
+def test_zarr_slab_by_slab_onto_a_reference(refs, tmp_path):
+    pytest.importorskip("zarr")
+    out = str(tmp_path / "z.zarr")
+    geovox.convert_to(sphere(), out, like=refs["mhd"], sdf=True)
+    back = formats.read(out)
+    whole = geovox.voxelize(sphere(), like=refs["mhd"], sdf=True)
+    np.testing.assert_array_equal(back.occupancy, whole.occupancy)
+    np.testing.assert_array_equal(back.sdf, whole.sdf)
+    attrs = json.loads((tmp_path / "z.zarr" / "zarr.json").read_text())["attributes"]["geovox"]
+    np.testing.assert_allclose(attrs["affine"], AFFINE, atol=1e-12)
+    assert attrs["space"] == "LPS"
