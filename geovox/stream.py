@@ -37,7 +37,7 @@ import time
 import numpy as np
 
 from .errors import ParameterError, collect_warnings, warn
-from .grid import Grid, make_grid
+from .grid import Grid
 from . import memory
 from .memory import bytes_per_voxel
 from .mesh import load_mesh
@@ -335,18 +335,9 @@ def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, c
     m = load_mesh(mesh)
     engine = get_backend(options.pop("backend", "auto"))
     t_load = time.perf_counter()
-    grid_options = {k: options.pop(k, None) for k in ("bounds", "resolution", "shape", "voxel_size")}
-    like, mesh_space, used = options.pop("like", None), options.pop("mesh_space", None), None
-    if like is not None:
-        from .reference import prepare
+    from .reference import grid_for
 
-        m, grid, used = prepare(m, like, mesh_space, sdf=options.get("sdf"),
-                                color=options.get("color"), **grid_options)
-    elif mesh_space is not None:
-        raise ParameterError("`mesh_space` (--mesh-space) applies only onto a reference grid "
-                             "(`like`, --like)")
-    else:
-        grid = make_grid(m.bounds, **grid_options)
+    m, grid, used = grid_for(m, options)  # pops the grid options (and like, mesh_space)
     method = inside_tests.choose(m, options.pop("inside", "auto"))
     # Said once here; the slabs below are silenced.
     if options.get("color"):
