@@ -570,3 +570,33 @@ def test_zarr_slab_by_slab_onto_a_reference(refs, tmp_path):
     attrs = json.loads((tmp_path / "z.zarr" / "zarr.json").read_text())["attributes"]["geovox"]
     np.testing.assert_allclose(attrs["affine"], AFFINE, atol=1e-12)
     assert attrs["space"] == "LPS"
+
+
+def test_paraview_reads_the_vtkhdf_direction(refs, tmp_path):
+    # What the README says of ParaView and `Direction`, checked where pvpython exists.
+    import shutil
+    import subprocess
+
+    pvpython = shutil.which("pvpython")
+    if pvpython is None:
+        pytest.skip("ParaView's pvpython is not installed (Debian: apt install paraview python3-paraview)")
+    vol = geovox.voxelize(sphere(), like=refs["mhd"])
+    path = str(tmp_path / "oblique.hdf")  # the name ParaView 5.10+ opens as VTK-HDF
+    geovox.formats.write(vol, path, fmt="vtkhdf")
+    run = subprocess.run([pvpython, os.path.join(os.path.dirname(__file__), "paraview_direction.py"),
+                          path], capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr
+    got = json.loads(run.stdout.strip().splitlines()[-1])
+    np.testing.assert_allclose(np.reshape(got["direction"], (3, 3)), DIRECTION, atol=1e-12)
+    np.testing.assert_allclose(got["first"], AFFINE[:3, 3], atol=1e-9)
+    np.testing.assert_allclose(got["last"], AFFINE[:3, :3] @ (np.asarray(SHAPE) - 1) + AFFINE[:3, 3],
+                               atol=1e-9)
+    # The sphere is centred on the world origin; where ParaView draws its contour says
+    # whether it applies the direction (5.11 does not: it lands along the world axes).
+    centre = np.asarray(got["contour_centre"])
+    index_of_centre = np.linalg.solve(AFFINE[:3, :3], -AFFINE[:3, 3])
+    unrotated = AFFINE[:3, 3] + SPACING * index_of_centre  # origin + spacing x index, no rotation
+    if tuple(got["version"]) <= (5, 11):
+        np.testing.assert_allclose(centre, unrotated, atol=0.5)
+    else:
+        print("ParaView", got["version"], "contour centre", centre.tolist())
