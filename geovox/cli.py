@@ -148,6 +148,7 @@ def build_parser() -> argparse.ArgumentParser:
     res.add_argument("--voxel-size", type=_positive_float, metavar="S")
     info.add_argument("--bounds", type=_finite_float, nargs=6,
                       metavar=("XMIN", "YMIN", "ZMIN", "XMAX", "YMAX", "ZMAX"))
+    _like_options(info)
 
     sub.add_parser("backends", help="list the ray-casting backends and whether each can run")
     sub.add_parser("formats", help="list the output formats")
@@ -165,6 +166,7 @@ def _grid_options(c):
     c.add_argument("--bounds", type=_finite_float, nargs=6,
                    metavar=("XMIN", "YMIN", "ZMIN", "XMAX", "YMAX", "ZMAX"),
                    help="region of interest (default: the mesh's bounding box)")
+    _like_options(c)
     c.add_argument("--backend", default="auto", choices=["auto", "embree", "numpy", "webgpu"],
                    help="ray-casting backend (default: auto = numpy, the faster one for these "
                         "column rays; embree gives the same volume)")
@@ -200,6 +202,17 @@ def _grid_options(c):
                    help="threads to use (default: one per core); the result does not depend on it")
 
 
+def _like_options(c):
+    """--like and --mesh-space (convert, preview, view, info)."""
+    c.add_argument("--like", metavar="IMAGE",
+                   help="voxelise onto this image's grid (NIfTI .nii/.nii.gz, NRRD .nrrd/.seg.nrrd/"
+                        ".nhdr, MetaImage .mhd/.mha, or a volume geovox wrote): its shape, spacing, "
+                        "origin and direction, oblique included; excludes the grid options")
+    c.add_argument("--mesh-space", choices=["lps", "ras"], type=str.lower, default=None,
+                   help="with --like: the mesh's coordinate frame, overriding its 3D Slicer "
+                        "SPACE= mark (default: the mark, else LPS)")
+
+
 def _stage_bar(args):
     """A progress bar over the conversion's stages, on a terminal only (tqdm)."""
     if getattr(args, "quiet", False) or not sys.stderr.isatty():
@@ -230,7 +243,9 @@ def _options(args) -> dict:
                 ambient=args.ambient, inside=args.inside, density=args.density,
                 supersample=args.supersample,
                 density_dtype="float32" if args.density_float else "uint8",
-                sdf=args.sdf, band=args.band)
+                sdf=args.sdf, band=args.band,
+                **{k: getattr(args, k) for k in ("like", "mesh_space")
+                   if getattr(args, k, None) is not None})
 
 
 def _voxelize(args, path):
@@ -406,6 +421,8 @@ def _convert_streaming(args, mesh, output, t0, t_read=0.0) -> int:
         print(f"{os.path.basename(info['source'])}: grid {nx} x {ny} x {nz}{slabs}")
         print(f"voxel size {dx:.6g} x {dy:.6g} x {dz:.6g}, backend {info['backend']}, "
               f"inside test {info['inside_test']}")
+        if info.get("mesh_space") is not None:
+            print(_reference_line(info["grid"].reference, info["mesh_space"]))
         print(f"inside {info['inside']:,} of {nx * ny * nz:,} voxels "
               f"({100.0 * info['inside'] / (nx * ny * nz):.2f}%)")
         stages = ", ".join(f"{k} {t[k]:.2f}" for k in ("load", "rays", "fill", "colour", "density",
@@ -413,6 +430,13 @@ def _convert_streaming(args, mesh, output, t0, t_read=0.0) -> int:
         print(f"time {time.perf_counter() - t0:.2f} s ({stages})")
         print("wrote " + ", ".join(written))
     return EXIT_OK
+
+
+def _reference_line(ref, mesh_space) -> str:
+    """The summary's line on a conversion onto a reference grid."""
+    space, how = mesh_space
+    return (f"onto {os.path.basename(ref.source)} ({ref.space}); mesh space {space} "
+            f"({'--mesh-space' if how == 'given' else how})")
 
 
 def _names_a_file(url: str) -> bool:
@@ -489,10 +513,18 @@ def _convert(args) -> int:
 
     mesh = load_mesh(args.input)
     t_read = time.perf_counter() - t0
-    grid = make_grid(mesh.bounds, bounds=args.bounds, resolution=args.resolution,
-                     shape=args.shape, voxel_size=args.voxel_size)
+    if args.like is not None:
+        from .reference import load_reference, reject_grid_options
+
+        reject_grid_options(bounds=args.bounds, resolution=args.resolution, shape=args.shape,
+                            voxel_size=args.voxel_size)
+        grid = load_reference(args.like).local_grid()
+    else:
+        grid = make_grid(mesh.bounds, bounds=args.bounds, resolution=args.resolution,
+                         shape=args.shape, voxel_size=args.voxel_size)
     output = _output_path(args, args.input, grid.shape)
     fmt = formats.format_for(output, args.fmt)
+    formats.check_frame(fmt, grid)
     write_options = _write_options(args, fmt)  # a bad combination fails before any work
     if (args.scheduler or args.scheduler_file or args.local_cluster) and fmt.name != "zarr":
         from .errors import ParameterError
@@ -528,10 +560,13 @@ def _convert(args) -> int:
         lo, hi = vol.bounds
         inside = vol.inside_count
         t = vol.timings
-        print(f"{os.path.basename(vol.source)}: grid {nx} x {ny} x {nz} "
-              f"over ({lo[0]:.6g}, {lo[1]:.6g}, {lo[2]:.6g})..({hi[0]:.6g}, {hi[1]:.6g}, {hi[2]:.6g})")
+        over = (f"over ({lo[0]:.6g}, {lo[1]:.6g}, {lo[2]:.6g})..({hi[0]:.6g}, {hi[1]:.6g}, "
+                f"{hi[2]:.6g})" if vol.grid.reference is None else "of the reference image")
+        print(f"{os.path.basename(vol.source)}: grid {nx} x {ny} x {nz} {over}")
         print(f"voxel size {dx:.6g} x {dy:.6g} x {dz:.6g}, backend {vol.backend}, "
               f"inside test {vol.inside}")
+        if vol.mesh_space is not None:
+            print(_reference_line(vol.grid.reference, vol.mesh_space))
         print(f"inside {inside:,} of {nx * ny * nz:,} voxels ({100.0 * inside / (nx * ny * nz):.2f}%)")
         extra = "".join(f", {k} {t[k]:.2f}" for k in ("colour", "density", "sdf") if k in t)
         print(f"time {t2 - t0:.2f} s (load {t_read + t['load']:.2f}, rays {t['rays']:.2f}, "
@@ -546,6 +581,15 @@ def _preview(args) -> int:
     from . import formats
 
     formats.check_writable(args.output)
+    if args.like is not None:
+        from .preview import write_preview_like
+        from .reference import load_reference
+
+        ref, image = load_reference(args.like, with_data=True)
+        vol = _volume_or_mesh(args, args.input)
+        note = "" if vol.mesh_space is None else _reference_line(ref, vol.mesh_space).split("; ")[1]
+        print(f"wrote {write_preview_like(vol, image, ref, args.output, note)}")
+        return EXIT_OK
     vol = _volume_or_mesh(args, args.input, LARGEST)
     print(f"wrote {write_preview(vol, args.output)}")
     return EXIT_OK
@@ -612,6 +656,22 @@ def _info(args) -> int:
     from .report import format_report, grid_cost, mesh_report
 
     mesh = load_mesh(args.input)
+    if args.like is not None:
+        from .reference import field_of_view, format_field_of_view, load_reference, \
+            reject_grid_options
+
+        reject_grid_options(bounds=args.bounds, resolution=args.resolution, shape=args.shape,
+                            voxel_size=args.voxel_size)
+        ref = load_reference(args.like)
+        cost = grid_cost(mesh, shape=ref.shape, bounds=[*ref.local_grid().lo, *ref.local_grid().hi])
+        cost["spacing"] = ref.spacing.tolist()
+        print(format_report(mesh_report(mesh), cost))
+        print(format_field_of_view(ref, field_of_view(mesh, ref, args.mesh_space)))
+        return EXIT_OK
+    if args.mesh_space is not None:
+        from .errors import ParameterError
+
+        raise ParameterError("--mesh-space applies only with --like")
     cost = grid_cost(mesh, bounds=args.bounds, resolution=args.resolution, shape=args.shape,
                      voxel_size=args.voxel_size)
     print(format_report(mesh_report(mesh), cost))

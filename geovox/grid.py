@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 import numbers
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -29,11 +29,16 @@ class Grid:
         Corners of the region covered by the grid.
     shape : (3,) tuple of int
         Number of voxels along x, y, z.
+    reference : geovox.reference.Reference or None
+        The user's grid this one stands for (``like=``): the region is then
+        its local frame (see :mod:`geovox.reference`) and writers place the
+        voxels with the reference's affine.
     """
 
     lo: np.ndarray
     hi: np.ndarray
     shape: tuple
+    reference: object = field(default=None, compare=False)
 
     @property
     def spacing(self) -> np.ndarray:

@@ -42,6 +42,8 @@ def voxelize(
     sdf=False,
     band=3.0,
     progress=None,
+    like=None,
+    mesh_space=None,
 ) -> Volume:
     """Turn a closed triangle mesh into a solid voxel volume.
 
@@ -105,6 +107,15 @@ def voxelize(
     progress : callable, optional
         Called with the name of each stage as it starts ("load", "rays",
         "colour", "density", "sdf").
+    like : path, geovox.reference.Reference or (affine, shape), optional
+        Voxelise onto this reference grid (a NIfTI, NRRD or MetaImage scan,
+        a volume geovox wrote, or a 4 x 4 index-to-world affine and a shape),
+        oblique or not, instead of a grid over the mesh; excludes
+        ``resolution``, ``bounds``, ``shape`` and ``voxel_size``. See
+        :mod:`geovox.reference`.
+    mesh_space : {"lps", "ras"}, optional
+        With ``like``: the mesh's frame, overriding its file's 3D Slicer
+        ``SPACE=`` mark (LPS where there is none).
 
     Returns
     -------
@@ -144,13 +155,24 @@ def voxelize(
     engine = get_backend(backend)
     m = load_mesh(mesh)
     t_load = time.perf_counter()
-    grid = make_grid(m.bounds, bounds=bounds, resolution=resolution, shape=shape,
-                     voxel_size=voxel_size)
+    used = None
+    if like is not None:
+        from .reference import prepare
+
+        m, grid, used = prepare(m, like, mesh_space, sdf=sdf, color=color, bounds=bounds,
+                                resolution=resolution, shape=shape, voxel_size=voxel_size)
+    else:
+        if mesh_space is not None:
+            raise ParameterError("`mesh_space` (--mesh-space) applies only onto a reference grid "
+                                 "(`like`, --like)")
+        grid = make_grid(m.bounds, bounds=bounds, resolution=resolution, shape=shape,
+                         voxel_size=voxel_size)
     vol = voxelize_block(m, grid, engine=engine, inside=inside, axis=axis, jobs=jobs, color=color,
                          diffuse=diffuse, ambient=ambient, density=density,
                          supersample=supersample, density_dtype=density_dtype, sdf=sdf,
                          band=band, progress=progress, _stacklevel=3)
     vol.timings = {"load": t_load - t0, **vol.timings, "total": time.perf_counter() - t0}
+    vol.mesh_space = used
     return vol
 
 
@@ -184,7 +206,7 @@ def block_grid(grid: Grid, block=None) -> Grid:
     lo[2] = grid.lo[2] + z0 * h[2]
     hi = grid.hi.copy()
     hi[2] = grid.lo[2] + z1 * h[2] if z1 < nz else grid.hi[2]
-    return Grid(lo=lo, hi=hi, shape=(nx, ny, z1 - z0))
+    return Grid(lo=lo, hi=hi, shape=(nx, ny, z1 - z0), reference=grid.reference)
 
 
 def ray_start(mesh, grid: Grid, axis: int) -> float:
@@ -426,6 +448,10 @@ def empty_reason(m, grid: Grid, method: str) -> str:
     def fmt(v):
         return "(" + ", ".join(f"{x:.6g}" for x in v) + ")"
 
+    if not _overlaps(m.bounds, grid) and grid.reference is not None:
+        return (f"{m.source}: the mesh lies entirely outside the field of view of "
+                f"{grid.reference.source}; the volume is empty (is the mesh in the image's "
+                f"frame? see --mesh-space)")
     if not _overlaps(m.bounds, grid):
         return (f"the region {fmt(grid.lo)}..{fmt(grid.hi)} misses the mesh "
                 f"{fmt(m.bounds[0])}..{fmt(m.bounds[1])}; the volume is empty")

@@ -37,7 +37,7 @@ import time
 import numpy as np
 
 from .errors import ParameterError, collect_warnings, warn
-from .grid import Grid, make_grid
+from .grid import Grid
 from . import memory
 from .memory import bytes_per_voxel
 from .mesh import load_mesh
@@ -360,16 +360,17 @@ def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, c
     m = load_mesh(mesh)
     engine = get_backend(options.pop("backend", "auto"))
     t_load = time.perf_counter()
-    grid = make_grid(m.bounds, bounds=options.pop("bounds", None),
-                     resolution=options.pop("resolution", None), shape=options.pop("shape", None),
-                     voxel_size=options.pop("voxel_size", None))
+    from .reference import grid_for
+
+    m, grid, used = grid_for(m, options)  # pops the grid options (and like, mesh_space)
     method = inside_tests.choose(m, options.pop("inside", "auto"))
     # Said once here; the slabs below are silenced.
     if options.get("color"):
         for problem in m.problems:
             warn(problem, stacklevel=2)
     if not (np.all(m.bounds[0] <= grid.hi) and np.all(m.bounds[1] >= grid.lo)):
-        warn("the region misses the mesh; the volume is empty", stacklevel=2)
+        warn(empty_reason(m, grid, method) if grid.reference is not None else
+             "the region misses the mesh; the volume is empty", stacklevel=2)
     per = bytes_per_voxel(options.get("color"), options.get("density"), options.get("sdf"))
     per += inside_tests.working_bytes(m, method)
     if budget is None:
@@ -542,4 +543,4 @@ def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, c
             "bounds": meta.bounds, "inside": inside, "inside_test": method,
             "backend": engine.name, "slabs": len(plan), "files": files, "timings": timings,
             "filled_in_slabs": streamed,
-            "grid": grid, "source": m.source}
+            "grid": grid, "source": m.source, "mesh_space": used}

@@ -40,6 +40,9 @@ class Volume:
         exact within ``band`` voxels and clamped to ``+-band`` voxels beyond.
     timings : dict
         Seconds per stage.
+    mesh_space : (str, str) or None
+        On a reference grid (``like=``): the mesh's frame ("LPS" or "RAS") and
+        how it was decided (see :func:`geovox.reference.resolve_mesh_space`).
     """
 
     occupancy: np.ndarray
@@ -51,6 +54,7 @@ class Volume:
     inside: str = "parity"
     density: np.ndarray | None = None
     sdf: np.ndarray | None = None
+    mesh_space: tuple | None = None
 
     @property
     def bounds(self) -> tuple:

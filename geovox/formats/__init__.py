@@ -292,10 +292,24 @@ def write(volume, path, fmt=None, **options) -> list:
         or the disk filled up (nothing is left behind).
     """
     check_writable(path)
-    return format_for(path, fmt).writer(volume, path, **options)
+    f = format_for(path, fmt)
+    check_frame(f, getattr(volume, "grid", None))
+    return f.writer(volume, path, **options)
 
 
-from . import binvox, hdf5, nrrd, numpy_files, raw, vdb, vox, vtkhdf  # noqa: E402  (registration)
+#: Formats with no way to say where a reference grid's voxels lie (oblique or not).
+NO_FRAME = ("binvox", "vox", "vdb")
+
+
+def check_frame(f: Format, grid) -> None:
+    """ParameterError for a reference grid (``like``) in a format that cannot place it."""
+    if getattr(grid, "reference", None) is not None and f.name in NO_FRAME:
+        raise ParameterError(f"{f.name} cannot record the reference grid's placement (origin, "
+                             f"spacing, direction); onto a reference write .nii.gz, .nrrd, .raw "
+                             f"(.mhd/.nhdr), .h5, .vtkhdf, .npz or .zarr")
+
+
+from . import binvox, hdf5, nifti, nrrd, numpy_files, raw, vdb, vox, vtkhdf  # noqa: E402  (registration)
 from . import zarr as zarr_format  # noqa: E402  (registration)
 
 register_format("raw", (".raw",), raw.write_raw,
@@ -328,7 +342,12 @@ register_format("zarr", (".zarr",), zarr_format.write_zarr,
                 "OME-Zarr 0.5 (Zarr v3) multiscale image for napari, neuroglancer, Fiji, WEBKNOSSOS: "
                 "occupancy, color, density, sdf; written slab by slab, or on a Dask cluster",
                 reader=zarr_format.read_zarr)
+register_format("nifti", (".nii.gz", ".nii"), nifti.write_nifti,
+                "NIfTI-1 for 3D Slicer, ITK-SNAP, FSL, nibabel: uint8 mask, sform = qform = the "
+                "grid's RAS affine (needs nibabel: the nifti extra)",
+                reader=nifti.read_nifti)
 
 __all__ = ["register_format", "formats", "format_for", "write", "read", "atomic_output",
+           "check_frame",
            "atomic_outputs",
            "check_writable"]
