@@ -53,8 +53,8 @@ MAX_SUB_BITS = 20
 class Projection:
     """Triangles prepared for exact tests against one lattice of column rays.
 
-    Only triangles whose projection can contain a column centre and that are
-    not parallel to the rays are kept ("active"); ``local[t]`` maps a mesh
+    Only triangles whose snapped bounding box contains a column centre and
+    that are not parallel to the rays are kept ("active"); ``local[t]`` maps a mesh
     triangle index to its active index or -1.
 
     Parameters
@@ -102,9 +102,10 @@ class Projection:
         keep = (hi_u >= 0.5 - 1e-9) & (lo_u <= columns.nu - 0.5 + 1e-9)
         keep &= (hi_v >= 0.5 - 1e-9) & (lo_v <= columns.nv - 0.5 + 1e-9)
         idx = np.flatnonzero(keep)
-        fu = [x[idx] for x in fu]
-        fv = [x[idx] for x in fv]
-        m = max(max(np.abs(x).max(initial=1.0) for x in fu + fv),
+        lo_u, hi_u, lo_v, hi_v = lo_u[idx], hi_u[idx], lo_v[idx], hi_v[idx]
+        # The largest |coordinate| of these triangles' vertices (the extremes
+        # of their boxes) sets the snapping.
+        m = max(max(np.abs(x).max(initial=1.0) for x in (lo_u, hi_u, lo_v, hi_v)),
                 float(columns.nu), float(columns.nv))
         s = int(min(MAX_SUB_BITS, np.floor(MAX_BITS - 1 - np.log2(m + 1.0))))
         if s < 1:
@@ -116,8 +117,20 @@ class Projection:
         self.sub_bits = s
         S = np.int64(1) << np.int64(s)
         half = S // 2
-        qu = [np.rint(x * float(S)).astype(np.int64) for x in fu]
-        qv = [np.rint(x * float(S)).astype(np.int64) for x in fv]
+        # The exact range of column centres in each snapped box first: rint
+        # is monotonic, so rint(min) is the min of the snapped vertices.
+        # Most triangles of a fine mesh on a coarse grid enclose no centre;
+        # they are dropped here, before the per-vertex work (they could
+        # never be crossed: a crossed centre lies in the closed box).
+        lu, hu, lv, hv = (np.rint(x * float(S)).astype(np.int64) for x in (lo_u, hi_u, lo_v, hi_v))
+        imin = np.maximum(-((half - lu) // S), 0)
+        imax = np.minimum((hu - half) // S, columns.nu - 1)
+        jmin = np.maximum(-((half - lv) // S), 0)
+        jmax = np.minimum((hv - half) // S, columns.nv - 1)
+        seen = np.flatnonzero((imin <= imax) & (jmin <= jmax))
+        idx = idx[seen]
+        qu = [np.rint(x[idx] * float(S)).astype(np.int64) for x in fu]
+        qv = [np.rint(x[idx] * float(S)).astype(np.int64) for x in fv]
 
         # Edge k runs from vertex k+1 to vertex k+2 (opposite vertex k):
         # orient(A, B, P) = ex * (Py - Ay) - ey * (Px - Ax), which for
@@ -152,15 +165,10 @@ class Projection:
         self.edge_len = edge_len
         # Depths are measured from the grid's low face (see Columns).
         self.z = tris[self.tri, :, c] - columns.w0
-        lu = np.minimum(np.minimum(qu[0], qu[1]), qu[2])[sel]
-        hu = np.maximum(np.maximum(qu[0], qu[1]), qu[2])[sel]
-        lv = np.minimum(np.minimum(qv[0], qv[1]), qv[2])[sel]
-        hv = np.maximum(np.maximum(qv[0], qv[1]), qv[2])[sel]
         # Column i is in range when lu <= i*S + half <= hu.
-        self.imin = np.maximum(-((half - lu) // S), 0)
-        self.imax = np.minimum((hu - half) // S, columns.nu - 1)
-        self.jmin = np.maximum(-((half - lv) // S), 0)
-        self.jmax = np.minimum((hv - half) // S, columns.nv - 1)
+        kept = seen[sel]
+        self.imin, self.imax = imin[kept], imax[kept]
+        self.jmin, self.jmax = jmin[kept], jmax[kept]
         self.local = np.full(n_all, -1, dtype=np.int64)
         self.local[self.tri] = np.arange(len(self.tri))
         self.scale = int(S)
