@@ -25,6 +25,7 @@ import numpy as np
 
 from libc.stdint cimport int64_t, uint8_t, uint64_t
 from libc.string cimport memcpy
+from libc.math cimport rint
 
 #: Buckets of at most this many entries are settled by comparing every pair.
 DEF SMALL = 16
@@ -141,6 +142,107 @@ def scan(const int64_t[:, :, ::1] coef, const int64_t[:, ::1] tie, const double[
                 o_bary[h, 1] = l2
                 h += 1
     return ray_a[:h].copy(), depth_a[:h].copy(), tri_a[:h].copy(), bary_a[:h].copy()
+
+
+def column_boxes(const double[:, ::1] vertices, const int64_t[:, ::1] faces, int a, int b,
+                 double u0, double du, double v0, double dv, double low, double top_u,
+                 double top_v):
+    """:func:`geovox.exact._column_boxes` in one pass: the same float64 operations.
+
+    Parameters
+    ----------
+    vertices : (v, 3) float64
+    faces : (n, 3) int64
+        The triangles ``vertices[faces]`` (not gathered: a fine mesh's
+        triangles are mostly dropped here).
+    a, b : int
+        The axes across the rays (``u`` and ``v``).
+    u0, du, v0, dv : float
+        The lattice's origin and spacing (column units are ``(x - u0) / du``).
+    low, top_u, top_v : float
+        A box is kept when ``hi >= low`` and ``lo <= top`` along both axes.
+
+    Returns
+    -------
+    idx : (k,) int64
+    lo_u, hi_u, lo_v, hi_v : (k,) float64
+    """
+    cdef Py_ssize_t t, k, n = faces.shape[0], h = 0
+    idx_a = np.empty(n, np.int64)
+    box_a = np.empty((4, n), np.float64)
+    cdef int64_t[::1] idx = idx_a
+    cdef double[:, ::1] box = box_a
+    cdef double x, lu, hu, lv, hv
+    cdef int64_t p
+    for t in range(n):
+        # np.minimum / np.maximum of the three, as in NumPy (finite values:
+        # min and max are exact, in any order).
+        p = faces[t, 0]
+        lu = hu = (vertices[p, a] - u0) / du
+        lv = hv = (vertices[p, b] - v0) / dv
+        for k in range(1, 3):
+            p = faces[t, k]
+            x = (vertices[p, a] - u0) / du
+            lu = x if x < lu else lu
+            hu = x if x > hu else hu
+            x = (vertices[p, b] - v0) / dv
+            lv = x if x < lv else lv
+            hv = x if x > hv else hv
+        if hu >= low and lu <= top_u and hv >= low and lv <= top_v:
+            idx[h] = t
+            box[0, h], box[1, h], box[2, h], box[3, h] = lu, hu, lv, hv
+            h += 1
+    return (idx_a[:h].copy(), box_a[0, :h].copy(), box_a[1, :h].copy(), box_a[2, :h].copy(),
+            box_a[3, :h].copy())
+
+
+cdef inline int64_t _floordiv(int64_t x, int64_t y) noexcept nogil:
+    """Python's ``x // y`` for ``y > 0``."""
+    cdef int64_t q = x / y
+    if x % y != 0 and x < 0:
+        q -= 1
+    return q
+
+
+def column_ranges(const double[::1] lo_u, const double[::1] hi_u, const double[::1] lo_v,
+                  const double[::1] hi_v, int s, int64_t nu, int64_t nv):
+    """Exact column ranges of the snapped boxes; only the boxes that hold a centre.
+
+    :class:`geovox.exact.Projection`'s NumPy: ``lu = rint(lo_u * 2**s)``,
+    ``imin = max(-((half - lu) // S), 0)``, ``imax = min((hu - half) // S,
+    nu - 1)``, the same along ``v``, kept where ``imin <= imax`` and ``jmin
+    <= jmax``.
+
+    Returns
+    -------
+    seen : (k,) int64
+        Indices of the boxes kept.
+    imin, imax, jmin, jmax : (k,) int64
+    """
+    cdef Py_ssize_t t, n = lo_u.shape[0], h = 0
+    cdef int64_t S = (<int64_t>1) << s
+    cdef int64_t half = S // 2
+    cdef double fs = <double>S
+    seen_a = np.empty(n, np.int64)
+    rng_a = np.empty((4, n), np.int64)
+    cdef int64_t[::1] seen = seen_a
+    cdef int64_t[:, ::1] rng = rng_a
+    cdef int64_t i0, i1, j0, j1
+    for t in range(n):
+        i0 = -_floordiv(half - <int64_t>rint(lo_u[t] * fs), S)
+        i1 = _floordiv(<int64_t>rint(hi_u[t] * fs) - half, S)
+        j0 = -_floordiv(half - <int64_t>rint(lo_v[t] * fs), S)
+        j1 = _floordiv(<int64_t>rint(hi_v[t] * fs) - half, S)
+        i0 = i0 if i0 > 0 else 0
+        j0 = j0 if j0 > 0 else 0
+        i1 = i1 if i1 < nu - 1 else nu - 1
+        j1 = j1 if j1 < nv - 1 else nv - 1
+        if i0 <= i1 and j0 <= j1:
+            seen[h] = t
+            rng[0, h], rng[1, h], rng[2, h], rng[3, h] = i0, i1, j0, j1
+            h += 1
+    return (seen_a[:h].copy(), rng_a[0, :h].copy(), rng_a[1, :h].copy(), rng_a[2, :h].copy(),
+            rng_a[3, :h].copy())
 
 
 cdef _bucket(const int64_t[:, ::1] faces, int64_t n):

@@ -255,3 +255,49 @@ def test_merge_positions_numbers_equal_positions_once(kernel):
     same_pos = np.all(v[:, None, :] == v[None, :, :], axis=2)
     assert np.array_equal(same_id, same_pos)
     assert ids.max() + 1 == len(np.unique(v + 0.0, axis=0))
+
+
+PROJECTION = ("tri", "imin", "imax", "jmin", "jmax", "coef", "tie", "area", "edge_len", "z", "local")
+
+
+@pytest.mark.parametrize("name,mesh,bounds,n", CASES[:4], ids=[c[0] for c in CASES[:4]])
+def test_projection_is_the_same_with_either_kernel(name, mesh, bounds, n, kernel, monkeypatch):
+    grid = make_grid(mesh.bounds, bounds=bounds, resolution=n)
+    for axis in range(3):
+        columns = grid.columns(axis, start=mesh.bounds[0, axis] - 1.0)
+        got = {}
+        for k in ("numpy", "compiled"):
+            monkeypatch.setenv("GEOVOX_KERNEL", k)
+            got[k] = Projection(mesh.triangles, columns)
+        a, b = got["numpy"], got["compiled"]
+        assert len(a) > 0 and a.sub_bits == b.sub_bits and a.scale == b.scale
+        for f in PROJECTION:
+            x, y = getattr(a, f), getattr(b, f)
+            assert x.dtype == y.dtype and np.array_equal(x.view(np.uint8), y.view(np.uint8)), f
+
+
+def test_projection_is_the_same_with_either_kernel_on_a_real_model(kernel, monkeypatch):
+    mesh = geovox.load_mesh(corpus("bunny_watertight", "bunny_oded.obj"))
+    for res in (16, 200):
+        grid = make_grid(mesh.bounds, resolution=res)
+        columns = grid.columns(1, start=ray_start(mesh, grid, 1))
+        got = {}
+        for k in ("numpy", "compiled"):
+            monkeypatch.setenv("GEOVOX_KERNEL", k)
+            got[k] = Projection(mesh.triangles, columns)
+        for f in PROJECTION:
+            assert np.array_equal(getattr(got["numpy"], f), getattr(got["compiled"], f)), f
+
+
+@pytest.mark.parametrize("k", ["numpy", "auto"])
+def test_projection_of_vertices_and_faces_is_that_of_the_triangles(k, monkeypatch):
+    monkeypatch.setenv("GEOVOX_KERNEL", k)
+    mesh = geovox.load_mesh(corpus("suzanne", "suzanne.obj"))
+    grid = make_grid(mesh.bounds, resolution=48)
+    for axis in range(3):
+        columns = grid.columns(axis, start=ray_start(mesh, grid, axis))
+        a = Projection(mesh.triangles, columns)
+        b = Projection(mesh.vertices, columns, faces=mesh.faces)
+        assert len(a) > 0
+        for f in PROJECTION:
+            assert np.array_equal(getattr(a, f), getattr(b, f)), f

@@ -92,4 +92,4 @@ class NumpyBackend(Backend):
     name = "numpy"
 
     def cast(self, mesh, columns: Columns, jobs: int = 1) -> Hits:
-        return rasterise(Projection(mesh.triangles, columns), jobs=jobs)
+        return rasterise(Projection(mesh.vertices, columns, faces=mesh.faces), jobs=jobs)
