@@ -25,7 +25,7 @@ import numpy as np
 
 from libc.stdint cimport int64_t, uint8_t, uint64_t
 from libc.string cimport memcpy
-from libc.math cimport rint
+from libc.math cimport hypot, rint
 
 #: Buckets of at most this many entries are settled by comparing every pair.
 DEF SMALL = 16
@@ -243,6 +243,77 @@ def column_ranges(const double[::1] lo_u, const double[::1] hi_u, const double[:
             h += 1
     return (seen_a[:h].copy(), rng_a[0, :h].copy(), rng_a[1, :h].copy(), rng_a[2, :h].copy(),
             rng_a[3, :h].copy())
+
+
+cdef inline int64_t _sign(int64_t x) noexcept nogil:
+    return (x > 0) - (x < 0)
+
+
+def edges(const double[:, ::1] vertices, const int64_t[:, ::1] faces, const int64_t[::1] idx,
+          int a, int b, int c, double u0, double du, double v0, double dv, double w0, int s):
+    """:func:`geovox.exact._edges` of the triangles ``faces[idx]``: the same operations.
+
+    Returns
+    -------
+    sel : (m,) int64
+        Indices into ``idx`` of the triangles of non-zero projected area.
+    coef : (m, 3, 3) int64
+    tie : (m, 3) int64
+    area : (m,) float64
+    edge_len : (m, 3) float64
+    z : (m, 3) float64
+        :class:`geovox.exact.Projection`'s arrays of those names.
+    """
+    cdef Py_ssize_t t, n = idx.shape[0], h = 0
+    cdef int k, A
+    cdef int64_t S = (<int64_t>1) << s
+    cdef int64_t half = S // 2
+    cdef double fs = <double>S
+    sel_a = np.empty(n, np.int64)
+    coef_a = np.empty((n, 3, 3), np.int64)
+    tie_a = np.empty((n, 3), np.int64)
+    area_a = np.empty(n, np.float64)
+    len_a = np.empty((n, 3), np.float64)
+    z_a = np.empty((n, 3), np.float64)
+    cdef int64_t[::1] sel = sel_a
+    cdef int64_t[:, :, ::1] coef = coef_a
+    cdef int64_t[:, ::1] tie = tie_a
+    cdef double[::1] area = area_a
+    cdef double[:, ::1] elen = len_a
+    cdef double[:, ::1] z = z_a
+    cdef int64_t qu[3]
+    cdef int64_t qv[3]
+    cdef int64_t ex[3]
+    cdef int64_t ey[3]
+    cdef int64_t p, area2, sg, const, tie_sign, tk
+    for t in range(n):
+        for k in range(3):
+            p = faces[idx[t], k]
+            qu[k] = <int64_t>rint((vertices[p, a] - u0) / du * fs)
+            qv[k] = <int64_t>rint((vertices[p, b] - v0) / dv * fs)
+        for k in range(3):
+            ex[k] = qu[(k + 2) % 3] - qu[(k + 1) % 3]
+            ey[k] = qv[(k + 2) % 3] - qv[(k + 1) % 3]
+        area2 = ex[0] * (qv[0] - qv[1]) - ey[0] * (qu[0] - qu[1])
+        sg = _sign(area2)
+        if sg == 0:
+            continue  # zero projected area: never crossed
+        for k in range(3):
+            A = (k + 1) % 3
+            const = ey[k] * qu[A] - ex[k] * qv[A]
+            tie_sign = -_sign(ey[k]) if ey[k] != 0 else _sign(ex[k])
+            tk = tie_sign == sg
+            tie[h, k] = tk
+            coef[h, k, 0] = (const + (ex[k] - ey[k]) * half) * sg + tk
+            coef[h, k, 1] = -ey[k] * S * sg
+            coef[h, k, 2] = ex[k] * S * sg
+            elen[h, k] = hypot(<double>ex[k], <double>ey[k])
+            z[h, k] = vertices[faces[idx[t], k], c] - w0
+        area[h] = <double>(area2 if area2 > 0 else -area2)
+        sel[h] = t
+        h += 1
+    return (sel_a[:h].copy(), coef_a[:h].copy(), tie_a[:h].copy(), area_a[:h].copy(),
+            len_a[:h].copy(), z_a[:h].copy())
 
 
 cdef _bucket(const int64_t[:, ::1] faces, int64_t n):

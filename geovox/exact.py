@@ -71,6 +71,55 @@ def _column_boxes(tris, columns, limits):
     return idx, lo_u[idx], hi_u[idx], lo_v[idx], hi_v[idx]
 
 
+def _edges(t, columns, S):
+    """The exact edge functions of triangles ``t`` ((k, 3, 3) float64) snapped with scale ``S``.
+
+    Returns ``(sel, coef, tie, area, edge_len, z)``: (m,) int64 indices of the
+    triangles of non-zero projected area, and :class:`Projection`'s arrays
+    of the same names for them.
+    """
+    a, b, c = columns.u_axis, columns.v_axis, columns.axis
+    half = S // 2
+    # Written with one 1-D array per vertex: reductions over a length-3
+    # axis and fancy indexing on (n, 3) arrays cost several times more.
+    with np.errstate(invalid="ignore", over="ignore"):
+        qu = [np.rint((t[:, k, a] - columns.u0) / columns.du * float(S)).astype(np.int64)
+              for k in range(3)]
+        qv = [np.rint((t[:, k, b] - columns.v0) / columns.dv * float(S)).astype(np.int64)
+              for k in range(3)]
+
+    # Edge k runs from vertex k+1 to vertex k+2 (opposite vertex k):
+    # orient(A, B, P) = ex * (Py - Ay) - ey * (Px - Ax), which for
+    # P = (i*S + half, j*S + half) is K0 + Ki*i + Kj*j.
+    ex = [qu[(k + 2) % 3] - qu[(k + 1) % 3] for k in range(3)]
+    ey = [qv[(k + 2) % 3] - qv[(k + 1) % 3] for k in range(3)]
+    area2 = ex[0] * (qv[0] - qv[1]) - ey[0] * (qu[0] - qu[1])
+    sign = np.sign(area2)
+    sel = np.flatnonzero(sign)  # zero projected area: never crossed
+    sign = sign[sel]
+    coef = np.empty((len(sel), 3, 3), dtype=np.int64)
+    tie = np.empty((len(sel), 3), dtype=np.int64)
+    edge_len = np.empty((len(sel), 3), dtype=np.float64)
+    for k in range(3):
+        exk, eyk = ex[k][sel], ey[k][sel]
+        A = (k + 1) % 3
+        const = eyk * qu[A][sel] - exk * qv[A][sel]
+        # Tie rule: d/dP of orient(A, B, P) along (1, delta) is -ey, or ex
+        # when ey == 0. A tie counts as inside when that sign matches the
+        # winding. Orient every triangle positively, then fold the tie
+        # into K0: w > 0 or (w == 0 and tie) <=> w + tie > 0 for integer w.
+        tie_sign = np.where(eyk != 0, -np.sign(eyk), np.sign(exk))
+        tie[:, k] = tie_sign == sign
+        coef[:, k, 0] = (const + (exk - eyk) * half) * sign + tie[:, k]
+        coef[:, k, 1] = -eyk * S * sign
+        coef[:, k, 2] = exk * S * sign
+        edge_len[:, k] = np.hypot(exk, eyk)
+    area = np.abs(area2[sel]).astype(np.float64)
+    # Depths are measured from the grid's low face (see Columns).
+    z = t[sel, :, c] - columns.w0
+    return sel, coef, tie, area, edge_len, z
+
+
 class Projection:
     """Triangles prepared for exact tests against one lattice of column rays.
 
@@ -160,48 +209,18 @@ class Projection:
             seen = np.flatnonzero((imin <= imax) & (jmin <= jmax))
             imin, imax, jmin, jmax = imin[seen], imax[seen], jmin[seen], jmax[seen]
         idx = idx[seen]
-        # Written with one 1-D array per vertex: reductions over a length-3
-        # axis and fancy indexing on (n, 3) arrays cost several times more.
-        t = vertices[faces[idx]]
-        with np.errstate(invalid="ignore", over="ignore"):
-            qu = [np.rint((t[:, k, a] - columns.u0) / columns.du * float(S)).astype(np.int64)
-                  for k in range(3)]
-            qv = [np.rint((t[:, k, b] - columns.v0) / columns.dv * float(S)).astype(np.int64)
-                  for k in range(3)]
-
-        # Edge k runs from vertex k+1 to vertex k+2 (opposite vertex k):
-        # orient(A, B, P) = ex * (Py - Ay) - ey * (Px - Ax), which for
-        # P = (i*S + half, j*S + half) is K0 + Ki*i + Kj*j.
-        ex = [qu[(k + 2) % 3] - qu[(k + 1) % 3] for k in range(3)]
-        ey = [qv[(k + 2) % 3] - qv[(k + 1) % 3] for k in range(3)]
-        area2 = ex[0] * (qv[0] - qv[1]) - ey[0] * (qu[0] - qu[1])
-        sign = np.sign(area2)
-        sel = np.flatnonzero(sign)  # zero projected area: never crossed
-        sign = sign[sel]
-        coef = np.empty((len(sel), 3, 3), dtype=np.int64)
-        tie = np.empty((len(sel), 3), dtype=np.int64)
-        edge_len = np.empty((len(sel), 3), dtype=np.float64)
-        for k in range(3):
-            exk, eyk = ex[k][sel], ey[k][sel]
-            A = (k + 1) % 3
-            const = eyk * qu[A][sel] - exk * qv[A][sel]
-            # Tie rule: d/dP of orient(A, B, P) along (1, delta) is -ey, or ex
-            # when ey == 0. A tie counts as inside when that sign matches the
-            # winding. Orient every triangle positively, then fold the tie
-            # into K0: w > 0 or (w == 0 and tie) <=> w + tie > 0 for integer w.
-            tie_sign = np.where(eyk != 0, -np.sign(eyk), np.sign(exk))
-            tie[:, k] = tie_sign == sign
-            coef[:, k, 0] = (const + (exk - eyk) * half) * sign + tie[:, k]
-            coef[:, k, 1] = -eyk * S * sign
-            coef[:, k, 2] = exk * S * sign
-            edge_len[:, k] = np.hypot(exk, eyk)
+        if kernel is not None:
+            sel, coef, tie, area, edge_len, z = kernel.edges(
+                np.ascontiguousarray(vertices), np.ascontiguousarray(faces), idx, a, b, c, columns.u0, columns.du,
+                columns.v0, columns.dv, columns.w0, s)
+        else:
+            sel, coef, tie, area, edge_len, z = _edges(vertices[faces[idx]], columns, S)
         self.tri = idx[sel]
         self.coef = coef
         self.tie = tie
-        self.area = np.abs(area2[sel]).astype(np.float64)
+        self.area = area
         self.edge_len = edge_len
-        # Depths are measured from the grid's low face (see Columns).
-        self.z = t[sel, :, c] - columns.w0
+        self.z = z
         # Column i is in range when lu <= i*S + half <= hu.
         self.imin, self.imax, self.jmin, self.jmax = imin[sel], imax[sel], jmin[sel], jmax[sel]
         self.local = np.full(n_all, -1, dtype=np.int64)
