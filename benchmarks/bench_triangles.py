@@ -19,7 +19,7 @@ Models (written into a temporary folder first, with trimesh):
 Usage::
 
     python benchmarks/bench_triangles.py --vs /path/to/main [--repeat 5]
-        [--cases bunny105k:256,bunny1m6:64,bunny1m6:256]
+        [--cases bunny105k:256,bunny1m6:64,bunny1m6:256] [--bunny CORPUS/bunny_watertight/upsampled_bunny_oded.obj]
 
 (`/usr/bin/time -v python -m geovox convert ...` gives the same wall time
 for one run by hand.)
@@ -39,14 +39,15 @@ import time
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
 
-from common import ROOT  # noqa: E402
+from common import BUNNY, ROOT  # noqa: E402
 
 MAKE = r"""
 import sys
 sys.path.insert(0, {here!r})
 import trimesh
-from common import load_model
-m = load_model("bunny105k")
+import common
+common.BUNNY = {bunny!r}
+m = common.load_model("bunny105k")
 trimesh.Trimesh(m.vertices, m.faces, process=False).export({obj!r})
 v, f = trimesh.remesh.subdivide(m.vertices, m.faces)
 v, f = trimesh.remesh.subdivide(v, f)
@@ -54,9 +55,10 @@ trimesh.Trimesh(v, f, process=False).export({ply!r})
 """
 
 
-def make_models(folder) -> dict:
+def make_models(folder, bunny) -> dict:
     obj, ply = os.path.join(folder, "bunny105k.obj"), os.path.join(folder, "bunny1m6.ply")
-    subprocess.run([sys.executable, "-c", MAKE.format(here=HERE, obj=obj, ply=ply)], check=True)
+    subprocess.run([sys.executable, "-c", MAKE.format(here=HERE, bunny=bunny, obj=obj, ply=ply)],
+                   check=True)
     return {"bunny105k": obj, "bunny1m6": ply}
 
 
@@ -78,10 +80,12 @@ def main(argv=None) -> int:
     p.add_argument("--vs", required=True, help="the other checkout (B)")
     p.add_argument("--repeat", type=int, default=5)
     p.add_argument("--cases", default="bunny105k:256,bunny1m6:64,bunny1m6:256")
+    p.add_argument("--bunny", default=BUNNY,
+                   help="upsampled_bunny_oded.obj of the corpus (default: common.BUNNY)")
     args = p.parse_args(argv)
     print(f"load average before: {os.getloadavg()}")
     with tempfile.TemporaryDirectory() as tmp:
-        models = make_models(tmp)
+        models = make_models(tmp, args.bunny)
         print("| case | A median (s) | B median (s) | A/B (median of pairs) | same bytes |")
         print("|---|---|---|---|---|")
         for case in args.cases.split(","):
