@@ -34,6 +34,7 @@ import numpy as np
 
 from .backends.base import Hits
 from .errors import ParameterError, warn
+from .kernels import lattice
 from .mesh import Mesh
 from .parallel import scan_along
 
@@ -53,20 +54,21 @@ def boundary_edges(mesh: Mesh) -> np.ndarray:
         return mesh._cache["boundary"]
     if len(mesh.faces) == 0:
         return np.zeros((0, 2), dtype=np.int64)
+    kernel = lattice()
+    if kernel is not None:
+        # The common case first, in linear time (no sort): closed exactly
+        # when every undirected edge is run as often one way as the other.
+        closed, mesh._cache["non_manifold"] = kernel.edge_checks(_position_faces(mesh, kernel))
+        if closed:
+            out = np.zeros((0, 2), dtype=np.int64)
+            mesh._cache["boundary"] = out
+            return out
     f = mesh.geometric_faces
     e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
     e = e[e[:, 0] != e[:, 1]]  # degenerate faces repeat a vertex
     n = int(f.max()) + 1 if len(f) else 1
     lo, hi = np.minimum(e[:, 0], e[:, 1]), np.maximum(e[:, 0], e[:, 1])
-    # The common case first, with one sort: closed exactly when every
-    # undirected edge is run as often one way as the other. Sorted by
-    # (edge, direction), a running +-1 sum returns to 0 at the end of
-    # every edge's run.
-    forward = e[:, 0] < e[:, 1]
-    order = np.sort(2 * (lo * n + hi) + forward)
-    net = np.cumsum(np.where(order & 1, 1, -1))
-    ends = np.flatnonzero(np.r_[order[1:] >> 1 != order[:-1] >> 1, len(order) > 0])
-    if not net[ends].any():
+    if kernel is None and _closed(e, lo, hi, n):
         out = np.zeros((0, 2), dtype=np.int64)
         mesh._cache["boundary"] = out
         return out
@@ -91,6 +93,33 @@ def boundary_edges(mesh: Mesh) -> np.ndarray:
     out = rep[out]
     mesh._cache["boundary"] = out
     return out
+
+
+def _position_faces(mesh: Mesh, kernel) -> np.ndarray:
+    """(m, 3) int64: faces over vertices merged by exact position, numbered by a hash.
+
+    The same merging as :attr:`Mesh.geometric_faces` in linear time, with
+    another numbering: for the compiled checks, whose answers do not depend
+    on it (a million vertices' lexicographic sort costs more than all of them).
+    """
+    if "position_faces" not in mesh._cache:
+        if "geometric_faces" in mesh._cache:
+            mesh._cache["position_faces"] = mesh.geometric_faces
+        else:
+            mesh._cache["position_faces"] = kernel.merge_positions(mesh.vertices)[mesh.faces]
+    return mesh._cache["position_faces"]
+
+
+def _closed(e, lo, hi, n) -> bool:
+    """Whether every undirected edge is run as often one way as the other (one sort).
+
+    Sorted by (edge, direction), a running +-1 sum returns to 0 at the end
+    of every edge's run.
+    """
+    order = np.sort(2 * (lo * n + hi) + (e[:, 0] < e[:, 1]))
+    net = np.cumsum(np.where(order & 1, 1, -1))
+    ends = np.flatnonzero(np.r_[order[1:] >> 1 != order[:-1] >> 1, len(order) > 0])
+    return not net[ends].any()
 
 
 def edge_counts(mesh: Mesh):
@@ -300,7 +329,10 @@ def consistent(mesh: Mesh) -> bool:
     """
     if "consistent" not in mesh._cache:
         ok = len(boundary_edges(mesh)) == 0
-        if ok:
+        kernel = lattice()
+        if ok and kernel is not None:
+            ok = not kernel.duplicate_faces(_position_faces(mesh, kernel))  # linear, no sort
+        elif ok:
             s = np.sort(mesh.geometric_faces, axis=1)
             n = np.int64(s.max()) + 1 if len(s) else np.int64(1)
             if n < (1 << 21):  # three ids fit in one int64 key
@@ -324,8 +356,12 @@ def overlapping_pieces(mesh: Mesh) -> bool:
         return mesh._cache["overlap"]
     from .repair import edge_table, face_pieces, manifold_pairs
 
-    g = mesh.geometric_faces
-    g = g[(g[:, 0] != g[:, 1]) & (g[:, 1] != g[:, 2]) & (g[:, 2] != g[:, 0])]
+    kernel = lattice()
+
+    def proper(g):  # the faces that do not repeat a vertex
+        return g[(g[:, 0] != g[:, 1]) & (g[:, 1] != g[:, 2]) & (g[:, 2] != g[:, 0])]
+
+    g = proper(_position_faces(mesh, kernel) if kernel is not None else mesh.geometric_faces)
     overlap = False
     single = True
     if len(g) > 1:
@@ -334,6 +370,7 @@ def overlapping_pieces(mesh: Mesh) -> bool:
         # the default path importing scipy.sparse alone costs about 0.2 s.)
         single = _vertex_connected(g) and not _non_manifold(mesh)
     if not single:
+        g = proper(mesh.geometric_faces)
         edge, count, _ = edge_table(g, int(g.max()) + 1)
         # Pieces meet across manifold edges only: two closed parts that touch
         # along an edge (four faces on it) stay two pieces.
@@ -360,7 +397,12 @@ def _vertex_connected(faces: np.ndarray) -> bool:
 
     A surface mesh's graph diameter is about the square root of its size,
     so the number of rounds stays in the hundreds even for millions of faces.
+    The compiled kernel's union-find (:mod:`geovox.kernels`) gives the same
+    answer in linear time.
     """
+    kernel = lattice()
+    if kernel is not None:
+        return kernel.vertex_connected(faces)
     nv = int(faces.max()) + 1
     a = np.r_[faces[:, 0], faces[:, 1], faces[:, 2], faces[:, 1], faces[:, 2], faces[:, 0]]
     b = np.r_[faces[:, 1], faces[:, 2], faces[:, 0], faces[:, 0], faces[:, 1], faces[:, 2]]
@@ -391,6 +433,10 @@ def _vertex_connected(faces: np.ndarray) -> bool:
 def _non_manifold(mesh: Mesh) -> bool:
     """Whether some edge is used by more than two faces (cached by boundary_edges when it can)."""
     if "non_manifold" not in mesh._cache:
+        kernel = lattice()
+        if kernel is not None:
+            mesh._cache["non_manifold"] = kernel.edge_checks(_position_faces(mesh, kernel))[1]
+            return mesh._cache["non_manifold"]
         f = mesh.geometric_faces
         e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
         e = e[e[:, 0] != e[:, 1]]

@@ -874,7 +874,8 @@ def _trimesh_load(path: str) -> Mesh:
 def load_mesh(source) -> Mesh:
     """Load a mesh from a path, a trimesh object, or pass a :class:`Mesh` through.
 
-    OBJ files are read by :mod:`geovox.obj`; everything else by trimesh
+    OBJ files are read by :mod:`geovox.obj`, plain binary triangle PLY
+    files by :mod:`geovox.ply`; everything else by trimesh
     (STL, PLY, OFF, glTF/GLB with Draco compression, 3MF, COLLADA, 3DXML,
     zip and tar archives of these, ...).
 
@@ -913,6 +914,13 @@ def load_mesh(source) -> Mesh:
             from .obj import read_obj
 
             return check_mesh(read_obj(path))
+        if path.lower().endswith(".ply"):
+            from .ply import read_plain_ply
+
+            # A plain binary triangle PLY without importing trimesh (the same Mesh).
+            mesh = read_plain_ply(path)
+            if mesh is not None:
+                return mesh
         return _trimesh_load(path)
     try:
         return from_trimesh(source, source=f"<{type(source).__name__}>")

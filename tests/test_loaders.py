@@ -120,7 +120,8 @@ def test_any_lost_geometry_message_from_trimesh_is_an_error(tmp_path, monkeypatc
     # The rule, not just Draco: a reader that logs that it dropped geometry
     # and carries on gives an error naming the file and trimesh's words.
     path = tmp_path / "box.ply"
-    _box().export(path)
+    # ASCII: a plain binary triangle PLY is read by geovox.ply, not trimesh.
+    path.write_bytes(_box().export(file_type="ply", encoding="ascii"))
     from trimesh.exchange import load
 
     real = load.mesh_loaders["ply"]
