@@ -26,7 +26,7 @@ MESH_EXTENSIONS = (".obj", ".stl", ".ply", ".off", ".glb", ".gltf", ".3mf", ".da
 
 #: The keyword options of :func:`geovox.voxelize` a batch passes on to each model
 #: (``jobs`` and ``progress`` belong to the batch, not to one model).
-MODEL_OPTIONS = ("resolution", "bounds", "backend", "shape", "voxel_size", "axis", "color",
+MODEL_OPTIONS = ("resolution", "bounds", "backend", "shape", "voxel_size", "fit", "axis", "color",
                  "diffuse", "ambient", "inside", "density", "supersample", "density_dtype",
                  "sdf", "band")
 
@@ -200,7 +200,7 @@ def _convert_one(task) -> Result:
                               f"{task['versions']['numpy']}")
         from .formats import format_for, write
         from .formats.headers import default_name
-        from .grid import make_grid
+        from .grid import fit_for, make_grid
         from .mesh import load_mesh
         from .stream import convert_to, streams
 
@@ -209,9 +209,13 @@ def _convert_one(task) -> Result:
         # side by side on threads of one worker (see geovox.errors.warn).
         with collect_warnings() as said:
             mesh = load_mesh(path)
+            # .binvox: a resolution is binvox's -d N cube (see geovox.grid.fit_for).
+            fit = fit_for(options.get("fit"), format_for("x" + task["ext"]).name,
+                          shape=options.get("shape"), voxel_size=options.get("voxel_size"))
+            options = {**options, "fit": fit}
             grid = make_grid(mesh.bounds, bounds=options.get("bounds"),
                              resolution=options.get("resolution"), shape=options.get("shape"),
-                             voxel_size=options.get("voxel_size"))
+                             voxel_size=options.get("voxel_size"), fit=fit)
             name = default_name(task["stem"], grid.shape, "uint8", task["ext"])
             target = out_dir.rstrip("/") + "/" + name if remote else os.path.join(out_dir, name)
             if not task["overwrite"] and _output_exists(target):
@@ -230,8 +234,8 @@ def _convert_one(task) -> Result:
                     local = target
                 if streams(grid, format_for(local).name, options.get("color"),
                            options.get("density"), options.get("sdf")):
-                    opts = {k: v for k, v in options.items() if k not in ("resolution", "shape",
-                                                                           "voxel_size", "bounds")}
+                    opts = {k: v for k, v in options.items()
+                            if k not in ("resolution", "shape", "voxel_size", "fit", "bounds")}
                     info = convert_to(mesh, local, shape=grid.shape,
                                       bounds=[*grid.lo, *grid.hi], jobs=1, **opts)
                     written, inside = info["files"], info["inside"]
@@ -449,7 +453,7 @@ def convert_many(inputs, out, *, client=None, fmt=None, overwrite=False, jobs=1,
     write_options : dict, optional
         Passed to the writer (``shell`` for ``.vox``, ``pack_bits`` for ``.npz``).
     **options
-        As for :func:`geovox.voxelize`: resolution, shape, voxel_size, bounds,
+        As for :func:`geovox.voxelize`: resolution, shape, voxel_size, fit, bounds,
         backend, inside, color, density, sdf, ...
 
     Returns

@@ -139,12 +139,23 @@ def build_parser() -> argparse.ArgumentParser:
                      help="grid to cost (default 128)")
     res.add_argument("--shape", type=_positive_int, nargs=3, metavar=("NX", "NY", "NZ"))
     res.add_argument("--voxel-size", type=_positive_float, metavar="S")
+    _cube_options(info)
     info.add_argument("--bounds", type=_finite_float, nargs=6,
                       metavar=("XMIN", "YMIN", "ZMIN", "XMAX", "YMAX", "ZMAX"))
 
     sub.add_parser("backends", help="list the ray-casting backends and whether each can run")
     sub.add_parser("formats", help="list the output formats")
     return p
+
+
+def _cube_options(c):
+    """--cube / --cube-center: binvox's -d N (and -cb) cube, for any format."""
+    cube = c.add_mutually_exclusive_group()
+    cube.add_argument("--cube", dest="fit", action="store_const", const="cube",
+                      help="with -r N: an N³ cube of cubic voxels whose edge is the box's longest "
+                           "side, at its minimum corner (binvox -d N; what -r means for .binvox)")
+    cube.add_argument("--cube-center", "--cube-centre", dest="fit", action="store_const",
+                      const="cube-center", help="the same cube, centred on the box (binvox -cb)")
 
 
 def _grid_options(c):
@@ -155,6 +166,7 @@ def _grid_options(c):
                      help="voxels along x, y, z")
     res.add_argument("--voxel-size", type=_positive_float, metavar="S",
                      help="edge of a cubic voxel; the region grows to fit whole voxels")
+    _cube_options(c)
     c.add_argument("--bounds", type=_finite_float, nargs=6,
                    metavar=("XMIN", "YMIN", "ZMIN", "XMAX", "YMAX", "ZMAX"),
                    help="region of interest (default: the mesh's bounding box)")
@@ -218,8 +230,9 @@ def _stage_bar(args):
 
 def _options(args) -> dict:
     """The keyword arguments of voxelize / convert_to that the CLI options set."""
+    # `fit` only where set: a batch's manifest records these options.
     return dict(resolution=args.resolution, shape=args.shape, voxel_size=args.voxel_size,
-                bounds=args.bounds, backend=args.backend, color=args.color, diffuse=args.diffuse,
+                **({"fit": args.fit} if args.fit else {}), bounds=args.bounds, backend=args.backend, color=args.color, diffuse=args.diffuse,
                 ambient=args.ambient, inside=args.inside, density=args.density,
                 supersample=args.supersample,
                 density_dtype="float32" if args.density_float else "uint8",
@@ -476,14 +489,18 @@ def _convert(args) -> int:
         formats.check_writable(os.path.join(args.output, "x"))
     if args.preview:
         formats.check_writable(args.preview)
-    from .grid import make_grid
+    from .grid import fit_for, make_grid
     from .mesh import load_mesh
     from .stream import streams
 
     mesh = load_mesh(args.input)
     t_read = time.perf_counter() - t0
+    # .binvox: -r N is binvox's -d N cube (geovox.grid.fit_for).
+    args.fit = fit_for(args.fit, formats.format_for(
+        "x.raw" if default_out else args.output, args.fmt).name,
+        shape=args.shape, voxel_size=args.voxel_size)
     grid = make_grid(mesh.bounds, bounds=args.bounds, resolution=args.resolution,
-                     shape=args.shape, voxel_size=args.voxel_size)
+                     shape=args.shape, voxel_size=args.voxel_size, fit=args.fit)
     output = _output_path(args, args.input, grid.shape)
     fmt = formats.format_for(output, args.fmt)
     write_options = _write_options(args, fmt)  # a bad combination fails before any work
@@ -562,7 +579,7 @@ def _info(args) -> int:
 
     mesh = load_mesh(args.input)
     cost = grid_cost(mesh, bounds=args.bounds, resolution=args.resolution, shape=args.shape,
-                     voxel_size=args.voxel_size)
+                     voxel_size=args.voxel_size, fit=args.fit or "box")
     print(format_report(mesh_report(mesh), cost))
     return EXIT_OK
 

@@ -30,6 +30,7 @@ def voxelize(
     *,
     shape=None,
     voxel_size=None,
+    fit=None,
     axis=2,
     color=False,
     diffuse=True,
@@ -67,6 +68,12 @@ def voxelize(
     voxel_size : float, optional
         Cubic voxel edge (instead of ``resolution``); the region grows
         symmetrically to a whole number of voxels.
+    fit : {None, "box", "cube", "cube-center"}
+        How ``resolution`` covers the region: ``"box"`` (the default, also
+        for None) N voxels on each axis of the box; ``"cube"`` an N³ cube of
+        cubic voxels whose edge is the box's longest side, at its minimum
+        corner (binvox's ``-d N``); ``"cube-center"`` that cube centred on the
+        box (binvox's ``-cb``).
     axis : {0, 1, 2}
         Direction of the column rays (default z; slab-by-slab conversions
         use y, see :mod:`geovox.stream`). Occupancy is the same up to ties on
@@ -120,7 +127,7 @@ def voxelize(
     m = load_mesh(mesh)
     t_load = time.perf_counter()
     grid = make_grid(m.bounds, bounds=bounds, resolution=resolution, shape=shape,
-                     voxel_size=voxel_size)
+                     voxel_size=voxel_size, fit="box" if fit is None else fit)
     vol = voxelize_block(m, grid, engine=engine, inside=inside, axis=axis, jobs=jobs, color=color,
                          diffuse=diffuse, ambient=ambient, density=density,
                          supersample=supersample, density_dtype=density_dtype, sdf=sdf,

@@ -37,7 +37,7 @@ import time
 import numpy as np
 
 from .errors import ParameterError, collect_warnings, warn
-from .grid import Grid, make_grid
+from .grid import Grid, fit_for, make_grid
 from . import memory
 from .memory import bytes_per_voxel
 from .mesh import load_mesh
@@ -306,7 +306,7 @@ def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, c
         ``.zarr`` only: slab thickness in voxels, a multiple of 64 (default:
         from ``budget`` here, :func:`cluster_thick` on a cluster).
     **options
-        As for :func:`geovox.voxelize` (resolution, shape, voxel_size,
+        As for :func:`geovox.voxelize` (resolution, shape, voxel_size, fit,
         bounds, backend, inside, color, diffuse, ambient, density,
         supersample, density_dtype, sdf, band).
 
@@ -337,7 +337,8 @@ def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, c
     t_load = time.perf_counter()
     grid = make_grid(m.bounds, bounds=options.pop("bounds", None),
                      resolution=options.pop("resolution", None), shape=options.pop("shape", None),
-                     voxel_size=options.pop("voxel_size", None))
+                     voxel_size=options.pop("voxel_size", None),
+                     fit=fit_for(options.pop("fit", None)))
     method = inside_tests.choose(m, options.pop("inside", "auto"))
     # Said once here; the slabs below are silenced.
     if options.get("color"):

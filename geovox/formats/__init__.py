@@ -231,7 +231,8 @@ register_format("npz", (".npz",), numpy_files.write_npz,
                 "NumPy archive: occupancy (bits with --pack-bits), colors, spacing, bounds, origin",
                 reader=numpy_files.read_npz)
 register_format("binvox", (".binvox",), binvox.write_binvox,
-                "binvox (ShapeNet, 3D-R2N2, ONet): run-length cube; cubic voxels, padded to a cube",
+                "binvox (ShapeNet, 3D-R2N2, ONet): -r N is binvox -d N (N³ cube over the longest "
+                "side; --cube-center: -cb); --voxel-size grids padded to a cube",
                 reader=binvox.read_binvox, check=binvox.check_grid)
 register_format("vdb", (".vdb",), vdb.write_vdb,
                 "OpenVDB for Blender/Houdini: density (fog), color (vec3s), sdf (level set) grids",
