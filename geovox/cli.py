@@ -263,17 +263,14 @@ def _voxelize(args, path):
 
 
 def _volume_or_mesh(args, path, largest=None):
-    """A volume file written by geovox is read; anything else is voxelised as a mesh.
+    """A file geovox wrote (volume, header or sidecar) is read; anything else is voxelised.
 
     A ``.zarr`` is read from its finest pyramid level with every side at most ``largest``.
     """
     from . import formats
 
-    lower = path.lower()
-    if any(lower.endswith(e) for f in formats.formats() for e in f.extensions):
-        if lower.rstrip("/").endswith(".zarr") and largest is not None:
-            return formats.read(path, max_side=largest)
-        return formats.read(path)
+    if formats.is_volume_file(path):
+        return formats.read_volume(path, max_side=largest)
     return _voxelize(args, path)
 
 
