@@ -582,16 +582,11 @@ def _info(args) -> int:
 
 
 def _backends(args) -> int:
-    from .backends import PREFERENCE, REGISTRY, available_backends
+    from .backends import backend_report
 
-    have = available_backends()
-    for name in PREFERENCE:
-        status = "available" if name in have else f"missing (pip install {REGISTRY[name][1]})"
-        print(f"{name:8s} {status}")
-    # Not in PREFERENCE (`auto` never picks it): shown with its adapter.
-    from .backends.webgpu import describe
-
-    print(f"{'webgpu':8s} {describe()}")
+    # The same answer as geovox.usable_backends(); webgpu with its adapter.
+    for name, (_, line) in backend_report().items():
+        print(f"{name:8s} {line}")
     return EXIT_OK
 
 
