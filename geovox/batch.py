@@ -39,7 +39,9 @@ class Result:
     the manifest says it was done) or ``"failed"`` (``error`` says why, in
     one line). ``outputs`` lists every file written, the volume first (local
     paths, or URLs where the output folder is one). ``seconds`` is the time
-    the model took where it ran; ``note`` the inside count and any warning.
+    the model took where it ran; ``note`` the inside count and, in a few
+    words, any warning (the summary table's cell); ``warnings`` every
+    warning in full.
     """
 
     input: str
@@ -48,6 +50,7 @@ class Result:
     error: str = ""
     seconds: float = 0.0
     note: str = ""
+    warnings: list = field(default_factory=list)
 
     @property
     def output(self):
@@ -246,13 +249,42 @@ def _convert_one(task) -> Result:
                     written, inside = write(vol, local, **task["write_options"]), vol.inside_count
                 written = [local] + [f for f in written if f != local]
                 outputs = _upload(written, local, out_dir) if remote else written
-        note = f"{inside:,} inside" + (f"; warning: {'; '.join(said)}" if said else "")
-        return Result(path, "ok", outputs, "", time.perf_counter() - t0, note)
+        note = f"{inside:,} inside" + (f"; warning: {warning_cell(said, path)}" if said else "")
+        return Result(path, "ok", outputs, "", time.perf_counter() - t0, note, list(said))
     except (GeovoxError, MemoryError) as exc:
         return Result(path, "failed", [], _line(str(exc)), time.perf_counter() - t0)
     except Exception as exc:  # a model must not stop the batch; say what happened
         return Result(path, "failed", [], _line(f"{type(exc).__name__}: {exc}"),
                       time.perf_counter() - t0)
+
+
+#: Longest warning cell of a batch's summary row (the full text is in ``Result.warnings``).
+CELL = 100
+
+
+def warning_cell(messages, path="") -> str:
+    """A model's warnings in a few words, for its row of a batch's summary.
+
+    Each warning's first clause (up to ``"; "``: what was wrong, or how many
+    voxels are approximate), without the model's own name, which the row
+    already shows; cut to :data:`CELL` characters.
+
+    Parameters
+    ----------
+    messages : list of str
+        The warnings, in full.
+    path : str
+        The model's file.
+    """
+    prefix = os.path.basename(os.fspath(path)) + ": " if path else None
+    heads = []
+    for m in messages:
+        head = m.split("; ", 1)[0]
+        if prefix and head.startswith(prefix):
+            head = head[len(prefix):]
+        heads.append(head)
+    cell = "; ".join(heads)
+    return cell if len(cell) <= CELL else cell[:CELL - 1].rstrip() + "…"
 
 
 def _scratch(wanted: bool):

@@ -168,7 +168,7 @@ class TestBackendConformance:
         np.testing.assert_array_equal(full.occupancy, ref.occupancy)
 
     @pytest.mark.parametrize("inside", ["auto", "vote"])
-    @pytest.mark.filterwarnings("ignore::geovox.errors.GeovoxWarning")  # auto: "repaired a copy"
+    @pytest.mark.filterwarnings("ignore::geovox.errors.GeovoxWarning")  # auto: "... of a repaired copy"
     def test_inside_tests_on_an_open_mesh_are_the_numpy_backends(self, engine, inside):
         # auto on an open mesh: the winding number of a repaired, hole-capped copy.
         mesh = _open_spot()
