@@ -485,7 +485,7 @@ def convert_many(inputs, out, *, client=None, fmt=None, overwrite=False, jobs=1,
     write_options : dict, optional
         Passed to the writer (``shell`` for ``.vox``, ``pack_bits`` for ``.npz``).
     **options
-        As for :func:`geovox.voxelize`: resolution, shape, voxel_size, fit, bounds,
+        As for :func:`geovox.voxelize`: resolution, shape, voxel_size, bounds,
         backend, inside, color, density, sdf, ...
 
     Returns
