@@ -122,12 +122,14 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("-q", "--quiet", action="store_true", help="print nothing on success")
 
     pv = sub.add_parser("preview", help="write a PNG picture of a volume (or of a mesh, voxelised)")
-    pv.add_argument("input", help="a volume written by geovox, or a mesh")
+    pv.add_argument("input", help="any file geovox wrote (a volume, its .json sidecar or .mhd/.nhdr "
+                    "header), or a mesh")
     pv.add_argument("-o", "--output", required=True, help="PNG file to write")
     _grid_options(pv)
 
     vw = sub.add_parser("view", help="interactive 3D view of a volume (needs the 'view' extra)")
-    vw.add_argument("input", help="a volume written by geovox, or a mesh")
+    vw.add_argument("input", help="any file geovox wrote (a volume, its .json sidecar or .mhd/.nhdr "
+                    "header), or a mesh")
     vw.add_argument("--mesh", help="show this mesh beside the volume")
     vw.add_argument("--screenshot", metavar="PNG", help="render off-screen into PNG instead")
     _grid_options(vw)

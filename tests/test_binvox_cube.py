@@ -146,6 +146,28 @@ def test_cube_through_convert_to_and_batch(tmp_path):
     np.testing.assert_allclose(translate, ref.bounds[0], atol=1e-12)
 
 
+def test_centred_cube_in_a_batch_and_over_given_bounds(tmp_path, capsys):
+    # IM-NET asks binvox for `-bb ... -d 64`: the cube over the given box's longest side.
+    bounds = (-1.0, -0.9, -0.8, 1.0, 0.5, 0.4)
+    out = tmp_path / "b.binvox"
+    assert main(["convert", SPOT, "-o", str(out), "-r", "10", "--bounds", *map(str, bounds),
+                 "-q"]) == 0
+    _, dim, translate, scale = read_binvox(out.read_bytes())
+    assert dim == 10 and scale == pytest.approx(2.0)
+    np.testing.assert_allclose(translate, bounds[:3], atol=1e-12)
+    ref = geovox.voxelize(SPOT, resolution=12, fit="cube-center", backend="numpy")
+    results = geovox.convert_many([SPOT], tmp_path / "out", fmt="npz", resolution=12,
+                                  fit="cube-center")
+    back = geovox.formats.read_volume(results[0].output)
+    np.testing.assert_array_equal(back.occupancy, ref.occupancy)
+    np.testing.assert_allclose(np.asarray(back.bounds), np.asarray(ref.bounds), atol=1e-12)
+    # geovox info costs the same cube.
+    assert main(["info", SPOT, "-r", "16", "--cube"]) == 0
+    line = next(x for x in capsys.readouterr().out.splitlines() if x.startswith("grid"))
+    edge = (_mesh_box()[1] - _mesh_box()[0]).max() / 16
+    assert line.startswith(f"grid 16 x 16 x 16 = 4,096 voxels of {edge:.4g} x {edge:.4g} x {edge:.4g}")
+
+
 def test_cube_options_are_checked():
     with pytest.raises(ParameterError, match="`fit` must be one of"):
         geovox.voxelize(SPOT, resolution=8, fit="sphere")
