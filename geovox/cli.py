@@ -234,7 +234,8 @@ def _options(args) -> dict:
     """The keyword arguments of voxelize / convert_to that the CLI options set."""
     # `fit` only where set: a batch's manifest records these options.
     return dict(resolution=args.resolution, shape=args.shape, voxel_size=args.voxel_size,
-                **({"fit": args.fit} if args.fit else {}), bounds=args.bounds, backend=args.backend, color=args.color, diffuse=args.diffuse,
+                **({"fit": args.fit} if args.fit else {}),
+                bounds=args.bounds, backend=args.backend, color=args.color, diffuse=args.diffuse,
                 ambient=args.ambient, inside=args.inside, density=args.density,
                 supersample=args.supersample,
                 density_dtype="float32" if args.density_float else "uint8",

@@ -183,7 +183,6 @@ def make_grid(
     voxel_size : float, optional
         Edge of a cubic voxel; the region grows symmetrically to a whole
         number of voxels (``shape = ceil(extent / voxel_size)``).
-
     fit : {"box", "cube", "cube-center"}
         With ``resolution`` (see :data:`FITS`): ``"cube"`` and
         ``"cube-center"`` give the N³ cube of binvox's ``-d N`` (and ``-cb``)

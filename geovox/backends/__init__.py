@@ -56,7 +56,7 @@ def backend_report() -> dict:
     A backend can run when its package imports and, for ``webgpu``, a GPU
     adapter (or lavapipe, Mesa's software Vulkan) is found. Checking imports
     the packages (trimesh and embreex for ``embree``, wgpu for ``webgpu``)
-    and opens the adapter: it costs a second or so, once per process.
+    and opens the adapter: a few seconds on lavapipe, once per process.
 
     Returns
     -------
