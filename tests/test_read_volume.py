@@ -95,9 +95,11 @@ def test_headers_without_the_sidecar(tmp_path, full):
     os.remove(tmp_path / "v.json")  # the headers alone: what ITK, Slicer and ParaView read
     for name in ("v.mhd", "v.nhdr", "v.raw"):
         _same(F.read_volume(tmp_path / name), full, ())
-    rgba = F.read_volume(tmp_path / "v_rgba.mhd")
-    np.testing.assert_array_equal(rgba.colors, full.colors)
-    np.testing.assert_array_equal(rgba.occupancy, full.occupancy)
+    for name in ("v_rgba.mhd", "v_rgba.nhdr"):
+        rgba = F.read_volume(tmp_path / name)
+        np.testing.assert_array_equal(rgba.colors, full.colors)
+        np.testing.assert_array_equal(rgba.occupancy, full.occupancy)
+        np.testing.assert_allclose(np.asarray(rgba.bounds), np.asarray(full.bounds), atol=1e-9)
     for name in ("v_sdf.nhdr", "v_sdf.mhd"):
         np.testing.assert_array_equal(F.read_volume(tmp_path / name).sdf, full.sdf)
     dens = F.read_volume(tmp_path / "v_density.mhd")

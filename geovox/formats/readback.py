@@ -144,11 +144,9 @@ def _read_nhdr(path: str):
     data, header = nrrd.read(path)
     if data.ndim == 4:  # (c, x, y, z) -> (x, y, z, c)
         data = np.moveaxis(data, 0, 3)
-    directions = np.asarray(header["space directions"], dtype=object)
-    rows = np.array([d for d in directions if d is not None and not (isinstance(d, float)
-                                                                     and np.isnan(d))],
-                    dtype=np.float64).reshape(-1, 3)
-    spacing = np.abs(np.diag(rows[-3:]))
+    # A colour file's first axis has direction "none" (a row of NaN): the last three are space.
+    rows = np.asarray(header["space directions"], dtype=np.float64)[-3:]
+    spacing = np.abs(np.diag(rows))
     origin = np.asarray(header["space origin"], dtype=np.float64)
     return data, spacing, origin
 
