@@ -26,7 +26,7 @@ MESH_EXTENSIONS = (".obj", ".stl", ".ply", ".off", ".glb", ".gltf", ".3mf", ".da
 
 #: The keyword options of :func:`geovox.voxelize` a batch passes on to each model
 #: (``jobs`` and ``progress`` belong to the batch, not to one model).
-MODEL_OPTIONS = ("resolution", "bounds", "backend", "shape", "voxel_size", "axis", "color",
+MODEL_OPTIONS = ("resolution", "bounds", "backend", "shape", "voxel_size", "fit", "axis", "color",
                  "diffuse", "ambient", "inside", "density", "supersample", "density_dtype",
                  "sdf", "band", "like", "mesh_space")
 
@@ -39,7 +39,9 @@ class Result:
     the manifest says it was done) or ``"failed"`` (``error`` says why, in
     one line). ``outputs`` lists every file written, the volume first (local
     paths, or URLs where the output folder is one). ``seconds`` is the time
-    the model took where it ran; ``note`` the inside count and any warning.
+    the model took where it ran; ``note`` the inside count and, in a few
+    words, any warning (the summary table's cell); ``warnings`` every
+    warning in full.
 
     Attributes
     ----------
@@ -53,7 +55,9 @@ class Result:
     seconds : float
         The model's own time, where it ran.
     note : str
-        Inside count and warnings.
+        Inside count and the warnings in a few words.
+    warnings : list of str
+        Every warning in full.
     """
 
     input: str
@@ -62,6 +66,7 @@ class Result:
     error: str = ""
     seconds: float = 0.0
     note: str = ""
+    warnings: list = field(default_factory=list)
 
     @property
     def output(self):
@@ -214,7 +219,7 @@ def _convert_one(task) -> Result:
                               f"{task['versions']['numpy']}")
         from .formats import format_for, write
         from .formats.headers import default_name
-        from .grid import make_grid
+        from .grid import fit_for, make_grid
         from .mesh import load_mesh
         from .stream import convert_to, streams
 
@@ -228,9 +233,13 @@ def _convert_one(task) -> Result:
 
                 grid = load_reference(options["like"]).local_grid()
             else:
+                # .binvox: a resolution is binvox's -d N cube (see geovox.grid.fit_for).
+                fit = fit_for(options.get("fit"), format_for("x" + task["ext"]).name,
+                              shape=options.get("shape"), voxel_size=options.get("voxel_size"))
+                options = {**options, "fit": fit}
                 grid = make_grid(mesh.bounds, bounds=options.get("bounds"),
                                  resolution=options.get("resolution"), shape=options.get("shape"),
-                                 voxel_size=options.get("voxel_size"))
+                                 voxel_size=options.get("voxel_size"), fit=fit)
             name = default_name(task["stem"], grid.shape, "uint8", task["ext"])
             target = out_dir.rstrip("/") + "/" + name if remote else os.path.join(out_dir, name)
             if not task["overwrite"] and _output_exists(target):
@@ -254,7 +263,8 @@ def _convert_one(task) -> Result:
                 elif streams(grid, format_for(local).name, options.get("color"),
                              options.get("density"), options.get("sdf")):
                     opts = {k: v for k, v in options.items() if k not in ("resolution", "shape",
-                                                                           "voxel_size", "bounds")}
+                                                                           "voxel_size", "fit",
+                                                                           "bounds")}
                     info = convert_to(mesh, local, shape=grid.shape,
                                       bounds=[*grid.lo, *grid.hi], jobs=1, **opts)
                     written, inside = info["files"], info["inside"]
@@ -265,13 +275,42 @@ def _convert_one(task) -> Result:
                     written, inside = write(vol, local, **task["write_options"]), vol.inside_count
                 written = [local] + [f for f in written if f != local]
                 outputs = _upload(written, local, out_dir) if remote else written
-        note = f"{inside:,} inside" + (f"; warning: {'; '.join(said)}" if said else "")
-        return Result(path, "ok", outputs, "", time.perf_counter() - t0, note)
+        note = f"{inside:,} inside" + (f"; warning: {warning_cell(said, path)}" if said else "")
+        return Result(path, "ok", outputs, "", time.perf_counter() - t0, note, list(said))
     except (GeovoxError, MemoryError) as exc:
         return Result(path, "failed", [], _line(str(exc)), time.perf_counter() - t0)
     except Exception as exc:  # a model must not stop the batch; say what happened
         return Result(path, "failed", [], _line(f"{type(exc).__name__}: {exc}"),
                       time.perf_counter() - t0)
+
+
+#: Longest warning cell of a batch's summary row (the full text is in ``Result.warnings``).
+CELL = 100
+
+
+def warning_cell(messages, path="") -> str:
+    """A model's warnings in a few words, for its row of a batch's summary.
+
+    Each warning's first clause (up to ``"; "``: what was wrong, or how many
+    voxels are approximate), without the model's own name, which the row
+    already shows; cut to :data:`CELL` characters.
+
+    Parameters
+    ----------
+    messages : list of str
+        The warnings, in full.
+    path : str
+        The model's file.
+    """
+    prefix = os.path.basename(os.fspath(path)) + ": " if path else None
+    heads = []
+    for m in messages:
+        head = m.split("; ", 1)[0]
+        if prefix and head.startswith(prefix):
+            head = head[len(prefix):]
+        heads.append(head)
+    cell = "; ".join(heads)
+    return cell if len(cell) <= CELL else cell[:CELL - 1].rstrip() + "…"
 
 
 def _scratch(wanted: bool):

@@ -122,13 +122,15 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("-q", "--quiet", action="store_true", help="print nothing on success")
 
     pv = sub.add_parser("preview", help="write a PNG picture of a volume (or of a mesh, voxelised)")
-    pv.add_argument("input", help="a volume written by geovox, or a mesh")
+    pv.add_argument("input", help="any file geovox wrote (a volume, its .json sidecar or .mhd/.nhdr "
+                    "header), or a mesh")
     pv.add_argument("-o", "--output", required=True, help="PNG file to write")
     _grid_options(pv)
 
     vw = sub.add_parser("view", help="interactive 3D view of a volume (needs the 'view' extra), "
                                      "or with --html one self-contained page for any browser")
-    vw.add_argument("input", help="a volume written by geovox, or a mesh")
+    vw.add_argument("input", help="any file geovox wrote (a volume, its .json sidecar or .mhd/.nhdr "
+                    "header), or a mesh")
     vw.add_argument("--mesh", help="show this mesh beside the volume")
     vw.add_argument("--screenshot", metavar="PNG", help="render off-screen into PNG instead")
     vw.add_argument("--html", metavar="OUT.html",
@@ -146,6 +148,7 @@ def build_parser() -> argparse.ArgumentParser:
                      help="grid to cost (default 128)")
     res.add_argument("--shape", type=_positive_int, nargs=3, metavar=("NX", "NY", "NZ"))
     res.add_argument("--voxel-size", type=_positive_float, metavar="S")
+    _cube_options(info)
     info.add_argument("--bounds", type=_finite_float, nargs=6,
                       metavar=("XMIN", "YMIN", "ZMIN", "XMAX", "YMAX", "ZMAX"))
     _like_options(info)
@@ -153,6 +156,16 @@ def build_parser() -> argparse.ArgumentParser:
     sub.add_parser("backends", help="list the ray-casting backends and whether each can run")
     sub.add_parser("formats", help="list the output formats")
     return p
+
+
+def _cube_options(c):
+    """--cube / --cube-center: binvox's -d N (and -cb) cube, for any format."""
+    cube = c.add_mutually_exclusive_group()
+    cube.add_argument("--cube", dest="fit", action="store_const", const="cube",
+                      help="with -r N: an N³ cube of cubic voxels whose edge is the box's longest "
+                           "side, at its minimum corner (binvox -d N; what -r means for .binvox)")
+    cube.add_argument("--cube-center", "--cube-centre", dest="fit", action="store_const",
+                      const="cube-center", help="the same cube, centred on the box (binvox -cb)")
 
 
 def _grid_options(c):
@@ -163,6 +176,7 @@ def _grid_options(c):
                      help="voxels along x, y, z")
     res.add_argument("--voxel-size", type=_positive_float, metavar="S",
                      help="edge of a cubic voxel; the region grows to fit whole voxels")
+    _cube_options(c)
     c.add_argument("--bounds", type=_finite_float, nargs=6,
                    metavar=("XMIN", "YMIN", "ZMIN", "XMAX", "YMAX", "ZMAX"),
                    help="region of interest (default: the mesh's bounding box)")
@@ -238,7 +252,9 @@ def _stage_bar(args):
 
 def _options(args) -> dict:
     """The keyword arguments of voxelize / convert_to that the CLI options set."""
+    # `fit` only where set: a batch's manifest records these options.
     return dict(resolution=args.resolution, shape=args.shape, voxel_size=args.voxel_size,
+                **({"fit": args.fit} if args.fit else {}),
                 bounds=args.bounds, backend=args.backend, color=args.color, diffuse=args.diffuse,
                 ambient=args.ambient, inside=args.inside, density=args.density,
                 supersample=args.supersample,
@@ -272,17 +288,14 @@ def _voxelize(args, path):
 
 
 def _volume_or_mesh(args, path, largest=None):
-    """A volume file written by geovox is read; anything else is voxelised as a mesh.
+    """A file geovox wrote (volume, header or sidecar) is read; anything else is voxelised.
 
     A ``.zarr`` is read from its finest pyramid level with every side at most ``largest``.
     """
     from . import formats
 
-    lower = path.lower()
-    if any(lower.endswith(e) for f in formats.formats() for e in f.extensions):
-        if lower.rstrip("/").endswith(".zarr") and largest is not None:
-            return formats.read(path, max_side=largest)
-        return formats.read(path)
+    if formats.is_volume_file(path):
+        return formats.read_volume(path, max_side=largest)
     return _voxelize(args, path)
 
 
@@ -507,7 +520,7 @@ def _convert(args) -> int:
         formats.check_writable(os.path.join(args.output, "x"))
     if args.preview:
         formats.check_writable(args.preview)
-    from .grid import make_grid
+    from .grid import fit_for, make_grid
     from .mesh import load_mesh
     from .stream import streams
 
@@ -517,11 +530,15 @@ def _convert(args) -> int:
         from .reference import load_reference, reject_grid_options
 
         reject_grid_options(bounds=args.bounds, resolution=args.resolution, shape=args.shape,
-                            voxel_size=args.voxel_size)
+                            voxel_size=args.voxel_size, fit=args.fit)
         grid = load_reference(args.like).local_grid()
     else:
+        # .binvox: -r N is binvox's -d N cube (geovox.grid.fit_for).
+        args.fit = fit_for(args.fit, formats.format_for(
+            "x.raw" if default_out else args.output, args.fmt).name,
+            shape=args.shape, voxel_size=args.voxel_size)
         grid = make_grid(mesh.bounds, bounds=args.bounds, resolution=args.resolution,
-                         shape=args.shape, voxel_size=args.voxel_size)
+                         shape=args.shape, voxel_size=args.voxel_size, fit=args.fit)
     output = _output_path(args, args.input, grid.shape)
     fmt = formats.format_for(output, args.fmt)
     formats.check_frame(fmt, grid)
@@ -595,26 +612,6 @@ def _preview(args) -> int:
     return EXIT_OK
 
 
-def _sidecar_volume(path: str) -> str:
-    """The RAW file a ``.json`` sidecar written by geovox describes, else ``path`` itself.
-
-    ``geovox convert -o NAME.raw`` writes ``NAME.json`` beside it; the registry reads the
-    volume from the ``.raw``.
-    """
-    import json
-
-    if not path.lower().endswith(".json") or not os.path.isfile(path):
-        return path
-    try:
-        with open(path) as fh:
-            data_file = json.load(fh)["data_file"]
-    except (OSError, ValueError, KeyError, TypeError):
-        from .errors import MeshError
-
-        raise MeshError(f"{path}: not a geovox .json sidecar (no data_file)") from None
-    return os.path.join(os.path.dirname(path), os.path.basename(str(data_file)))
-
-
 def _view_html(args) -> int:
     from . import formats
     from .errors import ParameterError
@@ -626,7 +623,7 @@ def _view_html(args) -> int:
     formats.check_writable(args.html)
     t0 = time.perf_counter()
     max_side = args.max_side or MAX_SIDE
-    vol = _volume_or_mesh(args, _sidecar_volume(args.input), max(LARGEST, max_side))
+    vol = _volume_or_mesh(args, args.input, max(LARGEST, max_side))
     out = to_html(vol, args.html, max_side=max_side, source=args.input)
     size = os.path.getsize(out)
     print(f"wrote {out} ({size / 1e6:.2f} MB, {time.perf_counter() - t0:.2f} s); open it in a browser")
@@ -661,7 +658,7 @@ def _info(args) -> int:
             reject_grid_options
 
         reject_grid_options(bounds=args.bounds, resolution=args.resolution, shape=args.shape,
-                            voxel_size=args.voxel_size)
+                            voxel_size=args.voxel_size, fit=args.fit)
         ref = load_reference(args.like)
         cost = grid_cost(mesh, shape=ref.shape, bounds=[*ref.local_grid().lo, *ref.local_grid().hi])
         cost["spacing"] = ref.spacing.tolist()
@@ -673,22 +670,17 @@ def _info(args) -> int:
 
         raise ParameterError("--mesh-space applies only with --like")
     cost = grid_cost(mesh, bounds=args.bounds, resolution=args.resolution, shape=args.shape,
-                     voxel_size=args.voxel_size)
+                     voxel_size=args.voxel_size, fit=args.fit or "box")
     print(format_report(mesh_report(mesh), cost))
     return EXIT_OK
 
 
 def _backends(args) -> int:
-    from .backends import PREFERENCE, REGISTRY, available_backends
+    from .backends import backend_report
 
-    have = available_backends()
-    for name in PREFERENCE:
-        status = "available" if name in have else f"missing (pip install {REGISTRY[name][1]})"
-        print(f"{name:8s} {status}")
-    # Not in PREFERENCE (`auto` never picks it): shown with its adapter.
-    from .backends.webgpu import describe
-
-    print(f"{'webgpu':8s} {describe()}")
+    # The same answer as geovox.usable_backends(); webgpu with its adapter.
+    for name, (_, line) in backend_report().items():
+        print(f"{name:8s} {line}")
     return EXIT_OK
 
 

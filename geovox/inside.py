@@ -1007,11 +1007,10 @@ def _estimated(unsure, grid) -> None:
     share = 100.0 * n / grid.size
     # "99.6 %" or "0.0031 %", never "1e+02 %"
     share = f"{share:.1f}" if share >= 1 else f"{share:.2g}"
-    warn(
-        f"the holes' caps are too many and too large to settle every voxel exactly within the "
-        f"work budget: {n:,} of {grid.size:,} voxels ({share} %) were decided "
-        f"by an estimate of the winding number whose proven error bound reaches 1/2 "
-        f"(--inside vote or parity are the fast alternatives)", stacklevel=4)
+    # The second of the two short lines a messy model gets (see repair_warning):
+    # how many voxels the estimate of the winding number decided.
+    warn(f"{n:,} of {grid.size:,} voxels ({share} %) are approximate; the holes' caps passed "
+         f"the work budget (--inside vote is faster)", stacklevel=4)
 
 
 def choose(mesh: Mesh, method: str) -> str:
@@ -1037,15 +1036,40 @@ def choose(mesh: Mesh, method: str) -> str:
     if method == "winding" and not rep.changed:
         return "winding"
     n_open, n_nonmanifold = edge_counts(mesh)
-    left = len(boundary_edges(tmesh))
-    then = (f"the copy has {left:,} edges without a partner, so the winding-number inside test "
-            f"bridges its holes" if left else
-            "the copy is closed, so its winding number comes exactly from signed crossings")
-    warn(
-        f"{mesh.source}: the mesh is not closed and consistently wound ({n_open:,} open edges, "
-        f"{n_nonmanifold:,} non-manifold, {len(edges):,} without a partner edge running the other "
-        f"way, {rep.duplicates + rep.opposite:,} duplicate faces, after merging vertices by "
-        f"position); repaired a copy: {rep.describe()}; {then}"
-        + (" (pass inside='parity' or --inside parity to override)" if method == "auto" else ""),
-        stacklevel=3)
+    warn(repair_warning(mesh.source, n_open, n_nonmanifold, rep,
+                        closed=not len(boundary_edges(tmesh))), stacklevel=3)
     return "winding"
+
+
+def repair_warning(source, n_open: int, n_nonmanifold: int, rep, closed: bool) -> str:
+    """The first of at most two short lines a messy model gets: what was wrong, what geovox did.
+
+    The full account (every repair, the pieces, what is left open) is
+    ``geovox info MODEL``'s, which the line points to; a second line comes
+    from the winding number only where voxels are approximate.
+
+    Parameters
+    ----------
+    source : str
+        The mesh's source (a path where it came from a file).
+    n_open, n_nonmanifold : int
+        Open and non-manifold edges, after merging vertices by position.
+    rep : geovox.repair.Repair
+        What the repair of the copy did.
+    closed : bool
+        Whether the repaired copy is closed (its winding number is then exact).
+    """
+    import os
+
+    found = [(n_open, "open edges"), (n_nonmanifold, "non-manifold"),
+             (rep.flipped, "faces wound the wrong way"),
+             (rep.duplicates + rep.opposite, "duplicate faces"), (rep.degenerate, "degenerate faces")]
+    found = [f"{n:,} {what}" for n, what in found if n][:2]  # the two that matter most
+    wrong = ("not closed" if n_open else "not consistently wound") + (
+        f" ({', '.join(found)})" if found else "")
+    did = ("inside by the winding number of a repaired, closed copy (exact)" if closed else
+           "inside by the winding number of a repaired copy")
+    where = f"; see geovox info {source}" if isinstance(source, str) and \
+        os.path.isfile(source) else ""
+    name = os.path.basename(source) if isinstance(source, str) and source else "the mesh"
+    return f"{name}: {wrong}; {did}{where}"

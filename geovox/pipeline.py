@@ -30,6 +30,7 @@ def voxelize(
     *,
     shape=None,
     voxel_size=None,
+    fit=None,
     axis=2,
     color=False,
     diffuse=True,
@@ -70,6 +71,12 @@ def voxelize(
     voxel_size : float, optional
         Cubic voxel edge (instead of ``resolution``); the region grows
         symmetrically to a whole number of voxels.
+    fit : {None, "box", "cube", "cube-center"}
+        How ``resolution`` covers the region: ``"box"`` (the default, also
+        for None) N voxels on each axis of the box; ``"cube"`` an N³ cube of
+        cubic voxels whose edge is the box's longest side, at its minimum
+        corner (binvox's ``-d N``); ``"cube-center"`` that cube centred on the
+        box (binvox's ``-cb``).
     axis : {0, 1, 2}
         Direction of the column rays (default z; slab-by-slab conversions
         use y, see :mod:`geovox.stream`). Occupancy is the same up to ties on
@@ -160,13 +167,14 @@ def voxelize(
         from .reference import prepare
 
         m, grid, used = prepare(m, like, mesh_space, sdf=sdf, color=color, bounds=bounds,
-                                resolution=resolution, shape=shape, voxel_size=voxel_size)
+                                resolution=resolution, shape=shape, voxel_size=voxel_size,
+                                fit=fit)
     else:
         if mesh_space is not None:
             raise ParameterError("`mesh_space` (--mesh-space) applies only onto a reference grid "
                                  "(`like`, --like)")
         grid = make_grid(m.bounds, bounds=bounds, resolution=resolution, shape=shape,
-                         voxel_size=voxel_size)
+                         voxel_size=voxel_size, fit="box" if fit is None else fit)
     vol = voxelize_block(m, grid, engine=engine, inside=inside, axis=axis, jobs=jobs, color=color,
                          diffuse=diffuse, ambient=ambient, density=density,
                          supersample=supersample, density_dtype=density_dtype, sdf=sdf,

@@ -541,7 +541,9 @@ def check_reference_options(ref: Reference, *, sdf=False, color=None) -> None:
 
 def reject_grid_options(**given) -> None:
     """`like` fixes the grid: any of bounds, resolution, shape, voxel_size as well is an error."""
-    named = [k for k, v in given.items() if v is not None]
+    # fit="box" is the default fit, not a choice; "cube"/"cube-center" are --cube/--cube-center.
+    named = [("cube" if given[k] == "cube" else "cube-center") if k == "fit" else k
+             for k, v in given.items() if v is not None and not (k == "fit" and v == "box")]
     if named:
         flags = ", ".join("--" + k.replace("_", "-") for k in named)
         raise ParameterError(f"`like` (--like) sets the grid; it cannot be combined with {flags}")
@@ -562,14 +564,15 @@ def prepare(mesh, like, mesh_space=None, *, sdf=False, color=None, **grid_option
 def grid_for(mesh, options: dict) -> tuple:
     """``(mesh, Grid, mesh space or None)`` for a conversion's options, popping the grid's from ``options``.
 
-    ``bounds``, ``resolution``, ``shape``, ``voxel_size``, ``like`` and
+    ``bounds``, ``resolution``, ``shape``, ``voxel_size``, ``fit``, ``like`` and
     ``mesh_space`` are removed from ``options``; with ``like`` the mesh comes
     back moved into the reference's local frame (:func:`prepare`), else the
     grid is :func:`geovox.grid.make_grid`'s over the mesh.
     """
-    from .grid import make_grid
+    from .grid import fit_for, make_grid
 
-    grid_options = {k: options.pop(k, None) for k in ("bounds", "resolution", "shape", "voxel_size")}
+    grid_options = {k: options.pop(k, None)
+                    for k in ("bounds", "resolution", "shape", "voxel_size", "fit")}
     like, mesh_space = options.pop("like", None), options.pop("mesh_space", None)
     if like is not None:
         return prepare(mesh, like, mesh_space, sdf=options.get("sdf"), color=options.get("color"),
@@ -577,6 +580,7 @@ def grid_for(mesh, options: dict) -> tuple:
     if mesh_space is not None:
         raise ParameterError("`mesh_space` (--mesh-space) applies only onto a reference grid "
                              "(`like`, --like)")
+    grid_options["fit"] = fit_for(grid_options["fit"])
     return mesh, make_grid(mesh.bounds, **grid_options), None
 
 

@@ -313,7 +313,7 @@ def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, c
         ``.zarr`` only: slab thickness in voxels, a multiple of 64 (default:
         from ``budget`` here, :func:`cluster_thick` on a cluster).
     **options
-        As for :func:`geovox.voxelize` (resolution, shape, voxel_size,
+        As for :func:`geovox.voxelize` (resolution, shape, voxel_size, fit,
         bounds, backend, inside, color, diffuse, ambient, density,
         supersample, density_dtype, sdf, band).
 

@@ -61,6 +61,54 @@ def available_backends() -> list:
     return [name for name in PREFERENCE if _present(REGISTRY[name][0])]
 
 
+def backend_report() -> dict:
+    """Whether each backend can run here, and the line ``geovox backends`` prints for it.
+
+    A backend can run when its package imports and, for ``webgpu``, a GPU
+    adapter (or lavapipe, Mesa's software Vulkan) is found. Checking imports
+    the packages (trimesh and embreex for ``embree``, wgpu for ``webgpu``)
+    and opens the adapter: a few seconds on lavapipe, once per process.
+
+    Returns
+    -------
+    dict
+        ``name -> (can_run: bool, line: str)``, in :data:`PREFERENCE` order,
+        then ``webgpu``.
+    """
+    report = {}
+    for name in (*PREFERENCE, *(n for n in REGISTRY if n not in PREFERENCE)):
+        module, package, _ = REGISTRY[name]
+        if name == "webgpu":
+            from .webgpu import describe
+
+            line = describe()  # the adapter, or what is missing
+            report[name] = (line.startswith("available"), line)
+            continue
+        try:
+            ok = _present(module) and _load(name) is not None
+        except ImportError:
+            ok = False
+        report[name] = (ok, "available" if ok else f"missing (pip install {package})")
+    return report
+
+
+def usable_backends() -> list:
+    """Names of every backend that can run here: ``geovox backends``' answer.
+
+    Unlike :func:`available_backends` (the order in which ``backend="auto"``
+    tries the installed ones), this includes ``webgpu`` wherever an adapter
+    exists, and checks that each backend imports rather than that its
+    package is installed.
+
+    Returns
+    -------
+    list of str
+        E.g. ``["numpy", "embree", "webgpu"]``: :data:`PREFERENCE` order, then
+        ``webgpu``.
+    """
+    return [name for name, (ok, _) in backend_report().items() if ok]
+
+
 def _load(name: str) -> Backend:
     if name not in _instances:
         module, cls = REGISTRY[name][2].split(":")
@@ -115,4 +163,5 @@ def get_backend(name: str = "auto") -> Backend:
         ) from exc
 
 
-__all__ = ["Backend", "Hits", "available_backends", "get_backend", "REGISTRY", "PREFERENCE"]
+__all__ = ["Backend", "Hits", "available_backends", "usable_backends", "backend_report",
+           "get_backend", "REGISTRY", "PREFERENCE"]

@@ -201,6 +201,71 @@ def read(path, fmt=None, **options):
                         f"({type(exc).__name__}: {exc})") from exc
 
 
+def is_volume_file(path) -> bool:
+    """Whether ``path`` names a file geovox writes (a volume, or a RAW output's
+    ``.json`` sidecar or ``.mhd`` / ``.nhdr`` header), judged by its name."""
+    from .readback import HEADER_EXTENSIONS
+
+    lower = os.fspath(path).lower().rstrip("/" + os.sep)
+    return lower.endswith(HEADER_EXTENSIONS) or any(
+        lower.endswith(e) for f in _FORMATS.values() for e in f.extensions)
+
+
+def read_volume(path, *, max_side=None):
+    """Read back any file geovox writes, data or header, as a Volume.
+
+    The one reader behind ``geovox preview`` and ``geovox view``.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A volume in any format of :func:`formats` (``.raw``, ``.h5``,
+        ``.vtkhdf``, ``.nrrd``, ``.npz``, ``.npy``, ``.binvox``, ``.vox``,
+        ``.vdb``, ``.zarr``); a RAW output's ``NAME.json`` sidecar or
+        ``NAME.mhd`` / ``NAME.nhdr`` header; or the file of one of its extra
+        fields (``NAME_rgba.raw``, ``NAME_sdf.nrrd``, their headers), which
+        reads the whole output it belongs to. A ``.mhd`` / ``.nhdr`` without
+        geovox's sidecar is read through the header alone.
+    max_side : int, optional
+        ``.zarr`` only: read the finest pyramid level with every side at most
+        this; other formats are read whole.
+
+    Returns
+    -------
+    Volume
+        ``occupancy`` (nx, ny, nz) bool and the grid, with ``colors``,
+        ``density`` and ``sdf`` where the output holds them.
+
+    Raises
+    ------
+    InputNotFoundError
+        ``path``, or the data file it names, does not exist.
+    MeshError
+        The file is not one geovox wrote, or is damaged (the message says how).
+    """
+    from ..errors import GeovoxError, InputNotFoundError, MeshError
+    from . import readback
+
+    path = os.fspath(path)
+    if not os.path.exists(path):
+        raise InputNotFoundError(f"volume file not found: {path}")
+    if os.path.isdir(path):  # a .zarr, perhaps named with a trailing slash
+        path = path.rstrip("/" + os.sep) or path
+    try:
+        source, how = readback.volume_source(path)
+        if how == "header":
+            return readback.read_header_volume(source)
+    except GeovoxError:
+        raise
+    except FileNotFoundError as exc:
+        raise InputNotFoundError(f"{path}: refers to a file that is missing: "
+                                 f"{exc.filename or exc}") from exc
+    except Exception as exc:  # JSON, pynrrd and NumPy raise their own types
+        raise MeshError(f"{path}: cannot be read as a geovox volume "
+                        f"({type(exc).__name__}: {exc})") from exc
+    return read(source, how, **({"max_side": max_side} if how == "zarr" and max_side else {}))
+
+
 #: What the values of each extra field mean, by its dtype.
 FIELD_VALUES = {
     "density": lambda dtype: ("inside fraction x 255" if np.dtype(dtype) == np.uint8
@@ -330,7 +395,8 @@ register_format("npz", (".npz",), numpy_files.write_npz,
                 "NumPy archive: occupancy (bits with --pack-bits), colors, spacing, bounds, origin",
                 reader=numpy_files.read_npz)
 register_format("binvox", (".binvox",), binvox.write_binvox,
-                "binvox (ShapeNet, 3D-R2N2, ONet): run-length cube; cubic voxels, padded to a cube",
+                "binvox (ShapeNet, 3D-R2N2, ONet): -r N is binvox -d N (N³ cube over the longest "
+                "side; --cube-center: -cb); --voxel-size grids padded to a cube",
                 reader=binvox.read_binvox, check=binvox.check_grid)
 register_format("vdb", (".vdb",), vdb.write_vdb,
                 "OpenVDB for Blender/Houdini: density (fog), color (vec3s), sdf (level set) grids",
@@ -347,7 +413,7 @@ register_format("nifti", (".nii.gz", ".nii"), nifti.write_nifti,
                 "grid's RAS affine (needs nibabel: the nifti extra)",
                 reader=nifti.read_nifti)
 
-__all__ = ["register_format", "formats", "format_for", "write", "read", "atomic_output",
-           "check_frame",
+__all__ = ["register_format", "formats", "format_for", "write", "read", "read_volume",
+           "is_volume_file", "atomic_output", "check_frame",
            "atomic_outputs",
            "check_writable"]
