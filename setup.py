@@ -1,8 +1,11 @@
-"""Build the optional compiled kernel (geovox/_nearest.pyx); everything else is in pyproject.toml.
+"""Build the optional compiled kernels; everything else is in pyproject.toml.
 
-The extension is ``optional``: without a C compiler (or without OpenMP, or
-without Cython) the install still succeeds and geovox uses its NumPy search
-(:mod:`geovox.nearest`), which gives the same answers.
+geovox/_nearest.pyx (the exact nearest surface, colour) and
+geovox/_winding.pyx (the caps' winding number of open models). The
+extensions are ``optional``: without a C compiler (or without OpenMP, or
+without Cython) the install still succeeds and geovox uses its NumPy code
+(:mod:`geovox.nearest`, :func:`geovox.inside.cap_winding`), which gives the
+same answers (the winding number's wherever a bound or the exact sum decides).
 """
 
 import os
@@ -27,11 +30,12 @@ else:
     link = ["-fopenmp"]
 
 ext = []
-# A tree without the .pyx (an old source distribution) installs without the kernel.
-if cythonize is not None and os.path.exists("geovox/_nearest.pyx"):
+# A tree without a .pyx (an old source distribution) installs without that kernel.
+names = [n for n in ("_nearest", "_winding") if os.path.exists(f"geovox/{n}.pyx")]
+if cythonize is not None and names:
     ext = cythonize(
-        [Extension("geovox._nearest", ["geovox/_nearest.pyx"], extra_compile_args=flags,
-                   extra_link_args=link)],
+        [Extension(f"geovox.{n}", [f"geovox/{n}.pyx"], extra_compile_args=flags,
+                   extra_link_args=link) for n in names],
         compiler_directives={"language_level": 3}, quiet=True)
     for e in ext:
         # cythonize does not carry `optional` over: set it on what it returns.

@@ -51,6 +51,8 @@ def cap_heavy(n=24, seed=5):
 
 MESH = cap_heavy()
 RES = 20
+#: Voxels the compiled first pass leaves undecided on MESH at RES (see the tests below).
+ESTIMATED_AT_ZERO = 25
 
 
 def brute_winding_number(mesh, grid):
@@ -93,8 +95,14 @@ def test_the_model_is_cap_heavy():
     assert len(inside.capped(inside.target(MESH)[0])[1]) >= 250
 
 
-def test_within_the_budget_every_voxel_is_the_brute_force(reference, monkeypatch):
+KERNELS = ["numpy", pytest.param("compiled", marks=pytest.mark.skipif(
+    inside.winding_kernel("auto") is None, reason="the compiled winding kernel is not built"))]
+
+
+@pytest.mark.parametrize("kernel", KERNELS)
+def test_within_the_budget_every_voxel_is_the_brute_force(reference, monkeypatch, kernel):
     grid, w = reference
+    monkeypatch.setenv("GEOVOX_KERNEL", kernel)
     vol, estimated = run_winding(monkeypatch)
     assert vol.grid.shape == grid.shape
     assert np.count_nonzero(estimated) == 0
@@ -109,8 +117,9 @@ def test_past_a_small_budget_proven_voxels_are_the_brute_force(reference, monkey
     # passes give up and leave voxels to the first pass's estimate. Every
     # voxel the bounds decided must still be the brute force's, and how
     # many were left is pinned (loosening PASSES to ((3.0, 1e-1),) * 3
-    # leaves 7,991 instead of 5,340).
+    # leaves 7,991 instead of 5,340). The NumPy traversal's budget, in pairs.
     grid, w = reference
+    monkeypatch.setenv("GEOVOX_KERNEL", "numpy")
     monkeypatch.setattr(inside, "PAIR_BUDGET", 100_000)
     if not direct:
         monkeypatch.setattr(inside, "DIRECT", 0)
@@ -118,3 +127,62 @@ def test_past_a_small_budget_proven_voxels_are_the_brute_force(reference, monkey
     proven = ~estimated
     np.testing.assert_array_equal(vol.occupancy[proven], (w > 0.5)[proven])
     assert np.count_nonzero(estimated) == 5340
+
+
+@pytest.mark.skipif(inside.winding_kernel("auto") is None, reason="the compiled winding kernel is not built")
+def test_compiled_past_its_time_the_proven_voxels_are_the_brute_force(reference, monkeypatch):
+    # No time at all: every voxel the first pass (bricks, second-order far
+    # field) leaves undecided keeps its estimate. The rest are proven and
+    # must be the brute force's; how many are left is pinned (a looser
+    # first pass, or a bound that grew, changes it).
+    grid, w = reference
+    monkeypatch.setenv("GEOVOX_KERNEL", "compiled")
+    monkeypatch.setattr(inside, "WORK_SECONDS", 0.0)
+    vol, estimated = run_winding(monkeypatch)
+    proven = ~estimated
+    np.testing.assert_array_equal(vol.occupancy[proven], (w > 0.5)[proven])
+    assert np.count_nonzero(estimated) == inside.STATS["estimated"] == ESTIMATED_AT_ZERO
+
+
+@pytest.mark.skipif(inside.winding_kernel("auto") is None, reason="the compiled winding kernel is not built")
+@pytest.mark.parametrize("jobs", [1, 3])
+def test_compiled_refines_every_voxel_alone_and_agrees(reference, monkeypatch, jobs):
+    # With time, the voxels the first pass leaves are refined alone (tighter
+    # passes, then the exact sum), on any number of threads.
+    grid, w = reference
+    monkeypatch.setenv("GEOVOX_KERNEL", "compiled")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", GeovoxWarning)
+        vol = geovox.voxelize(MESH, resolution=RES, inside="winding", jobs=jobs)
+    assert inside.STATS["refined"] == ESTIMATED_AT_ZERO and inside.STATS["estimated"] == 0
+    np.testing.assert_array_equal(vol.occupancy, w > 0.5)
+
+
+def test_kernel_choice():
+    assert inside.winding_kernel("numpy") is None
+    with pytest.raises(geovox.ParameterError, match="auto, compiled or numpy"):
+        inside.winding_kernel("fast")
+
+
+def test_boundary_pieces_split_into_closed_loops():
+    # Two squares' boundaries meeting at one corner, and a path that does
+    # not close (its piece keeps one fan).
+    vid = np.array([[0, 1], [1, 2], [2, 3], [3, 0],      # square A
+                    [0, 4], [4, 5], [5, 6], [6, 0],      # square B, through corner 0
+                    [7, 8], [8, 9]])                     # an open path
+    piece = np.array([0] * 8 + [1] * 2)
+    lab = inside._loops(vid, piece)
+    assert len(np.unique(lab)) == 3
+    assert len(np.unique(lab[8:])) == 1 and not set(lab[8:]) & set(lab[:8])
+    for k in np.unique(lab[:8]):  # each loop closed: every position arrives as often as it leaves
+        e = vid[:8][lab[:8] == k]
+        assert sorted(e[:, 0]) == sorted(e[:, 1])
+
+
+def test_caps_over_loops_close_the_same_boundary():
+    # The caps' own boundary must be the mesh's boundary reversed, whatever
+    # the loops: the capped mesh has no open edge left.
+    tm = inside.target(MESH)[0]
+    closed, cap_tris, piece = inside.capped(tm)
+    assert len(inside.boundary_edges(closed)) == 0
+    assert len(cap_tris) == len(inside.boundary_edges(tm))
