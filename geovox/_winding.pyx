@@ -27,8 +27,8 @@ decided in bulk.
 
 A voxel whose summed bound does not decide it is refined at once, alone: a
 traversal per tighter pass (``passes``), then the exact sum over every cap
-triangle (Van Oosterom and Strackee). Only the time budget (``seconds``)
-leaves a voxel to its estimate; such voxels are marked. Every other
+triangle (Van Oosterom and Strackee). Only the time budget (``seconds`` of processor
+time a thread) leaves a voxel to its estimate; such voxels are marked. Every other
 decision is proven by a bound (a margin of 1e-4, far above the float64
 rounding of these sums) or taken on the exact sum.
 """
@@ -38,7 +38,7 @@ from libc.stdlib cimport malloc, free
 from libc.string cimport memset
 from libc.math cimport sqrt, atan2, fabs, M_PI
 from libc.stdint cimport int16_t, int64_t, uint8_t
-from posix.time cimport clock_gettime, timespec, CLOCK_MONOTONIC
+from posix.time cimport clock_gettime, timespec, CLOCK_PROCESS_CPUTIME_ID
 
 
 cdef struct Tree:
@@ -65,8 +65,10 @@ cdef struct Grid:
 
 
 cdef inline double now() noexcept nogil:
+    # The process's processor time, all threads: a loaded machine's waiting
+    # does not spend the budget, so what is proven does not depend on the load.
     cdef timespec ts
-    clock_gettime(CLOCK_MONOTONIC, &ts)
+    clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts)
     return ts.tv_sec + 1e-9 * ts.tv_nsec
 
 
@@ -360,7 +362,8 @@ def cap_occupancy(const double[:, ::1] T, const double[:, ::1] S, const double[:
         The refining passes' (theta, eps), tried in turn on a voxel the
         first pass leaves undecided, before the exact sum.
     seconds : float
-        Time after which an undecided voxel keeps its estimate.
+        Processor time per thread (the process's, from this call) after
+        which an undecided voxel keeps its estimate.
     jobs : int
         Threads; the answer does not depend on them (only where the time runs out).
 
@@ -396,7 +399,7 @@ def cap_occupancy(const double[:, ::1] T, const double[:, ::1] S, const double[:
     stack_len = 6 * (8 * (top + nlev + 2) + 8)
     ntop = nt[0] * nt[1] * nt[2]
     counts = __import__("numpy").zeros((ntop, 3), dtype="int64")
-    deadline = now() + seconds
+    deadline = now() + seconds * jobs
     if npasses:
         pp = &passes[0, 0]
     with nogil, parallel(num_threads=jobs):

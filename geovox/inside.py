@@ -485,9 +485,9 @@ STATS: dict = {}
 #: The compiled kernel's passes (second order, see geovox/_winding.pyx): the
 #: first over bricks, the others over single voxels the one before left undecided.
 COMPILED_PASSES = ((0.2, 1e-4), (0.1, 1e-7))
-#: Seconds the compiled kernel may spend (from its start) on voxels the first
-#: pass leaves undecided before it leaves the rest to their estimates, with a
-#: warning (about what PAIR_BUDGET allows the NumPy traversal here).
+#: Processor seconds per thread the compiled kernel may spend (from its
+#: start) before it leaves the voxels its first pass left undecided to their
+#: estimates, with a warning (about what PAIR_BUDGET allows the NumPy traversal).
 WORK_SECONDS = 10.0
 #: (brick, cap group) pairs handled at once: bounds the traversal's memory.
 PAIR_CHUNK = 1 << 17
@@ -1089,10 +1089,11 @@ def winding_kernel(kernel=None):
 def _compiled_caps(module, occ, w, grid, cap_tris, jobs) -> None:
     """:func:`_correct_caps` in the compiled kernel (``geovox/_winding.pyx``).
 
-    The first pass over bricks as :func:`cap_winding`'s (``PASSES[0]``);
-    each voxel it leaves undecided is refined alone at once by the tighter
-    passes, then summed exactly over every cap triangle. Only past
-    ``WORK_SECONDS`` is an undecided voxel left to its estimate (with the
+    The first pass over bricks, as :func:`cap_winding`'s but to second order
+    (``COMPILED_PASSES[0]``); each voxel it leaves undecided is refined
+    alone at once by the tighter passes, then summed exactly over every cap
+    triangle. Only past ``WORK_SECONDS`` of processor time per thread is an
+    undecided voxel left to its estimate (with the
     warning of :func:`_estimated`).
     """
     from . import nearest
