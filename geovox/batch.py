@@ -28,7 +28,7 @@ MESH_EXTENSIONS = (".obj", ".stl", ".ply", ".off", ".glb", ".gltf", ".3mf", ".da
 #: (``jobs`` and ``progress`` belong to the batch, not to one model).
 MODEL_OPTIONS = ("resolution", "bounds", "backend", "shape", "voxel_size", "axis", "color",
                  "diffuse", "ambient", "inside", "density", "supersample", "density_dtype",
-                 "sdf", "band")
+                 "sdf", "band", "like", "mesh_space")
 
 
 @dataclass
@@ -40,6 +40,20 @@ class Result:
     one line). ``outputs`` lists every file written, the volume first (local
     paths, or URLs where the output folder is one). ``seconds`` is the time
     the model took where it ran; ``note`` the inside count and any warning.
+
+    Attributes
+    ----------
+    input : str
+        The input path, as found.
+    status : {"ok", "skipped", "failed"}
+    outputs : list of str
+        Files written, the volume first.
+    error : str
+        One line; empty unless failed.
+    seconds : float
+        The model's own time, where it ran.
+    note : str
+        Inside count and warnings.
     """
 
     input: str
@@ -209,9 +223,14 @@ def _convert_one(task) -> Result:
         # side by side on threads of one worker (see geovox.errors.warn).
         with collect_warnings() as said:
             mesh = load_mesh(path)
-            grid = make_grid(mesh.bounds, bounds=options.get("bounds"),
-                             resolution=options.get("resolution"), shape=options.get("shape"),
-                             voxel_size=options.get("voxel_size"))
+            if options.get("like") is not None:  # every model onto the one reference grid
+                from .reference import load_reference
+
+                grid = load_reference(options["like"]).local_grid()
+            else:
+                grid = make_grid(mesh.bounds, bounds=options.get("bounds"),
+                                 resolution=options.get("resolution"), shape=options.get("shape"),
+                                 voxel_size=options.get("voxel_size"))
             name = default_name(task["stem"], grid.shape, "uint8", task["ext"])
             target = out_dir.rstrip("/") + "/" + name if remote else os.path.join(out_dir, name)
             if not task["overwrite"] and _output_exists(target):
@@ -229,7 +248,11 @@ def _convert_one(task) -> Result:
                     os.makedirs(out_dir, exist_ok=True)  # a worker of a shared file system
                     local = target
                 if streams(grid, format_for(local).name, options.get("color"),
-                           options.get("density"), options.get("sdf")):
+                           options.get("density"), options.get("sdf")) and options.get("like"):
+                    info = convert_to(mesh, local, jobs=1, **options)
+                    written, inside = info["files"], info["inside"]
+                elif streams(grid, format_for(local).name, options.get("color"),
+                             options.get("density"), options.get("sdf")):
                     opts = {k: v for k, v in options.items() if k not in ("resolution", "shape",
                                                                            "voxel_size", "bounds")}
                     info = convert_to(mesh, local, shape=grid.shape,
@@ -343,7 +366,7 @@ def _submit_dask(client, tasks, retries, on_result):
     more, they would be blamed too (Dask queues only large groups of tasks
     on its side). It also keeps a run of 100,000 models from putting them
     all on the scheduler at once; the cost is one message round trip between
-    two models on a thread (a few ms, see benchmarks/README.md).
+    two models on a thread (a few ms, see docs/benchmarks.md).
     """
     from asyncio import CancelledError
     from collections import deque

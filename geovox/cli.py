@@ -126,10 +126,17 @@ def build_parser() -> argparse.ArgumentParser:
     pv.add_argument("-o", "--output", required=True, help="PNG file to write")
     _grid_options(pv)
 
-    vw = sub.add_parser("view", help="interactive 3D view of a volume (needs the 'view' extra)")
+    vw = sub.add_parser("view", help="interactive 3D view of a volume (needs the 'view' extra), "
+                                     "or with --html one self-contained page for any browser")
     vw.add_argument("input", help="a volume written by geovox, or a mesh")
     vw.add_argument("--mesh", help="show this mesh beside the volume")
     vw.add_argument("--screenshot", metavar="PNG", help="render off-screen into PNG instead")
+    vw.add_argument("--html", metavar="OUT.html",
+                    help="write one self-contained page that shows the volume in any browser "
+                         "(WebGL2; no PyVista, no network) instead of opening a window")
+    vw.add_argument("--max-side", type=_positive_int, default=None, metavar="N",
+                    help="with --html: show a volume with a side above N voxels downsampled "
+                         "(default 256)")
     _grid_options(vw)
 
     info = sub.add_parser("info", help="what a mesh is like, and what a grid would cost")
@@ -141,6 +148,7 @@ def build_parser() -> argparse.ArgumentParser:
     res.add_argument("--voxel-size", type=_positive_float, metavar="S")
     info.add_argument("--bounds", type=_finite_float, nargs=6,
                       metavar=("XMIN", "YMIN", "ZMIN", "XMAX", "YMAX", "ZMAX"))
+    _like_options(info)
 
     sub.add_parser("backends", help="list the ray-casting backends and whether each can run")
     sub.add_parser("formats", help="list the output formats")
@@ -158,6 +166,7 @@ def _grid_options(c):
     c.add_argument("--bounds", type=_finite_float, nargs=6,
                    metavar=("XMIN", "YMIN", "ZMIN", "XMAX", "YMAX", "ZMAX"),
                    help="region of interest (default: the mesh's bounding box)")
+    _like_options(c)
     c.add_argument("--backend", default="auto", choices=["auto", "embree", "numpy", "webgpu"],
                    help="ray-casting backend (default: auto = numpy, the faster one for these "
                         "column rays; embree gives the same volume)")
@@ -193,6 +202,17 @@ def _grid_options(c):
                    help="threads to use (default: one per core); the result does not depend on it")
 
 
+def _like_options(c):
+    """--like and --mesh-space (convert, preview, view, info)."""
+    c.add_argument("--like", metavar="IMAGE",
+                   help="voxelise onto this image's grid (NIfTI .nii/.nii.gz, NRRD .nrrd/.seg.nrrd/"
+                        ".nhdr, MetaImage .mhd/.mha, or a volume geovox wrote): its shape, spacing, "
+                        "origin and direction, oblique included; excludes the grid options")
+    c.add_argument("--mesh-space", choices=["lps", "ras"], type=str.lower, default=None,
+                   help="with --like: the mesh's coordinate frame, overriding its 3D Slicer "
+                        "SPACE= mark (default: the mark, else LPS)")
+
+
 def _stage_bar(args):
     """A progress bar over the conversion's stages, on a terminal only (tqdm)."""
     if getattr(args, "quiet", False) or not sys.stderr.isatty():
@@ -223,7 +243,9 @@ def _options(args) -> dict:
                 ambient=args.ambient, inside=args.inside, density=args.density,
                 supersample=args.supersample,
                 density_dtype="float32" if args.density_float else "uint8",
-                sdf=args.sdf, band=args.band)
+                sdf=args.sdf, band=args.band,
+                **{k: getattr(args, k) for k in ("like", "mesh_space")
+                   if getattr(args, k, None) is not None})
 
 
 def _voxelize(args, path):
@@ -399,6 +421,8 @@ def _convert_streaming(args, mesh, output, t0, t_read=0.0) -> int:
         print(f"{os.path.basename(info['source'])}: grid {nx} x {ny} x {nz}{slabs}")
         print(f"voxel size {dx:.6g} x {dy:.6g} x {dz:.6g}, backend {info['backend']}, "
               f"inside test {info['inside_test']}")
+        if info.get("mesh_space") is not None:
+            print(_reference_line(info["grid"].reference, info["mesh_space"]))
         print(f"inside {info['inside']:,} of {nx * ny * nz:,} voxels "
               f"({100.0 * info['inside'] / (nx * ny * nz):.2f}%)")
         stages = ", ".join(f"{k} {t[k]:.2f}" for k in ("load", "rays", "fill", "colour", "density",
@@ -406,6 +430,13 @@ def _convert_streaming(args, mesh, output, t0, t_read=0.0) -> int:
         print(f"time {time.perf_counter() - t0:.2f} s ({stages})")
         print("wrote " + ", ".join(written))
     return EXIT_OK
+
+
+def _reference_line(ref, mesh_space) -> str:
+    """The summary's line on a conversion onto a reference grid."""
+    space, how = mesh_space
+    return (f"onto {os.path.basename(ref.source)} ({ref.space}); mesh space {space} "
+            f"({'--mesh-space' if how == 'given' else how})")
 
 
 def _names_a_file(url: str) -> bool:
@@ -482,10 +513,18 @@ def _convert(args) -> int:
 
     mesh = load_mesh(args.input)
     t_read = time.perf_counter() - t0
-    grid = make_grid(mesh.bounds, bounds=args.bounds, resolution=args.resolution,
-                     shape=args.shape, voxel_size=args.voxel_size)
+    if args.like is not None:
+        from .reference import load_reference, reject_grid_options
+
+        reject_grid_options(bounds=args.bounds, resolution=args.resolution, shape=args.shape,
+                            voxel_size=args.voxel_size)
+        grid = load_reference(args.like).local_grid()
+    else:
+        grid = make_grid(mesh.bounds, bounds=args.bounds, resolution=args.resolution,
+                         shape=args.shape, voxel_size=args.voxel_size)
     output = _output_path(args, args.input, grid.shape)
     fmt = formats.format_for(output, args.fmt)
+    formats.check_frame(fmt, grid)
     write_options = _write_options(args, fmt)  # a bad combination fails before any work
     if (args.scheduler or args.scheduler_file or args.local_cluster) and fmt.name != "zarr":
         from .errors import ParameterError
@@ -521,10 +560,13 @@ def _convert(args) -> int:
         lo, hi = vol.bounds
         inside = vol.inside_count
         t = vol.timings
-        print(f"{os.path.basename(vol.source)}: grid {nx} x {ny} x {nz} "
-              f"over ({lo[0]:.6g}, {lo[1]:.6g}, {lo[2]:.6g})..({hi[0]:.6g}, {hi[1]:.6g}, {hi[2]:.6g})")
+        over = (f"over ({lo[0]:.6g}, {lo[1]:.6g}, {lo[2]:.6g})..({hi[0]:.6g}, {hi[1]:.6g}, "
+                f"{hi[2]:.6g})" if vol.grid.reference is None else "of the reference image")
+        print(f"{os.path.basename(vol.source)}: grid {nx} x {ny} x {nz} {over}")
         print(f"voxel size {dx:.6g} x {dy:.6g} x {dz:.6g}, backend {vol.backend}, "
               f"inside test {vol.inside}")
+        if vol.mesh_space is not None:
+            print(_reference_line(vol.grid.reference, vol.mesh_space))
         print(f"inside {inside:,} of {nx * ny * nz:,} voxels ({100.0 * inside / (nx * ny * nz):.2f}%)")
         extra = "".join(f", {k} {t[k]:.2f}" for k in ("colour", "density", "sdf") if k in t)
         print(f"time {t2 - t0:.2f} s (load {t_read + t['load']:.2f}, rays {t['rays']:.2f}, "
@@ -539,12 +581,65 @@ def _preview(args) -> int:
     from . import formats
 
     formats.check_writable(args.output)
+    if args.like is not None:
+        from .preview import write_preview_like
+        from .reference import load_reference
+
+        ref, image = load_reference(args.like, with_data=True)
+        vol = _volume_or_mesh(args, args.input)
+        note = "" if vol.mesh_space is None else _reference_line(ref, vol.mesh_space).split("; ")[1]
+        print(f"wrote {write_preview_like(vol, image, ref, args.output, note)}")
+        return EXIT_OK
     vol = _volume_or_mesh(args, args.input, LARGEST)
     print(f"wrote {write_preview(vol, args.output)}")
     return EXIT_OK
 
 
+def _sidecar_volume(path: str) -> str:
+    """The RAW file a ``.json`` sidecar written by geovox describes, else ``path`` itself.
+
+    ``geovox convert -o NAME.raw`` writes ``NAME.json`` beside it; the registry reads the
+    volume from the ``.raw``.
+    """
+    import json
+
+    if not path.lower().endswith(".json") or not os.path.isfile(path):
+        return path
+    try:
+        with open(path) as fh:
+            data_file = json.load(fh)["data_file"]
+    except (OSError, ValueError, KeyError, TypeError):
+        from .errors import MeshError
+
+        raise MeshError(f"{path}: not a geovox .json sidecar (no data_file)") from None
+    return os.path.join(os.path.dirname(path), os.path.basename(str(data_file)))
+
+
+def _view_html(args) -> int:
+    from . import formats
+    from .errors import ParameterError
+    from .view import LARGEST
+    from .view.html import MAX_SIDE, to_html
+
+    if args.mesh or args.screenshot:
+        raise ParameterError("--html writes a page on its own: drop --mesh and --screenshot")
+    formats.check_writable(args.html)
+    t0 = time.perf_counter()
+    max_side = args.max_side or MAX_SIDE
+    vol = _volume_or_mesh(args, _sidecar_volume(args.input), max(LARGEST, max_side))
+    out = to_html(vol, args.html, max_side=max_side, source=args.input)
+    size = os.path.getsize(out)
+    print(f"wrote {out} ({size / 1e6:.2f} MB, {time.perf_counter() - t0:.2f} s); open it in a browser")
+    return EXIT_OK
+
+
 def _view(args) -> int:
+    if args.html:
+        return _view_html(args)
+    if args.max_side is not None:
+        from .errors import ParameterError
+
+        raise ParameterError("--max-side is for --html")
     from .mesh import load_mesh
     from .view import LARGEST, show
 
@@ -561,6 +656,22 @@ def _info(args) -> int:
     from .report import format_report, grid_cost, mesh_report
 
     mesh = load_mesh(args.input)
+    if args.like is not None:
+        from .reference import field_of_view, format_field_of_view, load_reference, \
+            reject_grid_options
+
+        reject_grid_options(bounds=args.bounds, resolution=args.resolution, shape=args.shape,
+                            voxel_size=args.voxel_size)
+        ref = load_reference(args.like)
+        cost = grid_cost(mesh, shape=ref.shape, bounds=[*ref.local_grid().lo, *ref.local_grid().hi])
+        cost["spacing"] = ref.spacing.tolist()
+        print(format_report(mesh_report(mesh), cost))
+        print(format_field_of_view(ref, field_of_view(mesh, ref, args.mesh_space)))
+        return EXIT_OK
+    if args.mesh_space is not None:
+        from .errors import ParameterError
+
+        raise ParameterError("--mesh-space applies only with --like")
     cost = grid_cost(mesh, bounds=args.bounds, resolution=args.resolution, shape=args.shape,
                      voxel_size=args.voxel_size)
     print(format_report(mesh_report(mesh), cost))

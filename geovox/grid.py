@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 import numbers
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -29,11 +29,16 @@ class Grid:
         Corners of the region covered by the grid.
     shape : (3,) tuple of int
         Number of voxels along x, y, z.
+    reference : geovox.reference.Reference or None
+        The user's grid this one stands for (``like=``): the region is then
+        its local frame (see :mod:`geovox.reference`) and writers place the
+        voxels with the reference's affine.
     """
 
     lo: np.ndarray
     hi: np.ndarray
     shape: tuple
+    reference: object = field(default=None, compare=False)
 
     @property
     def spacing(self) -> np.ndarray:
@@ -63,7 +68,13 @@ class Grid:
         start : float, optional
             Coordinate along ``axis`` where the rays begin; it must lie outside
             the whole mesh (not merely outside the grid) so that a grid that
-            cuts through the mesh is still classified correctly.
+            cuts through the mesh is still classified correctly. Default: the
+            grid's low face.
+
+        Returns
+        -------
+        Columns
+            ``shape[u] * shape[v]`` rays, one per voxel column.
         """
         u, v = (a for a in range(3) if a != axis)
         return Columns(
@@ -91,6 +102,23 @@ class Columns:
     crossings are measured along the ray from the plane ``axis = w0`` (the
     grid's low face), so that they, like the lattice, move with the grid:
     translating mesh and grid together by whole voxels changes nothing.
+
+    Attributes
+    ----------
+    axis : int
+        Direction of the rays (0, 1 or 2).
+    u_axis, v_axis : int
+        The other two axes, ``u_axis < v_axis``.
+    u0, v0 : float
+        Low corner of the lattice across the rays.
+    du, dv : float
+        Spacing of the rays along ``u_axis`` and ``v_axis`` (the voxel size).
+    nu, nv : int
+        Rays along ``u_axis`` and ``v_axis``; ray ``i + nu * j``.
+    start : float
+        Coordinate along ``axis`` where every ray starts, outside the mesh.
+    w0 : float
+        The plane depths are measured from (the grid's low face).
     """
 
     axis: int

@@ -881,6 +881,14 @@ def load_mesh(source) -> Mesh:
     Parameters
     ----------
     source : str, os.PathLike, Mesh, trimesh.Trimesh or trimesh.Scene
+        A file, a trimesh object (a scene's transforms are applied), or a
+        Mesh, returned as it is.
+
+    Returns
+    -------
+    Mesh
+        ``vertices`` (n, 3) float64, ``faces`` (m, 3) int64, and the
+        materials, UVs and colours the file states.
 
     Raises
     ------

@@ -10,7 +10,7 @@ found. Missing or unreadable material files and textures are recorded (and
 reported as warnings when colour is asked for), never fatal.
 
 The file is read on whole arrays, not one Python step per line (about 5x
-faster on 100k triangles; see benchmarks/README.md): its lines are split
+faster on 100k triangles; see docs/benchmarks.md): its lines are split
 once, each is classified by its first bytes, and the numbers of all plain
 ``v``/``vt`` lines and the indices of all ``f`` lines are read at once.
 Lines the fast path is not certain about go through the plain reading of

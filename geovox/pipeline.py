@@ -42,6 +42,8 @@ def voxelize(
     sdf=False,
     band=3.0,
     progress=None,
+    like=None,
+    mesh_space=None,
 ) -> Volume:
     """Turn a closed triangle mesh into a solid voxel volume.
 
@@ -59,9 +61,10 @@ def voxelize(
     bounds : sequence of 6 float, optional
         Region ``(xmin, ymin, zmin, xmax, ymax, zmax)``; default: the mesh's
         bounding box. The region may cut through the mesh.
-    backend : {"auto", "embree", "numpy"}
+    backend : {"auto", "numpy", "embree", "webgpu"}
         Ray-casting engine; ``"auto"`` is NumPy, measured the faster one for
-        column rays (see :mod:`geovox.backends`); both give the same volume.
+        column rays (see :mod:`geovox.backends`); all give the same volume.
+        ``"webgpu"`` (the ``gpu`` extra) is used only when named.
     shape : (3,) int, optional
         Voxels along x, y, z (instead of ``resolution``).
     voxel_size : float, optional
@@ -104,10 +107,43 @@ def voxelize(
     progress : callable, optional
         Called with the name of each stage as it starts ("load", "rays",
         "colour", "density", "sdf").
+    like : path, geovox.reference.Reference or (affine, shape), optional
+        Voxelise onto this reference grid (a NIfTI, NRRD or MetaImage scan,
+        a volume geovox wrote, or a 4 x 4 index-to-world affine and a shape),
+        oblique or not, instead of a grid over the mesh; excludes
+        ``resolution``, ``bounds``, ``shape`` and ``voxel_size``. See
+        :mod:`geovox.reference`.
+    mesh_space : {"lps", "ras"}, optional
+        With ``like``: the mesh's frame, overriding its file's 3D Slicer
+        ``SPACE=`` mark (LPS where there is none).
 
     Returns
     -------
     Volume
+        ``occupancy`` an ``(nx, ny, nz)`` bool array indexed ``[x, y, z]``
+        (Fortran order); ``colors`` ``(nx, ny, nz, 4)`` uint8 RGBA (alpha 255
+        inside, 0 outside), ``density`` ``(nx, ny, nz)`` uint8 or float32 and
+        ``sdf`` ``(nx, ny, nz)`` float32 where asked for, else None; the
+        ``grid``, the ``backend`` and ``inside`` test that ran, and
+        ``timings`` in seconds per stage.
+
+    Raises
+    ------
+    InputNotFoundError
+        ``mesh`` is a path that does not exist.
+    MeshError
+        The file cannot be read as a triangle mesh (the message says why).
+    ParameterError
+        A bad value: ``resolution``, ``shape`` or ``voxel_size`` not
+        positive (or more than one given), ``bounds`` with min >= max,
+        ``axis``, ``backend``, ``inside``, ``color``, ``density``,
+        ``supersample``, ``density_dtype`` or ``band``.
+    BackendUnavailableError
+        The named backend cannot run here (its package or a driver is
+        missing); the message says what to install.
+    GridTooLargeError
+        The arrays would not fit in the available memory (raised before
+        anything is allocated, with the size needed).
     """
     t0 = time.perf_counter()
     if axis not in (0, 1, 2):
@@ -119,13 +155,24 @@ def voxelize(
     engine = get_backend(backend)
     m = load_mesh(mesh)
     t_load = time.perf_counter()
-    grid = make_grid(m.bounds, bounds=bounds, resolution=resolution, shape=shape,
-                     voxel_size=voxel_size)
+    used = None
+    if like is not None:
+        from .reference import prepare
+
+        m, grid, used = prepare(m, like, mesh_space, sdf=sdf, color=color, bounds=bounds,
+                                resolution=resolution, shape=shape, voxel_size=voxel_size)
+    else:
+        if mesh_space is not None:
+            raise ParameterError("`mesh_space` (--mesh-space) applies only onto a reference grid "
+                                 "(`like`, --like)")
+        grid = make_grid(m.bounds, bounds=bounds, resolution=resolution, shape=shape,
+                         voxel_size=voxel_size)
     vol = voxelize_block(m, grid, engine=engine, inside=inside, axis=axis, jobs=jobs, color=color,
                          diffuse=diffuse, ambient=ambient, density=density,
                          supersample=supersample, density_dtype=density_dtype, sdf=sdf,
                          band=band, progress=progress, _stacklevel=3)
     vol.timings = {"load": t_load - t0, **vol.timings, "total": time.perf_counter() - t0}
+    vol.mesh_space = used
     return vol
 
 
@@ -159,7 +206,7 @@ def block_grid(grid: Grid, block=None) -> Grid:
     lo[2] = grid.lo[2] + z0 * h[2]
     hi = grid.hi.copy()
     hi[2] = grid.lo[2] + z1 * h[2] if z1 < nz else grid.hi[2]
-    return Grid(lo=lo, hi=hi, shape=(nx, ny, z1 - z0))
+    return Grid(lo=lo, hi=hi, shape=(nx, ny, z1 - z0), reference=grid.reference)
 
 
 def ray_start(mesh, grid: Grid, axis: int) -> float:
@@ -401,6 +448,10 @@ def empty_reason(m, grid: Grid, method: str) -> str:
     def fmt(v):
         return "(" + ", ".join(f"{x:.6g}" for x in v) + ")"
 
+    if not _overlaps(m.bounds, grid) and grid.reference is not None:
+        return (f"{m.source}: the mesh lies entirely outside the field of view of "
+                f"{grid.reference.source}; the volume is empty (is the mesh in the image's "
+                f"frame? see --mesh-space)")
     if not _overlaps(m.bounds, grid):
         return (f"the region {fmt(grid.lo)}..{fmt(grid.hi)} misses the mesh "
                 f"{fmt(m.bounds[0])}..{fmt(m.bounds[1])}; the volume is empty")

@@ -37,7 +37,7 @@ import time
 import numpy as np
 
 from .errors import ParameterError, collect_warnings, warn
-from .grid import Grid, make_grid
+from .grid import Grid
 from . import memory
 from .memory import bytes_per_voxel
 from .mesh import load_mesh
@@ -291,11 +291,18 @@ def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, c
 
     Parameters
     ----------
-    mesh : path, trimesh object or Mesh
-    path : str
-        Output file (``.h5`` / ``.hdf5`` / ``.raw``) or folder (``.zarr``).
+    mesh : str, os.PathLike, trimesh.Trimesh, trimesh.Scene or geovox.mesh.Mesh
+        The model, as for :func:`geovox.voxelize`.
+    path : str or os.PathLike
+        Output file (``.h5`` / ``.hdf5`` / ``.vtkhdf`` / ``.hdf`` / ``.raw``)
+        or folder (``.zarr``).
+    fmt : str, optional
+        Format name instead of the extension (``"hdf5"``, ``"vtkhdf"``,
+        ``"raw"``, ``"zarr"``).
     budget : float, optional
         Bytes one slab's arrays may take (default ``SLAB_BUDGET``).
+    jobs : int, optional
+        Threads (default: one per core); the file is the same for any value.
     progress : callable, optional
         Called with ``(slabs_done, n_slabs)`` after each slab.
     client : dask.distributed.Client, optional
@@ -316,6 +323,24 @@ def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, c
     ``inside_test``, ``backend``, ``slabs``, ``files`` and ``timings``;
     ``filled_in_slabs`` is True where a one-piece occupancy was filled and
     written 64 slices at a time (see :func:`geovox.parity.fill_slabs`).
+    ``shape`` is a tuple of 3 int, ``spacing`` of 3 float, ``bounds`` two
+    tuples of 3 float (low and high corners), ``files`` a list of str and
+    ``timings`` seconds per stage.
+
+    Raises
+    ------
+    ParameterError
+        A format that cannot be written slab by slab, ``client`` or ``slab``
+        without ``.zarr``, a ``slab`` that is not a multiple of 64, or a bad
+        option as for :func:`geovox.voxelize`.
+    InputNotFoundError, MeshError, BackendUnavailableError
+        As for :func:`geovox.voxelize`.
+    OutputError
+        The output cannot be written (missing folder, no permission, disk
+        full; nothing is left behind), or the cluster's workers cannot see
+        the output folder.
+    GridTooLargeError
+        Even one slab would not fit in the available memory.
     """
     from . import formats
     from . import inside as inside_tests
@@ -335,16 +360,17 @@ def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, c
     m = load_mesh(mesh)
     engine = get_backend(options.pop("backend", "auto"))
     t_load = time.perf_counter()
-    grid = make_grid(m.bounds, bounds=options.pop("bounds", None),
-                     resolution=options.pop("resolution", None), shape=options.pop("shape", None),
-                     voxel_size=options.pop("voxel_size", None))
+    from .reference import grid_for
+
+    m, grid, used = grid_for(m, options)  # pops the grid options (and like, mesh_space)
     method = inside_tests.choose(m, options.pop("inside", "auto"))
     # Said once here; the slabs below are silenced.
     if options.get("color"):
         for problem in m.problems:
             warn(problem, stacklevel=2)
     if not (np.all(m.bounds[0] <= grid.hi) and np.all(m.bounds[1] >= grid.lo)):
-        warn("the region misses the mesh; the volume is empty", stacklevel=2)
+        warn(empty_reason(m, grid, method) if grid.reference is not None else
+             "the region misses the mesh; the volume is empty", stacklevel=2)
     per = bytes_per_voxel(options.get("color"), options.get("density"), options.get("sdf"))
     per += inside_tests.working_bytes(m, method)
     if budget is None:
@@ -517,4 +543,4 @@ def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, c
             "bounds": meta.bounds, "inside": inside, "inside_test": method,
             "backend": engine.name, "slabs": len(plan), "files": files, "timings": timings,
             "filled_in_slabs": streamed,
-            "grid": grid, "source": m.source}
+            "grid": grid, "source": m.source, "mesh_space": used}

@@ -23,9 +23,12 @@ class Volume:
         True inside. Indexed ``[x, y, z]``; x is fastest in memory, so
         ``occupancy.T.tobytes()`` is the x-fastest byte order of RAW files.
     grid : Grid
+        The grid the arrays live on: ``lo``, ``hi`` (3,) float64 and
+        ``shape``.
     backend : str
         Name of the backend that ran.
     source : str
+        Where the mesh came from (its path, or a description).
     colors : (nx, ny, nz, 4) uint8 or None
         RGBA colour per voxel, when colour was asked for.
     inside : str
@@ -37,6 +40,9 @@ class Volume:
         exact within ``band`` voxels and clamped to ``+-band`` voxels beyond.
     timings : dict
         Seconds per stage.
+    mesh_space : (str, str) or None
+        On a reference grid (``like=``): the mesh's frame ("LPS" or "RAS") and
+        how it was decided (see :func:`geovox.reference.resolve_mesh_space`).
     """
 
     occupancy: np.ndarray
@@ -48,6 +54,7 @@ class Volume:
     inside: str = "parity"
     density: np.ndarray | None = None
     sdf: np.ndarray | None = None
+    mesh_space: tuple | None = None
 
     @property
     def bounds(self) -> tuple:

@@ -12,7 +12,7 @@ first imports trimesh and embreex (0.3-0.8 s in a fresh process), builds a
 scene and checks for coplanar overlapping triangles, and even warm is no
 faster than NumPy on these rays. Measured over every corpus model at
 64³-1024³, first call in a fresh process (``benchmarks/bench_cli.py --only
-auto-rule``, table in ``benchmarks/README.md``), Embree took 1.5-35× as
+auto-rule``, table in ``benchmarks/results/history.md``), Embree took 1.5-35× as
 long as NumPy, so ``auto`` picks NumPy whenever it imports; ``embree``
 stays available by name and gives identical volumes.
 """
@@ -46,7 +46,18 @@ def _present(module: str) -> bool:
 
 
 def available_backends() -> list:
-    """Names of the backends whose packages are installed, in preference order."""
+    """Names of the backends whose packages are installed, in preference order.
+
+    Nothing is imported: each backend's package is looked up with
+    :func:`importlib.util.find_spec`. ``geovox backends`` also says whether
+    each can run here (the WebGPU backend needs an adapter as well).
+
+    Returns
+    -------
+    list of str
+        E.g. ``["numpy", "embree", "webgpu"]``: first those ``"auto"`` tries,
+        in its order, then the others.
+    """
     return [name for name in PREFERENCE if _present(REGISTRY[name][0])]
 
 
@@ -62,7 +73,14 @@ def get_backend(name: str = "auto") -> Backend:
 
     Parameters
     ----------
-    name : {"auto", "embree", "numpy"}
+    name : {"auto", "numpy", "embree", "webgpu"}
+        A name of :data:`REGISTRY`, or ``"auto"`` for the first of
+        :data:`PREFERENCE` that imports.
+
+    Returns
+    -------
+    Backend
+        One shared instance per name.
 
     Raises
     ------

@@ -22,6 +22,24 @@ from ..errors import OutputError, ParameterError
 
 @dataclass(frozen=True)
 class Format:
+    """One output format of the registry (what ``geovox formats`` lists).
+
+    Attributes
+    ----------
+    name : str
+        The name ``fmt=`` and ``--format`` take (``"raw"``, ``"hdf5"``, ...).
+    extensions : tuple of str
+        Lower-case extensions with their dot, the first the default.
+    writer : callable
+        ``writer(volume, path, **options) -> list of str``: the files written.
+    description : str
+        One line: what the files hold.
+    reader : callable or None
+        ``reader(path, **options) -> Volume``, where the format can be read back.
+    check : callable or None
+        ``check(grid)``: raises ParameterError for a grid the format cannot hold.
+    """
+
     name: str
     extensions: tuple
     writer: object
@@ -42,7 +60,13 @@ def register_format(name, extensions, writer, description="", reader=None, check
 
 
 def formats() -> list:
-    """All registered formats."""
+    """All registered formats.
+
+    Returns
+    -------
+    list of Format
+        In registration order, as ``geovox formats`` prints them.
+    """
     return list(_FORMATS.values())
 
 
@@ -132,7 +156,38 @@ def atomic_output(path):
 
 
 def read(path, fmt=None, **options):
-    """Read a volume written by geovox back (occupancy, grid, colour when present)."""
+    """Read a volume written by geovox back (occupancy, grid, colour when present).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A file (or a ``.zarr`` folder) that geovox wrote; for ``.raw``, the
+        ``.raw`` beside its ``.json`` sidecar.
+    fmt : str, optional
+        Format name instead of the extension.
+    **options
+        For the reader: ``max_side`` (int) for ``.zarr``, the finest level
+        of the pyramid with every side at most that.
+
+    Returns
+    -------
+    Volume
+        ``occupancy`` (nx, ny, nz) bool indexed ``[x, y, z]``, the grid, and
+        ``colors`` (nx, ny, nz, 4) uint8 where the file holds colour. A
+        ``.binvox`` comes back as its whole padded cube; a ``.vdb``'s
+        occupancy is its ``density`` grid where that holds 0/1, else
+        ``sdf < 0``, else coverage >= 0.5.
+
+    Raises
+    ------
+    InputNotFoundError
+        No such file.
+    ParameterError
+        The format cannot be told from the extension, or ``fmt`` is unknown.
+    MeshError
+        The file cannot be read as a geovox volume of that format (the
+        message names the reader's own error).
+    """
     from ..errors import InputNotFoundError, MeshError
 
     path = os.fspath(path)
@@ -201,16 +256,60 @@ class SlabWriter:
 def write(volume, path, fmt=None, **options) -> list:
     """Write ``volume`` to ``path`` in the format its extension (or ``fmt``) names.
 
+    Every file goes to a temporary name beside its target and is renamed
+    when complete; the files of one output appear together or not at all.
+
+    Parameters
+    ----------
+    volume : Volume
+        ``occupancy`` (nx, ny, nz) bool, and ``colors`` (nx, ny, nz, 4)
+        uint8, ``density`` (nx, ny, nz) uint8 or float32 and ``sdf``
+        (nx, ny, nz) float32 where set: every format but ``.npy`` and
+        ``.vox`` writes them too.
+    path : str or os.PathLike
+        The main output file (``.raw``, ``.h5``, ``.vtkhdf``, ``.nrrd``,
+        ``.npy``, ``.npz``, ``.binvox``, ``.vdb``, ``.vox``) or ``.zarr``
+        folder; the other files of a format are named after it
+        (``NAME_rgba.raw``, ``NAME.json``, ...).
+    fmt : str, optional
+        Format name (see :func:`formats`) instead of the extension.
+    **options
+        For the writer: ``pack_bits`` (bool) for ``.npz``, ``shell`` (bool)
+        for ``.vox``.
+
     Returns
     -------
     list of str
-        Every file written.
+        Every file written, the main one first.
+
+    Raises
+    ------
+    ParameterError
+        The format cannot be told from the extension, ``fmt`` is unknown,
+        or the format cannot hold the grid (binvox needs cubic voxels).
+    OutputError
+        The folder does not exist or is not writable, the path is a folder,
+        or the disk filled up (nothing is left behind).
     """
     check_writable(path)
-    return format_for(path, fmt).writer(volume, path, **options)
+    f = format_for(path, fmt)
+    check_frame(f, getattr(volume, "grid", None))
+    return f.writer(volume, path, **options)
 
 
-from . import binvox, hdf5, nrrd, numpy_files, raw, vdb, vox, vtkhdf  # noqa: E402  (registration)
+#: Formats with no way to say where a reference grid's voxels lie (oblique or not).
+NO_FRAME = ("binvox", "vox", "vdb")
+
+
+def check_frame(f: Format, grid) -> None:
+    """ParameterError for a reference grid (``like``) in a format that cannot place it."""
+    if getattr(grid, "reference", None) is not None and f.name in NO_FRAME:
+        raise ParameterError(f"{f.name} cannot record the reference grid's placement (origin, "
+                             f"spacing, direction); onto a reference write .nii.gz, .nrrd, .raw "
+                             f"(.mhd/.nhdr), .h5, .vtkhdf, .npz or .zarr")
+
+
+from . import binvox, hdf5, nifti, nrrd, numpy_files, raw, vdb, vox, vtkhdf  # noqa: E402  (registration)
 from . import zarr as zarr_format  # noqa: E402  (registration)
 
 register_format("raw", (".raw",), raw.write_raw,
@@ -243,7 +342,12 @@ register_format("zarr", (".zarr",), zarr_format.write_zarr,
                 "OME-Zarr 0.5 (Zarr v3) multiscale image for napari, neuroglancer, Fiji, WEBKNOSSOS: "
                 "occupancy, color, density, sdf; written slab by slab, or on a Dask cluster",
                 reader=zarr_format.read_zarr)
+register_format("nifti", (".nii.gz", ".nii"), nifti.write_nifti,
+                "NIfTI-1 for 3D Slicer, ITK-SNAP, FSL, nibabel: uint8 mask, sform = qform = the "
+                "grid's RAS affine (needs nibabel: the nifti extra)",
+                reader=nifti.read_nifti)
 
 __all__ = ["register_format", "formats", "format_for", "write", "read", "atomic_output",
+           "check_frame",
            "atomic_outputs",
            "check_writable"]

@@ -53,7 +53,7 @@ class HDF5Writer(SlabWriter):
             raise
 
     def _layout(self, meta) -> None:
-        from .headers import origin_of
+        from .headers import frame_of
 
         nx, ny, nz = meta.shape
         self.chunks = tuple(min(64, n) for n in meta.shape)
@@ -65,9 +65,10 @@ class HDF5Writer(SlabWriter):
         # VTK requires a fixed-length ASCII string here, not a variable-length one.
         g.attrs.create("Type", np.bytes_("ImageData"))
         g.attrs["WholeExtent"] = np.array([0, nx - 1, 0, ny - 1, 0, nz - 1], dtype=np.int64)
-        g.attrs["Origin"] = origin_of(meta).astype(np.float64)
-        g.attrs["Spacing"] = np.asarray(meta.spacing, dtype=np.float64)
-        g.attrs["Direction"] = np.eye(3).reshape(-1)
+        origin, spacing, direction, space = frame_of(meta)
+        g.attrs["Origin"] = np.asarray(origin, dtype=np.float64)
+        g.attrs["Spacing"] = np.asarray(spacing, dtype=np.float64)
+        g.attrs["Direction"] = (np.eye(3) if direction is None else direction).reshape(-1)
         pd = g.create_group("PointData")
         self.vtk = {"occupancy": _dataset(pd, "occupancy", (nz, ny, nx), np.uint8, zyx)}
         if meta.colors is not None:
@@ -106,6 +107,12 @@ class HDF5Writer(SlabWriter):
                  "bounds": np.asarray([lo, hi], dtype=np.float64),
                  "shape": np.asarray(meta.shape, dtype=np.int64), "axis_order": "xyz",
                  "values": "0 outside, 1 inside", "backend": meta.backend, "source": str(meta.source)}
+        from .headers import frame_metadata
+
+        ref = frame_metadata(meta)
+        if ref:  # a reference grid: index of a voxel centre -> world, in `space`
+            attrs["affine"] = np.asarray(ref["affine"], dtype=np.float64)
+            attrs["space"] = ref["space"]
         for key, value in attrs.items():
             self.sets["occupancy"].attrs[key] = value
             self.f.attrs[key] = value

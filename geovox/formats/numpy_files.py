@@ -71,6 +71,12 @@ def write_npz(volume, path, pack_bits: bool = False) -> list:
         "bounds": np.asarray(volume.bounds),
         "origin": origin_of(volume),
     })
+    from .headers import frame_metadata
+
+    ref = frame_metadata(volume)
+    if ref:  # a reference grid: index of a voxel centre -> world, in `space`
+        arrays.update(affine=np.asarray(ref["affine"]), space=np.asarray(ref["space"]),
+                      origin=np.asarray(ref["affine"])[:3, 3])
     if volume.colors is not None:
         arrays["colors"] = volume.colors
     from . import scalar_fields

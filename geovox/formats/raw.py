@@ -31,7 +31,24 @@ def metadata(volume, data_file: str, dtype: str = "uint8", values: str = "0 outs
         "source": volume.source,
         "numpy": (f"np.fromfile({os.path.basename(data_file)!r}, dtype=np.{dtype})"
                   f".reshape(({nx}, {ny}, {nz}), order='F')"),
+        **_reference_metadata(volume),
     }
+
+
+def _reference_metadata(volume) -> dict:
+    """On a reference grid: the world placement (``affine``, ``space``, its origin; bounds of
+    the voxels' corners, axis-aligned in that space), replacing the local frame's."""
+    from .headers import frame_metadata
+
+    extra = frame_metadata(volume)
+    if extra:
+        a = np.asarray(extra["affine"])
+        corners = np.array([[i, j, k, 1.0] for i in (-0.5, volume.shape[0] - 0.5)
+                            for j in (-0.5, volume.shape[1] - 0.5)
+                            for k in (-0.5, volume.shape[2] - 0.5)]) @ a.T
+        extra["origin_of_first_voxel_centre"] = a[:3, 3].tolist()
+        extra["bounds"] = [corners[:, :3].min(axis=0).tolist(), corners[:, :3].max(axis=0).tolist()]
+    return extra
 
 
 def colour_path(path: str) -> str:
@@ -52,13 +69,16 @@ def _write_text(group, path: str, text: str) -> None:
 
 def _write_headers(group, volume, path: str, dtype: str, components: int = 1) -> list:
     """.mhd and .nhdr headers beside a RAW file, pointing at it."""
-    from .headers import mhd_header, nhdr_header, origin_of
+    from .headers import frame_of, mhd_header, nhdr_header
 
     root = os.path.splitext(path)[0]
     name = os.path.basename(path)
-    args = (volume.shape, volume.spacing, origin_of(volume), dtype, name, components)
-    _write_text(group, root + ".mhd", mhd_header(*args))
-    _write_text(group, root + ".nhdr", nhdr_header(*args))
+    origin, spacing, direction, space = frame_of(volume, "LPS")  # ITK's frame is LPS
+    _write_text(group, root + ".mhd", mhd_header(volume.shape, spacing, origin, dtype, name,
+                                                 components, direction=direction))
+    origin, spacing, direction, space = frame_of(volume)
+    _write_text(group, root + ".nhdr", nhdr_header(volume.shape, spacing, origin, dtype, name,
+                                                   components, direction=direction, space=space))
     return [root + ".mhd", root + ".nhdr"]
 
 

@@ -26,7 +26,7 @@ from . import SlabWriter
 VERSION = (1, 0)
 
 
-def image_attributes(shape, spacing, origin) -> dict:
+def image_attributes(shape, spacing, origin, direction=None) -> dict:
     """The ``/VTKHDF`` attributes of an ImageData file.
 
     Parameters
@@ -35,6 +35,9 @@ def image_attributes(shape, spacing, origin) -> dict:
         ``(nx, ny, nz)``.
     spacing, origin : (3,) float
         Voxel size and the centre of voxel 0.
+    direction : (3, 3) float, optional
+        Direction cosines (columns: the index axes), stored row by row as
+        VTK's ``vtkImageData::DirectionMatrix``; identity by default.
 
     Returns
     -------
@@ -47,7 +50,8 @@ def image_attributes(shape, spacing, origin) -> dict:
         "WholeExtent": np.array([0, nx - 1, 0, ny - 1, 0, nz - 1], dtype=np.int64),
         "Origin": np.asarray(origin, dtype=np.float64),
         "Spacing": np.asarray(spacing, dtype=np.float64),
-        "Direction": np.eye(3).reshape(-1),
+        "Direction": (np.eye(3) if direction is None
+                      else np.asarray(direction, dtype=np.float64)).reshape(-1),
     }
 
 
@@ -63,7 +67,7 @@ class VTKHDFWriter(SlabWriter):
 
         from . import atomic_outputs
         from .chunks import LEVEL
-        from .headers import origin_of
+        from .headers import frame_of
 
         self.path, self.jobs = os.fspath(path), jobs
         self._ctx = atomic_outputs()
@@ -71,8 +75,12 @@ class VTKHDFWriter(SlabWriter):
         try:
             self.f = h5py.File(self._ctx.__enter__().add(self.path), "w")
             g = self.f.create_group("VTKHDF")
-            for key, value in image_attributes(meta.shape, meta.spacing, origin_of(meta)).items():
+            origin, spacing, direction, space = frame_of(meta)
+            for key, value in image_attributes(meta.shape, spacing, origin, direction).items():
                 g.attrs[key] = value
+            if space is not None:  # a reference grid: its frame, and the affine whole
+                g.attrs["space"] = space
+                g.attrs["affine"] = meta.grid.reference.affine
             pd = g.create_group("PointData")
             zyx = tuple(min(64, n) for n in meta.shape[::-1])
             fields = {"occupancy": (np.uint8, ())}

@@ -199,6 +199,7 @@ def create(layout: Layout, meta, unit=None) -> None:
     from zarr.codecs import BytesCodec, GzipCodec
 
     from . import FIELD_VALUES
+    from .headers import frame_metadata
 
     root = zarr.open_group(layout.root, mode="w", zarr_format=3)
     lo, hi = meta.bounds
@@ -207,7 +208,7 @@ def create(layout: Layout, meta, unit=None) -> None:
         "spacing": list(meta.spacing), "axis_order": "zyx", "source": str(meta.source),
         "backend": meta.backend, "values": "0 outside, 255 inside",
         **{f.name + "_values": FIELD_VALUES[f.name](f.dtype) for f in layout.fields
-           if f.name in FIELD_VALUES}}
+           if f.name in FIELD_VALUES}, **frame_metadata(meta)}
     for field in layout.fields:
         group = root if field.name == "occupancy" else root.create_group(field.name)
         group.attrs["ome"] = {"version": "0.5", "multiscales": [multiscales(meta, field, unit)]}
