@@ -2,11 +2,12 @@
 
 ``geovox/_nearest.pyx`` is the exact nearest-surface search (colour),
 ``geovox/_lattice.pyx`` the column rays' lattice search and the linear mesh
-checks of the inside test. Both extensions are ``optional``: without a C
-compiler (or without OpenMP, or without Cython) the install still succeeds
-and geovox uses its NumPy code (:mod:`geovox.nearest`,
-:func:`geovox.backends.numpy.rasterise`, :mod:`geovox.inside`), which gives
-the same answers.
+checks of the inside test, ``geovox/_winding.pyx`` the caps' winding number of
+open models. The extensions are ``optional``: without a C compiler (or without
+OpenMP, or without Cython) the install still succeeds and geovox uses its NumPy
+code (:mod:`geovox.nearest`, :func:`geovox.backends.numpy.rasterise`,
+:mod:`geovox.inside`, :func:`geovox.inside.cap_winding`), which gives the same
+answers (the winding number's wherever a bound or the exact sum decides).
 """
 
 import os
@@ -33,7 +34,8 @@ else:
 # The lattice search runs on one thread: no OpenMP (nothing to make fork-safe).
 serial = [f for f in flags if "openmp" not in f]
 sources = [("geovox._nearest", "geovox/_nearest.pyx", flags, link),
-           ("geovox._lattice", "geovox/_lattice.pyx", serial, [])]
+           ("geovox._lattice", "geovox/_lattice.pyx", serial, []),
+           ("geovox._winding", "geovox/_winding.pyx", flags, link)]
 ext = []
 # A tree without a .pyx (an old source distribution) installs without that kernel.
 if cythonize is not None:

@@ -252,6 +252,7 @@ def test_streamed_winding_of_a_repaired_copy_equals_the_volume_in_one_piece(tmp_
 
 
 def test_past_the_work_budget_the_estimate_decides_with_a_warning(monkeypatch):
+    monkeypatch.setenv("GEOVOX_KERNEL", "numpy")  # the NumPy traversal's budget, in pairs
     mesh = open_boxes(40)
     with pytest.warns(GeovoxWarning):
         exact = geovox.voxelize(mesh, resolution=22)
@@ -303,6 +304,7 @@ def test_vertex_connectivity_without_scipy_matches_csgraph(sub):
 def test_a_refining_pass_sure_to_pass_the_budget_is_not_started(monkeypatch):
     # The pairs the first pass ended at on unsure voxels are a lower bound on
     # the next pass's work: past the budget, it is skipped (same result).
+    monkeypatch.setenv("GEOVOX_KERNEL", "numpy")
     mesh = open_boxes(40)
     calls = []
     real = inside.cap_winding
@@ -319,6 +321,7 @@ def test_the_next_pass_handles_at_least_the_work_bound(mesh, res, monkeypatch):
     # _sure_work is a lower bound on the next pass's pairs: given a budget
     # one below it, that pass must give up (cap_winding gives up exactly when
     # it handles more than its budget), and given the bound it may not.
+    monkeypatch.setenv("GEOVOX_KERNEL", "numpy")
     seen = []
     real = inside._sure_work
     monkeypatch.setattr(inside, "_sure_work", lambda *a: seen.append((real(*a), a[3])) or 0.0)
