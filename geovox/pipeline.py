@@ -42,6 +42,9 @@ def voxelize(
     sdf=False,
     band=3.0,
     progress=None,
+    labels=None,
+    overlap="last",
+    fractions=False,
 ) -> Volume:
     """Turn a closed triangle mesh into a solid voxel volume.
 
@@ -105,6 +108,18 @@ def voxelize(
     progress : callable, optional
         Called with the name of each stage as it starts ("load", "rays",
         "colour", "density", "sdf").
+    labels : {None, "part", "component", "material", "file"}
+        Also fill ``Volume.labels`` and ``Volume.label_table`` (see
+        :mod:`geovox.labels`): the model's own parts (OBJ objects or groups,
+        scene nodes), its connected components, the material of each
+        voxel's exact nearest surface point, or the file each part came
+        from (``mesh`` a list of files, one scene on one grid). With parts,
+        ``occupancy`` is the union of the parts, each by its own inside test.
+    overlap : {"last", "first", "smallest"}
+        Which part a voxel inside several takes: the later in file order,
+        the earlier, or the one with the smaller enclosed volume.
+    fractions : bool
+        Not yet built: raises ParameterError.
 
     Returns
     -------
@@ -140,16 +155,27 @@ def voxelize(
     from .parallel import resolve_jobs
 
     jobs = resolve_jobs(jobs)
+    from . import labels as label_mod
+
+    label_mod.check(labels, overlap, fractions)
     (progress or (lambda stage: None))("load")
     engine = get_backend(backend)
-    m = load_mesh(mesh)
+    if isinstance(mesh, (list, tuple)):
+        if labels is None:
+            raise ParameterError("several meshes make one scene only with `labels` (e.g. "
+                                 "labels='file'); convert them one by one otherwise")
+        m = label_mod.scene(mesh)
+    else:
+        m = load_mesh(mesh)
+    lset = None if labels is None else label_mod.label_set(m, labels)
     t_load = time.perf_counter()
     grid = make_grid(m.bounds, bounds=bounds, resolution=resolution, shape=shape,
                      voxel_size=voxel_size)
     vol = voxelize_block(m, grid, engine=engine, inside=inside, axis=axis, jobs=jobs, color=color,
                          diffuse=diffuse, ambient=ambient, density=density,
                          supersample=supersample, density_dtype=density_dtype, sdf=sdf,
-                         band=band, progress=progress, _stacklevel=3)
+                         band=band, progress=progress, labels=lset, overlap=overlap,
+                         _stacklevel=3)
     vol.timings = {"load": t_load - t0, **vol.timings, "total": time.perf_counter() - t0}
     return vol
 
@@ -235,6 +261,9 @@ def voxelize_block(
     sdf=False,
     band=3.0,
     progress=None,
+    labels=None,
+    overlap="last",
+    fractions=False,
     shared_crossings=None,
     out=None,
     colour_out=None,
@@ -267,6 +296,10 @@ def voxelize_block(
     axis, jobs, color, diffuse, ambient, density, supersample, density_dtype, sdf, band, progress
         As for :func:`voxelize` (``jobs`` already resolved: an int >= 1;
         ``progress`` is not told "load").
+    labels : str or geovox.labels.LabelSet, optional
+        A label source, or the labels :func:`geovox.labels.label_set` made.
+    overlap, fractions
+        As for :func:`voxelize`.
     shared_crossings : dict, optional
         ``axis -> f(block_grid) -> (Hits, Columns)``: the colour step's
         crossings along that axis, cast once for the whole grid by the
@@ -314,7 +347,14 @@ def voxelize_block(
 
     from . import inside as inside_tests
 
-    method = inside_tests.choose(m, inside)
+    lset = None
+    if labels is not None:
+        from . import labels as label_mod
+
+        label_mod.check(labels if isinstance(labels, str) else labels.source, overlap, fractions)
+        lset = labels if isinstance(labels, label_mod.LabelSet) else label_mod.label_set(m, labels)
+    by_parts = lset is not None and lset.source != "material"
+    method = None if by_parts else inside_tests.choose(m, inside)
 
     def cast_mesh(mesh, ax):
         columns = grid.columns(ax, start=ray_start(mesh, grid, ax))
@@ -325,7 +365,14 @@ def voxelize_block(
 
     crossings = {}
     step("rays")
-    if method == "parity":
+    if by_parts:
+        classified = label_mod.classify(m, grid, lset, cast_mesh=cast_mesh, axis=axis, jobs=jobs,
+                                        inside=inside, overlap=overlap)
+        crossings[axis] = classified.crossings
+        t_rays = time.perf_counter()
+        occ = np.asfortranarray(classified.labels != 0)
+        method = "+".join(sorted(set(classified.methods)))
+    elif method == "parity":
         crossings[axis] = cast(axis)
         t_rays = time.perf_counter()
         occ = parity.fill(*crossings[axis], grid, out=out, jobs=jobs)
@@ -400,7 +447,16 @@ def voxelize_block(
         t = time.perf_counter()
         dist = signed_distance(m, grid, occ, band=band, jobs=jobs)
         timings["sdf"] = time.perf_counter() - t
+    lab = table = None
+    if lset is not None:
+        if not by_parts:
+            raise ParameterError("`labels='material'` is not built yet")
+        lab = classified.labels
+        table = label_mod.table(lset, lab, grid.spacing)
     return Volume(
+        labels=lab,
+        label_table=table,
+        contested=classified.contested if by_parts else 0,
         occupancy=occ,
         grid=grid,
         backend=engine.name,
