@@ -206,13 +206,14 @@ FIELD_VALUES = {
     "density": lambda dtype: ("inside fraction x 255" if np.dtype(dtype) == np.uint8
                               else "inside fraction, 0 to 1"),
     "sdf": lambda dtype: "signed distance, negative inside, clamped beyond the exact band",
+    "labels": lambda dtype: "label value, 0 the background (see label_table)",
 }
 
 
 def scalar_fields(volume) -> list:
     """The extra scalar volumes to write: ``[(name, [x, y, z] array, dtype name, values)]``."""
     out = []
-    for name in ("density", "sdf"):
+    for name in ("density", "sdf", "labels"):
         arr = getattr(volume, name, None)
         if arr is not None:
             out.append((name, arr, str(arr.dtype), FIELD_VALUES[name](arr.dtype)))
@@ -295,7 +296,8 @@ def write(volume, path, fmt=None, **options) -> list:
     return format_for(path, fmt).writer(volume, path, **options)
 
 
-from . import binvox, hdf5, nrrd, numpy_files, raw, vdb, vox, vtkhdf  # noqa: E402  (registration)
+from . import binvox, hdf5, nrrd, numpy_files, raw, seg_nrrd, vdb, vox, vtkhdf  # noqa: E402
+# (imported for registration)
 from . import zarr as zarr_format  # noqa: E402  (registration)
 
 register_format("raw", (".raw",), raw.write_raw,
@@ -307,6 +309,9 @@ register_format("hdf5", (".h5", ".hdf5"), hdf5.write_hdf5,
 register_format("vtkhdf", (".vtkhdf", ".hdf"), vtkhdf.write_vtkhdf,
                 "VTK-HDF 1.0 ImageData for ParaView (opens by name): occupancy, color, density, sdf",
                 reader=vtkhdf.read_vtkhdf)
+register_format("seg_nrrd", (".seg.nrrd",), seg_nrrd.write_seg_nrrd,
+                "3D Slicer segmentation: the labels (--labels) as named, coloured segments",
+                reader=seg_nrrd.read_seg_nrrd)
 register_format("nrrd", (".nrrd",), nrrd.write_nrrd,
                 "single-file NRRD (gzip), uint8 0/255; colour in NAME_rgba.nrrd",
                 reader=nrrd.read_nrrd)
@@ -332,3 +337,20 @@ register_format("zarr", (".zarr",), zarr_format.write_zarr,
 __all__ = ["register_format", "formats", "format_for", "write", "read", "atomic_output",
            "atomic_outputs",
            "check_writable"]
+
+
+def label_table_json(volume) -> str:
+    """The volume's label table as JSON text (``"[]"`` without labels)."""
+    import json
+
+    return json.dumps(getattr(volume, "label_table", None) or [])
+
+
+def table_from_json(text):
+    """A label table from :func:`label_table_json`'s text; None when it is empty."""
+    import json
+
+    if isinstance(text, bytes):
+        text = text.decode("utf-8")
+    table = json.loads(str(text))
+    return table or None

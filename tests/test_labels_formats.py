@@ -1,0 +1,134 @@
+"""Labelled volumes written and read back through independent readers."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+import geovox
+from geovox import formats
+from geovox.errors import ParameterError
+
+from test_labels import assembly
+
+
+@pytest.fixture(scope="module")
+def vol():
+    v = geovox.voxelize(assembly(), shape=(26, 17, 21), labels="part")
+    assert len(np.unique(v.labels)) == 5
+    return v
+
+
+def _table_matches(got, want, keys=("value", "name", "color")):
+    assert [{k: e[k] for k in keys} for e in got] == [{k: e[k] for k in keys} for e in want]
+
+
+def test_seg_nrrd_opens_in_slicerio(vol, tmp_path):
+    slicerio = pytest.importorskip("slicerio")
+    p = tmp_path / "scene.seg.nrrd"
+    assert formats.write(vol, p) == [str(p)]
+    seg = slicerio.read_segmentation(str(p))
+    np.testing.assert_array_equal(seg["voxels"], vol.labels)
+    assert seg["masterRepresentation"] == "Binary labelmap"
+    assert seg["containedRepresentationNames"] == ["Binary labelmap"]
+    assert [s["name"] for s in seg["segments"]] == [e["name"] for e in vol.label_table[1:]]
+    for s, e in zip(seg["segments"], vol.label_table[1:]):
+        assert s["labelValue"] == e["value"] and s["layer"] == 0
+        assert s["id"] == f"Segment_{e['value']}"
+        np.testing.assert_allclose(s["color"], np.asarray(e["color"][:3]) / 255, atol=1e-6)
+        idx = np.argwhere(vol.labels == e["value"])
+        assert s["extent"] == [int(x) for a in range(3) for x in (idx[:, a].min(), idx[:, a].max())]
+    # The geometry: voxel centres, spacing.
+    np.testing.assert_allclose(seg["ijkToLPS"][:3, 3], vol.grid.lo + 0.5 * np.asarray(vol.spacing))
+    np.testing.assert_allclose(np.diag(seg["ijkToLPS"])[:3], vol.spacing)
+    back = formats.read(p)
+    np.testing.assert_array_equal(back.labels, vol.labels)
+    _table_matches(back.label_table, vol.label_table)
+
+
+def test_seg_nrrd_empty_segment_extent(tmp_path):
+    slicerio = pytest.importorskip("slicerio")
+    m = assembly()
+    # A region holding only the first body: the far box's segment is empty.
+    v = geovox.voxelize(m, shape=(10, 10, 10), bounds=(-1, -1, -1, 0.5, 1, 1), labels="part")
+    p = tmp_path / "cut.seg.nrrd"
+    formats.write(v, p)
+    seg = slicerio.read_segmentation(str(p), skip_voxels=True)
+    assert seg["segments"][3]["extent"] == [0, -1, 0, -1, 0, -1]
+
+
+def test_seg_nrrd_needs_labels(tmp_path):
+    v = geovox.voxelize(assembly(), resolution=8)
+    with pytest.raises(ParameterError, match="--labels"):
+        formats.write(v, tmp_path / "x.seg.nrrd")
+    assert not list(tmp_path.iterdir())
+
+
+def test_nrrd_label_map_with_key_values(vol, tmp_path):
+    nrrd = pytest.importorskip("nrrd")
+    p = tmp_path / "scene.nrrd"
+    written = formats.write(vol, p)
+    lpath = str(tmp_path / "scene_labels.nrrd")
+    assert lpath in written
+    data, header = nrrd.read(lpath)
+    np.testing.assert_array_equal(data, vol.labels)
+    assert header["label2"] == "cut|" + " ".join(str(c) for c in vol.label_table[2]["color"])
+    _table_matches(json.loads(header["geovox_label_table"]), vol.label_table)
+
+
+def test_h5_labels_and_table(vol, tmp_path):
+    h5py = pytest.importorskip("h5py")
+    p = tmp_path / "scene.h5"
+    formats.write(vol, p)
+    with h5py.File(p) as f:
+        np.testing.assert_array_equal(f["labels"][...], vol.labels)
+        assert f["labels"].dtype == np.uint8
+        assert json.loads(f["labels"].attrs["label_table"]) == vol.label_table
+        np.testing.assert_array_equal(f["VTKHDF/PointData/labels"][...].transpose(2, 1, 0),
+                                      vol.labels)
+
+
+def test_npz_labels_and_table(vol, tmp_path):
+    p = tmp_path / "scene.npz"
+    formats.write(vol, p)
+    with np.load(p) as z:
+        np.testing.assert_array_equal(z["labels"], vol.labels)
+        assert json.loads(str(z["label_table"])) == vol.label_table
+
+
+def test_raw_labels_and_table_in_the_json(vol, tmp_path):
+    p = tmp_path / "scene.raw"
+    formats.write(vol, p)
+    meta = json.loads((tmp_path / "scene.json").read_text())
+    assert meta["labels"]["dtype"] == "uint8"
+    assert meta["labels"]["label_table"] == vol.label_table
+    raw = np.fromfile(tmp_path / meta["labels"]["data_file"], dtype=np.uint8)
+    np.testing.assert_array_equal(raw.reshape(vol.shape, order="F"), vol.labels)
+
+
+def test_vtkhdf_point_data_and_field_data(vol, tmp_path):
+    p = tmp_path / "scene.vtkhdf"
+    formats.write(vol, p)
+    code = f"""
+import json, numpy as np, vtk
+from vtk.util.numpy_support import vtk_to_numpy
+r = vtk.vtkHDFReader(); r.SetFileName({str(p)!r}); r.Update()
+o = r.GetOutput()
+lab = vtk_to_numpy(o.GetPointData().GetArray("labels"))
+fd = o.GetFieldData()
+names = bytes(vtk_to_numpy(fd.GetArray("label_names"))).decode().split(chr(10))[:-1]
+print(json.dumps({{"dims": o.GetDimensions(), "labels": lab.tolist(), "names": names,
+                   "values": vtk_to_numpy(fd.GetArray("label_values")).tolist()}}))
+"""
+    pytest.importorskip("vtk")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    got = json.loads(out.stdout.strip().splitlines()[-1])
+    assert tuple(got["dims"]) == vol.shape
+    np.testing.assert_array_equal(np.asarray(got["labels"]).reshape(vol.shape, order="F"),
+                                  vol.labels)
+    assert got["names"] == [e["name"] for e in vol.label_table]
+    assert got["values"] == [e["value"] for e in vol.label_table]
