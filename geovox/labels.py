@@ -437,3 +437,41 @@ def table(lset: LabelSet, labels: np.ndarray, spacing, counts=None) -> list:
 def label_counts(labels: np.ndarray, n: int) -> np.ndarray:
     """(n + 1,) int64: voxels per label value."""
     return np.bincount(labels.ravel(order="K"), minlength=n + 1)[:n + 1].astype(np.int64)
+
+
+def material_labels(mesh: Mesh, grid, occupancy: np.ndarray, lset: LabelSet, *, frame,
+                    jobs: int = 1) -> np.ndarray:
+    """Each inside voxel's label: the material of its exact nearest surface point.
+
+    The search is exact colour's (:func:`geovox.nearest.nearest_inside`, with
+    its tie rule between faces); faces of one material are interchangeable,
+    so the NumPy search need not tell them apart.
+
+    Parameters
+    ----------
+    occupancy : (nx, ny, nz) bool
+        The block's inside voxels.
+    frame : (lo, spacing, z0)
+        The whole grid's low corner and voxel size, and the block's first layer.
+
+    Returns
+    -------
+    labels : (nx, ny, nz) uint8 or uint16, Fortran order; 0 outside.
+    """
+    from .nearest import nearest_inside
+
+    nx, ny, _ = grid.shape
+    labels = np.zeros(grid.shape, dtype=lset.dtype, order="F")
+    flat = labels.reshape(-1, order="F")  # a view: Fortran order
+    value = (lset.face_label + 1).astype(lset.dtype)
+    if len(lset.names) == 1:
+        flat[occupancy.reshape(-1, order="F")] = 1
+        return labels
+
+    def emit(vox, tri, uv):
+        flat[vox[:, 0] + nx * (vox[:, 1] + ny * vox[:, 2])] = value[tri]
+
+    lo, spacing, z0 = frame
+    nearest_inside(mesh.triangles, occupancy, spacing, origin=lo, z0=z0, jobs=jobs, emit=emit,
+                   same=lset.face_label)
+    return labels

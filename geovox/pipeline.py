@@ -449,9 +449,15 @@ def voxelize_block(
         timings["sdf"] = time.perf_counter() - t
     lab = table = None
     if lset is not None:
-        if not by_parts:
-            raise ParameterError("`labels='material'` is not built yet")
-        lab = classified.labels
+        if by_parts:
+            lab = classified.labels
+        else:
+            t = time.perf_counter()
+            step("labels")
+            lab = label_mod.material_labels(
+                m, grid, occ, lset, jobs=jobs,
+                frame=(whole.lo, whole.spacing, 0 if block is None else block[0]))
+            timings["labels"] = time.perf_counter() - t
         table = label_mod.table(lset, lab, grid.spacing)
     return Volume(
         labels=lab,

@@ -253,3 +253,65 @@ def test_uint16_above_255_labels():
     v = geovox.voxelize(m, shape=(40, 30, 2), labels="part")
     assert v.labels.dtype == np.uint16
     assert len(np.unique(v.labels)) == 301
+
+
+def die() -> Mesh:
+    """A cube whose six faces each have their own material."""
+    from geovox.surface import Material
+
+    box = trimesh.creation.box(extents=(2.0, 2.0, 2.0))
+    normals = np.asarray(box.face_normals)
+    side = np.argmax(np.abs(normals), axis=1) * 2 + (normals.max(axis=1) > 0.5)
+    mats = [Material(name=f"face{k}", kd=np.array([k / 6, 0.5, 1 - k / 6])) for k in range(6)]
+    return Mesh(np.asarray(box.vertices), np.asarray(box.faces), source="die",
+                face_material=side.astype(np.int64), materials=mats)
+
+
+def brute_material(mesh, vol, lset):
+    """(labels, ties): the brute-force nearest face's material per inside voxel, and the
+    number of voxels where faces of different materials are equally near."""
+    from geovox.colour import closest_on_triangles
+
+    idx = np.argwhere(vol.occupancy)
+    pts = vol.grid.lo + (idx + 0.5) * np.asarray(vol.spacing)
+    tris = mesh.triangles
+    d = np.empty((len(pts), len(tris)))
+    for t in range(len(tris)):
+        uv = closest_on_triangles(pts, np.broadcast_to(tris[t], (len(pts), 3, 3)))
+        a, b, c = tris[t]
+        q = a + uv[:, :1] * (b - a) + uv[:, 1:] * (c - a)
+        d[:, t] = np.sum((q - pts) ** 2, axis=1)
+    best = d.min(axis=1)
+    near = d <= best[:, None] * (1 + 1e-9) + 1e-18
+    lab = lset.face_label[np.argmin(d, axis=1)] + 1
+    n_mats = np.array([len(set(lset.face_label[np.flatnonzero(r)])) for r in near])
+    return idx, lab, near, n_mats > 1
+
+
+@pytest.mark.parametrize("model", ["die", "cornell"])
+def test_material_labels_are_the_brute_force_nearest_surface(model):
+    from conftest import corpus
+
+    if model == "die":
+        m = die()
+        kw = dict(shape=(13, 11, 9))
+    else:
+        m = load_mesh(corpus("cornell_box", "cornell_box.obj"))
+        kw = dict(resolution=14)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        v = geovox.voxelize(m, labels="material", **kw)
+    lset = L.label_set(m, "material")
+    idx, lab, near, tie = brute_material(m, v, lset)
+    got = v.labels[tuple(idx.T)]
+    assert len(idx) > 100
+    # Where one material is nearest, it is the label; at ties, one of the nearest faces'.
+    np.testing.assert_array_equal(got[~tie], lab[~tie])
+    for row in np.flatnonzero(tie):
+        assert got[row] - 1 in set(lset.face_label[np.flatnonzero(near[row])])
+    if model == "die":
+        assert set(np.unique(v.labels)) == set(range(1, 7))  # six regions, the grid all inside
+        assert tie.sum() > 0  # the cube's diagonal planes are ties, counted here
+    assert [e["name"] for e in v.label_table[1:len(m.materials) + 1]] == \
+        [x.name for x in m.materials]
+    assert np.array_equal(v.occupancy, v.labels > 0)
