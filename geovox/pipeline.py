@@ -119,7 +119,11 @@ def voxelize(
         Which part a voxel inside several takes: the later in file order,
         the earlier, or the one with the smaller enclosed volume.
     fractions : bool
-        Not yet built: raises ParameterError.
+        Also fill ``Volume.fractions`` (nx, ny, nz, L): each label's coverage
+        fraction per voxel from ``supersample`` x ``supersample`` rays per
+        column, overlaps settled by ``overlap`` (see
+        :func:`geovox.labels.label_fractions`); uint8 0-255, or float32
+        with ``density_dtype="float32"``. Not with ``labels="material"``.
 
     Returns
     -------
@@ -175,7 +179,7 @@ def voxelize(
                          diffuse=diffuse, ambient=ambient, density=density,
                          supersample=supersample, density_dtype=density_dtype, sdf=sdf,
                          band=band, progress=progress, labels=lset, overlap=overlap,
-                         _stacklevel=3)
+                         fractions=fractions, _stacklevel=3)
     vol.timings = {"load": t_load - t0, **vol.timings, "total": time.perf_counter() - t0}
     return vol
 
@@ -459,10 +463,21 @@ def voxelize_block(
                 frame=(whole.lo, whole.spacing, 0 if block is None else block[0]))
             timings["labels"] = time.perf_counter() - t
         table = label_mod.table(lset, lab, grid.spacing)
+    fracs = None
+    if fractions:
+        step("fractions")
+        t = time.perf_counter()
+        fracs = label_mod.label_fractions(
+            m, grid, lset, engine=engine, axis=axis, start=ray_start(m, grid, axis),
+            supersample=supersample if density is not None else
+            _check_options("coverage", density_dtype, supersample, False, band)[0],
+            jobs=jobs, overlap=overlap, dtype=density_dtype)
+        timings["fractions"] = time.perf_counter() - t
     return Volume(
         labels=lab,
         label_table=table,
         contested=classified.contested if by_parts else 0,
+        fractions=fracs,
         occupancy=occ,
         grid=grid,
         backend=engine.name,

@@ -315,3 +315,34 @@ def test_material_labels_are_the_brute_force_nearest_surface(model):
     assert [e["name"] for e in v.label_table[1:len(m.materials) + 1]] == \
         [x.name for x in m.materials]
     assert np.array_equal(v.occupancy, v.labels > 0)
+
+
+@pytest.mark.parametrize("overlap", L.OVERLAPS)
+def test_fractions_sum_to_the_union_and_match_coverage(overlap):
+    m = assembly()
+    grid = make_grid(m.bounds, shape=(30, 19, 17))
+    kw = dict(shape=grid.shape, supersample=3)
+    v = geovox.voxelize(m, labels="part", fractions=True, overlap=overlap,
+                        density_dtype="float32", **kw)
+    assert v.fractions.shape == grid.shape + (4,) and v.fractions.dtype == np.float32
+    total = v.fractions.sum(axis=3)
+    assert total.max() <= 1 + 1e-6 and v.fractions.min() >= 0
+    union = trimesh.util.concatenate([trimesh.Trimesh(m.vertices, m.faces)])
+    occs = alone(m, grid, "numpy")
+    # The far box is alone: its fraction is its own coverage, value for value.
+    far = L.part_mesh(m, np.flatnonzero(m.face_part == 3), "apart")
+    own = geovox.voxelize(far, bounds=np.r_[grid.lo, grid.hi], density="coverage",
+                          density_dtype="float32", **kw).density
+    np.testing.assert_array_equal(v.fractions[..., 3], own)
+    # Voxels deep inside one part alone hold all of it.
+    deep = occs[0] & ~occs[1] & ~occs[2] & (v.fractions[..., 0] > 0.999)
+    assert deep.sum() > 50
+    # The winner of an overlap takes the shared voxels whole.
+    both = occs[0] & occs[2]  # the inclusion inside the box
+    winner = 2 if overlap in ("last", "smallest") else 0
+    inner = both & (total > 0.999) & (v.fractions[..., 2 - winner] == 0)
+    assert inner.sum() > 0
+    del union
+    u8 = geovox.voxelize(m, labels="part", fractions=True, overlap=overlap, **kw)
+    assert u8.fractions.dtype == np.uint8
+    assert int(u8.fractions.astype(int).sum(axis=3).max()) <= 255

@@ -132,3 +132,15 @@ print(json.dumps({{"dims": o.GetDimensions(), "labels": lab.tolist(), "names": n
                                   vol.labels)
     assert got["names"] == [e["name"] for e in vol.label_table]
     assert got["values"] == [e["value"] for e in vol.label_table]
+
+
+def test_fractions_in_h5_and_npz(tmp_path):
+    h5py = pytest.importorskip("h5py")
+    v = geovox.voxelize(assembly(), shape=(12, 9, 8), labels="part", fractions=True,
+                        supersample=2)
+    formats.write(v, tmp_path / "f.h5")
+    formats.write(v, tmp_path / "f.npz")
+    with h5py.File(tmp_path / "f.h5") as f:
+        np.testing.assert_array_equal(f["fractions"][...], v.fractions)
+    with np.load(tmp_path / "f.npz") as z:
+        np.testing.assert_array_equal(z["fractions"], v.fractions)

@@ -98,6 +98,13 @@ class HDF5Writer(SlabWriter):
             # VTK's (z, y, x) order is the arrays' memory order (x fastest).
             src = arr.transpose((2, 1, 0) + tuple(range(3, arr.ndim)))
             write_both(src, self.vtk[name], dset, z0=z0, jobs=self.jobs)
+        if getattr(vol, "fractions", None) is not None:
+            # Labelled volumes are written whole (never slab by slab): one dataset.
+            d = self.f.create_dataset("fractions", data=vol.fractions, compression="gzip",
+                                      compression_opts=1)
+            d.attrs["axis_order"] = "xyzl"
+            d.attrs["values"] = ("fraction of the voxel per label (index k: label k + 1), "
+                                 + ("x 255" if vol.fractions.dtype == np.uint8 else "0 to 1"))
 
     def _finish(self) -> list:
         meta = self.meta

@@ -77,6 +77,8 @@ def write_npz(volume, path, pack_bits: bool = False) -> list:
 
     for name, arr, _, _ in scalar_fields(volume):
         arrays[name] = arr
+    if getattr(volume, "fractions", None) is not None:
+        arrays["fractions"] = volume.fractions
     if getattr(volume, "label_table", None):
         from . import label_table_json
 
