@@ -591,6 +591,9 @@ def _info(args) -> int:
     cost = grid_cost(mesh, bounds=args.bounds, resolution=args.resolution, shape=args.shape,
                      voxel_size=args.voxel_size)
     print(format_report(mesh_report(mesh), cost))
+    from .labels import parts_report
+
+    print(parts_report(mesh))
     return EXIT_OK
 
 

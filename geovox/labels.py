@@ -239,7 +239,7 @@ def scene(sources) -> Mesh:
             vcs.append(m.vertex_colors if m.vertex_colors is not None else
                        np.ones((len(m.vertices), 3)))
     out = Mesh(vertices=np.concatenate(verts), faces=np.concatenate(faces),
-               source=" + ".join(m.source for m in meshes),
+               source=" + ".join(os.path.basename(str(m.source)) for m in meshes),
                face_material=np.concatenate(fm).astype(np.int64), materials=mats,
                corner_uv=np.concatenate(uvs) if any_uv else None,
                vertex_colors=np.concatenate(vcs) if any_vc else None,
@@ -531,3 +531,45 @@ def label_fractions(mesh: Mesh, grid, lset: LabelSet, *, engine, axis: int, star
         out[..., k] = cov if prev is None else np.maximum(cov - prev, 0)
         prev = cov
     return out
+
+
+def label_colours(labels: np.ndarray, table: list) -> np.ndarray:
+    """(nx, ny, nz, 4) uint8: each voxel in its label's table colour (alpha 0 outside)."""
+    n = max(int(e["value"]) for e in table) + 1
+    lut = np.zeros((n, 4), dtype=np.uint8)
+    for e in table:
+        lut[int(e["value"])] = e["color"]
+    lut[0] = 0
+    return lut[labels]
+
+
+def parts_report(mesh: Mesh, sources=("part", "component", "material"), most: int = 12) -> str:
+    """What each label source would give ``mesh``: per label its name, triangles,
+    whether it is closed, and its materials (the first ``most`` labels of each)."""
+    import warnings
+
+    from .inside import boundary_edges
+
+    lines = []
+    for source in sources:
+        if source == "part" and mesh.face_part is None:
+            lines.append("labels part: the file names no parts (falls back to component)")
+            continue
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            lset = label_set(mesh, source)
+        lines.append(f"labels {source}: {len(lset.names):,}")
+        for k, name in enumerate(lset.names[:most]):
+            faces = np.flatnonzero(lset.face_label == k)
+            part = part_mesh(mesh, faces, name)
+            closed = "closed" if len(boundary_edges(part)) == 0 else "open"
+            mats = ""
+            if source != "material" and mesh.face_material is not None and mesh.materials:
+                used = np.unique(mesh.face_material[faces])
+                names = [mesh.materials[i].name for i in used if i >= 0]
+                mats = f", materials {', '.join(names[:4])}{', ...' if len(names) > 4 else ''}" \
+                    if names else ""
+            lines.append(f"  {k + 1:>5}  {name}: {len(faces):,} triangles, {closed}{mats}")
+        if len(lset.names) > most:
+            lines.append(f"  ... and {len(lset.names) - most:,} more")
+    return "\n".join(lines)

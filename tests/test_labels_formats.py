@@ -144,3 +144,89 @@ def test_fractions_in_h5_and_npz(tmp_path):
         np.testing.assert_array_equal(f["fractions"][...], v.fractions)
     with np.load(tmp_path / "f.npz") as z:
         np.testing.assert_array_equal(z["fractions"], v.fractions)
+
+
+def test_preview_draws_labels_in_their_colours_with_a_legend(vol, tmp_path):
+    from PIL import Image
+
+    from geovox.preview import write_preview
+
+    p = write_preview(vol, tmp_path / "p.png")
+    with Image.open(p) as im:
+        img = np.asarray(im.convert("RGB")).reshape(-1, 3)
+        height = im.height
+    colours = {tuple(c) for c in np.unique(img, axis=0)}
+    for e in vol.label_table[1:]:
+        assert tuple(e["color"][:3]) in colours  # in the slices and the legend's swatches
+    plain = geovox.voxelize(assembly(), shape=vol.shape)
+    q = write_preview(plain, tmp_path / "q.png")
+    with Image.open(q) as im:
+        assert im.height < height  # the legend's row
+
+
+def test_info_lists_the_parts_each_source_gives(capsys, tmp_path):
+    from geovox.cli import main
+
+    from conftest import corpus
+
+    assert main(["info", corpus("cornell_box", "cornell_box.obj"), "-r", "8"]) == 0
+    out = capsys.readouterr().out
+    assert "labels part: 8" in out and "tall_block: 10 triangles, open, materials white" in out
+    assert "labels component: 4" in out and "component 2: 12 triangles, closed" in out
+    assert "labels material: 5" in out and "red: 2 triangles" in out
+
+
+def test_cli_scene_of_files_into_a_segmentation(tmp_path, capsys):
+    import trimesh
+
+    from geovox.cli import main
+
+    a, b = tmp_path / "liver.stl", tmp_path / "tumour.stl"
+    trimesh.creation.box(extents=(1, 1, 1)).export(a)
+    trimesh.creation.icosphere(radius=0.2).export(b)
+    out = tmp_path / "scene.seg.nrrd"
+    assert main(["convert", str(a), str(b), "--labels", "file", "--overlap", "smallest",
+                 "-r", "20", "-o", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "labels file: 2 (liver, tumour)" in text and "contested voxels" in text
+    back = formats.read(out)
+    assert [e["name"] for e in back.label_table[1:]] == ["liver", "tumour"]
+    assert (back.labels == 2).sum() > 0 and (back.labels == 1).sum() > 0
+    # Without --labels, several inputs are still a batch into a folder.
+    folder = tmp_path / "batch"
+    folder.mkdir()
+    assert main(["convert", str(a), str(b), "-r", "8", "-o", str(folder) + "/", "-q"]) == 0
+    assert len(list(folder.glob("*.raw"))) == 2
+
+
+@pytest.mark.parametrize("argv, match", [
+    (["--fractions"], "--fractions needs --labels"),
+    (["--labels", "colour"], "invalid choice"),
+    (["--labels", "part", "--overlap", "big"], "invalid choice"),
+])
+def test_cli_bad_label_options(tmp_path, capsys, argv, match):
+    import trimesh
+
+    from geovox.cli import main
+
+    a = tmp_path / "a.stl"
+    trimesh.creation.box().export(a)
+    assert main(["convert", str(a), "-o", str(tmp_path / "x.npz")] + argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and match in err[0]
+    assert not (tmp_path / "x.npz").exists()
+
+
+def test_cli_scene_names_the_file_that_is_not_a_mesh(tmp_path, capsys):
+    import trimesh
+
+    from geovox.cli import main
+
+    a = tmp_path / "a.stl"
+    trimesh.creation.box().export(a)
+    bad = tmp_path / "notes.stl"
+    bad.write_text("hello")
+    assert main(["convert", str(a), str(bad), "--labels", "file", "-o",
+                 str(tmp_path / "s.seg.nrrd")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "notes.stl" in err[0]
