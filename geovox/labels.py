@@ -251,12 +251,23 @@ def scene(sources) -> Mesh:
 
 
 def part_mesh(mesh: Mesh, faces: np.ndarray, name: str) -> Mesh:
-    """The sub-mesh of ``mesh`` made of the faces ``faces`` (indices), sharing its vertices."""
+    """The sub-mesh of ``mesh`` made of the faces ``faces`` (indices), with its own vertices.
+
+    Its vertices are the ones its faces use, so the per-part checks cost the
+    part's size, not the whole mesh's; its merge by position is the whole
+    mesh's, renumbered in the same (lexicographic) order.
+    """
+    f = mesh.faces[faces]
+    used, inverse = np.unique(f, return_inverse=True)
     fm = None if mesh.face_material is None else mesh.face_material[faces]
     uv = None if mesh.corner_uv is None else mesh.corner_uv[faces]
-    return Mesh(vertices=mesh.vertices, faces=mesh.faces[faces], source=f"{mesh.source} [{name}]",
-                face_material=fm, materials=mesh.materials, corner_uv=uv,
-                vertex_colors=mesh.vertex_colors)
+    vc = None if mesh.vertex_colors is None else mesh.vertex_colors[used]
+    part = Mesh(vertices=mesh.vertices[used], faces=inverse.reshape(f.shape).astype(np.int64),
+                source=f"{mesh.source} [{name}]", face_material=fm, materials=mesh.materials,
+                corner_uv=uv, vertex_colors=vc)
+    _, merged = np.unique(mesh.geometric_faces[faces], return_inverse=True)
+    part._cache["geometric_faces"] = merged.reshape(f.shape).astype(np.int64)
+    return part
 
 
 def enclosed_volume(mesh: Mesh) -> float:
@@ -367,6 +378,9 @@ def classify(mesh: Mesh, grid, lset: LabelSet, *, cast_mesh, axis: int, jobs: in
     by_face = np.argsort(lset.face_label, kind="stable")
     cuts = np.searchsorted(lset.face_label[by_face], np.arange(n + 1))
     parts, methods = [], []
+    comp = label_set(mesh, "component").face_label if lset.source != "component" else \
+        lset.face_label
+    comp_size = np.bincount(comp)
     for k in range(n):
         faces = by_face[cuts[k]:cuts[k + 1]]
         part = part_mesh(mesh, faces, lset.names[k]) if len(faces) else None
@@ -374,6 +388,12 @@ def classify(mesh: Mesh, grid, lset: LabelSet, *, cast_mesh, axis: int, jobs: in
         if part is None:
             methods.append("parity")
             continue
+        c = comp[faces]
+        if c.min() == c.max() and comp_size[c[0]] == len(faces) and \
+                not inside_tests._non_manifold(part):
+            # The part is one whole connected component of the mesh (known from
+            # one search over it): a single piece, whose boxes cannot overlap.
+            part._cache["overlap"] = False
         with warnings.catch_warnings():
             # A part's repair is its own business; the whole mesh's is said once.
             warnings.simplefilter("ignore")
@@ -410,7 +430,7 @@ def classify(mesh: Mesh, grid, lset: LabelSet, *, cast_mesh, axis: int, jobs: in
                 multi = np.zeros(grid.shape, dtype=bool, order="F")
             multi[box] |= both
         s |= occ
-        labels[box][occ] = k + 1
+        np.copyto(labels[box], lset.dtype.type(k + 1), where=occ)  # faster than a mask index
     contested = 0 if multi is None else int(np.count_nonzero(multi))
     return Classified(labels=labels, contested=contested, methods=methods,
                       crossings=(hits, columns))
@@ -437,7 +457,12 @@ def table(lset: LabelSet, labels: np.ndarray, spacing, counts=None) -> list:
 
 def label_counts(labels: np.ndarray, n: int) -> np.ndarray:
     """(n + 1,) int64: voxels per label value."""
-    return np.bincount(labels.ravel(order="K"), minlength=n + 1)[:n + 1].astype(np.int64)
+    flat = labels.ravel(order="K")
+    counts = np.zeros(n + 1, dtype=np.int64)
+    # In pieces: bincount widens its input to intp, a grid-sized copy at once.
+    for s in range(0, len(flat), 1 << 20):
+        counts += np.bincount(flat[s:s + (1 << 20)], minlength=n + 1)[:n + 1]
+    return counts
 
 
 def material_labels(mesh: Mesh, grid, occupancy: np.ndarray, lset: LabelSet, *, frame,
