@@ -509,6 +509,10 @@ def _convert(args) -> int:
     output = _output_path(args, args.input, grid.shape)
     fmt = formats.format_for(output, args.fmt)
     write_options = _write_options(args, fmt)  # a bad combination fails before any work
+    if args.labels and fmt.name not in formats.LABEL_FORMATS:
+        from .volume import Volume
+
+        formats.check_labels(Volume(occupancy=None, grid=grid, backend="", labels=True), fmt)
     if (args.scheduler or args.scheduler_file or args.local_cluster) and fmt.name != "zarr":
         from .errors import ParameterError
 

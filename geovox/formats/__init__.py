@@ -293,7 +293,21 @@ def write(volume, path, fmt=None, **options) -> list:
         or the disk filled up (nothing is left behind).
     """
     check_writable(path)
-    return format_for(path, fmt).writer(volume, path, **options)
+    f = format_for(path, fmt)
+    check_labels(volume, f)
+    return f.writer(volume, path, **options)
+
+
+#: The formats that hold a label volume (and its table).
+LABEL_FORMATS = ("seg_nrrd", "nrrd", "hdf5", "vtkhdf", "npz", "raw")
+
+
+def check_labels(volume, f) -> None:
+    """ParameterError where ``volume`` has labels and format ``f`` would drop them."""
+    if getattr(volume, "labels", None) is not None and f.name not in LABEL_FORMATS:
+        raise ParameterError(
+            f"{f.name} output does not hold labels; write them to .seg.nrrd (3D Slicer), .nrrd, "
+            f".h5, .vtkhdf, .npz or .raw")
 
 
 from . import binvox, hdf5, nrrd, numpy_files, raw, seg_nrrd, vdb, vox, vtkhdf  # noqa: E402
