@@ -230,3 +230,25 @@ def test_cli_scene_names_the_file_that_is_not_a_mesh(tmp_path, capsys):
                  str(tmp_path / "s.seg.nrrd")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "notes.stl" in err[0]
+
+
+@pytest.mark.parametrize("ext", ["zarr", "binvox", "npy"])
+def test_formats_without_labels_refuse_them(vol, tmp_path, ext):
+    with pytest.raises(ParameterError, match="does not hold labels"):
+        formats.write(vol, tmp_path / f"x.{ext}")
+    assert not list(tmp_path.iterdir())
+
+
+def test_vox_one_palette_entry_per_label(vol, tmp_path):
+    from geovox.formats.vox import decode
+
+    p = tmp_path / "scene.vox"
+    formats.write(vol, p)
+    models, transforms, palette = decode(p.read_bytes())
+    assert len(models) == 1  # a grid under 256 on every axis is one model
+    size, xyzi = models[0]
+    for e in vol.label_table[1:]:
+        assert tuple(palette[e["value"] - 1][:3]) == tuple(e["color"][:3])
+    got = np.zeros(vol.shape, np.uint8)
+    got[xyzi[:, 0], xyzi[:, 1], xyzi[:, 2]] = xyzi[:, 3]
+    np.testing.assert_array_equal(got, vol.labels)
