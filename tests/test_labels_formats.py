@@ -232,7 +232,7 @@ def test_cli_scene_names_the_file_that_is_not_a_mesh(tmp_path, capsys):
     assert len(err) == 1 and "notes.stl" in err[0]
 
 
-@pytest.mark.parametrize("ext", ["zarr", "binvox", "npy"])
+@pytest.mark.parametrize("ext", ["vdb", "binvox", "npy"])
 def test_formats_without_labels_refuse_them(vol, tmp_path, ext):
     with pytest.raises(ParameterError, match="does not hold labels"):
         formats.write(vol, tmp_path / f"x.{ext}")
@@ -252,3 +252,31 @@ def test_vox_one_palette_entry_per_label(vol, tmp_path):
     got = np.zeros(vol.shape, np.uint8)
     got[xyzi[:, 0], xyzi[:, 1], xyzi[:, 2]] = xyzi[:, 3]
     np.testing.assert_array_equal(got, vol.labels)
+
+
+def test_zarr_ome_labels_group(vol, tmp_path):
+    zarr = pytest.importorskip("zarr")
+    models = pytest.importorskip("ome_zarr_models.v05")
+    p = tmp_path / "scene.zarr"
+    formats.write(vol, p)
+    root = zarr.open_group(str(p), mode="r")
+    assert root["labels"].attrs["ome"]["labels"] == ["labels"]
+    g = root["labels/labels"]
+    np.testing.assert_array_equal(g["0"][...].transpose(2, 1, 0), vol.labels)
+    meta = g.attrs["ome"]["image-label"]
+    assert meta["source"] == {"image": "../../"}
+    assert [c["rgba"] for c in meta["colors"]] == [e["color"] for e in vol.label_table[1:]]
+    assert [q["name"] for q in meta["properties"]] == [e["name"] for e in vol.label_table[1:]]
+    # Validated by ome-zarr-models: the image and its label image.
+    from ome_zarr_models.v05.image import Image
+    from ome_zarr_models.v05.image_label import ImageLabel
+
+    Image.from_zarr(root)
+    ImageLabel.from_zarr(g)
+    # Coarser levels keep labels (the largest child).
+    from geovox.formats.zarr import downsample
+
+    a = np.zeros((4, 4, 4), np.uint8)
+    a[0, 0, 1], a[3, 3, 3], a[2, 2, 2] = 2, 5, 7
+    np.testing.assert_array_equal(downsample(a, "labels"),
+                                  [[[2, 0], [0, 0]], [[0, 0], [0, 7]]])

@@ -299,7 +299,7 @@ def write(volume, path, fmt=None, **options) -> list:
 
 
 #: The formats that hold a label volume (and its table).
-LABEL_FORMATS = ("seg_nrrd", "nrrd", "hdf5", "vtkhdf", "npz", "raw", "vox")
+LABEL_FORMATS = ("seg_nrrd", "nrrd", "hdf5", "vtkhdf", "npz", "raw", "vox", "zarr")
 
 
 def check_labels(volume, f) -> None:
@@ -307,7 +307,7 @@ def check_labels(volume, f) -> None:
     if getattr(volume, "labels", None) is not None and f.name not in LABEL_FORMATS:
         raise ParameterError(
             f"{f.name} output does not hold labels; write them to .seg.nrrd (3D Slicer), .nrrd, "
-            f".h5, .vtkhdf, .npz, .raw or .vox")
+            f".h5, .vtkhdf, .npz, .raw, .vox or .zarr")
 
 
 from . import binvox, hdf5, nrrd, numpy_files, raw, seg_nrrd, vdb, vox, vtkhdf  # noqa: E402
