@@ -598,3 +598,38 @@ def parts_report(mesh: Mesh, sources=("part", "component", "material"), most: in
         if len(lset.names) > most:
             lines.append(f"  ... and {len(lset.names) - most:,} more")
     return "\n".join(lines)
+
+
+def resolve(mesh: Mesh, labels, overlap="last", fractions=False):
+    """The LabelSet for ``labels`` (a source, a LabelSet, or None), options checked."""
+    if labels is None:
+        check(None, overlap, fractions)
+        return None
+    check(labels if isinstance(labels, str) else labels.source, overlap, fractions)
+    return labels if isinstance(labels, LabelSet) else label_set(mesh, labels)
+
+
+def label_results(mesh: Mesh, grid, occupancy, lset: LabelSet, classified, *, engine, axis,
+                  jobs, overlap, fractions, density_dtype, supersample, frame, start, timings,
+                  step) -> dict:
+    """A block's label fields for its Volume: ``labels``, ``label_table``, ``contested``,
+    ``fractions`` (material labels and fractions are made here, timed into ``timings``)."""
+    import time
+
+    if classified is not None:
+        lab = classified.labels
+    else:
+        t = time.perf_counter()
+        step("labels")
+        lab = material_labels(mesh, grid, occupancy, lset, jobs=jobs, frame=frame)
+        timings["labels"] = time.perf_counter() - t
+    fracs = None
+    if fractions:
+        step("fractions")
+        t = time.perf_counter()
+        fracs = label_fractions(mesh, grid, lset, engine=engine, axis=axis, start=start,
+                                supersample=supersample, jobs=jobs, overlap=overlap,
+                                dtype=density_dtype)
+        timings["fractions"] = time.perf_counter() - t
+    return {"labels": lab, "label_table": table(lset, lab, grid.spacing),
+            "contested": 0 if classified is None else classified.contested, "fractions": fracs}

@@ -351,12 +351,9 @@ def voxelize_block(
 
     from . import inside as inside_tests
 
-    lset = None
-    if labels is not None:
-        from . import labels as label_mod
+    from . import labels as label_mod
 
-        label_mod.check(labels if isinstance(labels, str) else labels.source, overlap, fractions)
-        lset = labels if isinstance(labels, label_mod.LabelSet) else label_mod.label_set(m, labels)
+    lset = label_mod.resolve(m, labels, overlap, fractions)
     by_parts = lset is not None and lset.source != "material"
     method = None if by_parts else inside_tests.choose(m, inside)
 
@@ -451,33 +448,17 @@ def voxelize_block(
         t = time.perf_counter()
         dist = signed_distance(m, grid, occ, band=band, jobs=jobs)
         timings["sdf"] = time.perf_counter() - t
-    lab = table = None
+    extra = {}
     if lset is not None:
-        if by_parts:
-            lab = classified.labels
-        else:
-            t = time.perf_counter()
-            step("labels")
-            lab = label_mod.material_labels(
-                m, grid, occ, lset, jobs=jobs,
-                frame=(whole.lo, whole.spacing, 0 if block is None else block[0]))
-            timings["labels"] = time.perf_counter() - t
-        table = label_mod.table(lset, lab, grid.spacing)
-    fracs = None
-    if fractions:
-        step("fractions")
-        t = time.perf_counter()
-        fracs = label_mod.label_fractions(
-            m, grid, lset, engine=engine, axis=axis, start=ray_start(m, grid, axis),
+        extra = label_mod.label_results(
+            m, grid, occ, lset, classified if by_parts else None, engine=engine, axis=axis,
+            jobs=jobs, overlap=overlap, fractions=fractions, density_dtype=density_dtype,
             supersample=supersample if density is not None else
             _check_options("coverage", density_dtype, supersample, False, band)[0],
-            jobs=jobs, overlap=overlap, dtype=density_dtype)
-        timings["fractions"] = time.perf_counter() - t
+            frame=(whole.lo, whole.spacing, 0 if block is None else block[0]),
+            start=ray_start(m, grid, axis), timings=timings, step=step)
     return Volume(
-        labels=lab,
-        label_table=table,
-        contested=classified.contested if by_parts else 0,
-        fractions=fracs,
+        **extra,
         occupancy=occ,
         grid=grid,
         backend=engine.name,

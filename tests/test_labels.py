@@ -346,3 +346,15 @@ def test_fractions_sum_to_the_union_and_match_coverage(overlap):
     u8 = geovox.voxelize(m, labels="part", fractions=True, overlap=overlap, **kw)
     assert u8.fractions.dtype == np.uint8
     assert int(u8.fractions.astype(int).sum(axis=3).max()) <= 255
+
+
+def test_convert_to_with_labels_writes_them(tmp_path):
+    from geovox import formats
+
+    out = geovox.convert_to(assembly(), tmp_path / "a.h5", resolution=16, labels="part",
+                            overlap="first")
+    ref = geovox.voxelize(assembly(), resolution=16, labels="part", overlap="first")
+    assert out["labels"] == 4 and out["contested"] == ref.contested
+    np.testing.assert_array_equal(formats.read(tmp_path / "a.h5").labels, ref.labels)
+    with pytest.raises(ParameterError, match="does not hold labels"):
+        geovox.convert_to(assembly(), tmp_path / "a.binvox", resolution=8, labels="part")
