@@ -358,3 +358,21 @@ def test_convert_to_with_labels_writes_them(tmp_path):
     np.testing.assert_array_equal(formats.read(tmp_path / "a.h5").labels, ref.labels)
     with pytest.raises(ParameterError, match="does not hold labels"):
         geovox.convert_to(assembly(), tmp_path / "a.binvox", resolution=8, labels="part")
+
+
+def test_scene_nodes_are_parts_a_mesh_used_twice_is_two(tmp_path):
+    box = trimesh.creation.box(extents=(1, 1, 1))
+    scene = trimesh.Scene()
+    scene.add_geometry(box, node_name="left", geom_name="cube")
+    scene.add_geometry(box, node_name="right", geom_name="cube",
+                       transform=trimesh.transformations.translation_matrix((2, 0, 0)))
+    path = tmp_path / "two.glb"
+    scene.export(path)
+    m = load_mesh(str(path))
+    # Named after node and mesh (trimesh's order of the scene's nodes).
+    assert sorted(p.split(" ")[0] for p in m.parts) == ["left", "right"]
+    assert all("(cube" in p for p in m.parts)
+    v = geovox.voxelize(str(path), shape=(30, 10, 10), labels="part")
+    name = {e["value"]: e["name"].split(" ")[0] for e in v.label_table}
+    assert {name[int(x)] for x in np.unique(v.labels[:10])} == {"left"}
+    assert {name[int(x)] for x in np.unique(v.labels[-10:])} == {"right"}
