@@ -214,6 +214,15 @@ def _grid_options(c):
                    help="with --sdf: half-width of the exact band, in voxels (default 3)")
     c.add_argument("-j", "--jobs", type=int, default=None, metavar="N",
                    help="threads to use (default: one per core); the result does not depend on it")
+    c.add_argument("--labels", default=None, choices=["part", "component", "material", "file"],
+                   help="also label each voxel: the model's parts (OBJ objects or groups, scene "
+                        "nodes), connected components, the nearest surface's material, or the "
+                        "input file (several inputs: one scene on one grid)")
+    c.add_argument("--overlap", default="last", choices=["last", "first", "smallest"],
+                   help="with --labels: which part a voxel inside several takes (default: the "
+                        "last in file order)")
+    c.add_argument("--fractions", action="store_true",
+                   help="with --labels: each label's coverage fraction per voxel")
 
 
 def _like_options(c):
@@ -261,7 +270,9 @@ def _options(args) -> dict:
                 density_dtype="float32" if args.density_float else "uint8",
                 sdf=args.sdf, band=args.band,
                 **{k: getattr(args, k) for k in ("like", "mesh_space")
-                   if getattr(args, k, None) is not None})
+                   if getattr(args, k, None) is not None},
+                **({"labels": args.labels, "overlap": args.overlap, "fractions": args.fractions}
+                   if getattr(args, "labels", None) else {}))
 
 
 def _voxelize(args, path):
@@ -500,7 +511,12 @@ def _convert_to_url(args) -> int:
 def _convert(args) -> int:
     from . import formats
 
-    if (len(args.input) > 1 or os.path.isdir(args.input[0]) or args.manifest or args.shard
+    if args.fractions and not args.labels:
+        from .errors import ParameterError
+
+        raise ParameterError("--fractions needs --labels (part, component, material or file)")
+    scene = args.labels is not None and len(args.input) > 1
+    if not scene and (len(args.input) > 1 or os.path.isdir(args.input[0]) or args.manifest or args.shard
             or ((args.scheduler or args.scheduler_file or args.local_cluster)
                 and (args.output is None or args.output.endswith(("/", os.sep))
                      or (os.path.isdir(args.output)
@@ -509,7 +525,7 @@ def _convert(args) -> int:
         return _batch(args)  # many models, or one sent as a batch of one to a cluster
     if "://" in (args.output or ""):
         return _convert_to_url(args)
-    args.input = args.input[0]
+    inputs, args.input = args.input, args.input[0]
     t0 = time.perf_counter()
     default_out = args.output is None or args.output.endswith(("/", os.sep)) or (
         os.path.isdir(args.output) and not args.output.lower().endswith(".zarr"))
@@ -524,7 +540,13 @@ def _convert(args) -> int:
     from .mesh import load_mesh
     from .stream import streams
 
-    mesh = load_mesh(args.input)
+    if scene:
+        from .labels import scene as make_scene
+
+        mesh = make_scene(inputs)  # several files, one grid: --labels file names them
+        args.input = "scene"
+    else:
+        mesh = load_mesh(args.input)
     t_read = time.perf_counter() - t0
     if args.like is not None:
         from .reference import load_reference, reject_grid_options
@@ -543,6 +565,10 @@ def _convert(args) -> int:
     fmt = formats.format_for(output, args.fmt)
     formats.check_frame(fmt, grid)
     write_options = _write_options(args, fmt)  # a bad combination fails before any work
+    if args.labels and fmt.name not in formats.LABEL_FORMATS:
+        from .volume import Volume
+
+        formats.check_labels(Volume(occupancy=None, grid=grid, backend="", labels=True), fmt)
     if (args.scheduler or args.scheduler_file or args.local_cluster) and fmt.name != "zarr":
         from .errors import ParameterError
 
@@ -550,7 +576,7 @@ def _convert(args) -> int:
                              f"give -o a folder to send models to it as tasks")
     if fmt.check is not None:
         fmt.check(grid)  # e.g. binvox needs cubic voxels
-    if streams(grid, fmt.name, args.color, args.density, args.sdf):
+    if not args.labels and streams(grid, fmt.name, args.color, args.density, args.sdf):
         return _convert_streaming(args, mesh, output, t0, t_read)
     vol = _voxelize(args, mesh)
     t1 = time.perf_counter()
@@ -585,6 +611,11 @@ def _convert(args) -> int:
         if vol.mesh_space is not None:
             print(_reference_line(vol.grid.reference, vol.mesh_space))
         print(f"inside {inside:,} of {nx * ny * nz:,} voxels ({100.0 * inside / (nx * ny * nz):.2f}%)")
+        if vol.label_table is not None:
+            print(f"labels {args.labels}: {len(vol.label_table) - 1:,} "
+                  f"({', '.join(e['name'] for e in vol.label_table[1:][:6])}"
+                  f"{', ...' if len(vol.label_table) > 7 else ''}), "
+                  f"{vol.contested:,} contested voxels (overlap rule {args.overlap})")
         extra = "".join(f", {k} {t[k]:.2f}" for k in ("colour", "density", "sdf") if k in t)
         print(f"time {t2 - t0:.2f} s (load {t_read + t['load']:.2f}, rays {t['rays']:.2f}, "
               f"fill {t['fill']:.2f}{extra}, write {t2 - t1:.2f})")
@@ -672,6 +703,9 @@ def _info(args) -> int:
     cost = grid_cost(mesh, bounds=args.bounds, resolution=args.resolution, shape=args.shape,
                      voxel_size=args.voxel_size, fit=args.fit or "box")
     print(format_report(mesh_report(mesh), cost))
+    from .labels import parts_report
+
+    print(parts_report(mesh))
     return EXIT_OK
 
 

@@ -745,8 +745,11 @@ def from_trimesh(obj, source: str = "<trimesh>", *, _gltf=None) -> Mesh:
         if not parts:
             raise MeshError(_no_faces(source, every))
         originals = [obj.geometry.get(g.metadata.get("name")) for g in parts]
+        # A scene's nodes are its parts (labels="part"): named after node and
+        # mesh, so a mesh two nodes use gives two parts.
+        part_names = [_part_name(g, k) for k, g in enumerate(parts)]
     elif isinstance(obj, trimesh.Trimesh):
-        parts, originals = [obj], [obj]
+        parts, originals, part_names = [obj], [obj], None
     elif isinstance(obj, trimesh.parent.Geometry):
         raise MeshError(_no_faces(source, [obj]))
     else:
@@ -784,10 +787,21 @@ def from_trimesh(obj, source: str = "<trimesh>", *, _gltf=None) -> Mesh:
         materials=materials,
         corner_uv=np.concatenate(uvs) if have_uv else None,
         vertex_colors=vertex_colors,
+        face_part=None if part_names is None else
+        np.repeat(np.arange(len(faces), dtype=np.int64), [len(f) for f in faces]),
+        parts=part_names or [],
     )
     if _gltf is not None:
         mesh.problems.extend(f"{source}: {p}" for p in _gltf["problems"])
     return mesh
+
+
+def _part_name(g, k: int) -> str:
+    """A scene geometry's part name: ``node (mesh)``, or whichever of them it has."""
+    node, name = g.metadata.get("node"), g.metadata.get("name")
+    if node and name and node != name:
+        return f"{node} ({name})"
+    return str(node or name or f"part {k + 1}")
 
 
 def _trimesh_load(path: str) -> Mesh:

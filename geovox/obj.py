@@ -257,13 +257,14 @@ def read_mtl(path: str, problems: list) -> dict:
 # words every error. Both paths give the same numbers: the fast one reads a
 # number only where the result is exactly what Python's float() gives.
 
-_IGN, _V, _VT, _F, _SLOW, _USEMTL, _MTLLIB, _LINE = range(8)
+_IGN, _V, _VT, _F, _SLOW, _USEMTL, _MTLLIB, _LINE, _OBJECT, _GROUP = range(10)
 
 # First bytes after which the statement keyword is not certain from bytes:
 # whitespace that str.split() knows but the fast path does not (\x1f and
 # everything non-ASCII), and the keywords read one line at a time.
 _UNSURE_FIRST = np.zeros(256, dtype=bool)
-_UNSURE_FIRST[[ord(" "), ord("\t"), 0x1F, ord("u"), ord("m")]] = True
+# "o" and "g" too: objects and groups name the parts (labels="part").
+_UNSURE_FIRST[[ord(" "), ord("\t"), 0x1F, ord("u"), ord("m"), ord("o"), ord("g")]] = True
 _UNSURE_FIRST[0x80:] = True
 _UNSURE_AFTER = np.zeros(256, dtype=bool)
 _UNSURE_AFTER[[ord("\n"), 0x1F]] = True
@@ -410,6 +411,8 @@ def _statement(line: str) -> tuple:
         return _MTLLIB, _rest(line, "mtllib")
     if key == "l":
         return _LINE, None
+    if key in ("o", "g"):
+        return (_OBJECT if key == "o" else _GROUP), _rest(line, key)
     return _IGN, None
 
 
@@ -891,7 +894,7 @@ def _parse(text: bytes):
     plain(_distinct(np.concatenate([redo_v, redo_vt, redo_f])))
     # Merge what the plain reading found.
     extra_line, extra_v, extra_t = [], [], []
-    usemtl, libs = [], []
+    usemtl, libs, named = [], [], {_OBJECT: [], _GROUP: []}
     for i, k, payload in sorted(records, key=lambda r: r[0]):
         if k == _V:
             row = int(np.searchsorted(v_lines, i))
@@ -912,6 +915,8 @@ def _parse(text: bytes):
             usemtl.append((i, payload))
         elif k == _MTLLIB:
             libs.append(payload)
+        elif k in named:
+            named[k].append((i, payload))
     if extra_line:
         corner_line = np.concatenate([corner_line, np.asarray(extra_line, dtype=np.int64)])
         cv = np.concatenate([cv, np.asarray(extra_v, dtype=np.int64)])
@@ -920,6 +925,7 @@ def _parse(text: bytes):
         corner_line, cv, ct = corner_line[by_line], cv[by_line], ct[by_line]
     return dict(starts=starts, kind=kind, vertices=vertices, colours=colours, uvs=uvs,
                 corner_line=corner_line, cv=cv, ct=ct, usemtl=usemtl, libs=libs, errors=errors,
+                objects=named[_OBJECT], groups=named[_GROUP],
                 n_polylines=n_polylines)
 
 
@@ -1063,6 +1069,7 @@ def read_obj(path: str) -> Mesh:
         face_material = np.where(use >= 0, np.asarray(mat_of_use)[np.maximum(use, 0)], -1)
     else:
         face_material = np.full(len(tri), -1, dtype=np.int64)
+    face_part, parts = _face_parts(p["objects"] or p["groups"], tri_line)
     folder = os.path.dirname(os.path.abspath(path))
     materials = _materials(p["libs"], names, folder, path, problems)
 
@@ -1113,7 +1120,30 @@ def read_obj(path: str) -> Mesh:
         corner_uv=corner_uv,
         vertex_colors=colours,
         problems=problems,
+        face_part=face_part,
+        parts=parts,
     )
+
+
+def _face_parts(statements, tri_line) -> tuple:
+    """``(face_part, parts)`` from ``o`` (or ``g``) statements ``(line index, name)``.
+
+    A part is one name: statements repeating a name add to its part. Faces
+    before the first statement form a part of their own, ``"(unnamed)"``.
+    Parts no face falls in are dropped. ``(None, [])`` without statements.
+    """
+    if not statements:
+        return None, []
+    lines = np.asarray([i for i, _ in statements], dtype=np.int64)
+    index: dict = {}
+    of_statement = np.asarray([index.setdefault(name or "(unnamed)", len(index))
+                               for _, name in statements], dtype=np.int64)
+    use = np.searchsorted(lines, tri_line, side="right") - 1
+    raw = np.where(use >= 0, of_statement[np.maximum(use, 0)], len(index))
+    names = list(index) + ["(unnamed)"]
+    used, face_part = np.unique(raw, return_inverse=True)
+    # np.unique numbers the parts in file order: statement order is index order.
+    return face_part.astype(np.int64).reshape(-1), [names[k] for k in used]
 
 
 def _uv_problem(path, n_faces, line, k, nt) -> str:

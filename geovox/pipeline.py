@@ -45,6 +45,9 @@ def voxelize(
     progress=None,
     like=None,
     mesh_space=None,
+    labels=None,
+    overlap="last",
+    fractions=False,
 ) -> Volume:
     """Turn a closed triangle mesh into a solid voxel volume.
 
@@ -123,6 +126,22 @@ def voxelize(
     mesh_space : {"lps", "ras"}, optional
         With ``like``: the mesh's frame, overriding its file's 3D Slicer
         ``SPACE=`` mark (LPS where there is none).
+    labels : {None, "part", "component", "material", "file"}
+        Also fill ``Volume.labels`` and ``Volume.label_table`` (see
+        :mod:`geovox.labels`): the model's own parts (OBJ objects or groups,
+        scene nodes), its connected components, the material of each
+        voxel's exact nearest surface point, or the file each part came
+        from (``mesh`` a list of files, one scene on one grid). With parts,
+        ``occupancy`` is the union of the parts, each by its own inside test.
+    overlap : {"last", "first", "smallest"}
+        Which part a voxel inside several takes: the later in file order,
+        the earlier, or the one with the smaller enclosed volume.
+    fractions : bool
+        Also fill ``Volume.fractions`` (nx, ny, nz, L): each label's coverage
+        fraction per voxel from ``supersample`` x ``supersample`` rays per
+        column, overlaps settled by ``overlap`` (see
+        :func:`geovox.labels.label_fractions`); uint8 0-255, or float32
+        with ``density_dtype="float32"``. Not with ``labels="material"``.
 
     Returns
     -------
@@ -158,9 +177,18 @@ def voxelize(
     from .parallel import resolve_jobs
 
     jobs = resolve_jobs(jobs)
+    from . import labels as label_mod
+
+    label_mod.check(labels, overlap, fractions)
     (progress or (lambda stage: None))("load")
     engine = get_backend(backend)
-    m = load_mesh(mesh)
+    if isinstance(mesh, (list, tuple)):
+        if labels is None:
+            raise ParameterError("several meshes make one scene only with `labels` (e.g. "
+                                 "labels='file'); convert them one by one otherwise")
+        m = label_mod.scene(mesh)
+    else:
+        m = load_mesh(mesh)
     t_load = time.perf_counter()
     used = None
     if like is not None:
@@ -175,10 +203,12 @@ def voxelize(
                                  "(`like`, --like)")
         grid = make_grid(m.bounds, bounds=bounds, resolution=resolution, shape=shape,
                          voxel_size=voxel_size, fit="box" if fit is None else fit)
+    lset = None if labels is None else label_mod.label_set(m, labels)
     vol = voxelize_block(m, grid, engine=engine, inside=inside, axis=axis, jobs=jobs, color=color,
                          diffuse=diffuse, ambient=ambient, density=density,
                          supersample=supersample, density_dtype=density_dtype, sdf=sdf,
-                         band=band, progress=progress, _stacklevel=3)
+                         band=band, progress=progress, labels=lset, overlap=overlap,
+                         fractions=fractions, _stacklevel=3)
     vol.timings = {"load": t_load - t0, **vol.timings, "total": time.perf_counter() - t0}
     vol.mesh_space = used
     return vol
@@ -265,6 +295,9 @@ def voxelize_block(
     sdf=False,
     band=3.0,
     progress=None,
+    labels=None,
+    overlap="last",
+    fractions=False,
     shared_crossings=None,
     out=None,
     colour_out=None,
@@ -297,6 +330,10 @@ def voxelize_block(
     axis, jobs, color, diffuse, ambient, density, supersample, density_dtype, sdf, band, progress
         As for :func:`voxelize` (``jobs`` already resolved: an int >= 1;
         ``progress`` is not told "load").
+    labels : str or geovox.labels.LabelSet, optional
+        A label source, or the labels :func:`geovox.labels.label_set` made.
+    overlap, fractions
+        As for :func:`voxelize`.
     shared_crossings : dict, optional
         ``axis -> f(block_grid) -> (Hits, Columns)``: the colour step's
         crossings along that axis, cast once for the whole grid by the
@@ -344,7 +381,11 @@ def voxelize_block(
 
     from . import inside as inside_tests
 
-    method = inside_tests.choose(m, inside)
+    from . import labels as label_mod
+
+    lset = label_mod.resolve(m, labels, overlap, fractions)
+    by_parts = lset is not None and lset.source != "material"
+    method = None if by_parts else inside_tests.choose(m, inside)
 
     def cast_mesh(mesh, ax):
         columns = grid.columns(ax, start=ray_start(mesh, grid, ax))
@@ -355,7 +396,14 @@ def voxelize_block(
 
     crossings = {}
     step("rays")
-    if method == "parity":
+    if by_parts:
+        classified = label_mod.classify(m, grid, lset, cast_mesh=cast_mesh, axis=axis, jobs=jobs,
+                                        inside=inside, overlap=overlap)
+        crossings[axis] = classified.crossings
+        t_rays = time.perf_counter()
+        occ = np.asfortranarray(classified.labels != 0)
+        method = "+".join(sorted(set(classified.methods)))
+    elif method == "parity":
         crossings[axis] = cast(axis)
         t_rays = time.perf_counter()
         occ = parity.fill(*crossings[axis], grid, out=out, jobs=jobs)
@@ -430,7 +478,17 @@ def voxelize_block(
         t = time.perf_counter()
         dist = signed_distance(m, grid, occ, band=band, jobs=jobs)
         timings["sdf"] = time.perf_counter() - t
+    extra = {}
+    if lset is not None:
+        extra = label_mod.label_results(
+            m, grid, occ, lset, classified if by_parts else None, engine=engine, axis=axis,
+            jobs=jobs, overlap=overlap, fractions=fractions, density_dtype=density_dtype,
+            supersample=supersample if density is not None else
+            _check_options("coverage", density_dtype, supersample, False, band)[0],
+            frame=(whole.lo, whole.spacing, 0 if block is None else block[0]),
+            start=ray_start(m, grid, axis), timings=timings, step=step)
     return Volume(
+        **extra,
         occupancy=occ,
         grid=grid,
         backend=engine.name,

@@ -104,8 +104,20 @@ def render(volume, panel: int = PANEL):
         font = ImageFont.load_default(size=14)
     except TypeError:  # Pillow < 10.1
         font = ImageFont.load_default()
+    table = getattr(volume, "label_table", None)
+    if getattr(volume, "labels", None) is not None and table:
+        import dataclasses
+
+        from .labels import label_colours
+
+        # Labels are drawn in the table's colours (over any --color), with a legend.
+        volume = dataclasses.replace(volume, colors=label_colours(volume.labels, table),
+                                     density=None)
     extent = np.asarray(volume.bounds[1]) - np.asarray(volume.bounds[0])
     pad, title, footer = 10, 20, 44
+    legend_table = table if getattr(volume, "labels", None) is not None else None
+    legend = _legend_rows(legend_table) if legend_table else []
+    footer += 20 * len(legend)
     width = 3 * panel + 4 * pad
     height = 2 * (panel + title) + 3 * pad + footer
     canvas = Image.new("RGB", (width, height), (12, 12, 14))
@@ -127,10 +139,25 @@ def render(volume, panel: int = PANEL):
     total = nx * ny * nz
     text = (f"grid {nx} x {ny} x {nz}   voxel {dx:.4g} x {dy:.4g} x {dz:.4g}   "
             f"inside {inside:,} ({100.0 * inside / total:.1f}%)"
-            + ("   colour" if volume.colors is not None else ""))
+            + (f"   {len(legend_table) - 1:,} labels" if legend_table
+               else "   colour" if volume.colors is not None else ""))
     draw.text((pad, height - footer + 6), text, fill=(255, 255, 255), font=font)
     draw.text((pad, height - footer + 24), f"{volume.source}", fill=(160, 160, 160), font=font)
+    for r, row in enumerate(legend):
+        x, y = pad, height - footer + 44 + 20 * r
+        for value, name, color in row:
+            draw.rectangle((x, y + 2, x + 12, y + 14), fill=tuple(int(c) for c in color[:3]))
+            draw.text((x + 18, y), f"{value} {name}", fill=(230, 230, 230), font=font)
+            x += 18 + int(draw.textlength(f"{value} {name}", font=font)) + 16
     return canvas
+
+
+def _legend_rows(table, per_row: int = 6, most: int = 30) -> list:
+    """The label legend, ``per_row`` entries a row: ``[(value, name, color)]`` rows."""
+    entries = [(e["value"], str(e["name"])[:24], e["color"]) for e in (table or [])[1:most + 1]]
+    if table and len(table) - 1 > most:
+        entries.append(("", f"... {len(table) - 1 - most:,} more", (12, 12, 14)))
+    return [entries[i:i + per_row] for i in range(0, len(entries), per_row)]
 
 
 def write_preview(volume, path, panel: int = PANEL) -> str:

@@ -285,6 +285,25 @@ def _stream_occupancy(m, grid, engine, writer, jobs, timings, progress) -> int:
     return inside
 
 
+def _labelled_to(mesh, path, f, jobs, t0, options) -> dict:
+    """:func:`convert_to` with labels: made in memory (labels do not stream yet) and written."""
+    from . import formats
+    from .pipeline import voxelize
+
+    if f.name not in formats.LABEL_FORMATS:
+        raise ParameterError(f"{f.name} output does not hold labels; write them to .seg.nrrd, "
+                             f".nrrd, .h5, .vtkhdf, .npz, .raw, .vox or .zarr")
+    formats.check_writable(path)
+    vol = voxelize(mesh, jobs=jobs, **options)
+    files = formats.write(vol, path, fmt=f.name)
+    timings = dict(vol.timings, total=time.perf_counter() - t0)
+    return {"shape": vol.shape, "spacing": vol.spacing, "bounds": vol.bounds,
+            "inside": vol.inside_count, "inside_test": vol.inside, "backend": vol.backend,
+            "slabs": 1, "files": files, "timings": timings, "filled_in_slabs": False,
+            "grid": vol.grid, "source": vol.source, "labels": len(vol.label_table) - 1,
+            "contested": vol.contested}
+
+
 def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, client=None,
                slab=None, **options):
     """Voxelise ``mesh`` into ``path`` slab by slab (HDF5, RAW or OME-Zarr).
@@ -315,7 +334,10 @@ def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, c
     **options
         As for :func:`geovox.voxelize` (resolution, shape, voxel_size, fit,
         bounds, backend, inside, color, diffuse, ambient, density,
-        supersample, density_dtype, sdf, band).
+        supersample, density_dtype, sdf, band, labels, overlap, fractions).
+        With ``labels`` the volume is made in memory (labels do not stream
+        yet) and written to any format that holds labels; the result also
+        gives ``labels`` (how many) and ``contested``.
 
     Returns
     -------
@@ -350,6 +372,8 @@ def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, c
 
     t0 = time.perf_counter()
     f = formats.format_for(path, fmt)
+    if options.get("labels") is not None or options.get("fractions"):
+        return _labelled_to(mesh, path, f, jobs, t0, options)
     if f.name not in STREAMABLE:
         raise ParameterError(f"slab-by-slab output needs .h5, .vtkhdf/.hdf, .raw or .zarr, "
                              f"not {f.name}")

@@ -43,6 +43,18 @@ class Volume:
     mesh_space : (str, str) or None
         On a reference grid (``like=``): the mesh's frame ("LPS" or "RAS") and
         how it was decided (see :func:`geovox.reference.resolve_mesh_space`).
+    labels : (nx, ny, nz) uint8 or uint16, or None
+        Label value per voxel (0 the background), when labels were asked for
+        (see :mod:`geovox.labels`).
+    label_table : list of dict or None
+        One entry per label value, the background (0) first: ``value``,
+        ``name``, ``source``, ``color`` (RGBA 0-255), ``voxels``, ``volume``
+        (model units cubed).
+    contested : int
+        Voxels inside more than one part (settled by the overlap rule).
+    fractions : (nx, ny, nz, L) uint8 or float32, or None
+        Each label's coverage fraction per voxel (index ``k`` for label
+        value ``k + 1``), when asked for.
     """
 
     occupancy: np.ndarray
@@ -55,6 +67,10 @@ class Volume:
     density: np.ndarray | None = None
     sdf: np.ndarray | None = None
     mesh_space: tuple | None = None
+    labels: np.ndarray | None = None
+    label_table: list | None = None
+    contested: int = 0
+    fractions: np.ndarray | None = None
 
     @property
     def bounds(self) -> tuple:

@@ -271,13 +271,14 @@ FIELD_VALUES = {
     "density": lambda dtype: ("inside fraction x 255" if np.dtype(dtype) == np.uint8
                               else "inside fraction, 0 to 1"),
     "sdf": lambda dtype: "signed distance, negative inside, clamped beyond the exact band",
+    "labels": lambda dtype: "label value, 0 the background (see label_table)",
 }
 
 
 def scalar_fields(volume) -> list:
     """The extra scalar volumes to write: ``[(name, [x, y, z] array, dtype name, values)]``."""
     out = []
-    for name in ("density", "sdf"):
+    for name in ("density", "sdf", "labels"):
         arr = getattr(volume, name, None)
         if arr is not None:
             out.append((name, arr, str(arr.dtype), FIELD_VALUES[name](arr.dtype)))
@@ -359,6 +360,7 @@ def write(volume, path, fmt=None, **options) -> list:
     check_writable(path)
     f = format_for(path, fmt)
     check_frame(f, getattr(volume, "grid", None))
+    check_labels(volume, f)
     return f.writer(volume, path, **options)
 
 
@@ -370,11 +372,24 @@ def check_frame(f: Format, grid) -> None:
     """ParameterError for a reference grid (``like``) in a format that cannot place it."""
     if getattr(grid, "reference", None) is not None and f.name in NO_FRAME:
         raise ParameterError(f"{f.name} cannot record the reference grid's placement (origin, "
-                             f"spacing, direction); onto a reference write .nii.gz, .nrrd, .raw "
-                             f"(.mhd/.nhdr), .h5, .vtkhdf, .npz or .zarr")
+                             f"spacing, direction); onto a reference write .nii.gz, .nrrd, .seg.nrrd, "
+                             f".raw (.mhd/.nhdr), .h5, .vtkhdf, .npz or .zarr")
 
 
-from . import binvox, hdf5, nifti, nrrd, numpy_files, raw, vdb, vox, vtkhdf  # noqa: E402  (registration)
+#: The formats that hold a label volume (and its table).
+LABEL_FORMATS = ("seg_nrrd", "nrrd", "hdf5", "vtkhdf", "npz", "raw", "vox", "zarr")
+
+
+def check_labels(volume, f) -> None:
+    """ParameterError where ``volume`` has labels and format ``f`` would drop them."""
+    if getattr(volume, "labels", None) is not None and f.name not in LABEL_FORMATS:
+        raise ParameterError(
+            f"{f.name} output does not hold labels; write them to .seg.nrrd (3D Slicer), .nrrd, "
+            f".h5, .vtkhdf, .npz, .raw, .vox or .zarr")
+
+
+from . import binvox, hdf5, nifti, nrrd, numpy_files, raw, seg_nrrd, vdb, vox, vtkhdf  # noqa: E402
+# (imported for registration)
 from . import zarr as zarr_format  # noqa: E402  (registration)
 
 register_format("raw", (".raw",), raw.write_raw,
@@ -386,6 +401,9 @@ register_format("hdf5", (".h5", ".hdf5"), hdf5.write_hdf5,
 register_format("vtkhdf", (".vtkhdf", ".hdf"), vtkhdf.write_vtkhdf,
                 "VTK-HDF 1.0 ImageData for ParaView (opens by name): occupancy, color, density, sdf",
                 reader=vtkhdf.read_vtkhdf)
+register_format("seg_nrrd", (".seg.nrrd",), seg_nrrd.write_seg_nrrd,
+                "3D Slicer segmentation: the labels (--labels) as named, coloured segments",
+                reader=seg_nrrd.read_seg_nrrd)
 register_format("nrrd", (".nrrd",), nrrd.write_nrrd,
                 "single-file NRRD (gzip), uint8 0/255; colour in NAME_rgba.nrrd",
                 reader=nrrd.read_nrrd)
@@ -417,3 +435,20 @@ __all__ = ["register_format", "formats", "format_for", "write", "read", "read_vo
            "is_volume_file", "atomic_output", "check_frame",
            "atomic_outputs",
            "check_writable"]
+
+
+def label_table_json(volume) -> str:
+    """The volume's label table as JSON text (``"[]"`` without labels)."""
+    import json
+
+    return json.dumps(getattr(volume, "label_table", None) or [])
+
+
+def table_from_json(text):
+    """A label table from :func:`label_table_json`'s text; None when it is empty."""
+    import json
+
+    if isinstance(text, bytes):
+        text = text.decode("utf-8")
+    table = json.loads(str(text))
+    return table or None

@@ -83,6 +83,12 @@ def write_npz(volume, path, pack_bits: bool = False) -> list:
 
     for name, arr, _, _ in scalar_fields(volume):
         arrays[name] = arr
+    if getattr(volume, "fractions", None) is not None:
+        arrays["fractions"] = volume.fractions
+    if getattr(volume, "label_table", None):
+        from . import label_table_json
+
+        arrays["label_table"] = np.array(label_table_json(volume))
     with atomic_output(path) as tmp:
         with open(tmp, "wb") as f:
             np.savez_compressed(f, **arrays)
@@ -105,7 +111,12 @@ def read_npz(path):
         if "colors" in z:
             c = z["colors"]
             colors = np.ascontiguousarray(c.transpose(2, 1, 0, 3)).transpose(2, 1, 0, 3)
-        extra = {name: np.asfortranarray(z[name]) for name in ("density", "sdf") if name in z}
+        extra = {name: np.asfortranarray(z[name]) for name in ("density", "sdf", "labels")
+                 if name in z}
+        if "label_table" in z:
+            from . import table_from_json
+
+            extra["label_table"] = table_from_json(z["label_table"][()])
     return Volume(occupancy=occ, grid=Grid(bounds[0], bounds[1], occ.shape), backend="?",
                   source=os.fspath(path), colors=colors, **extra)
 

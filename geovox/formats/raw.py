@@ -99,7 +99,7 @@ class RawWriter(SlabWriter):
         self.names = {"occupancy": self.path}
         if meta.colors is not None:
             self.names["color"] = colour_path(self.path)
-        for name in ("density", "sdf"):
+        for name in ("density", "sdf", "labels"):
             if getattr(meta, name, None) is not None:
                 self.names[name] = field_path(self.path, name)
         self.files = {k: open(self.group.add(p), "wb") for k, p in self.names.items()}
@@ -117,7 +117,7 @@ class RawWriter(SlabWriter):
             if "color" in self.files and vol.colors is not None:
                 self.files["color"].write(
                     np.ascontiguousarray(vol.colors[:, :, sl].transpose(2, 1, 0, 3)).data)
-            for name in ("density", "sdf"):
+            for name in ("density", "sdf", "labels"):
                 if name in self.files:
                     arr = getattr(vol, name)[:, :, sl]
                     self.files[name].write(
@@ -164,7 +164,7 @@ class RawWriter(SlabWriter):
                 "numpy": (f"np.fromfile({os.path.basename(cpath)!r}, dtype=np.uint8)"
                           f".reshape(({nz}, {ny}, {nx}, 4)).transpose(2, 1, 0, 3)"),
             }
-        for name in ("density", "sdf"):
+        for name in ("density", "sdf", "labels"):
             if name in self.names:
                 dtype = str(getattr(meta, name).dtype)
                 fpath = self.names[name]
@@ -173,6 +173,8 @@ class RawWriter(SlabWriter):
                               "byte_order": "little", "values": FIELD_VALUES[name](dtype),
                               "numpy": (f"np.fromfile({os.path.basename(fpath)!r}, dtype=np.{dtype})"
                                         f".reshape(({nx}, {ny}, {nz}), order='F')")}
+        if "labels" in info and getattr(meta, "label_table", None):
+            info["labels"]["label_table"] = meta.label_table
         sidecar = os.path.splitext(self.path)[0] + ".json"
         with open(self.group.add(sidecar), "w") as fh:
             json.dump(info, fh, indent=2)
@@ -222,10 +224,12 @@ def read_raw_volume(path):
         colors = np.fromfile(cfile, dtype=np.uint8).reshape(nz, ny, nx, 4).transpose(2, 1, 0, 3)
     lo, hi = (np.asarray(b, dtype=np.float64) for b in meta["bounds"])
     extra = {}
-    for name in ("density", "sdf"):
+    for name in ("density", "sdf", "labels"):
         if name in meta:
             fpath = os.path.join(os.path.dirname(path), meta[name]["data_file"])
             extra[name] = np.fromfile(fpath, dtype=meta[name]["dtype"]).reshape((nx, ny, nz), order="F")
+    if "labels" in meta:
+        extra["label_table"] = meta["labels"].get("label_table")
     return Volume(occupancy=np.asfortranarray(occ), grid=Grid(lo, hi, (nx, ny, nz)),
                   backend=meta.get("backend", "?"), source=meta.get("source", path),
                   colors=colors, **extra)

@@ -86,7 +86,7 @@ class VTKHDFWriter(SlabWriter):
             fields = {"occupancy": (np.uint8, ())}
             if meta.colors is not None:
                 fields["color"] = (np.uint8, (4,))
-            for name in ("density", "sdf"):
+            for name in ("density", "sdf", "labels"):
                 if getattr(meta, name, None) is not None:
                     fields[name] = (getattr(meta, name).dtype, ())
             # Chunks arrive compressed (formats.chunks); the level only labels the filter.
@@ -95,6 +95,8 @@ class VTKHDFWriter(SlabWriter):
                                         chunks=zyx + tail, compression="gzip",
                                         compression_opts=LEVEL, fillvalue=0)
                 for name, (dtype, tail) in fields.items()}
+            if getattr(meta, "label_table", None):
+                _label_field_data(g, meta.label_table)
         except BaseException:
             self.abort()
             raise
@@ -104,7 +106,7 @@ class VTKHDFWriter(SlabWriter):
         from .chunks import write_both
 
         arrays = {"occupancy": vol.occupancy.view(np.uint8), "color": vol.colors,
-                  "density": vol.density, "sdf": vol.sdf}
+                  "density": vol.density, "sdf": vol.sdf, "labels": vol.labels}
         for name, dset in self.sets.items():
             arr = arrays[name]
             # VTK's (z, y, x) order is the arrays' memory order (x fastest): no copy.
@@ -119,6 +121,17 @@ class VTKHDFWriter(SlabWriter):
     def _release(self) -> None:
         if self.f is not None:
             self.f.close()
+
+
+def _label_field_data(g, table) -> None:
+    """The label table as field data: ``label_values``, ``label_names``, ``label_colors``."""
+    fd = g.create_group("FieldData")
+    fd.create_dataset("label_values", data=np.asarray([e["value"] for e in table], np.int64))
+    # VTK's HDF reader (9.x) reads no string datasets: the names are one
+    # UTF-8 byte array, each ended by a newline (numeric, so ParaView shows it).
+    text = "".join(str(e["name"]).replace("\n", " ") + "\n" for e in table).encode("utf-8")
+    fd.create_dataset("label_names", data=np.frombuffer(text, dtype=np.uint8))
+    fd.create_dataset("label_colors", data=np.asarray([e["color"] for e in table], np.uint8))
 
 
 def write_vtkhdf(volume, path, jobs: int = 2) -> list:
@@ -143,6 +156,12 @@ def read_vtkhdf(path):
         # (z, y, x) C order read back is the [x, y, z] Fortran-ordered array, transposed.
         occ = pd["occupancy"][...].transpose(2, 1, 0) > 0
         colors = pd["color"][...].transpose(2, 1, 0, 3) if "color" in pd else None
-        extra = {n: pd[n][...].transpose(2, 1, 0) for n in ("density", "sdf") if n in pd}
+        extra = {n: pd[n][...].transpose(2, 1, 0) for n in ("density", "sdf", "labels") if n in pd}
+        if "FieldData" in g and "label_names" in g["FieldData"]:
+            fd = g["FieldData"]
+            names = bytes(fd["label_names"][...]).decode("utf-8").split("\n")[:-1]
+            extra["label_table"] = [
+                {"value": int(v), "name": n, "color": [int(c) for c in rgba]}
+                for v, n, rgba in zip(fd["label_values"][...], names, fd["label_colors"][...])]
     return Volume(occupancy=occ, grid=Grid(lo, lo + spacing * np.asarray(shape), shape),
                   backend="?", source=os.fspath(path), colors=colors, **extra)
