@@ -61,11 +61,16 @@ def test_seg_nrrd_empty_segment_extent(tmp_path):
     assert seg["segments"][3]["extent"] == [0, -1, 0, -1, 0, -1]
 
 
-def test_seg_nrrd_needs_labels(tmp_path):
+def test_seg_nrrd_without_labels_is_one_segment(tmp_path):
+    """A volume without labels is one segment, label value 1, named after its source."""
+    slicerio = pytest.importorskip("slicerio")
     v = geovox.voxelize(assembly(), resolution=8)
-    with pytest.raises(ParameterError, match="--labels"):
-        formats.write(v, tmp_path / "x.seg.nrrd")
-    assert not list(tmp_path.iterdir())
+    v.source = "liver.obj"
+    p = tmp_path / "x.seg.nrrd"
+    formats.write(v, p)
+    seg = slicerio.read_segmentation(str(p))
+    assert [(s["name"], s["labelValue"]) for s in seg["segments"]] == [("liver", 1)]
+    np.testing.assert_array_equal(seg["voxels"] == 1, v.occupancy)
 
 
 def test_nrrd_label_map_with_key_values(vol, tmp_path):
