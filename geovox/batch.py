@@ -28,7 +28,7 @@ MESH_EXTENSIONS = (".obj", ".stl", ".ply", ".off", ".glb", ".gltf", ".3mf", ".da
 #: (``jobs`` and ``progress`` belong to the batch, not to one model).
 MODEL_OPTIONS = ("resolution", "bounds", "backend", "shape", "voxel_size", "axis", "color",
                  "diffuse", "ambient", "inside", "density", "supersample", "density_dtype",
-                 "sdf", "band")
+                 "sdf", "band", "references")
 
 
 @dataclass
@@ -208,7 +208,7 @@ def _convert_one(task) -> Result:
         # geovox's own collector, not warnings.catch_warnings: tasks may run
         # side by side on threads of one worker (see geovox.errors.warn).
         with collect_warnings() as said:
-            mesh = load_mesh(path)
+            mesh = load_mesh(path, references=options.get("references", "anywhere"))
             grid = make_grid(mesh.bounds, bounds=options.get("bounds"),
                              resolution=options.get("resolution"), shape=options.get("shape"),
                              voxel_size=options.get("voxel_size"))
@@ -450,7 +450,7 @@ def convert_many(inputs, out, *, client=None, fmt=None, overwrite=False, jobs=1,
         Passed to the writer (``shell`` for ``.vox``, ``pack_bits`` for ``.npz``).
     **options
         As for :func:`geovox.voxelize`: resolution, shape, voxel_size, bounds,
-        backend, inside, color, density, sdf, ...
+        backend, inside, color, density, sdf, references, ...
 
     Returns
     -------
@@ -470,6 +470,13 @@ def convert_many(inputs, out, *, client=None, fmt=None, overwrite=False, jobs=1,
                              f"known: {', '.join(MODEL_OPTIONS)}")
     if isinstance(retries, bool) or not isinstance(retries, int) or retries < 0:
         raise ParameterError(f"`retries` must be a non-negative integer, got {retries!r}")
+    if "references" in options:
+        from .references import check_rule
+
+        # The default is left out of the options, so manifests written
+        # before the option existed still match.
+        if check_rule(options["references"]) == "anywhere":
+            options = {k: v for k, v in options.items() if k != "references"}
     shard = parse_shard(shard)
     ext = format_for("x.raw", fmt).extensions[0]
     if isinstance(inputs, (str, os.PathLike)):

@@ -141,6 +141,7 @@ def build_parser() -> argparse.ArgumentParser:
     res.add_argument("--voxel-size", type=_positive_float, metavar="S")
     info.add_argument("--bounds", type=_finite_float, nargs=6,
                       metavar=("XMIN", "YMIN", "ZMIN", "XMAX", "YMAX", "ZMAX"))
+    _references_option(info)
 
     sub.add_parser("backends", help="list the ray-casting backends and whether each can run")
     sub.add_parser("formats", help="list the output formats")
@@ -191,6 +192,14 @@ def _grid_options(c):
                    help="with --sdf: half-width of the exact band, in voxels (default 3)")
     c.add_argument("-j", "--jobs", type=int, default=None, metavar="N",
                    help="threads to use (default: one per core); the result does not depend on it")
+    _references_option(c)
+
+
+def _references_option(c):
+    c.add_argument("--references", choices=["anywhere", "folder"], default="anywhere",
+                   help="files the model names (materials, textures, glTF buffers): read from "
+                        "anywhere (default), or only from under the model's own folder, for "
+                        "files you did not make; URLs are never fetched")
 
 
 def _stage_bar(args):
@@ -223,7 +232,7 @@ def _options(args) -> dict:
                 ambient=args.ambient, inside=args.inside, density=args.density,
                 supersample=args.supersample,
                 density_dtype="float32" if args.density_float else "uint8",
-                sdf=args.sdf, band=args.band)
+                sdf=args.sdf, band=args.band, references=args.references)
 
 
 def _voxelize(args, path):
@@ -480,7 +489,7 @@ def _convert(args) -> int:
     from .mesh import load_mesh
     from .stream import streams
 
-    mesh = load_mesh(args.input)
+    mesh = load_mesh(args.input, references=args.references)
     t_read = time.perf_counter() - t0
     grid = make_grid(mesh.bounds, bounds=args.bounds, resolution=args.resolution,
                      shape=args.shape, voxel_size=args.voxel_size)
@@ -549,7 +558,7 @@ def _view(args) -> int:
     from .view import LARGEST, show
 
     vol = _volume_or_mesh(args, args.input, LARGEST)
-    mesh = load_mesh(args.mesh) if args.mesh else None
+    mesh = load_mesh(args.mesh, references=args.references) if args.mesh else None
     out = show(vol, mesh=mesh, screenshot=args.screenshot)
     if out:
         print(f"wrote {out}")
@@ -560,7 +569,7 @@ def _info(args) -> int:
     from .mesh import load_mesh
     from .report import format_report, grid_cost, mesh_report
 
-    mesh = load_mesh(args.input)
+    mesh = load_mesh(args.input, references=args.references)
     cost = grid_cost(mesh, bounds=args.bounds, resolution=args.resolution, shape=args.shape,
                      voxel_size=args.voxel_size)
     print(format_report(mesh_report(mesh), cost))

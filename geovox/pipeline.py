@@ -42,6 +42,7 @@ def voxelize(
     sdf=False,
     band=3.0,
     progress=None,
+    references="anywhere",
 ) -> Volume:
     """Turn a closed triangle mesh into a solid voxel volume.
 
@@ -104,6 +105,11 @@ def voxelize(
     progress : callable, optional
         Called with the name of each stage as it starts ("load", "rays",
         "colour", "density", "sdf").
+    references : {"anywhere", "folder"}
+        Where the files a model file names (materials, textures, buffers)
+        may be read from: anywhere (``../textures/x.png`` included), or only
+        under the model's own folder, for files you did not make (see
+        :mod:`geovox.references`). URLs are never fetched.
 
     Returns
     -------
@@ -117,7 +123,7 @@ def voxelize(
     jobs = resolve_jobs(jobs)
     (progress or (lambda stage: None))("load")
     engine = get_backend(backend)
-    m = load_mesh(mesh)
+    m = load_mesh(mesh, references=references)
     t_load = time.perf_counter()
     grid = make_grid(m.bounds, bounds=bounds, resolution=resolution, shape=shape,
                      voxel_size=voxel_size)

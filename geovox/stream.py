@@ -308,7 +308,7 @@ def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, c
     **options
         As for :func:`geovox.voxelize` (resolution, shape, voxel_size,
         bounds, backend, inside, color, diffuse, ambient, density,
-        supersample, density_dtype, sdf, band).
+        supersample, density_dtype, sdf, band, references).
 
     Returns
     -------
@@ -332,7 +332,7 @@ def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, c
         raise ParameterError(f"`client` and `slab` are for .zarr output, not {f.name}")
     formats.check_writable(path)
     jobs = resolve_jobs(jobs)
-    m = load_mesh(mesh)
+    m = load_mesh(mesh, references=options.pop("references", "anywhere"))
     engine = get_backend(options.pop("backend", "auto"))
     t_load = time.perf_counter()
     grid = make_grid(m.bounds, bounds=options.pop("bounds", None),
