@@ -405,6 +405,24 @@ def _submit_dask(client, tasks, retries, on_result):
         fill()
 
 
+def _model_options(options: dict) -> dict:
+    """``convert_many``'s model options, checked; ParameterError for an unknown one.
+
+    ``references="anywhere"``, the default, is left out, so that manifests
+    written before the option existed still match.
+    """
+    unknown = sorted(set(options) - set(MODEL_OPTIONS))
+    if unknown:
+        raise ParameterError(f"convert_many got unknown options {', '.join(unknown)}; "
+                             f"known: {', '.join(MODEL_OPTIONS)}")
+    if "references" in options:
+        from .references import check_rule
+
+        if check_rule(options["references"]) == "anywhere":
+            options = {k: v for k, v in options.items() if k != "references"}
+    return options
+
+
 def convert_many(inputs, out, *, client=None, fmt=None, overwrite=False, jobs=1, retries=2,
                  manifest=None, shard=None, progress=None, write_options=None, **options) -> list:
     """Convert every model into the folder ``out``; one :class:`Result` per model, in input order.
@@ -464,19 +482,9 @@ def convert_many(inputs, out, *, client=None, fmt=None, overwrite=False, jobs=1,
     """
     from .formats import format_for
 
-    unknown = sorted(set(options) - set(MODEL_OPTIONS))
-    if unknown:
-        raise ParameterError(f"convert_many got unknown options {', '.join(unknown)}; "
-                             f"known: {', '.join(MODEL_OPTIONS)}")
+    options = _model_options(options)
     if isinstance(retries, bool) or not isinstance(retries, int) or retries < 0:
         raise ParameterError(f"`retries` must be a non-negative integer, got {retries!r}")
-    if "references" in options:
-        from .references import check_rule
-
-        # The default is left out of the options, so manifests written
-        # before the option existed still match.
-        if check_rule(options["references"]) == "anywhere":
-            options = {k: v for k, v in options.items() if k != "references"}
     shard = parse_shard(shard)
     ext = format_for("x.raw", fmt).extensions[0]
     if isinstance(inputs, (str, os.PathLike)):

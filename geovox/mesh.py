@@ -13,8 +13,8 @@ import warnings
 
 import numpy as np
 
-from .errors import InputNotFoundError, MeshError
 from . import threemf
+from .errors import InputNotFoundError, MeshError
 from .references import Refused, check_rule, locate, resolver, why_not_read
 # Mesh, Material and check_mesh are also public here, where they used to live.
 from .surface import (WRAP_MODES, Material, Mesh, build_mesh, check_mesh, texels,  # noqa: F401

@@ -27,8 +27,8 @@ from __future__ import annotations
 
 import copy
 import io
-import zipfile
 import xml.etree.ElementTree as ET
+import zipfile
 
 from .errors import MeshError
 

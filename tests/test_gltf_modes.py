@@ -157,7 +157,7 @@ def test_a_fan_without_indices_draws_its_vertices_in_order(tmp_path):
 def test_fan_with_unreadable_indices_is_still_refused(tmp_path):
     # An index accessor past its buffer: the fan is left to trimesh, which
     # skips it; geovox refuses rather than voxelise half the model.
-    v, top, bottom = _octahedron()
+    v, top, _ = _octahedron()
     path = tmp_path / "bad.gltf"
     _write(path, v, [(4, [0, 1, 2]), (6, top)])
     header = json.loads(path.read_text())
@@ -168,7 +168,7 @@ def test_fan_with_unreadable_indices_is_still_refused(tmp_path):
 
 
 def test_triangles_strips_and_fans_in_one_mesh(tmp_path):
-    v, top, bottom = _octahedron()
+    v, _, bottom = _octahedron()
     path = _write(tmp_path / "mixed.gltf", v, [(4, [0, 1, 2, 0, 2, 3, 0, 3, 4, 0, 4, 1]),
                                                (6, bottom)])
     vol = geovox.voxelize(path, resolution=16, backend="numpy")
