@@ -62,6 +62,9 @@ def why_not_read(name: str) -> str:
     """Why a refused reference was not read: a URL, or a file outside the model's folder."""
     if is_url(name.strip()):
         return "it is a URL, and geovox never fetches URLs"
+    if os.path.isabs(name.strip().strip('"').replace("\\", "/")):
+        return ("it is an absolute path, and with references='folder' only files under the "
+                "model's folder are read, by relative names")
     return ("it lies outside the model's folder, and with references='folder' only files under "
             "that folder are read")
 

@@ -178,6 +178,8 @@ def test_obj_escapes_and_urls_fall_back_to_the_colour(layout, name):
     colour, said = _colour(path, "folder")
     assert colour == OWN, said
     assert any(repr(name) in s and "is not read" in s for s in said), said
+    why = {"/": "it is an absolute path", "f": "it is a URL", ".": "it lies outside"}[name[0]]
+    assert any(why in s for s in said), said
     if name.startswith("file:"):
         # never fetched, whatever the rule
         assert _colour(path, "anywhere")[0] == OWN
