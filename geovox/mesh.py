@@ -370,7 +370,6 @@ def _buffer_reader(header: dict, path: str, rule: str, tail):
     or its file is not read under ``rule``.
     """
     from .gltf import Unreadable
-    from .references import locate, why_not_read
 
     folder = os.path.dirname(os.path.abspath(path))
     buffers = header.get("buffers") if isinstance(header.get("buffers"), list) else []
