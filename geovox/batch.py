@@ -28,7 +28,7 @@ MESH_EXTENSIONS = (".obj", ".stl", ".ply", ".off", ".glb", ".gltf", ".3mf", ".da
 #: (``jobs`` and ``progress`` belong to the batch, not to one model).
 MODEL_OPTIONS = ("resolution", "bounds", "backend", "shape", "voxel_size", "fit", "axis", "color",
                  "diffuse", "ambient", "inside", "density", "supersample", "density_dtype",
-                 "sdf", "band", "like", "mesh_space")
+                 "sdf", "band", "like", "mesh_space", "references")
 
 
 @dataclass
@@ -227,7 +227,7 @@ def _convert_one(task) -> Result:
         # geovox's own collector, not warnings.catch_warnings: tasks may run
         # side by side on threads of one worker (see geovox.errors.warn).
         with collect_warnings() as said:
-            mesh = load_mesh(path)
+            mesh = load_mesh(path, references=options.get("references", "anywhere"))
             if options.get("like") is not None:  # every model onto the one reference grid
                 from .reference import load_reference
 
@@ -467,6 +467,24 @@ def _submit_dask(client, tasks, retries, on_result):
         fill()
 
 
+def _model_options(options: dict) -> dict:
+    """``convert_many``'s model options, checked; ParameterError for an unknown one.
+
+    ``references="anywhere"``, the default, is left out, so that manifests
+    written before the option existed still match.
+    """
+    unknown = sorted(set(options) - set(MODEL_OPTIONS))
+    if unknown:
+        raise ParameterError(f"convert_many got unknown options {', '.join(unknown)}; "
+                             f"known: {', '.join(MODEL_OPTIONS)}")
+    if "references" in options:
+        from .references import check_rule
+
+        if check_rule(options["references"]) == "anywhere":
+            options = {k: v for k, v in options.items() if k != "references"}
+    return options
+
+
 def convert_many(inputs, out, *, client=None, fmt=None, overwrite=False, jobs=1, retries=2,
                  manifest=None, shard=None, progress=None, write_options=None, **options) -> list:
     """Convert every model into the folder ``out``; one :class:`Result` per model, in input order.
@@ -512,7 +530,7 @@ def convert_many(inputs, out, *, client=None, fmt=None, overwrite=False, jobs=1,
         Passed to the writer (``shell`` for ``.vox``, ``pack_bits`` for ``.npz``).
     **options
         As for :func:`geovox.voxelize`: resolution, shape, voxel_size, bounds,
-        backend, inside, color, density, sdf, ...
+        backend, inside, color, density, sdf, references, ...
 
     Returns
     -------
@@ -526,10 +544,7 @@ def convert_many(inputs, out, *, client=None, fmt=None, overwrite=False, jobs=1,
     """
     from .formats import format_for
 
-    unknown = sorted(set(options) - set(MODEL_OPTIONS))
-    if unknown:
-        raise ParameterError(f"convert_many got unknown options {', '.join(unknown)}; "
-                             f"known: {', '.join(MODEL_OPTIONS)}")
+    options = _model_options(options)
     if isinstance(retries, bool) or not isinstance(retries, int) or retries < 0:
         raise ParameterError(f"`retries` must be a non-negative integer, got {retries!r}")
     shard = parse_shard(shard)

@@ -152,6 +152,7 @@ def build_parser() -> argparse.ArgumentParser:
     info.add_argument("--bounds", type=_finite_float, nargs=6,
                       metavar=("XMIN", "YMIN", "ZMIN", "XMAX", "YMAX", "ZMAX"))
     _like_options(info)
+    _references_option(info)
 
     sub.add_parser("backends", help="list the ray-casting backends and whether each can run")
     sub.add_parser("formats", help="list the output formats")
@@ -223,6 +224,7 @@ def _grid_options(c):
                         "last in file order)")
     c.add_argument("--fractions", action="store_true",
                    help="with --labels: each label's coverage fraction per voxel")
+    _references_option(c)
 
 
 def _like_options(c):
@@ -234,6 +236,13 @@ def _like_options(c):
     c.add_argument("--mesh-space", choices=["lps", "ras"], type=str.lower, default=None,
                    help="with --like: the mesh's coordinate frame, overriding its 3D Slicer "
                         "SPACE= mark (default: the mark, else LPS)")
+
+
+def _references_option(c):
+    c.add_argument("--references", choices=["anywhere", "folder"], default="anywhere",
+                   help="files the model names (materials, textures, glTF buffers): read from "
+                        "anywhere (default), or only from under the model's own folder, for "
+                        "files you did not make; URLs are never fetched")
 
 
 def _stage_bar(args):
@@ -268,7 +277,7 @@ def _options(args) -> dict:
                 ambient=args.ambient, inside=args.inside, density=args.density,
                 supersample=args.supersample,
                 density_dtype="float32" if args.density_float else "uint8",
-                sdf=args.sdf, band=args.band,
+                sdf=args.sdf, band=args.band, references=args.references,
                 **{k: getattr(args, k) for k in ("like", "mesh_space")
                    if getattr(args, k, None) is not None},
                 **({"labels": args.labels, "overlap": args.overlap, "fractions": args.fractions}
@@ -543,10 +552,10 @@ def _convert(args) -> int:
     if scene:
         from .labels import scene as make_scene
 
-        mesh = make_scene(inputs)  # several files, one grid: --labels file names them
+        mesh = make_scene(inputs, references=args.references)  # several files, one grid: --labels file names them
         args.input = "scene"
     else:
-        mesh = load_mesh(args.input)
+        mesh = load_mesh(args.input, references=args.references)
     t_read = time.perf_counter() - t0
     if args.like is not None:
         from .reference import load_reference, reject_grid_options
@@ -672,7 +681,7 @@ def _view(args) -> int:
     from .view import LARGEST, show
 
     vol = _volume_or_mesh(args, args.input, LARGEST)
-    mesh = load_mesh(args.mesh) if args.mesh else None
+    mesh = load_mesh(args.mesh, references=args.references) if args.mesh else None
     out = show(vol, mesh=mesh, screenshot=args.screenshot)
     if out:
         print(f"wrote {out}")
@@ -683,7 +692,7 @@ def _info(args) -> int:
     from .mesh import load_mesh
     from .report import format_report, grid_cost, mesh_report
 
-    mesh = load_mesh(args.input)
+    mesh = load_mesh(args.input, references=args.references)
     if args.like is not None:
         from .reference import field_of_view, format_field_of_view, load_reference, \
             reject_grid_options

@@ -189,8 +189,11 @@ def _stem(path: str) -> str:
     return os.path.splitext(base)[0] or base
 
 
-def scene(sources) -> Mesh:
+def scene(sources, *, references: str = "anywhere") -> Mesh:
     """One mesh of several files (or meshes), each file's faces a label for ``"file"``.
+
+    Each file is read by :func:`geovox.mesh.load_mesh` under the rule
+    ``references``.
 
     The files' parts are kept as ``"stem: part"`` for ``labels="part"``, and
     their materials for ``"material"``.
@@ -207,7 +210,7 @@ def scene(sources) -> Mesh:
     meshes = []
     for s in sources:
         try:
-            meshes.append(load_mesh(s))
+            meshes.append(load_mesh(s, references=references))
         except MeshError as exc:
             raise MeshError(f"in the scene: {exc}") from exc
     if not meshes:

@@ -48,6 +48,7 @@ def voxelize(
     labels=None,
     overlap="last",
     fractions=False,
+    references="anywhere",
 ) -> Volume:
     """Turn a closed triangle mesh into a solid voxel volume.
 
@@ -142,6 +143,11 @@ def voxelize(
         column, overlaps settled by ``overlap`` (see
         :func:`geovox.labels.label_fractions`); uint8 0-255, or float32
         with ``density_dtype="float32"``. Not with ``labels="material"``.
+    references : {"anywhere", "folder"}
+        Where the files a model file names (materials, textures, buffers)
+        may be read from: anywhere (``../textures/x.png`` included), or only
+        under the model's own folder, for files you did not make (see
+        :mod:`geovox.references`). URLs are never fetched.
 
     Returns
     -------
@@ -186,9 +192,9 @@ def voxelize(
         if labels is None:
             raise ParameterError("several meshes make one scene only with `labels` (e.g. "
                                  "labels='file'); convert them one by one otherwise")
-        m = label_mod.scene(mesh)
+        m = label_mod.scene(mesh, references=references)
     else:
-        m = load_mesh(mesh)
+        m = load_mesh(mesh, references=references)
     t_load = time.perf_counter()
     used = None
     if like is not None:

@@ -334,7 +334,8 @@ def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, c
     **options
         As for :func:`geovox.voxelize` (resolution, shape, voxel_size, fit,
         bounds, backend, inside, color, diffuse, ambient, density,
-        supersample, density_dtype, sdf, band, labels, overlap, fractions).
+        supersample, density_dtype, sdf, band, labels, overlap, fractions,
+        references).
         With ``labels`` the volume is made in memory (labels do not stream
         yet) and written to any format that holds labels; the result also
         gives ``labels`` (how many) and ``contested``.
@@ -381,7 +382,7 @@ def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, c
         raise ParameterError(f"`client` and `slab` are for .zarr output, not {f.name}")
     formats.check_writable(path)
     jobs = resolve_jobs(jobs)
-    m = load_mesh(mesh)
+    m = load_mesh(mesh, references=options.pop("references", "anywhere"))
     engine = get_backend(options.pop("backend", "auto"))
     t_load = time.perf_counter()
     from .reference import grid_for
