@@ -574,10 +574,8 @@ def _convert(args) -> int:
     fmt = formats.format_for(output, args.fmt)
     formats.check_frame(fmt, grid)
     write_options = _write_options(args, fmt)  # a bad combination fails before any work
-    if args.labels and fmt.name not in formats.LABEL_FORMATS:
-        from .volume import Volume
-
-        formats.check_labels(Volume(occupancy=None, grid=grid, backend="", labels=True), fmt)
+    if args.labels:
+        formats.check_labels(True, fmt)
     if (args.scheduler or args.scheduler_file or args.local_cluster) and fmt.name != "zarr":
         from .errors import ParameterError
 

@@ -290,9 +290,7 @@ def _labelled_to(mesh, path, f, jobs, t0, options) -> dict:
     from . import formats
     from .pipeline import voxelize
 
-    if f.name not in formats.LABEL_FORMATS:
-        raise ParameterError(f"{f.name} output does not hold labels; write them to .seg.nrrd, "
-                             f".nrrd, .h5, .vtkhdf, .npz, .raw, .vox or .zarr")
+    formats.check_labels(True, f)
     formats.check_writable(path)
     vol = voxelize(mesh, jobs=jobs, **options)
     files = formats.write(vol, path, fmt=f.name)

@@ -285,3 +285,22 @@ def test_zarr_ome_labels_group(vol, tmp_path):
     a[0, 0, 1], a[3, 3, 3], a[2, 2, 2] = 2, 5, 7
     np.testing.assert_array_equal(downsample(a, "labels"),
                                   [[[2, 0], [0, 0]], [[0, 0], [0, 7]]])
+
+
+def test_nifti_label_map_opens_in_nibabel_and_itk(vol, tmp_path):
+    """NAME_labels.nii.gz: the labels with intent label, on the mask's affine, the table kept."""
+    nibabel = pytest.importorskip("nibabel")
+    p = str(tmp_path / "scene.nii.gz")
+    files = formats.write(vol, p)
+    lp = str(tmp_path / "scene_labels.nii.gz")
+    assert files == [p, lp]
+    img = nibabel.load(lp)
+    assert img.header.get_intent()[0] == "label"
+    np.testing.assert_array_equal(np.asarray(img.dataobj), vol.labels)
+    np.testing.assert_allclose(img.affine, nibabel.load(p).affine)
+    back = formats.read(p)
+    np.testing.assert_array_equal(back.labels, vol.labels)
+    _table_matches(back.label_table, vol.label_table)
+    sitk = pytest.importorskip("SimpleITK")
+    arr = sitk.GetArrayFromImage(sitk.ReadImage(lp))  # z, y, x
+    np.testing.assert_array_equal(arr.transpose(2, 1, 0), vol.labels)

@@ -377,15 +377,19 @@ def check_frame(f: Format, grid) -> None:
 
 
 #: The formats that hold a label volume (and its table).
-LABEL_FORMATS = ("seg_nrrd", "nrrd", "hdf5", "vtkhdf", "npz", "raw", "vox", "zarr")
+LABEL_FORMATS = ("seg_nrrd", "nrrd", "nifti", "hdf5", "vtkhdf", "npz", "raw", "vox", "zarr")
 
 
 def check_labels(volume, f) -> None:
-    """ParameterError where ``volume`` has labels and format ``f`` would drop them."""
-    if getattr(volume, "labels", None) is not None and f.name not in LABEL_FORMATS:
+    """ParameterError where ``volume`` has labels and format ``f`` would drop them.
+
+    ``volume`` may be ``True`` for a conversion that will make labels.
+    """
+    labelled = volume is True or getattr(volume, "labels", None) is not None
+    if labelled and f.name not in LABEL_FORMATS:
         raise ParameterError(
             f"{f.name} output does not hold labels; write them to .seg.nrrd (3D Slicer), .nrrd, "
-            f".h5, .vtkhdf, .npz, .raw, .vox or .zarr")
+            f".nii.gz, .h5, .vtkhdf, .npz, .raw, .vox or .zarr")
 
 
 from . import binvox, hdf5, nifti, nrrd, numpy_files, raw, seg_nrrd, vdb, vox, vtkhdf  # noqa: E402

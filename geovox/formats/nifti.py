@@ -5,8 +5,11 @@ centre -> world), with code 1 (scanner); occupancy is ``uint8`` 0/1, colour
 ``NAME_rgba.nii[.gz]`` (NIfTI's RGBA32), density and distance
 ``NAME_density`` / ``NAME_sdf`` beside it. On a grid over the mesh (no
 ``like``) the mesh's coordinates are taken as LPS, 3D Slicer's convention
-for meshes, so the RAS affine flips x and y. Label maps (``intent_code``
-NIFTI_INTENT_LABEL) are for when geovox writes labels.
+for meshes, so the RAS affine flips x and y. Labels (``labels=``) go to
+``NAME_labels.nii[.gz]`` (uint8, or uint16 above 255 labels; 0 the
+background) with ``intent_code`` NIFTI_INTENT_LABEL (1002), the label table
+as JSON in a NIfTI comment extension (code 6), which nibabel, ITK and 3D Slicer
+keep and ignore.
 """
 
 from __future__ import annotations
@@ -44,9 +47,19 @@ def ras_affine(volume) -> np.ndarray:
     return RAS_FROM_LPS @ lps
 
 
-def _image(nibabel, data, affine, description: str):
+#: NIfTI extension code of a comment: where the label table goes, as JSON.
+COMMENT = 6
+
+
+def _image(nibabel, data, affine, description: str, table=None):
     img = nibabel.Nifti1Image(data, affine)
     hdr = img.header
+    if table is not None:  # a label map: NIFTI_INTENT_LABEL, the table as a comment
+        from . import label_table_json
+
+        hdr.set_intent("label")
+        hdr.extensions.append(nibabel.nifti1.Nifti1Extension(
+            COMMENT, label_table_json(table).encode("utf-8")))
     hdr.set_sform(affine, code=XFORM_CODE)
     hdr.set_qform(affine, code=XFORM_CODE)
     hdr.set_xyzt_units("mm")
@@ -80,7 +93,8 @@ def write_nifti(volume, path) -> list:
         for target, data, description in parts:
             tmp = group.add(target)
             # nibabel picks gzip from the name; the temporary one ends in .tmp.
-            img = _image(nibabel, data, affine, description)
+            labelled = target == field_path(path, "labels")
+            img = _image(nibabel, data, affine, description, volume if labelled else None)
             with open(tmp, "wb") as f:
                 if target.lower().endswith(".gz"):
                     import gzip
@@ -94,7 +108,11 @@ def write_nifti(volume, path) -> list:
 
 
 def read_nifti(path):
-    """A Volume from a NIfTI mask (any 3-D NIfTI: inside where the value is > 0)."""
+    """A Volume from a NIfTI mask (any 3-D NIfTI: inside where the value is > 0).
+
+    The ``_rgba``, ``_density``, ``_sdf`` and ``_labels`` files beside it are
+    read too, the label table from the labels' comment extension.
+    """
     from ..reference import load_reference
     from ..volume import Volume
 
@@ -107,9 +125,16 @@ def read_nifti(path):
         c = np.asarray(nibabel.load(cpath).dataobj)
         colors = np.stack([c["R"], c["G"], c["B"], c["A"]], axis=-1)
     extra = {}
-    for name in ("density", "sdf"):
+    for name in ("density", "sdf", "labels"):
         fpath = field_path(os.fspath(path), name)
         if os.path.exists(fpath):
-            extra[name] = np.asfortranarray(np.asarray(nibabel.load(fpath).dataobj))
+            img = nibabel.load(fpath)
+            extra[name] = np.asfortranarray(np.asarray(img.dataobj))
+            if name == "labels":
+                from . import table_from_json
+
+                text = next((e.get_content() for e in img.header.extensions
+                             if e.get_code() == COMMENT), b"[]")
+                extra["label_table"] = table_from_json(text)
     return Volume(occupancy=np.asfortranarray(data > 0), grid=ref.local_grid(), backend="?",
                   source=os.fspath(path), colors=colors, **extra)
