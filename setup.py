@@ -1,8 +1,13 @@
-"""Build the optional compiled kernel (geovox/_nearest.pyx); everything else is in pyproject.toml.
+"""Build the optional compiled kernels; everything else is in pyproject.toml.
 
-The extension is ``optional``: without a C compiler (or without OpenMP, or
-without Cython) the install still succeeds and geovox uses its NumPy search
-(:mod:`geovox.nearest`), which gives the same answers.
+``geovox/_nearest.pyx`` is the exact nearest-surface search (colour),
+``geovox/_lattice.pyx`` the column rays' lattice search and the linear mesh
+checks of the inside test, ``geovox/_winding.pyx`` the caps' winding number of
+open models. The extensions are ``optional``: without a C compiler (or without
+OpenMP, or without Cython) the install still succeeds and geovox uses its NumPy
+code (:mod:`geovox.nearest`, :func:`geovox.backends.numpy.rasterise`,
+:mod:`geovox.inside`, :func:`geovox.inside.cap_winding`), which gives the same
+answers (the winding number's wherever a bound or the exact sum decides).
 """
 
 import os
@@ -26,12 +31,17 @@ else:
     flags = ["-O3", "-fopenmp", "-ffp-contract=off", "-fno-fast-math", "-fno-math-errno"]
     link = ["-fopenmp"]
 
+# The lattice search runs on one thread: no OpenMP (nothing to make fork-safe).
+serial = [f for f in flags if "openmp" not in f]
+sources = [("geovox._nearest", "geovox/_nearest.pyx", flags, link),
+           ("geovox._lattice", "geovox/_lattice.pyx", serial, []),
+           ("geovox._winding", "geovox/_winding.pyx", flags, link)]
 ext = []
-# A tree without the .pyx (an old source distribution) installs without the kernel.
-if cythonize is not None and os.path.exists("geovox/_nearest.pyx"):
+# A tree without a .pyx (an old source distribution) installs without that kernel.
+if cythonize is not None:
     ext = cythonize(
-        [Extension("geovox._nearest", ["geovox/_nearest.pyx"], extra_compile_args=flags,
-                   extra_link_args=link)],
+        [Extension(name, [src], extra_compile_args=cflags, extra_link_args=lflags)
+         for name, src, cflags, lflags in sources if os.path.exists(src)],
         compiler_directives={"language_level": 3}, quiet=True)
     for e in ext:
         # cythonize does not carry `optional` over: set it on what it returns.

@@ -40,6 +40,7 @@ _LAZY = {
     "Mesh": "mesh",
     "load_mesh": "mesh",
     "available_backends": "backends",
+    "usable_backends": "backends",
 }
 
 __all__ = [
@@ -56,6 +57,7 @@ __all__ = [
     "Mesh",
     "load_mesh",
     "available_backends",
+    "usable_backends",
     "GeovoxError",
     "InputNotFoundError",
     "MeshError",

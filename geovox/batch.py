@@ -35,7 +35,25 @@ class Result:
     the manifest says it was done) or ``"failed"`` (``error`` says why, in
     one line). ``outputs`` lists every file written, the volume first (local
     paths, or URLs where the output folder is one). ``seconds`` is the time
-    the model took where it ran; ``note`` the inside count and any warning.
+    the model took where it ran; ``note`` the inside count and, in a few
+    words, any warning (the summary table's cell); ``warnings`` every
+    warning in full.
+
+    Attributes
+    ----------
+    input : str
+        The input path, as found.
+    status : {"ok", "skipped", "failed"}
+    outputs : list of str
+        Files written, the volume first.
+    error : str
+        One line; empty unless failed.
+    seconds : float
+        The model's own time, where it ran.
+    note : str
+        Inside count and warnings, in a few words.
+    warnings : list of str
+        Every warning in full.
     """
 
     input: str
@@ -44,6 +62,7 @@ class Result:
     error: str = ""
     seconds: float = 0.0
     note: str = ""
+    warnings: list = field(default_factory=list)
 
     @property
     def output(self):
@@ -188,16 +207,19 @@ def _convert_one(task) -> Result:
     try:
         _check_worker(task)
         from .formats.headers import default_name
-        from .mesh import load_mesh
-        from .pipeline import as_options, grid_of, plan, run
+        from .pipeline import as_options, grid_of, load, plan, run
 
         options = as_options(options)
         remote = is_url(out_dir)
         # geovox's own collector, not warnings.catch_warnings: tasks may run
         # side by side on threads of one worker (see geovox.errors.warn).
         with collect_warnings() as said:
-            mesh = load_mesh(path)
-            name = default_name(task["stem"], grid_of(mesh, options).shape, "uint8", task["ext"])
+            mesh = load(path, options)
+            from .formats import format_for
+
+            # .binvox: a resolution is binvox's -d N cube (see geovox.grid.fit_for).
+            grid = grid_of(mesh, options, format_for("x" + task["ext"]))
+            name = default_name(task["stem"], grid.shape, "uint8", task["ext"])
             target = out_dir.rstrip("/") + "/" + name if remote else os.path.join(out_dir, name)
             if not task["overwrite"] and _output_exists(target):
                 if _written_since(target, task.get("started")):
@@ -217,8 +239,9 @@ def _convert_one(task) -> Result:
                              write_options=task["write_options"])
                 written = [local] + [f for f in report.files if f != local]
                 outputs = _upload(written, local, out_dir) if remote else written
-        note = f"{report.inside:,} inside" + (f"; warning: {'; '.join(said)}" if said else "")
-        return Result(path, "ok", outputs, "", time.perf_counter() - t0, note)
+        note = f"{report.inside:,} inside" + (f"; warning: {warning_cell(said, path)}" if said
+                                               else "")
+        return Result(path, "ok", outputs, "", time.perf_counter() - t0, note, list(said))
     except (GeovoxError, MemoryError) as exc:
         return Result(path, "failed", [], _line(str(exc)), time.perf_counter() - t0)
     except Exception as exc:  # a model must not stop the batch; say what happened
@@ -237,6 +260,35 @@ def _check_worker(task) -> None:
         raise ClusterError(f"this worker has geovox {mine['geovox']} and NumPy {mine['numpy']}, "
                            f"the client geovox {task['versions']['geovox']} and NumPy "
                            f"{task['versions']['numpy']}")
+
+
+#: Longest warning cell of a batch's summary row (the full text is in ``Result.warnings``).
+CELL = 100
+
+
+def warning_cell(messages, path="") -> str:
+    """A model's warnings in a few words, for its row of a batch's summary.
+
+    Each warning's first clause (up to ``"; "``: what was wrong, or how many
+    voxels are approximate), without the model's own name, which the row
+    already shows; cut to :data:`CELL` characters.
+
+    Parameters
+    ----------
+    messages : list of str
+        The warnings, in full.
+    path : str
+        The model's file.
+    """
+    prefix = os.path.basename(os.fspath(path)) + ": " if path else None
+    heads = []
+    for m in messages:
+        head = m.split("; ", 1)[0]
+        if prefix and head.startswith(prefix):
+            head = head[len(prefix):]
+        heads.append(head)
+    cell = "; ".join(heads)
+    return cell if len(cell) <= CELL else cell[:CELL - 1].rstrip() + "…"
 
 
 def _scratch(wanted: bool):
@@ -331,7 +383,7 @@ def _submit_dask(client, tasks, retries, on_result):
     more, they would be blamed too (Dask queues only large groups of tasks
     on its side). It also keeps a run of 100,000 models from putting them
     all on the scheduler at once; the cost is one message round trip between
-    two models on a thread (a few ms, see benchmarks/README.md).
+    two models on a thread (a few ms, see docs/benchmarks.md).
     """
     from asyncio import CancelledError
     from collections import deque

@@ -122,6 +122,18 @@ def _inside_names():
     return [m.value for m in Inside]
 
 
+def _label_sources():
+    from .labels import SOURCES
+
+    return list(SOURCES)
+
+
+def _overlap_rules():
+    from .labels import OVERLAPS
+
+    return list(OVERLAPS)
+
+
 def _format_names():
     from .formats import formats
 
@@ -137,9 +149,23 @@ def add_grid_arguments(c, *, grid_only=False):
                      help="voxels along x, y, z")
     res.add_argument("--voxel-size", type=_positive_float, metavar="S",
                      help="edge of a cubic voxel; the region grows to fit whole voxels")
+    cube = c.add_mutually_exclusive_group()
+    cube.add_argument("--cube", dest="fit", action="store_const", const="cube",
+                      help="with -r N: an N³ cube of cubic voxels whose edge is the box's longest "
+                           "side, at its minimum corner (binvox -d N; what -r means for .binvox)")
+    cube.add_argument("--cube-center", "--cube-centre", dest="fit", action="store_const",
+                      const="cube-center", help="the same cube, centred on the box (binvox -cb)")
     c.add_argument("--bounds", type=_finite_float, nargs=6,
                    metavar=("XMIN", "YMIN", "ZMIN", "XMAX", "YMAX", "ZMAX"),
                    help="region of interest (default: the mesh's bounding box)")
+    c.add_argument("--like", metavar="IMAGE",
+                   help="voxelise onto this image's grid (NIfTI .nii/.nii.gz, NRRD .nrrd/.seg.nrrd/"
+                        ".nhdr, MetaImage .mhd/.mha, or a volume geovox wrote): its shape, spacing, "
+                        "origin and direction, oblique included; excludes the grid options")
+    c.add_argument("--mesh-space", choices=["lps", "ras"], type=str.lower, default=None,
+                   help="with --like: the mesh's coordinate frame, overriding its 3D Slicer "
+                        "SPACE= mark (default: the mark, else LPS)")
+    _references_argument(c)
     if grid_only:
         return
     c.add_argument("--backend", default="auto", choices=_Choices(_backend_names), metavar="NAME",
@@ -176,6 +202,22 @@ def add_grid_arguments(c, *, grid_only=False):
     c.add_argument("-j", "--jobs", type=int, default=None, metavar="N",
                    help="threads to use (default: one per core); with several models, worker "
                         "processes; the result does not depend on it")
+    c.add_argument("--labels", default=None, choices=_Choices(_label_sources), metavar="SOURCE",
+                   help="also label each voxel (%(choices)s): the model's parts (OBJ objects or "
+                        "groups, scene nodes), connected components, the nearest surface's "
+                        "material, or the input file (several inputs: one scene on one grid)")
+    c.add_argument("--overlap", default="last", choices=_Choices(_overlap_rules), metavar="RULE",
+                   help="with --labels: which part a voxel inside several takes: %(choices)s "
+                        "(default: the last in file order)")
+    c.add_argument("--fractions", action="store_true",
+                   help="with --labels: each label's coverage fraction per voxel")
+
+
+def _references_argument(c):
+    c.add_argument("--references", choices=["anywhere", "folder"], default="anywhere",
+                   help="files the model names (materials, textures, glTF buffers): read from "
+                        "anywhere (default), or only from under the model's own folder, for "
+                        "files you did not make; URLs are never fetched")
 
 
 def add_convert(sub):
@@ -226,16 +268,25 @@ def add_convert(sub):
 
 def add_preview(sub):
     pv = sub.add_parser("preview", help="write a PNG picture of a volume (or of a mesh, voxelised)")
-    pv.add_argument("input", help="a volume written by geovox, or a mesh")
+    pv.add_argument("input", help="any file geovox wrote (a volume, its .json sidecar or .mhd/.nhdr "
+                    "header), or a mesh")
     pv.add_argument("-o", "--output", required=True, help="PNG file to write")
     add_grid_arguments(pv)
 
 
 def add_view(sub):
-    vw = sub.add_parser("view", help="interactive 3D view of a volume (needs the 'view' extra)")
-    vw.add_argument("input", help="a volume written by geovox, or a mesh")
+    vw = sub.add_parser("view", help="interactive 3D view of a volume (needs the 'view' extra), "
+                                     "or with --html one self-contained page for any browser")
+    vw.add_argument("input", help="any file geovox wrote (a volume, its .json sidecar or .mhd/.nhdr "
+                    "header), or a mesh")
     vw.add_argument("--mesh", help="show this mesh beside the volume")
     vw.add_argument("--screenshot", metavar="PNG", help="render off-screen into PNG instead")
+    vw.add_argument("--html", metavar="OUT.html",
+                    help="write one self-contained page that shows the volume in any browser "
+                         "(WebGL2; no PyVista, no network) instead of opening a window")
+    vw.add_argument("--max-side", type=_positive_int, default=None, metavar="N",
+                    help="with --html: show a volume with a side above N voxels downsampled "
+                         "(default 256)")
     add_grid_arguments(vw)
 
 
@@ -329,27 +380,23 @@ def _progress_bar(args, options):
 
 
 def _volume_or_mesh(args, path, largest=None):
-    """A volume file written by geovox is read; anything else is voxelised as a mesh.
+    """A file geovox wrote (volume, header or sidecar) is read; anything else is voxelised.
 
     A ``.zarr`` is read from its finest pyramid level with every side at most ``largest``.
     """
     from . import formats
 
-    lower = path.lower()
-    if any(lower.endswith(e) for f in formats.formats() for e in f.extensions):
-        if lower.rstrip("/").endswith(".zarr") and largest is not None:
-            return formats.read(path, max_side=largest)
-        return formats.read(path)
+    if formats.is_volume_file(path):
+        return formats.read_volume(path, max_side=largest)
     return _voxelize(path, _options(args))
 
 
 def _voxelize(mesh, options):
     """The volume of ``mesh`` in memory (a plan and a run), its warnings printed."""
-    from .mesh import load_mesh
-    from .pipeline import plan, run
+    from .pipeline import load, plan, run
 
     with collecting():
-        m = load_mesh(mesh)
+        m = load(mesh, options)
         return run(m, plan(m, options)).volume
 
 
@@ -489,9 +536,11 @@ def _convert_to_url(args) -> int:
 
 
 def _is_batch(args) -> bool:
-    """Many models, or one sent as a batch of one to a cluster."""
+    """Many models, or one sent as a batch of one to a cluster (several with --labels: a scene)."""
     cluster = args.scheduler or args.scheduler_file or args.local_cluster
     out = args.output
+    if args.labels is not None and len(args.input) > 1:
+        return False
     return bool(len(args.input) > 1 or os.path.isdir(args.input[0]) or args.manifest or args.shard
                 or (cluster and (out is None or out.endswith(("/", os.sep))
                                  or (os.path.isdir(out) and not out.lower().endswith(".zarr"))))
@@ -517,20 +566,29 @@ def run_convert(args) -> int:
     """``geovox convert``: one model a plan and a run; many models a batch."""
     from . import formats
     from .errors import ParameterError
-    from .mesh import load_mesh
-    from .pipeline import grid_of, plan, run
+    from .pipeline import grid_of, load, plan, run
 
+    if args.fractions and not args.labels:
+        raise ParameterError("--fractions needs --labels (part, component, material or file)")
     if _is_batch(args):
         return _batch(args)
     if "://" in (args.output or ""):
         return _convert_to_url(args)
-    args.input = args.input[0] if isinstance(args.input, list) else args.input
+    inputs = args.input if isinstance(args.input, list) else [args.input]
+    args.input = inputs[0]
     t0 = time.perf_counter()
     _check_outputs(args)
     options = _options(args)
-    mesh = load_mesh(args.input)
+    # Several files with --labels: one scene on one grid (--labels file names them).
+    mesh = load(inputs if len(inputs) > 1 else args.input, options)
+    if len(inputs) > 1:
+        args.input = "scene"
     t_read = time.perf_counter() - t0
-    output = _output_path(args, args.input, grid_of(mesh, options).shape)
+    default_out = args.output is None or args.output.endswith(("/", os.sep)) or (
+        os.path.isdir(args.output) and not args.output.lower().endswith(".zarr"))
+    # .binvox: -r N is binvox's -d N cube (geovox.grid.fit_for).
+    named = formats.format_for("x.raw" if default_out else args.output, args.fmt)
+    output = _output_path(args, args.input, grid_of(mesh, options, named).shape)
     fmt = formats.format_for(output, args.fmt)
     write_options = _write_options(args, fmt)  # a bad combination fails before any work
     if (args.scheduler or args.scheduler_file or args.local_cluster) and fmt.name != "zarr":
@@ -565,17 +623,51 @@ def run_preview(args) -> int:
     from .preview import LARGEST, write_preview
 
     formats.check_writable(args.output)
+    if args.like is not None:
+        from .preview import write_preview_like
+        from .reference import load_reference
+        from .volume import reference_line
+
+        ref, image = load_reference(args.like, with_data=True)
+        vol = _volume_or_mesh(args, args.input)
+        note = "" if vol.mesh_space is None else reference_line(ref, vol.mesh_space).split("; ")[1]
+        print(f"wrote {write_preview_like(vol, image, ref, args.output, note)}")
+        return EXIT_OK
     vol = _volume_or_mesh(args, args.input, LARGEST)
     print(f"wrote {write_preview(vol, args.output)}")
     return EXIT_OK
 
 
+def _view_html(args) -> int:
+    from . import formats
+    from .errors import ParameterError
+    from .view import LARGEST
+    from .view.html import MAX_SIDE, to_html
+
+    if args.mesh or args.screenshot:
+        raise ParameterError("--html writes a page on its own: drop --mesh and --screenshot")
+    formats.check_writable(args.html)
+    t0 = time.perf_counter()
+    max_side = args.max_side or MAX_SIDE
+    vol = _volume_or_mesh(args, args.input, max(LARGEST, max_side))
+    out = to_html(vol, args.html, max_side=max_side, source=args.input)
+    size = os.path.getsize(out)
+    print(f"wrote {out} ({size / 1e6:.2f} MB, {time.perf_counter() - t0:.2f} s); open it in a browser")
+    return EXIT_OK
+
+
 def run_view(args) -> int:
+    if args.html:
+        return _view_html(args)
+    if args.max_side is not None:
+        from .errors import ParameterError
+
+        raise ParameterError("--max-side is for --html")
     from .mesh import load_mesh
     from .view import LARGEST, show
 
     vol = _volume_or_mesh(args, args.input, LARGEST)
-    mesh = load_mesh(args.mesh) if args.mesh else None
+    mesh = load_mesh(args.mesh, references=args.references) if args.mesh else None
     out = show(vol, mesh=mesh, screenshot=args.screenshot)
     if out:
         print(f"wrote {out}")
@@ -584,30 +676,36 @@ def run_view(args) -> int:
 
 def run_info(args) -> int:
     from .errors import collect_warnings
-    from .mesh import load_mesh
-    from .pipeline import plan
+    from .pipeline import load, plan
     from .report import format_report, grid_cost, mesh_report
 
-    mesh = load_mesh(args.input)
     options = _options(args)
+    mesh = load(args.input, options)
     with collect_warnings(drop=True):  # the report says what a repair does
         p = plan(mesh, options)
-    print(format_report(mesh_report(mesh), grid_cost(mesh, options)))
+    cost = grid_cost(mesh, options)
+    if options.like is not None:
+        from .reference import field_of_view, format_field_of_view, load_reference
+
+        ref = load_reference(options.like)
+        cost["spacing"] = ref.spacing.tolist()
+        print(format_report(mesh_report(mesh), cost))
+        print(format_field_of_view(ref, field_of_view(mesh, ref, options.mesh_space)))
+    else:
+        print(format_report(mesh_report(mesh), cost))
+    from .labels import parts_report
+
+    print(parts_report(mesh))
     print("\n".join(p.describe()))
     return EXIT_OK
 
 
 def run_backends(args) -> int:
-    from .backends import PREFERENCE, REGISTRY, available_backends
+    from .backends import backend_report
 
-    have = available_backends()
-    for name in PREFERENCE:
-        status = "available" if name in have else f"missing (pip install {REGISTRY[name][1]})"
-        print(f"{name:8s} {status}")
-    # Not in PREFERENCE (`auto` never picks it): shown with its adapter.
-    from .backends.webgpu import describe
-
-    print(f"{'webgpu':8s} {describe()}")
+    # The same answer as geovox.usable_backends(); webgpu with its adapter.
+    for name, (_, line) in backend_report().items():
+        print(f"{name:8s} {line}")
     return EXIT_OK
 
 

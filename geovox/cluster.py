@@ -38,7 +38,7 @@ EXTRA_HINT = "pip install 'geovox[distributed]'"
 #: workers start without Dask's ``MALLOC_TRIM_THRESHOLD_=65536``, which
 #: returns freed memory to the system so eagerly that the corpus's slow
 #: models took twice the wall time (5.7 s of system time instead of 1.2 s,
-#: measured; see benchmarks/README.md).
+#: measured; see benchmarks/results/history.md).
 LOCAL_CLUSTER_CONFIG = {
     "distributed.scheduler.allowed-failures": 0,
     "distributed.scheduler.worker-saturation": 1.0,

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 import numbers
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -17,6 +17,13 @@ from .errors import ParameterError
 
 #: Resolution used when the caller gives none of resolution, shape, voxel_size.
 DEFAULT_RESOLUTION = 128
+
+#: How ``resolution`` lays its N³ voxels over the region (``fit=``, ``--cube``):
+#: ``"box"``: N per axis over the box, so voxels are as unequal as its sides;
+#: ``"cube"``: binvox's ``-d N``, an N³ cube of cubic voxels whose edge is the
+#: box's longest side, at the box's minimum corner; ``"cube-center"``: the same
+#: cube centred on the box, as binvox's ``-cb``.
+FITS = ("box", "cube", "cube-center")
 
 
 @dataclass(frozen=True)
@@ -29,11 +36,16 @@ class Grid:
         Corners of the region covered by the grid.
     shape : (3,) tuple of int
         Number of voxels along x, y, z.
+    reference : geovox.reference.Reference or None
+        The user's grid this one stands for (``like=``): the region is then
+        its local frame (see :mod:`geovox.reference`) and writers place the
+        voxels with the reference's affine.
     """
 
     lo: np.ndarray
     hi: np.ndarray
     shape: tuple
+    reference: object = field(default=None, compare=False)
 
     @property
     def spacing(self) -> np.ndarray:
@@ -63,7 +75,13 @@ class Grid:
         start : float, optional
             Coordinate along ``axis`` where the rays begin; it must lie outside
             the whole mesh (not merely outside the grid) so that a grid that
-            cuts through the mesh is still classified correctly.
+            cuts through the mesh is still classified correctly. Default: the
+            grid's low face.
+
+        Returns
+        -------
+        Columns
+            ``shape[u] * shape[v]`` rays, one per voxel column.
         """
         u, v = (a for a in range(3) if a != axis)
         return Columns(
@@ -91,6 +109,23 @@ class Columns:
     crossings are measured along the ray from the plane ``axis = w0`` (the
     grid's low face), so that they, like the lattice, move with the grid:
     translating mesh and grid together by whole voxels changes nothing.
+
+    Attributes
+    ----------
+    axis : int
+        Direction of the rays (0, 1 or 2).
+    u_axis, v_axis : int
+        The other two axes, ``u_axis < v_axis``.
+    u0, v0 : float
+        Low corner of the lattice across the rays.
+    du, dv : float
+        Spacing of the rays along ``u_axis`` and ``v_axis`` (the voxel size).
+    nu, nv : int
+        Rays along ``u_axis`` and ``v_axis``; ray ``i + nu * j``.
+    start : float
+        Coordinate along ``axis`` where every ray starts, outside the mesh.
+    w0 : float
+        The plane depths are measured from (the grid's low face).
     """
 
     axis: int
@@ -159,6 +194,7 @@ def make_grid(
     resolution=None,
     shape=None,
     voxel_size=None,
+    fit="box",
 ) -> Grid:
     """Build the grid from the user's region and resolution choice.
 
@@ -175,16 +211,26 @@ def make_grid(
     voxel_size : float, optional
         Edge of a cubic voxel; the region grows symmetrically to a whole
         number of voxels (``shape = ceil(extent / voxel_size)``).
+    fit : {"box", "cube", "cube-center"}
+        With ``resolution`` (see :data:`FITS`): ``"cube"`` and
+        ``"cube-center"`` give the N³ cube of binvox's ``-d N`` (and ``-cb``)
+        over the region's longest side; they refuse ``shape`` and
+        ``voxel_size``.
 
     At most one of ``resolution``, ``shape`` and ``voxel_size`` may be given;
     with none, ``resolution=DEFAULT_RESOLUTION``.
     """
+    if fit not in FITS:
+        raise ParameterError(f"`fit` must be one of {', '.join(map(repr, FITS))}, got {fit!r}")
     given = [n for n, v in (("resolution", resolution), ("shape", shape),
                             ("voxel_size", voxel_size)) if v is not None]
     if len(given) > 1:
         raise ParameterError(
             f"give only one of `resolution`, `shape`, `voxel_size`; got {', '.join(given)}"
         )
+    if fit != "box" and given and given[0] != "resolution":
+        raise ParameterError(f"`fit={fit!r}` (--cube) makes an N³ cube from `resolution`; it "
+                             f"cannot take `{given[0]}`")
     if bounds is None:
         mb = np.asarray(mesh_bounds, dtype=np.float64)
         lo, hi = mb[0].copy(), mb[1].copy()
@@ -225,4 +271,51 @@ def make_grid(
         return Grid(lo=lo, hi=hi, shape=n)
 
     r = DEFAULT_RESOLUTION if resolution is None else _check_positive_int("resolution", resolution)
+    if fit != "box":
+        lo, hi = cube_region(lo, hi, centre=fit == "cube-center")
     return Grid(lo=lo, hi=hi, shape=(r, r, r))
+
+
+def cube_region(lo, hi, centre=False):
+    """The cube binvox's ``-d`` voxelises: edge = the box's longest side.
+
+    binvox normalises a model by translating its bounding box's minimum
+    corner to the origin and scaling by 1 / (longest side), then voxelises
+    the unit cube; its header's ``translate`` is that corner and ``scale``
+    that side. With ``-cb`` ("center model inside unit cube") the box is
+    centred in the cube instead, on every axis.
+
+    Parameters
+    ----------
+    lo, hi : (3,) float64
+        The box.
+    centre : bool
+        Centre the box in the cube (``-cb``) rather than start both at ``lo``.
+
+    Returns
+    -------
+    lo, hi : (3,) float64
+        The cube's corners.
+    """
+    lo = np.asarray(lo, dtype=np.float64)
+    hi = np.asarray(hi, dtype=np.float64)
+    edge = float(np.max(hi - lo))
+    if centre:
+        # Centred in float64 as (lo + hi) / 2 - edge / 2; on the longest axis
+        # this is lo up to rounding, so that axis's corner is kept exactly.
+        start = np.where(hi - lo == edge, lo, (lo + hi) / 2.0 - edge / 2.0)
+    else:
+        start = lo.copy()
+    return start, start + edge
+
+
+def fit_for(fit, fmt_name=None, *, shape=None, voxel_size=None) -> str:
+    """The fit a conversion into format ``fmt_name`` uses.
+
+    ``fit`` when given; otherwise ``"cube"`` for ``.binvox`` with a resolution
+    (given or the default), because binvox's ``-d N`` means that cube and
+    every pipeline that reads binvox asks for it so; ``"box"`` elsewhere.
+    """
+    if fit is not None:
+        return fit
+    return "cube" if fmt_name == "binvox" and shape is None and voxel_size is None else "box"

@@ -29,11 +29,14 @@ what was repaired, unless the mesh only had overlapping closed pieces).
 
 from __future__ import annotations
 
+import os
+from types import SimpleNamespace
 
 import numpy as np
 
 from .backends.base import Hits
 from .errors import ParameterError, warn
+from .kernels import lattice
 from .mesh import Mesh
 from .parallel import scan_along
 
@@ -53,20 +56,21 @@ def boundary_edges(mesh: Mesh) -> np.ndarray:
         return mesh._cache["boundary"]
     if len(mesh.faces) == 0:
         return np.zeros((0, 2), dtype=np.int64)
+    kernel = lattice()
+    if kernel is not None:
+        # The common case first, in linear time (no sort): closed exactly
+        # when every undirected edge is run as often one way as the other.
+        closed, mesh._cache["non_manifold"] = kernel.edge_checks(_position_faces(mesh, kernel))
+        if closed:
+            out = np.zeros((0, 2), dtype=np.int64)
+            mesh._cache["boundary"] = out
+            return out
     f = mesh.geometric_faces
     e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
     e = e[e[:, 0] != e[:, 1]]  # degenerate faces repeat a vertex
     n = int(f.max()) + 1 if len(f) else 1
     lo, hi = np.minimum(e[:, 0], e[:, 1]), np.maximum(e[:, 0], e[:, 1])
-    # The common case first, with one sort: closed exactly when every
-    # undirected edge is run as often one way as the other. Sorted by
-    # (edge, direction), a running +-1 sum returns to 0 at the end of
-    # every edge's run.
-    forward = e[:, 0] < e[:, 1]
-    order = np.sort(2 * (lo * n + hi) + forward)
-    net = np.cumsum(np.where(order & 1, 1, -1))
-    ends = np.flatnonzero(np.r_[order[1:] >> 1 != order[:-1] >> 1, len(order) > 0])
-    if not net[ends].any():
+    if kernel is None and _closed(e, lo, hi, n):
         out = np.zeros((0, 2), dtype=np.int64)
         mesh._cache["boundary"] = out
         return out
@@ -91,6 +95,33 @@ def boundary_edges(mesh: Mesh) -> np.ndarray:
     out = rep[out]
     mesh._cache["boundary"] = out
     return out
+
+
+def _position_faces(mesh: Mesh, kernel) -> np.ndarray:
+    """(m, 3) int64: faces over vertices merged by exact position, numbered by a hash.
+
+    The same merging as :attr:`Mesh.geometric_faces` in linear time, with
+    another numbering: for the compiled checks, whose answers do not depend
+    on it (a million vertices' lexicographic sort costs more than all of them).
+    """
+    if "position_faces" not in mesh._cache:
+        if "geometric_faces" in mesh._cache:
+            mesh._cache["position_faces"] = mesh.geometric_faces
+        else:
+            mesh._cache["position_faces"] = kernel.merge_positions(mesh.vertices)[mesh.faces]
+    return mesh._cache["position_faces"]
+
+
+def _closed(e, lo, hi, n) -> bool:
+    """Whether every undirected edge is run as often one way as the other (one sort).
+
+    Sorted by (edge, direction), a running +-1 sum returns to 0 at the end
+    of every edge's run.
+    """
+    order = np.sort(2 * (lo * n + hi) + (e[:, 0] < e[:, 1]))
+    net = np.cumsum(np.where(order & 1, 1, -1))
+    ends = np.flatnonzero(np.r_[order[1:] >> 1 != order[:-1] >> 1, len(order) > 0])
+    return not net[ends].any()
 
 
 def edge_counts(mesh: Mesh):
@@ -124,12 +155,62 @@ def caps(mesh: Mesh, edges: np.ndarray) -> np.ndarray:
     vid = vid.reshape(-1, 2)
     nv = int(vid.max()) + 1
     _, label, _ = components(nv, vid[:, 0], vid[:, 1])
-    piece = label[vid[:, 0]]
+    piece = _loops(vid, label[vid[:, 0]])
     npieces = int(piece.max()) + 1
     mid = (pos[edges[:, 0]] + pos[edges[:, 1]]) / 2
     centroid = np.stack([np.bincount(piece, weights=mid[:, k], minlength=npieces)
                          for k in range(3)], axis=1) / np.bincount(piece, minlength=npieces)[:, None]
     return np.stack([centroid[piece], pos[edges[:, 1]], pos[edges[:, 0]]], axis=1), piece
+
+
+def _loops(vid: np.ndarray, piece: np.ndarray) -> np.ndarray:
+    """Each boundary piece split into closed loops of edges, where it can be: (k,) int64 labels.
+
+    Holes that touch at a vertex form one connected piece, and one fan from
+    the piece's centroid then reaches across the model from hole to hole
+    (the truck of libigl's tutorial: a piece of 139 edges, 15 vertices
+    where loops meet, whose fan has 60 times the area of its net area
+    vector). A fan over each closed loop spans the same boundary, so the
+    winding number of the mesh is the same, but the caps are small: the
+    far-field sums of :func:`cap_winding` then decide far more voxels.
+
+    At each position the k-th edge arriving is continued by the k-th edge
+    leaving, and the loops are the cycles of that successor map (labelled
+    by pointer jumping, in whole arrays). A piece with a position where as
+    many edges do not arrive as leave has no such loops: it keeps one fan.
+
+    Parameters
+    ----------
+    vid : (k, 2) int64
+        Each boundary edge's start and end, as position ids.
+    piece : (k,) int64
+        Each edge's connected piece.
+    """
+    k = len(vid)
+    out_order = np.argsort(vid[:, 0], kind="stable")
+    in_order = np.argsort(vid[:, 1], kind="stable")
+    balanced = np.array_equal(vid[out_order, 0], vid[in_order, 1])
+    nxt = np.empty(k, np.int64)
+    if balanced:
+        nxt[in_order] = out_order
+    else:  # per piece: balanced pieces still split, where every position balances
+        nv = int(vid.max()) + 1
+        d = np.bincount(vid[:, 0], minlength=nv) - np.bincount(vid[:, 1], minlength=nv)
+        bad = np.zeros(int(piece.max()) + 1, bool)
+        bad[piece[(d[vid[:, 0]] != 0) | (d[vid[:, 1]] != 0)]] = True
+        ok = ~bad[piece]
+        if not ok.any():
+            return piece
+        sub = np.flatnonzero(ok)
+        lab = _loops(vid[sub], piece[sub])
+        out = piece.copy()
+        out[sub] = int(piece.max()) + 1 + lab
+        return np.unique(out, return_inverse=True)[1].astype(np.int64)
+    label = np.arange(k, dtype=np.int64)
+    for _ in range(max(1, int(np.ceil(np.log2(max(k, 2)))) + 1)):
+        label = np.minimum(label, label[nxt])
+        nxt = nxt[nxt]
+    return np.unique(label, return_inverse=True)[1].astype(np.int64)
 
 
 def solid_angles(tris: np.ndarray, points: np.ndarray) -> np.ndarray:
@@ -246,7 +327,7 @@ def winding_occupancy(mesh: Mesh, grid, cast, axis: int, jobs: int = 1):
     w = signed_counts(closed, hits, columns, grid, jobs)
     if len(cap_tris):
         occ = np.zeros(grid.shape, dtype=bool, order="F")
-        _correct_caps(occ, w, grid, cap_tris)
+        _correct_caps(occ, w, grid, cap_tris, jobs)
         hits = hits.take(hits.triangle < nf)
     else:
         occ = np.asfortranarray(w != 0)
@@ -300,7 +381,10 @@ def consistent(mesh: Mesh) -> bool:
     """
     if "consistent" not in mesh._cache:
         ok = len(boundary_edges(mesh)) == 0
-        if ok:
+        kernel = lattice()
+        if ok and kernel is not None:
+            ok = not kernel.duplicate_faces(_position_faces(mesh, kernel))  # linear, no sort
+        elif ok:
             s = np.sort(mesh.geometric_faces, axis=1)
             n = np.int64(s.max()) + 1 if len(s) else np.int64(1)
             if n < (1 << 21):  # three ids fit in one int64 key
@@ -324,8 +408,12 @@ def overlapping_pieces(mesh: Mesh) -> bool:
         return mesh._cache["overlap"]
     from .repair import edge_table, face_pieces, manifold_pairs
 
-    g = mesh.geometric_faces
-    g = g[(g[:, 0] != g[:, 1]) & (g[:, 1] != g[:, 2]) & (g[:, 2] != g[:, 0])]
+    kernel = lattice()
+
+    def proper(g):  # the faces that do not repeat a vertex
+        return g[(g[:, 0] != g[:, 1]) & (g[:, 1] != g[:, 2]) & (g[:, 2] != g[:, 0])]
+
+    g = proper(_position_faces(mesh, kernel) if kernel is not None else mesh.geometric_faces)
     overlap = False
     single = True
     if len(g) > 1:
@@ -334,6 +422,7 @@ def overlapping_pieces(mesh: Mesh) -> bool:
         # the default path importing scipy.sparse alone costs about 0.2 s.)
         single = _vertex_connected(g) and not _non_manifold(mesh)
     if not single:
+        g = proper(mesh.geometric_faces)
         edge, count, _ = edge_table(g, int(g.max()) + 1)
         # Pieces meet across manifold edges only: two closed parts that touch
         # along an edge (four faces on it) stay two pieces.
@@ -360,7 +449,12 @@ def _vertex_connected(faces: np.ndarray) -> bool:
 
     A surface mesh's graph diameter is about the square root of its size,
     so the number of rounds stays in the hundreds even for millions of faces.
+    The compiled kernel's union-find (:mod:`geovox.kernels`) gives the same
+    answer in linear time.
     """
+    kernel = lattice()
+    if kernel is not None:
+        return kernel.vertex_connected(faces)
     nv = int(faces.max()) + 1
     a = np.r_[faces[:, 0], faces[:, 1], faces[:, 2], faces[:, 1], faces[:, 2], faces[:, 0]]
     b = np.r_[faces[:, 1], faces[:, 2], faces[:, 0], faces[:, 0], faces[:, 1], faces[:, 2]]
@@ -391,6 +485,10 @@ def _vertex_connected(faces: np.ndarray) -> bool:
 def _non_manifold(mesh: Mesh) -> bool:
     """Whether some edge is used by more than two faces (cached by boundary_edges when it can)."""
     if "non_manifold" not in mesh._cache:
+        kernel = lattice()
+        if kernel is not None:
+            mesh._cache["non_manifold"] = kernel.edge_checks(_position_faces(mesh, kernel))[1]
+            return mesh._cache["non_manifold"]
         f = mesh.geometric_faces
         e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
         e = e[e[:, 0] != e[:, 1]]
@@ -427,6 +525,16 @@ PASSES = ((1.0, 1e-3), (0.3, 1e-5), (0.1, 1e-6))
 #: (brick, cap group) pairs a refining pass may handle (about 10 s here) before
 #: the voxels it would refine are decided by the estimate they have, with a warning.
 PAIR_BUDGET = 10_000_000
+#: The last compiled run's counts: voxels refined alone, of them summed
+#: exactly, left to the estimate; and the cap triangles.
+STATS: dict = {}
+#: The compiled kernel's passes (second order, see geovox/_winding.pyx): the
+#: first over bricks, the others over single voxels the one before left undecided.
+COMPILED_PASSES = ((0.2, 1e-4), (0.1, 1e-7))
+#: Processor seconds per thread the compiled kernel may spend (from its
+#: start) before it leaves the voxels its first pass left undecided to their
+#: estimates, with a warning (about what PAIR_BUDGET allows the NumPy traversal).
+WORK_SECONDS = 10.0
 #: (brick, cap group) pairs handled at once: bounds the traversal's memory.
 PAIR_CHUNK = 1 << 17
 #: Undecided voxels times cap triangles up to which they are summed exactly
@@ -574,7 +682,7 @@ def cap_winding(grid, tris, active, theta=THETA, eps=EPS, budget=None, then=None
     # Per brick: [visits, splits] (see ``work``), one array so one scatter.
     work = [None] + [np.zeros(e.shape + (2,), np.int32) if then is not None else None
                      for e in est[1:]]
-    S, A, C, R, H = nodes["S"], nodes["A"], nodes["c"], nodes["r"], nodes["h"]
+    S, A, R = nodes["S"], nodes["A"], nodes["r"]
     stack = [(np.full(len(start), level0, np.int64), start.astype(np.int64),
               np.full(len(start), top, np.int64), np.zeros(len(start), np.int64))]
     handled = 0
@@ -586,53 +694,20 @@ def cap_winding(grid, tris, active, theta=THETA, eps=EPS, budget=None, then=None
         if len(kb) > PAIR_CHUNK:
             stack.append((kb[PAIR_CHUNK:], b[PAIR_CHUNK:], ln[PAIR_CHUNK:], nj[PAIR_CHUNK:]))
             kb, b, ln, nj = kb[:PAIR_CHUNK], b[:PAIR_CHUNK], ln[:PAIR_CHUNK], nj[:PAIR_CHUNK]
-        side = (1 << kb).astype(np.float64)
-        p = lo + (b * side[:, None] + (side[:, None] - 1) / 2 + 0.5) * d
-        rb = 0.5 * (side - 1) * np.linalg.norm(d)
-        node = offset[ln] + nj
-        vec = C[node] - p
-        dist = np.sqrt(np.einsum("ij,ij->i", vec, vec))
-        # The gap between the brick's ball and the node's box.
-        out = np.maximum(np.abs(vec) - H[node], 0.0)
-        gap = np.sqrt(np.einsum("ij,ij->i", out, out)) - rb
-        reach = R[node] + rb
-        single = ln == 0
-        with np.errstate(divide="ignore", invalid="ignore"):
-            g3 = 2 * np.pi * gap * gap * gap
-            # A group's dipole at the brick's centre, or one triangle's exact
-            # value there: the first errs by moving both ends (r + rb), the
-            # second by moving the brick's end only (rb; and the kernel's
-            # integral over a triangle at least g away is at most 2 pi / g).
-            bound = np.where(single,
-                             np.minimum(A[node] * rb / g3, rb / gap),
-                             A[node] * reach / g3)
-        # A single triangle's bound at a brick (up to rb / g) shrinks only
-        # linearly with the brick: it must also be small in absolute terms,
-        # or large triangles next to many voxels leave them all undecided.
-        far = (gap > 0) & (((reach <= theta * gap) & ~single)
-                           | ((rb <= theta * gap) & (bound <= theta * SINGLE)) | (bound <= eps))
-        leaf = single & (far | (kb == 0))
+        pr = _pairs(lo, d, nodes, offset, kb, b, ln, nj, theta, eps)
+        node, vec, bound, gap, single, far, leaf = (pr.node, pr.vec, pr.bound, pr.gap, pr.single,
+                                                     pr.far, pr.leaf)
         if then is not None:
-            t2, e2 = then
-            far2 = (gap > 0) & (((reach <= t2 * gap) & ~single)
-                                | ((rb <= t2 * gap) & (bound <= t2 * SINGLE)) | (bound <= e2))
-            # Split next time: a far pair the next pass does not take as far
-            # (a voxel and one triangle is always a leaf). Its children there
-            # are the node's (1 or 2) or the brick's active sub-bricks (known
-            # only after this pass: counted per brick in ``splits``).
-            again = far & ~far2 & ~(single & (kb == 0))
-            by_brick = again & (kb > 0) & (single | (0.5 * (side - 1) * np.linalg.norm(d) > R[node]))
-            kids = 1 + (2 * nj + 1 < size[np.maximum(ln - 1, 0)])
-            _count(work, kb, b, 1 + np.where(again & ~by_brick, kids, 0), by_brick)
+            _count_next(work, nodes, size, kb, b, ln, nj, pr, then)
         far &= ~single
         if far.any():
             f = np.flatnonzero(far)
-            val = np.einsum("ij,ij->i", S[node[f]], vec[f]) / (4 * np.pi * dist[f] ** 3)
+            val = np.einsum("ij,ij->i", S[node[f]], vec[f]) / (4 * np.pi * pr.dist[f] ** 3)
             _scatter(est, err, kb[f], b[f], val, *_clamp(val, bound[f], A[node[f]], gap[f]),
                      grid.shape)
         if leaf.any():
             f = np.flatnonzero(leaf)
-            val = _triangle_angles(tris[nj[f]], p[f])
+            val = _triangle_angles(tris[nj[f]], pr.p[f])
             brick = kb[f] > 0
             below, above = np.zeros(len(f)), np.zeros(len(f))
             if brick.any():
@@ -640,37 +715,108 @@ def cap_winding(grid, tris, active, theta=THETA, eps=EPS, budget=None, then=None
                 below[brick], above[brick] = _clamp(val[brick], bound[g], A[node[g]], gap[g])
             _scatter(est, err, kb[f], b[f], val, below, above, grid.shape)
         split = np.flatnonzero(~far & ~leaf)
-        if len(split) == 0:
-            continue
-        kb, b, ln, nj, rb_s, r_s = kb[split], b[split], ln[split], nj[split], rb[split], R[node[split]]
-        brick = (kb > 0) & ((ln == 0) | (rb_s > r_s))
-        if (~brick).any():  # two children of the node (the second may not exist)
-            s = np.flatnonzero(~brick)
-            c_ln = np.repeat(ln[s] - 1, 2)
-            c_nj = (2 * nj[s])[:, None] + np.arange(2)
-            c_nj = c_nj.reshape(-1)
-            ok = c_nj < size[c_ln]
-            c_kb, c_b, c_ln, c_nj = np.repeat(kb[s], 2)[ok], np.repeat(b[s], 2, axis=0)[ok], c_ln[ok], c_nj[ok]
-            handled += _exact_leaves(est, err, tris, grid, c_kb, c_b, c_ln, c_nj)
-            keep = (c_kb > 0) | (c_ln > 0)
-            stack.append((c_kb[keep], c_b[keep], c_ln[keep], c_nj[keep]))
-        if brick.any():  # eight sub-bricks (those inside the grid)
-            s = np.flatnonzero(brick)
-            child = (2 * b[s])[:, None, :] + _OCTANTS[None]
-            c_kb = np.repeat(kb[s] - 1, 8)
-            child = child.reshape(-1, 3)
-            ok = np.all(child * (1 << c_kb)[:, None] < shape, axis=1)
-            ok[ok] = _lookup(active, full, c_kb[ok], child[ok])
-            c_kb, child, c_ln, c_nj = c_kb[ok], child[ok], np.repeat(ln[s], 8)[ok], np.repeat(nj[s], 8)[ok]
-            handled += _exact_leaves(est, err, tris, grid, c_kb, child, c_ln, c_nj)
-            keep = (c_kb > 0) | (c_ln > 0)
-            stack.append((c_kb[keep], child[keep], c_ln[keep], c_nj[keep]))
+        if len(split):
+            handled += _split(stack, est, err, tris, grid, active, full, size,
+                              kb[split], b[split], ln[split], nj[split], pr.rb[split],
+                              R[node[split]])
     # Pairs summed straight away (_exact_leaves) after the last check count too:
     # a pass gives up exactly when it handles more than the budget.
     if budget is not None and handled > budget:
         return None
     est[0] = _merge(est[0])
     return est, err, work
+
+
+def _pairs(lo, d, nodes, offset, kb, b, ln, nj, theta, eps):
+    """Measure each (brick, node) pair of :func:`cap_winding` and take its test.
+
+    Returns a namespace with, per pair: ``p`` the brick's centre (n, 3), ``rb``
+    its radius, ``node`` the flat node index, ``vec`` node centre minus ``p``,
+    ``dist`` its length, ``gap`` between the brick's ball and the node's box,
+    ``reach`` (r + rb), ``single`` (the node is one triangle), ``bound`` (the
+    error bound of the pair's far-field term), ``far`` and ``leaf``.
+    """
+    C, H, R, A = nodes["c"], nodes["h"], nodes["r"], nodes["A"]
+    side = (1 << kb).astype(np.float64)
+    p = lo + (b * side[:, None] + (side[:, None] - 1) / 2 + 0.5) * d
+    rb = 0.5 * (side - 1) * np.linalg.norm(d)
+    node = offset[ln] + nj
+    vec = C[node] - p
+    dist = np.sqrt(np.einsum("ij,ij->i", vec, vec))
+    # The gap between the brick's ball and the node's box.
+    out = np.maximum(np.abs(vec) - H[node], 0.0)
+    gap = np.sqrt(np.einsum("ij,ij->i", out, out)) - rb
+    reach = R[node] + rb
+    single = ln == 0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        g3 = 2 * np.pi * gap * gap * gap
+        # A group's dipole at the brick's centre, or one triangle's exact
+        # value there: the first errs by moving both ends (r + rb), the
+        # second by moving the brick's end only (rb; and the kernel's
+        # integral over a triangle at least g away is at most 2 pi / g).
+        bound = np.where(single,
+                         np.minimum(A[node] * rb / g3, rb / gap),
+                         A[node] * reach / g3)
+    # A single triangle's bound at a brick (up to rb / g) shrinks only
+    # linearly with the brick: it must also be small in absolute terms,
+    # or large triangles next to many voxels leave them all undecided.
+    far = _far(gap, reach, rb, bound, single, theta, eps)
+    leaf = single & (far | (kb == 0))
+    return SimpleNamespace(p=p, rb=rb, node=node, vec=vec, dist=dist, gap=gap, reach=reach,
+                      single=single, bound=bound, far=far, leaf=leaf)
+
+
+def _far(gap, reach, rb, bound, single, theta, eps):
+    """cap_winding's test: the pair's far-field term is taken (bool per pair)."""
+    return (gap > 0) & (((reach <= theta * gap) & ~single)
+                        | ((rb <= theta * gap) & (bound <= theta * SINGLE)) | (bound <= eps))
+
+
+def _count_next(work, nodes, size, kb, b, ln, nj, pr, then) -> None:
+    """Count, per brick, the pairs the next pass (``then``) is sure to visit (cap_winding's ``work``)."""
+    t2, e2 = then
+    far2 = _far(pr.gap, pr.reach, pr.rb, pr.bound, pr.single, t2, e2)
+    # Split next time: a far pair the next pass does not take as far
+    # (a voxel and one triangle is always a leaf). Its children there
+    # are the node's (1 or 2) or the brick's active sub-bricks (known
+    # only after this pass: counted per brick in ``splits``).
+    again = pr.far & ~far2 & ~(pr.single & (kb == 0))
+    by_brick = again & (kb > 0) & (pr.single | (pr.rb > nodes["r"][pr.node]))
+    kids = 1 + (2 * nj + 1 < size[np.maximum(ln - 1, 0)])
+    _count(work, kb, b, 1 + np.where(again & ~by_brick, kids, 0), by_brick)
+
+
+def _split(stack, est, err, tris, grid, active, full, size, kb, b, ln, nj, rb, r) -> int:
+    """Push the children of the pairs that are neither far nor leaves; return the pairs summed at once.
+
+    A pair splits its larger side: the brick into its 8 sub-bricks (those
+    inside the grid and active), or the node into its 1 or 2 children.
+    Children that are one voxel and one triangle are summed straight away
+    (:func:`_exact_leaves`), the rest go on ``stack``.
+    """
+    shape = np.asarray(grid.shape, dtype=np.int64)
+    handled = 0
+    brick = (kb > 0) & ((ln == 0) | (rb > r))
+    if (~brick).any():  # two children of the node (the second may not exist)
+        s = np.flatnonzero(~brick)
+        c_ln = np.repeat(ln[s] - 1, 2)
+        c_nj = ((2 * nj[s])[:, None] + np.arange(2)).reshape(-1)
+        ok = c_nj < size[c_ln]
+        c_kb, c_b, c_ln, c_nj = np.repeat(kb[s], 2)[ok], np.repeat(b[s], 2, axis=0)[ok], c_ln[ok], c_nj[ok]
+        handled += _exact_leaves(est, err, tris, grid, c_kb, c_b, c_ln, c_nj)
+        keep = (c_kb > 0) | (c_ln > 0)
+        stack.append((c_kb[keep], c_b[keep], c_ln[keep], c_nj[keep]))
+    if brick.any():  # eight sub-bricks (those inside the grid)
+        s = np.flatnonzero(brick)
+        child = ((2 * b[s])[:, None, :] + _OCTANTS[None]).reshape(-1, 3)
+        c_kb = np.repeat(kb[s] - 1, 8)
+        ok = np.all(child * (1 << c_kb)[:, None] < shape, axis=1)
+        ok[ok] = _lookup(active, full, c_kb[ok], child[ok])
+        c_kb, child, c_ln, c_nj = c_kb[ok], child[ok], np.repeat(ln[s], 8)[ok], np.repeat(nj[s], 8)[ok]
+        handled += _exact_leaves(est, err, tris, grid, c_kb, child, c_ln, c_nj)
+        keep = (c_kb > 0) | (c_ln > 0)
+        stack.append((c_kb[keep], child[keep], c_ln[keep], c_nj[keep]))
+    return handled
 
 
 def _clamp(val, bound, area, gap):
@@ -849,7 +995,7 @@ def _merge(parts):
     return lin[starts], val, below, above, np.add.reduceat(count[order], starts)
 
 
-def _correct_caps(occ, w, grid, cap_tris) -> None:
+def _correct_caps(occ, w, grid, cap_tris, jobs: int = 1) -> None:
     """Decide ``w_M = w_{M+K} - w_K > 1/2`` with the caps' winding number from :func:`cap_winding`.
 
     A first pass gives every voxel an estimate of ``w_K`` and a proven bound
@@ -857,7 +1003,12 @@ def _correct_caps(occ, w, grid, cap_tris) -> None:
     of 1/2) get a second pass with a tighter opening ratio, over only the
     bricks that hold them, and any still undecided are summed exactly over
     every cap triangle (straight away, once they are few: see ``DIRECT``).
+    The compiled kernel, where it is built, does the same per voxel (see
+    :func:`_compiled_caps`).
     """
+    module = winding_kernel()
+    if module is not None:
+        return _compiled_caps(module, occ, w, grid, cap_tris, jobs)
     shape = np.asarray(grid.shape)
     top = max(0, int(np.ceil(np.log2(max(1, int(shape.max()) / 16)))))
     active = _pyramid(grid.shape, top)
@@ -956,16 +1107,89 @@ def _correct_caps(occ, w, grid, cap_tris) -> None:
         occ[ii] = (w[ii] - wk.reshape(k, -1).sum(axis=1)) > 0.5
 
 
+def winding_kernel(kernel=None):
+    """The compiled caps' winding number (``geovox._winding``), or None for the NumPy one.
+
+    ``kernel`` as for :func:`geovox.nearest.kernel_module` (None reads
+    ``GEOVOX_KERNEL``): ``numpy`` forces the NumPy traversal, ``compiled``
+    insists on the kernel, ``auto`` (the default) uses it where it was built.
+    """
+    from .nearest import KERNEL_ENV
+
+    choice = kernel if kernel is not None else (os.environ.get(KERNEL_ENV) or "auto")
+    if choice not in ("auto", "compiled", "numpy"):
+        raise ParameterError(f"the compiled kernel choice must be auto, compiled or numpy, "
+                             f"got {choice!r}")
+    if choice == "numpy":
+        return None
+    try:
+        from . import _winding
+    except ImportError:
+        if choice == "compiled":
+            raise ParameterError("the compiled winding-number kernel is not built "
+                                 "(pip install . with a C compiler builds it)") from None
+        return None
+    return _winding
+
+
+def _compiled_caps(module, occ, w, grid, cap_tris, jobs) -> None:
+    """:func:`_correct_caps` in the compiled kernel (``geovox/_winding.pyx``).
+
+    The first pass over bricks, as :func:`cap_winding`'s but to second order
+    (``COMPILED_PASSES[0]``); each voxel it leaves undecided is refined
+    alone at once by the tighter passes, then summed exactly over every cap
+    triangle. Only past ``WORK_SECONDS`` of processor time per thread is an
+    undecided voxel left to its estimate (with the
+    warning of :func:`_estimated`).
+    """
+    from . import nearest
+
+    tris, nodes, offset, size = _cap_tree(cap_tris)
+    shape = np.asarray(grid.shape)
+    top = max(0, int(np.ceil(np.log2(max(1, int(shape.max()) / 16)))))
+    if nearest._forked_after_threads:  # GNU OpenMP is not fork-safe (see nearest._after_fork)
+        jobs = 1
+    elif jobs > 1:
+        nearest._threads_started = True
+    flat = occ.reshape(-1, order="F").view(np.uint8)  # a view: occ is Fortran-ordered
+    estimated = np.zeros(grid.size, np.uint8)
+    c3 = np.ascontiguousarray
+    counts = module.cap_occupancy(
+        c3(tris.reshape(-1, 9)), c3(nodes["S"]), _first_moments(tris, nodes, size), c3(nodes["A"]), c3(nodes["c"]), c3(nodes["h"]),
+        c3(nodes["r"]), c3(offset, np.int64), c3(size, np.int64), w.reshape(-1, order="F"), flat,
+        estimated, tuple(int(n) for n in grid.shape), tuple(float(x) for x in grid.lo),
+        tuple(float(x) for x in grid.spacing), top, *COMPILED_PASSES[0],
+        c3(np.asarray(COMPILED_PASSES[1:], float).reshape(-1, 2)), WORK_SECONDS, max(1, int(jobs)))
+    STATS.update(zip(("refined", "exact", "estimated"), counts), caps=len(tris))
+    if estimated.any():
+        _estimated(estimated.view(bool).reshape(grid.shape, order="F"), grid)
+
+
+def _first_moments(tris, nodes, size):
+    """(n, 9) float64: per node of :func:`_cap_tree`, ``sum_t S_t (x) (centroid_t - c)`` row-major.
+
+    The first moment of the node's area-weighted normals about its centre
+    ``c``: the second term of the compiled kernel's far-field expansion.
+    """
+    S = 0.5 * np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
+    m = (S[:, :, None] * tris.mean(axis=1)[:, None, :]).reshape(-1, 9)
+    levels = [m]
+    while len(levels[-1]) > 1:
+        levels.append(np.add.reduceat(levels[-1], np.arange(0, len(levels[-1]), 2), axis=0))
+    m = np.concatenate(levels)
+    assert len(m) == int(np.sum(size))
+    return np.ascontiguousarray(m - (nodes["S"][:, :, None] * nodes["c"][:, None, :]).reshape(-1, 9))
+
+
 def _estimated(unsure, grid) -> None:
     n = int(np.count_nonzero(unsure))
     share = 100.0 * n / grid.size
     # "99.6 %" or "0.0031 %", never "1e+02 %"
     share = f"{share:.1f}" if share >= 1 else f"{share:.2g}"
-    warn(
-        f"the holes' caps are too many and too large to settle every voxel exactly within the "
-        f"work budget: {n:,} of {grid.size:,} voxels ({share} %) were decided "
-        f"by an estimate of the winding number whose proven error bound reaches 1/2 "
-        f"(--inside vote or parity are the fast alternatives)", stacklevel=4)
+    # The second of the two short lines a messy model gets (see repair_warning):
+    # how many voxels the estimate of the winding number decided.
+    warn(f"{n:,} of {grid.size:,} voxels ({share} %) are approximate; the holes' caps passed "
+         f"the work budget (--inside vote is faster)", stacklevel=4)
 
 
 def choose(mesh: Mesh, method: str) -> str:
@@ -991,15 +1215,40 @@ def choose(mesh: Mesh, method: str) -> str:
     if method == "winding" and not rep.changed:
         return "winding"
     n_open, n_nonmanifold = edge_counts(mesh)
-    left = len(boundary_edges(tmesh))
-    then = (f"the copy has {left:,} edges without a partner, so the winding-number inside test "
-            f"bridges its holes" if left else
-            "the copy is closed, so its winding number comes exactly from signed crossings")
-    warn(
-        f"{mesh.source}: the mesh is not closed and consistently wound ({n_open:,} open edges, "
-        f"{n_nonmanifold:,} non-manifold, {len(edges):,} without a partner edge running the other "
-        f"way, {rep.duplicates + rep.opposite:,} duplicate faces, after merging vertices by "
-        f"position); repaired a copy: {rep.describe()}; {then}"
-        + (" (pass inside='parity' or --inside parity to override)" if method == "auto" else ""),
-        stacklevel=3)
+    warn(repair_warning(mesh.source, n_open, n_nonmanifold, rep,
+                        closed=not len(boundary_edges(tmesh))), stacklevel=3)
     return "winding"
+
+
+def repair_warning(source, n_open: int, n_nonmanifold: int, rep, closed: bool) -> str:
+    """The first of at most two short lines a messy model gets: what was wrong, what geovox did.
+
+    The full account (every repair, the pieces, what is left open) is
+    ``geovox info MODEL``'s, which the line points to; a second line comes
+    from the winding number only where voxels are approximate.
+
+    Parameters
+    ----------
+    source : str
+        The mesh's source (a path where it came from a file).
+    n_open, n_nonmanifold : int
+        Open and non-manifold edges, after merging vertices by position.
+    rep : geovox.repair.Repair
+        What the repair of the copy did.
+    closed : bool
+        Whether the repaired copy is closed (its winding number is then exact).
+    """
+    import os
+
+    found = [(n_open, "open edges"), (n_nonmanifold, "non-manifold"),
+             (rep.flipped, "faces wound the wrong way"),
+             (rep.duplicates + rep.opposite, "duplicate faces"), (rep.degenerate, "degenerate faces")]
+    found = [f"{n:,} {what}" for n, what in found if n][:2]  # the two that matter most
+    wrong = ("not closed" if n_open else "not consistently wound") + (
+        f" ({', '.join(found)})" if found else "")
+    did = ("inside by the winding number of a repaired, closed copy (exact)" if closed else
+           "inside by the winding number of a repaired copy")
+    where = f"; see geovox info {source}" if isinstance(source, str) and \
+        os.path.isfile(source) else ""
+    name = os.path.basename(source) if isinstance(source, str) and source else "the mesh"
+    return f"{name}: {wrong}; {did}{where}"

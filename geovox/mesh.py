@@ -13,7 +13,9 @@ import warnings
 
 import numpy as np
 
+from . import threemf
 from .errors import InputNotFoundError, MeshError
+from .references import Refused, check_rule, locate, resolver, why_not_read
 # Mesh, Material and check_mesh are also public here, where they used to live.
 from .surface import (WRAP_MODES, Material, Mesh, build_mesh, check_mesh, texels,  # noqa: F401
                       transform_uv)
@@ -79,7 +81,11 @@ def _visual_parts(g, nfaces, materials, gltf=None, made=None, original=None):
                 except Exception as exc:  # Pillow raises several types for bad images
                     gltf["problems"].append(_no_texture(fact, f"{type(exc).__name__}: {exc}"))
             elif fact["texture"] is not None:
-                gltf["problems"].append(_no_texture(fact, "it could not be loaded"))
+                said = gltf.setdefault("said", [])
+                refused = [line for name, line in said if name == fact.get("uri")]
+                said[:] = [x for x in said if x[0] != fact.get("uri")]
+                why = why_not_read(fact["uri"]) if refused else "it could not be loaded"
+                gltf["problems"].append(_no_texture(fact, why))
             made[tag] = len(materials)
             materials.append(m)
         fm[:] = made[tag]
@@ -190,8 +196,13 @@ def _uv_transform(tt: dict) -> np.ndarray:
     return translate @ rotate @ np.diag([sx, sy, 1.0])
 
 
-def _gltf_rewrite(header: dict, path: str) -> dict:
+def _gltf_rewrite(header: dict, path: str, rule: str = "anywhere", read_buffer=None) -> dict:
     """Rewrite a glTF JSON header in place for trimesh (see above).
+
+    ``rule`` is how the files it names are found (see
+    :mod:`geovox.references`); ``read_buffer(i) -> bytes`` reads buffer
+    ``i``, for the triangle strips and fans rewritten into triangles (see
+    :mod:`geovox.gltf`; None: they are left to trimesh).
 
     Returns
     -------
@@ -203,6 +214,12 @@ def _gltf_rewrite(header: dict, path: str) -> dict:
     """
     folder = os.path.dirname(os.path.abspath(path))
     problems: list = []
+    if read_buffer is not None:
+        from .gltf import triangulate
+
+        left = triangulate(header, read_buffer)
+        if left:
+            problems.append("; ".join(dict.fromkeys(left)))
 
     def listed(key):
         value = header.get(key)
@@ -269,8 +286,9 @@ def _gltf_rewrite(header: dict, path: str) -> dict:
                    and 0 <= source < len(images) else None)
             external = isinstance(uri, str) and not uri.startswith("data:")
             fact["texture"] = repr(uri) if external else f"(image {source}, embedded)"
-            if external and os.path.isfile(os.path.join(folder, uri)):
-                fact["file"] = os.path.join(folder, uri)
+            fact["uri"] = uri if external else None
+            if external:
+                fact["file"] = locate(uri, folder, rule)[0]
             n = ref.get("texCoord", 0)
             tt = (ref.get("extensions") or {}).get("KHR_texture_transform")
             if isinstance(tt, dict):
@@ -299,8 +317,11 @@ def _gltf_rewrite(header: dict, path: str) -> dict:
     return {"materials": facts, "problems": problems}
 
 
-def _gltf_file(path: str):
+def _gltf_file(path: str, rule: str = "anywhere", said=None):
     """A glTF file with its JSON rewritten by :func:`_gltf_rewrite`.
+
+    ``rule`` is how the files it names are found; ``said`` collects the
+    references refused (see :func:`geovox.references.resolver`).
 
     Returns
     -------
@@ -328,9 +349,10 @@ def _gltf_file(path: str):
     if not isinstance(header, dict):
         return None
     try:
-        facts = _gltf_rewrite(header, path)
+        facts = _gltf_rewrite(header, path, rule, _buffer_reader(header, path, rule, tail))
     except (TypeError, AttributeError, KeyError, ValueError, IndexError):
         return None  # a header too odd to rewrite safely: trimesh reads the file as it is
+    facts["said"] = said if said is not None else []
     text = json.dumps(header, separators=(",", ":")).encode("utf-8")
     if not glb:
         return text, facts
@@ -338,6 +360,45 @@ def _gltf_file(path: str):
     head = b"glTF" + struct.pack("<IIII", version, 20 + len(text) + len(tail), len(text),
                                  0x4E4F534A)
     return b"".join([head, text, tail]), facts
+
+
+def _buffer_reader(header: dict, path: str, rule: str, tail):
+    """``read(i) -> bytes``: glTF buffer ``i`` (the GLB's BIN chunk, a ``data:`` URI or a file).
+
+    ``tail`` is what follows a GLB's JSON chunk (None for a ``.gltf``).
+    Raises :class:`geovox.gltf.Unreadable` where the buffer cannot be read,
+    or its file is not read under ``rule``.
+    """
+    from .gltf import Unreadable
+
+    folder = os.path.dirname(os.path.abspath(path))
+    buffers = header.get("buffers") if isinstance(header.get("buffers"), list) else []
+
+    def read(i):
+        if not isinstance(i, int) or not 0 <= i < len(buffers) or not isinstance(buffers[i],
+                                                                                   dict):
+            raise Unreadable(f"buffer {i!r} does not exist")
+        uri = buffers[i].get("uri")
+        if uri is None:
+            if tail is None or len(tail) < 8 or bytes(tail[4:8]) != b"BIN\0" or i != 0:
+                raise Unreadable(f"buffer {i} has no data")
+            return bytes(tail[8:8 + struct.unpack_from("<I", tail, 0)[0]])
+        if not isinstance(uri, str):
+            raise Unreadable(f"buffer {i} has a uri that is not text")
+        if uri.startswith("data:"):
+            at = uri.find("base64,")
+            if at < 0:
+                raise Unreadable(f"buffer {i} is a data URI without base64 data")
+            import base64
+
+            return base64.b64decode(uri[at + 7:])
+        found, refused = locate(uri, folder, rule)
+        if found is None:
+            raise Unreadable(why_not_read(uri) if refused else f"{uri!r} is missing")
+        with open(found, "rb") as f:
+            return f.read()
+
+    return read
 
 
 _OFF_HEADER = re.compile(r"(ST)?(C)?(N)?(4)?(n)?OFF")
@@ -685,6 +746,8 @@ def _load_failure(path: str, exc: Exception) -> str:
         pip = PIP_NAMES.get(module, module)
         return (f"{path}: reading {_kind(path)} files needs the Python package {pip!r}, which is "
                 f"not installed (pip install {pip})")
+    if isinstance(exc, Refused):
+        return f"{path}: refers to a file that is not read: {exc}"
     if isinstance(exc, FileNotFoundError):
         missing = exc.filename or text.strip("'\"") or "a file"
         return f"{path}: refers to a file that is missing: {missing}"
@@ -745,8 +808,11 @@ def from_trimesh(obj, source: str = "<trimesh>", *, _gltf=None) -> Mesh:
         if not parts:
             raise MeshError(_no_faces(source, every))
         originals = [obj.geometry.get(g.metadata.get("name")) for g in parts]
+        # A scene's nodes are its parts (labels="part"): named after node and
+        # mesh, so a mesh two nodes use gives two parts.
+        part_names = [_part_name(g, k) for k, g in enumerate(parts)]
     elif isinstance(obj, trimesh.Trimesh):
-        parts, originals = [obj], [obj]
+        parts, originals, part_names = [obj], [obj], None
     elif isinstance(obj, trimesh.parent.Geometry):
         raise MeshError(_no_faces(source, [obj]))
     else:
@@ -784,14 +850,33 @@ def from_trimesh(obj, source: str = "<trimesh>", *, _gltf=None) -> Mesh:
         materials=materials,
         corner_uv=np.concatenate(uvs) if have_uv else None,
         vertex_colors=vertex_colors,
+        face_part=None if part_names is None else
+        np.repeat(np.arange(len(faces), dtype=np.int64), [len(f) for f in faces]),
+        parts=part_names or [],
     )
     if _gltf is not None:
         mesh.problems.extend(f"{source}: {p}" for p in _gltf["problems"])
     return mesh
 
 
-def _trimesh_load(path: str) -> Mesh:
-    """Read any non-OBJ file with trimesh; every failure becomes one MeshError line."""
+def _part_name(g, k: int) -> str:
+    """A scene geometry's part name: ``node (mesh)``, or whichever of them it has."""
+    node, name = g.metadata.get("node"), g.metadata.get("name")
+    if node and name and node != name:
+        return f"{node} ({name})"
+    return str(node or name or f"part {k + 1}")
+
+
+#: Formats whose files trimesh reads from inside an archive of their own, not beside the model.
+_SELF_CONTAINED = {".zip", ".tar", ".gz", ".bz2", ".zae", ".3dxml", ".3mf", ".xz", ".tgz"}
+
+
+def _trimesh_load(path: str, rule: str = "anywhere") -> Mesh:
+    """Read any non-OBJ file with trimesh; every failure becomes one MeshError line.
+
+    The files the model names (glTF buffers and images, COLLADA and PLY
+    textures) are read by geovox's resolver under ``rule``.
+    """
     import logging
 
     import trimesh
@@ -826,14 +911,24 @@ def _trimesh_load(path: str) -> Mesh:
         # of one Dask worker loading side by side would restore each other's.
         with _TRIMESH_LOAD, warnings.catch_warnings():
             warnings.simplefilter("ignore")  # NumPy noise from trimesh's parsers
-            gltf = _gltf_file(path) if ext in (".gltf", ".glb") else None
-            if gltf is None:
-                loaded = trimesh.load(path, process=False)
-            else:
+            said: list = []
+            gltf = _gltf_file(path, rule, said) if ext in (".gltf", ".glb") else None
+            flat = threemf.flatten(path) if ext == ".3mf" else None
+            if flat is not None:
+                import io
+
+                loaded = trimesh.load(io.BytesIO(flat), file_type="3mf", process=False)
+            elif gltf is not None:
                 import io
 
                 loaded = trimesh.load(io.BytesIO(gltf[0]), file_type=ext[1:], process=False,
-                                      resolver=trimesh.resolvers.FilePathResolver(path))
+                                      resolver=resolver(path, rule, said))
+            elif ext in _SELF_CONTAINED:
+                loaded = trimesh.load(path, process=False)
+            else:
+                loaded = trimesh.load(path, process=False, resolver=resolver(path, rule, said))
+    except MeshError:
+        raise  # geovox's own line (a 3MF beam lattice, a part it does not have)
     except Exception as exc:  # trimesh raises many types for unreadable files
         own = _read_off(path, None) if ext == ".off" else None
         if own is not None:
@@ -866,21 +961,39 @@ def _trimesh_load(path: str) -> Mesh:
         raise MeshError(
             f"{path}: trimesh read the file, but its geometry or materials could not be "
             f"taken over ({type(exc).__name__}{': ' + text if text else ''})") from exc
-    said = [m for level, m in collect.records if level >= logging.WARNING]
-    mesh.problems.extend(f"{path}: {m}" for m in dict.fromkeys(said))
+    logged = [m for level, m in collect.records if level >= logging.WARNING
+              and not (said and m == "unable to load image!")]  # said below, in words
+    mesh.problems.extend(f"{path}: {m}" for m in dict.fromkeys(logged))
+    # References refused or read from beside the model that no material's
+    # line has said (a COLLADA or PLY texture; a glTF's are said per material).
+    mesh.problems.extend(f"{path}: {line}" for line in dict.fromkeys(x[1] for x in said))
     return mesh
 
 
-def load_mesh(source) -> Mesh:
+def load_mesh(source, *, references: str = "anywhere") -> Mesh:
     """Load a mesh from a path, a trimesh object, or pass a :class:`Mesh` through.
 
-    OBJ files are read by :mod:`geovox.obj`; everything else by trimesh
+    OBJ files are read by :mod:`geovox.obj`, plain binary triangle PLY
+    files by :mod:`geovox.ply`; everything else by trimesh
     (STL, PLY, OFF, glTF/GLB with Draco compression, 3MF, COLLADA, 3DXML,
     zip and tar archives of these, ...).
 
     Parameters
     ----------
     source : str, os.PathLike, Mesh, trimesh.Trimesh or trimesh.Scene
+        A file, a trimesh object (a scene's transforms are applied), or a
+        Mesh, returned as it is.
+    references : {"anywhere", "folder"}
+        Where the files a model names (OBJ materials and textures, glTF
+        buffers and images, COLLADA and PLY textures) may be read from:
+        anywhere, or only under the model's own folder (see
+        :mod:`geovox.references`). URLs are never fetched.
+
+    Returns
+    -------
+    Mesh
+        ``vertices`` (n, 3) float64, ``faces`` (m, 3) int64, and the
+        materials, UVs and colours the file states.
 
     Raises
     ------
@@ -891,6 +1004,7 @@ def load_mesh(source) -> Mesh:
         or trimesh dropped part of its geometry while reading it. The message
         names the file and says what is wrong in words.
     """
+    rule = check_rule(references)
     if isinstance(source, Mesh):
         return source
     if isinstance(source, (str, os.PathLike)):
@@ -904,8 +1018,15 @@ def load_mesh(source) -> Mesh:
         if path.lower().endswith(".obj"):
             from .obj import read_obj
 
-            return check_mesh(read_obj(path))
-        return _trimesh_load(path)
+            return check_mesh(read_obj(path, references=rule))
+        if path.lower().endswith(".ply"):
+            from .ply import read_plain_ply
+
+            # A plain binary triangle PLY without importing trimesh (the same Mesh).
+            mesh = read_plain_ply(path)
+            if mesh is not None:
+                return mesh
+        return _trimesh_load(path, rule)
     try:
         return from_trimesh(source, source=f"<{type(source).__name__}>")
     except MeshError:

@@ -41,6 +41,7 @@ import re
 import numpy as np
 
 from .errors import MeshError
+from .references import check_rule, instead, locate, why_not_read
 from .surface import Material, Mesh, transform_uv
 
 # Texture map options of the MTL specification ("Options for texture map
@@ -65,22 +66,13 @@ def _rest(line: str, key: str) -> str:
     return line.strip()[len(key):].strip()
 
 
-def resolve_path(name: str, folder: str) -> str | None:
-    """Find a file named in an OBJ/MTL: backslashes, relative folders, case."""
-    name = name.strip().strip('"').replace("\\", "/")
-    candidates = [name] if os.path.isabs(name) else []
-    candidates += [os.path.join(folder, name), os.path.join(folder, os.path.basename(name))]
-    for c in candidates:
-        if os.path.isfile(c):
-            return c
-    try:
-        lower = os.path.basename(name).lower()
-        for entry in os.listdir(folder):
-            if entry.lower() == lower and os.path.isfile(os.path.join(folder, entry)):
-                return os.path.join(folder, entry)
-    except OSError:
-        pass
-    return None
+def resolve_path(name: str, folder: str, rule: str = "anywhere", root: str | None = None):
+    """Find a file named in an OBJ/MTL: backslashes, relative folders, case.
+
+    ``rule`` and ``root`` (the model's folder) are as for
+    :func:`geovox.references.locate`; returns the path or None.
+    """
+    return locate(name, folder, rule, root)[0]
 
 
 def _is_option_value(token: str) -> bool:
@@ -98,7 +90,7 @@ def _is_option(token: str) -> bool:
     return len(token) > 1 and token[0] == "-" and token[1].isalpha()
 
 
-def _map_statement(args: str, folder: str) -> tuple:
+def _map_statement(args: str, folder: str, rule: str = "anywhere", root=None) -> tuple:
     """The file name and the options of a ``map_Kd [options] file`` statement.
 
     Options come before the file name; each takes up to its number of values
@@ -140,7 +132,7 @@ def _map_statement(args: str, folder: str) -> tuple:
     readings += [(starts[k], options[:k]) for k in range(len(options) - 1, -1, -1)]
     for first, opts in readings:
         name = args[spans[first][0]:].strip()
-        if resolve_path(name, folder) is not None:
+        if resolve_path(name, folder, rule, root) is not None:
             return name, opts
     return args[spans[i][0]:].strip(), options
 
@@ -201,8 +193,12 @@ def _apply_map_options(material: Material, options: list) -> list:
     return ignored
 
 
-def read_mtl(path: str, problems: list) -> dict:
-    """Materials of an MTL file by name. Problems are appended to ``problems``."""
+def read_mtl(path: str, problems: list, rule: str = "anywhere", root: str | None = None) -> dict:
+    """Materials of an MTL file by name. Problems are appended to ``problems``.
+
+    Textures are found under ``rule`` (see :mod:`geovox.references`);
+    ``root`` is the model's folder (default: the MTL's).
+    """
     try:
         with open(path, "r", encoding="utf-8", errors="replace") as f:
             lines = f.read().splitlines()
@@ -235,10 +231,16 @@ def read_mtl(path: str, problems: list) -> dict:
         elif key.lower() == "map_ka":
             cur.ambient_map = _rest(line, key) or None
         elif key.lower() == "map_kd":
-            name, options = _map_statement(_rest(line, key), folder)
+            name, options = _map_statement(_rest(line, key), folder, rule, root)
             cur.ignored_options = _apply_map_options(cur, options)
-            found = resolve_path(name, folder) if name else None
-            if found is None:
+            found, refused = locate(name, folder, rule, root) if name else (None, False)
+            if refused and found is not None:
+                problems.append(f"texture of material {cur.name!r} in {path}: "
+                                f"{instead(name, found)}")
+            elif refused:
+                problems.append(f"texture {name!r} (material {cur.name!r} in {path}) is not "
+                                f"read: {why_not_read(name)}; using its Kd colour")
+            elif found is None:
                 problems.append(f"texture not found: {name!r} (material {cur.name!r} in {path}); "
                                 f"using its Kd colour")
             cur.texture_file = found
@@ -257,13 +259,14 @@ def read_mtl(path: str, problems: list) -> dict:
 # words every error. Both paths give the same numbers: the fast one reads a
 # number only where the result is exactly what Python's float() gives.
 
-_IGN, _V, _VT, _F, _SLOW, _USEMTL, _MTLLIB, _LINE = range(8)
+_IGN, _V, _VT, _F, _SLOW, _USEMTL, _MTLLIB, _LINE, _OBJECT, _GROUP = range(10)
 
 # First bytes after which the statement keyword is not certain from bytes:
 # whitespace that str.split() knows but the fast path does not (\x1f and
 # everything non-ASCII), and the keywords read one line at a time.
 _UNSURE_FIRST = np.zeros(256, dtype=bool)
-_UNSURE_FIRST[[ord(" "), ord("\t"), 0x1F, ord("u"), ord("m")]] = True
+# "o" and "g" too: objects and groups name the parts (labels="part").
+_UNSURE_FIRST[[ord(" "), ord("\t"), 0x1F, ord("u"), ord("m"), ord("o"), ord("g")]] = True
 _UNSURE_FIRST[0x80:] = True
 _UNSURE_AFTER = np.zeros(256, dtype=bool)
 _UNSURE_AFTER[[ord("\n"), 0x1F]] = True
@@ -410,6 +413,8 @@ def _statement(line: str) -> tuple:
         return _MTLLIB, _rest(line, "mtllib")
     if key == "l":
         return _LINE, None
+    if key in ("o", "g"):
+        return (_OBJECT if key == "o" else _GROUP), _rest(line, key)
     return _IGN, None
 
 
@@ -820,17 +825,7 @@ def _parse(text: bytes):
     starts = np.empty_like(ends)
     starts[0] = 0
     starts[1:] = ends[:-1] + 1
-    c0, c1, c2 = buf[starts], buf[starts + 1], buf[starts + 2]
-    spaced1 = (c1 == ord(" ")) | (c1 == ord("\t"))
-    is_v, is_f = c0 == ord("v"), c0 == ord("f")
-    vt_like = is_v & (c1 == ord("t"))
-    kind = np.zeros(len(starts), dtype=np.uint8)
-    kind[is_v & spaced1] = _V
-    kind[vt_like & ((c2 == ord(" ")) | (c2 == ord("\t")))] = _VT
-    kind[is_f & spaced1] = _F
-    kind[_UNSURE_FIRST[c0] | ((is_v | is_f) & _UNSURE_AFTER[c1])
-         | (vt_like & _UNSURE_AFTER[c2])] = _SLOW
-    n_polylines = int(np.count_nonzero((c0 == ord("l")) & spaced1))
+    kind, n_polylines = _classify(buf, starts)
 
     errors, records = [], []
 
@@ -856,7 +851,40 @@ def _parse(text: bytes):
     fv, fvt, ff = v_lines[fast[v_lines]], vt_lines[fast[vt_lines]], f_lines[fast[f_lines]]
     buf[starts[fv]] = buf[starts[fvt]] = buf[starts[fvt] + 1] = buf[starts[ff]] = ord(" ")
 
-    # Vertices (and colours) by their order in the file.
+    vertices, colours, redo_v = _fast_vertices(buf, starts, ends, v_lines, fv)
+    uvs, redo_vt = _fast_uvs(buf, starts, ends, vt_lines, fvt)
+    line_of, cv, ct, slow = _read_corners(buf, starts, ends, ff)
+    corner_line = ff[line_of]
+    redo_f = ff[slow]
+
+    plain(_distinct(np.concatenate([redo_v, redo_vt, redo_f])))
+    out = dict(starts=starts, kind=kind, vertices=vertices, colours=colours, uvs=uvs,
+               corner_line=corner_line, cv=cv, ct=ct, errors=errors, n_polylines=n_polylines)
+    _merge(records, v_lines, vt_lines, out)
+    return out
+
+
+def _classify(buf: np.ndarray, starts: np.ndarray) -> tuple:
+    """(lines,) uint8 kind of each line from its first bytes, and the number of ``l`` lines."""
+    c0, c1, c2 = buf[starts], buf[starts + 1], buf[starts + 2]
+    spaced1 = (c1 == ord(" ")) | (c1 == ord("\t"))
+    is_v, is_f = c0 == ord("v"), c0 == ord("f")
+    vt_like = is_v & (c1 == ord("t"))
+    kind = np.zeros(len(starts), dtype=np.uint8)
+    kind[is_v & spaced1] = _V
+    kind[vt_like & ((c2 == ord(" ")) | (c2 == ord("\t")))] = _VT
+    kind[is_f & spaced1] = _F
+    kind[_UNSURE_FIRST[c0] | ((is_v | is_f) & _UNSURE_AFTER[c1])
+         | (vt_like & _UNSURE_AFTER[c2])] = _SLOW
+    return kind, int(np.count_nonzero((c0 == ord("l")) & spaced1))
+
+
+def _fast_vertices(buf, starts, ends, v_lines, fv) -> tuple:
+    """Vertices (and colours) by their order in the file, from the fast-path ``v`` lines ``fv``.
+
+    Returns (len(v_lines), 3) float64 positions, (len(v_lines), 3) float64
+    colours or None, and the lines the fast path left to the plain reading.
+    """
     vals, first, count, slow = _read_numbers(buf, starts, ends, fv, 3)
     order = np.searchsorted(v_lines, fv) if len(fv) != len(v_lines) else None
     if order is None and len(slow) == 0 and np.all(count == 3):
@@ -873,8 +901,11 @@ def _parse(text: bytes):
             colours = np.ones((len(v_lines), 3))
             crow = coloured if order is None else order[coloured]
             colours[crow] = vals[first[coloured, None] + np.arange(3, 6)]
-    redo_v = fv[slow]
+    return vertices, colours, fv[slow]
 
+
+def _fast_uvs(buf, starts, ends, vt_lines, fvt) -> tuple:
+    """(len(vt_lines), 2) float64 UVs from the fast-path ``vt`` lines, and the lines left over."""
     vals, first, count, slow = _read_numbers(buf, starts, ends, fvt, 1)
     uvs = np.zeros((len(vt_lines), 2))
     read = np.flatnonzero(count >= 1)
@@ -882,16 +913,18 @@ def _parse(text: bytes):
     uvs[rows, 0] = vals[first[read]]
     two = count[read] >= 2
     uvs[rows[two], 1] = vals[first[read[two]] + 1]
-    redo_vt = fvt[slow]
+    return uvs, fvt[slow]
 
-    line_of, cv, ct, slow = _read_corners(buf, starts, ends, ff)
-    corner_line = ff[line_of]
-    redo_f = ff[slow]
 
-    plain(_distinct(np.concatenate([redo_v, redo_vt, redo_f])))
-    # Merge what the plain reading found.
+def _merge(records: list, v_lines, vt_lines, out: dict) -> None:
+    """Merge what the plain reading found (``(line, kind, payload)`` records) into ``out``.
+
+    Sets ``usemtl`` (line, name), ``libs``, ``objects`` and ``groups`` (line, name) in ``out``; updates its
+    vertices, colours, UVs and corners in place.
+    """
+    vertices, colours, uvs = out["vertices"], out["colours"], out["uvs"]
     extra_line, extra_v, extra_t = [], [], []
-    usemtl, libs = [], []
+    usemtl, libs, named = [], [], {_OBJECT: [], _GROUP: []}
     for i, k, payload in sorted(records, key=lambda r: r[0]):
         if k == _V:
             row = int(np.searchsorted(v_lines, i))
@@ -912,15 +945,16 @@ def _parse(text: bytes):
             usemtl.append((i, payload))
         elif k == _MTLLIB:
             libs.append(payload)
+        elif k in named:
+            named[k].append((i, payload))
     if extra_line:
-        corner_line = np.concatenate([corner_line, np.asarray(extra_line, dtype=np.int64)])
-        cv = np.concatenate([cv, np.asarray(extra_v, dtype=np.int64)])
-        ct = np.concatenate([ct, np.asarray(extra_t, dtype=np.int64)])
+        corner_line = np.concatenate([out["corner_line"], np.asarray(extra_line, dtype=np.int64)])
+        cv = np.concatenate([out["cv"], np.asarray(extra_v, dtype=np.int64)])
+        ct = np.concatenate([out["ct"], np.asarray(extra_t, dtype=np.int64)])
         by_line = np.argsort(corner_line, kind="stable")
-        corner_line, cv, ct = corner_line[by_line], cv[by_line], ct[by_line]
-    return dict(starts=starts, kind=kind, vertices=vertices, colours=colours, uvs=uvs,
-                corner_line=corner_line, cv=cv, ct=ct, usemtl=usemtl, libs=libs, errors=errors,
-                n_polylines=n_polylines)
+        out.update(corner_line=corner_line[by_line], cv=cv[by_line], ct=ct[by_line])
+    out.update(colours=colours, usemtl=usemtl, libs=libs, objects=named[_OBJECT],
+               groups=named[_GROUP])
 
 
 def _count(n: int, one: str, many: str = "") -> str:
@@ -932,22 +966,29 @@ def _shorten(line: str) -> str:
     return repr(line if len(line) <= 60 else line[:57] + "...")
 
 
-def _materials(libs, names, folder, path, problems) -> list:
+def _materials(libs, names, folder, path, problems, rule="anywhere") -> list:
     """The materials named by ``usemtl``, in order of first use."""
     library: dict = {}
     missing_lib = False
     for lib in libs:
         # One statement may name several files ("mtllib a.mtl b.mtl", as the
         # format allows); a name with spaces in it is tried whole first.
-        names_in = [lib] if resolve_path(lib, folder) or len(lib.split()) < 2 else lib.split()
+        names_in = ([lib] if resolve_path(lib, folder, rule) or len(lib.split()) < 2
+                    else lib.split())
         for name in names_in:
-            found = resolve_path(name, folder)
-            if found is None:
+            found, refused = locate(name, folder, rule)
+            if refused and found is not None:
+                problems.append(f"material file named in {path}: {instead(name, found)}")
+            elif refused:
+                problems.append(f"material file {name!r} (named in {path}) is not read: "
+                                f"{why_not_read(name)}; using default colours")
+            elif found is None:
                 problems.append(f"material file not found: {name!r} (named in {path}); "
                                 f"using default colours")
+            if found is None:
                 missing_lib = True
                 continue
-            library.update(read_mtl(found, problems))
+            library.update(read_mtl(found, problems, rule, folder))
     materials = []
     ignored: dict = {}
     for name in names:
@@ -970,7 +1011,7 @@ def _materials(libs, names, folder, path, problems) -> list:
     return materials
 
 
-def read_obj(path: str) -> Mesh:
+def read_obj(path: str, *, references: str = "anywhere") -> Mesh:
     """Read an OBJ file into a :class:`Mesh` with materials, UVs and vertex colours.
 
     Polygons are fan-triangulated; negative indices count back from the
@@ -979,7 +1020,8 @@ def read_obj(path: str) -> Mesh:
     Faces that name texture coordinates the file does not have keep their
     geometry and lose their UVs, and a vertex colour that is NaN or infinite
     counts as no colour (white, as for vertices without one); both are
-    recorded in ``problems``.
+    recorded in ``problems``. Material files and textures are found under
+    the rule ``references`` (see :mod:`geovox.references`).
 
     Raises
     ------
@@ -987,7 +1029,10 @@ def read_obj(path: str) -> Mesh:
         The file cannot be read, is binary, has a statement that cannot be
         read or a face naming a vertex that does not exist (the message gives
         the line), or has no faces.
+    ParameterError
+        ``references`` is not ``"anywhere"`` or ``"folder"``.
     """
+    rule = check_rule(references)
     try:
         with open(path, "rb") as f:
             data = f.read()
@@ -1004,10 +1049,75 @@ def read_obj(path: str) -> Mesh:
     if p["errors"]:
         i, problem = min(p["errors"])
         raise MeshError(f"{path}: line {line_no(i)}: {problem}")
-    vertices, uvs, colours = p["vertices"], p["uvs"], p["colours"]
-    nv, nt = len(vertices), len(uvs)
-    corner_line, cv, ct = p["corner_line"], p["cv"], p["ct"]
+    tri, tri_line, faces = _triangles(p, path, line_no)
+    problems: list = []
+    names, face_material = _face_materials(p["usemtl"], tri_line)
+    face_part, parts = _face_parts(p["objects"] or p["groups"], tri_line)
+    folder = os.path.dirname(os.path.abspath(path))
+    materials = _materials(p["libs"], names, folder, path, problems, rule)
+    corner_uv = _corner_uvs(p, tri, tri_line, materials, face_material, path, line_no, problems)
+    colours = p["colours"]
+    if colours is not None:
+        broken = ~np.isfinite(colours).all(axis=1)
+        if broken.any():
+            colours[broken] = 1.0
+            problems.append(f"{path}: NaN or infinite colour on "
+                            f"{_count(int(broken.sum()), 'vertex', 'vertices')}; they count as "
+                            f"having no colour (white)")
+    return Mesh(
+        vertices=p["vertices"],
+        faces=faces,
+        source=path,
+        face_material=face_material.astype(np.int64),
+        materials=materials,
+        corner_uv=corner_uv,
+        vertex_colors=colours,
+        problems=problems,
+        face_part=face_part,
+        parts=parts,
+    )
 
+
+def _face_parts(statements, tri_line) -> tuple:
+    """``(face_part, parts)`` from ``o`` (or ``g``) statements ``(line index, name)``.
+
+    A part is one name: statements repeating a name add to its part. Faces
+    before the first statement form a part of their own, ``"(unnamed)"``.
+    Parts no face falls in are dropped. ``(None, [])`` without statements.
+    """
+    if not statements:
+        return None, []
+    lines = np.asarray([i for i, _ in statements], dtype=np.int64)
+    index: dict = {}
+    of_statement = np.asarray([index.setdefault(name or "(unnamed)", len(index))
+                               for _, name in statements], dtype=np.int64)
+    use = np.searchsorted(lines, tri_line, side="right") - 1
+    raw = np.where(use >= 0, of_statement[np.maximum(use, 0)], len(index))
+    names = list(index) + ["(unnamed)"]
+    used, face_part = np.unique(raw, return_inverse=True)
+    # np.unique numbers the parts in file order: statement order is index order.
+    return face_part.astype(np.int64).reshape(-1), [names[k] for k in used]
+
+
+def _triangles(p: dict, path: str, line_no) -> tuple:
+    """The fanned triangles of the face statements.
+
+    Returns
+    -------
+    tri : (m, 3) int64
+        Each triangle's corners (indices into ``p["cv"]`` and ``p["ct"]``).
+    tri_line : (m,) int64
+        The line (index) of each triangle's statement.
+    faces : (m, 3) int64
+        0-based vertex indices.
+
+    Raises
+    ------
+    MeshError
+        No faces, or a face naming a vertex that does not exist.
+    """
+    nv = len(p["vertices"])
+    corner_line, cv = p["corner_line"], p["cv"]
     # Polygons: runs of corners from one statement; fewer than 3 corners is no face.
     starts_c = np.flatnonzero(np.r_[True, corner_line[1:] != corner_line[:-1]]) \
         if len(corner_line) else np.zeros(0, dtype=np.int64)
@@ -1048,11 +1158,17 @@ def read_obj(path: str) -> Mesh:
             problem = (f"a face names vertex {k} (counting back), but only {n_before} "
                        f"vertices come before it")
         raise MeshError(f"{path}: line {line_no(tri_line[row])}: {problem}")
+    return tri, tri_line, faces
 
-    problems: list = []
+
+def _face_materials(usemtl: list, tri_line: np.ndarray) -> tuple:
+    """Material names in order of first use, and each triangle's index into them (-1: none).
+
+    ``usemtl``: (line index, name) of each ``usemtl`` statement, in file order.
+    """
     names, mat_of_use, mat_lines = [], [], []
     index: dict = {}
-    for i, name in p["usemtl"]:
+    for i, name in usemtl:
         if name not in index:
             index[name] = len(names)
             names.append(name)
@@ -1062,10 +1178,19 @@ def read_obj(path: str) -> Mesh:
         use = np.searchsorted(np.asarray(mat_lines), tri_line, side="right") - 1
         face_material = np.where(use >= 0, np.asarray(mat_of_use)[np.maximum(use, 0)], -1)
     else:
-        face_material = np.full(len(tri), -1, dtype=np.int64)
-    folder = os.path.dirname(os.path.abspath(path))
-    materials = _materials(p["libs"], names, folder, path, problems)
+        face_material = np.full(len(tri_line), -1, dtype=np.int64)
+    return names, face_material
 
+
+def _corner_uvs(p, tri, tri_line, materials, face_material, path, line_no, problems):
+    """(m, 3, 2) float64 UVs of the triangles' corners (NaN: none), or None without any.
+
+    Corners naming texture coordinates the file does not have lose the UVs
+    of their whole statement, said in ``problems``; each material's
+    ``map_Kd -o/-s`` transform is applied.
+    """
+    uvs, ct = p["uvs"], p["ct"]
+    nt = len(uvs)
     corner_uv = None
     traw = ct[tri]
     has_t = traw != _NO_UV
@@ -1096,24 +1221,7 @@ def read_obj(path: str) -> Mesh:
         statements = _distinct(tri_line[has_t.any(axis=1)])
         k = int(traw[has_t][0])
         problems.append(_uv_problem(path, len(statements), line_no(statements[0]), k, nt))
-
-    if colours is not None:
-        broken = ~np.isfinite(colours).all(axis=1)
-        if broken.any():
-            colours[broken] = 1.0
-            problems.append(f"{path}: NaN or infinite colour on "
-                            f"{_count(int(broken.sum()), 'vertex', 'vertices')}; they count as "
-                            f"having no colour (white)")
-    return Mesh(
-        vertices=vertices,
-        faces=faces,
-        source=path,
-        face_material=face_material.astype(np.int64),
-        materials=materials,
-        corner_uv=corner_uv,
-        vertex_colors=colours,
-        problems=problems,
-    )
+    return corner_uv
 
 
 def _uv_problem(path, n_faces, line, k, nt) -> str:

@@ -44,9 +44,14 @@ class Colour(enum.StrEnum):
     FAST = "fast"  #: from the nearest of the six axis crossings around it
 
 
-def _doc(text: str, default=MISSING, *, factory=None, record=True):
-    """A dataclass field with its one line of doc (and whether manifests record it)."""
-    meta = {"doc": text, "record": record}
+def _doc(text: str, default=MISSING, *, factory=None, record=True, new=False):
+    """A dataclass field with its one line of doc.
+
+    ``record``: whether manifests record it; ``new``: an option added after
+    manifests existed, recorded only where it is not its default (so older
+    records still match).
+    """
+    meta = {"doc": text, "record": record, "new": new}
     if factory is not None:
         return field(default_factory=factory, metadata=meta)
     return field(default=default, metadata=meta)
@@ -80,6 +85,9 @@ class Options:
     shape: tuple | None = _doc("voxels along x, y, z (instead of resolution)", None)
     voxel_size: float | None = _doc("edge of a cubic voxel (instead of resolution); the region "
                                     "grows to whole voxels", None)
+    fit: str | None = _doc("how resolution covers the region: 'box' (None), 'cube' (binvox -d N) "
+                           "or 'cube-center' (binvox -cb); .binvox defaults to 'cube'", None,
+                           new=True)
     axis: int = _doc("direction of the column rays: 0, 1 or 2 (z)", 2)
     color: object = _doc("colour the voxels: False, True or 'exact', or 'fast'", False)
     diffuse: bool = _doc("with color: multiply by the material's Kd", True)
@@ -94,7 +102,20 @@ class Options:
                             "does not depend on it", None, record=False)
     kernel: str = _doc("exact colour's nearest-surface search: auto, compiled or numpy "
                        f"(default ${KERNEL_ENV}, else auto)", factory=_kernel_default,
-                       record=False)
+                       new=True)
+    references: str = _doc("files a model names (materials, textures, buffers): read from "
+                           "'anywhere', or only under the model's own 'folder'", "anywhere",
+                           new=True)
+    labels: str | None = _doc("also label each voxel: None, 'part', 'component', 'material' or "
+                              "'file' (see geovox.labels)", None, new=True)
+    overlap: str = _doc("with labels: which part a voxel inside several takes: 'last', 'first' "
+                        "or 'smallest'", "last", new=True)
+    fractions: bool = _doc("with labels: each label's coverage fraction per voxel", False,
+                           new=True)
+    like: object = _doc("voxelise onto this reference grid (an image path, a Reference, or "
+                        "(affine, shape)) instead of one over the mesh", None, new=True)
+    mesh_space: str | None = _doc("with like: the mesh's frame, 'lps' or 'ras' (default: its "
+                                  "file's SPACE= mark, else LPS)", None, new=True)
 
     def __post_init__(self):
         _validate(self)
@@ -165,10 +186,16 @@ class Options:
         given = getattr(self, "_given", None)
         return {k: v for k, v in self.to_kwargs().items() if given is None or k in given}
 
-    def grid_options(self) -> dict:
-        """``bounds``, ``resolution``, ``shape``, ``voxel_size``: the keywords of :func:`make_grid`."""
+    def grid_options(self, fmt_name=None) -> dict:
+        """The keywords of :func:`geovox.grid.make_grid` for output format ``fmt_name``.
+
+        ``fit`` resolved by :func:`geovox.grid.fit_for` (``.binvox``: the cube).
+        """
+        from .grid import fit_for
+
         return {"bounds": self.bounds, "resolution": self.resolution, "shape": self.shape,
-                "voxel_size": self.voxel_size}
+                "voxel_size": self.voxel_size,
+                "fit": fit_for(self.fit, fmt_name, shape=self.shape, voxel_size=self.voxel_size)}
 
     def to_record(self, full: bool = False) -> dict:
         """The JSON-ready form a batch manifest stores (tuples as lists, keys sorted).
@@ -182,13 +209,14 @@ class Options:
         in (:func:`geovox.batch._same_options`).
         """
         given = None if full else getattr(self, "_given", None)
+        defaults = {n: d for n, (d, _) in self.docs().items()}
         out = {}
         for f in fields(self):
             value = getattr(self, f.name)
-            if f.name == "jobs" or (given is not None and f.name not in given):
+            if not f.metadata["record"] or (given is not None and f.name not in given):
                 continue
-            if given is None and ((f.name == "axis" and value == 2)
-                                  or (f.name == "kernel" and value == "auto")):
+            if ((f.metadata["new"] or (given is None and f.name == "axis"))
+                    and value == defaults[f.name]):
                 continue
             if f.name == "backend" and not isinstance(value, str):
                 value = value.name
@@ -250,6 +278,12 @@ def _validate(o: Options) -> None:
             raise ParameterError(f"`voxel_size` must be a positive number, got {o.voxel_size!r}")
     if o.bounds is not None:
         _check_bounds(o.bounds)
+    if o.fit is not None:
+        from .grid import FITS
+
+        if o.fit not in FITS:
+            raise ParameterError(f"`fit` must be one of {', '.join(map(repr, FITS))}, "
+                                 f"got {o.fit!r}")
     if o.axis not in (0, 1, 2):
         raise ParameterError(f"`axis` must be 0, 1 or 2, got {o.axis!r}")
     colour_of(o.color)
@@ -280,6 +314,19 @@ def _validate_fields(o: Options) -> None:
     if o.jobs is not None and (isinstance(o.jobs, bool) or not isinstance(o.jobs, int)
                                or o.jobs < 0):
         raise ParameterError(f"`jobs` must be a non-negative integer, got {o.jobs!r}")
+    from .references import check_rule
+
+    check_rule(o.references)
+    if o.labels is not None or o.fractions or o.overlap != "last":
+        from .labels import check
+
+        check(o.labels, o.overlap, o.fractions)
+    if o.mesh_space is not None:
+        if o.like is None:
+            raise ParameterError("`mesh_space` (--mesh-space) applies only onto a reference grid "
+                                 "(`like`, --like)")
+        if str(o.mesh_space).upper() not in ("LPS", "RAS"):
+            raise ParameterError(f"`mesh_space` must be 'lps' or 'ras', got {o.mesh_space!r}")
     if o.kernel not in ("auto", "compiled", "numpy"):
         raise ParameterError(f"the nearest-surface kernel must be auto, compiled or numpy, "
                              f"got {o.kernel!r}")

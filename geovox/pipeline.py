@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import enum
 import time
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, fields
 
 import numpy as np
 
@@ -24,7 +24,6 @@ from . import parity
 from .errors import ParameterError, warn
 from .grid import Grid, make_grid
 from .memory import bytes_per_voxel, check_memory
-from .mesh import load_mesh
 from .options import Colour, Inside, Options, colour_of
 from .volume import Progress, Report, Volume
 
@@ -75,6 +74,12 @@ class Plan:
     chunk_slab : int or None
         ``.zarr``: the slab thickness its shards are laid out for (a
         multiple of 64; the last block may be thinner).
+    mesh_space : (str, str) or None
+        With ``like``: the mesh's frame and how it was decided (see
+        :func:`geovox.reference.resolve_mesh_space`).
+    labels : geovox.labels.LabelSet or None
+        With ``labels``: what each label is (by parts, ``inside`` is the
+        test asked for, which each part resolves for itself).
     """
 
     options: Options
@@ -92,6 +97,14 @@ class Plan:
     path: str | None = None
     reuse_z: bool = False
     chunk_slab: int | None = None
+    mesh_space: tuple | None = None
+    labels: object = None
+
+    def mesh_for(self, mesh):
+        """The mesh the blocks run on: ``mesh``, or with ``like`` the copy moved into the
+        reference's frame that :func:`plan` made from it."""
+        moved = self.__dict__.get("_mesh")
+        return mesh if moved is None else moved
 
     @property
     def thick(self) -> int:
@@ -112,6 +125,7 @@ class Plan:
 
     def __getstate__(self):
         # The backend travels by name: a worker uses its own instance.
+        # (The moved mesh of `like` stays here: a task is handed its mesh.)
         state = {f.name: getattr(self, f.name) for f in fields(self)}
         from .backends import REGISTRY
 
@@ -154,9 +168,32 @@ def _size(b) -> str:
     return f"{b / 2**20:,.1f} MiB" if b < 2**30 else f"{b / 2**30:,.2f} GiB"
 
 
-def grid_of(mesh, options: Options) -> Grid:
-    """The grid ``options`` ask for over ``mesh`` (a loaded Mesh): the one place grids are made."""
-    return make_grid(mesh.bounds, **options.grid_options())
+def load(mesh, options: Options):
+    """``mesh`` loaded as ``options`` say (a loaded Mesh passes through): the load stage."""
+    from . import mesh as loader  # looked up at call time (a test's stand-in, a worker's plugin)
+
+    if isinstance(mesh, (list, tuple)):
+        if options.labels is None:
+            raise ParameterError("several meshes make one scene only with `labels` (e.g. "
+                                 "labels='file'); convert them one by one otherwise")
+        from .labels import scene
+
+        return scene(mesh, references=options.references)
+    return loader.load_mesh(mesh, references=options.references)
+
+
+def grid_of(mesh, options: Options, fmt=None) -> Grid:
+    """The grid ``options`` ask for over ``mesh`` (a loaded Mesh): the one place grids are made.
+
+    ``fmt`` (a Format or its name) is the output's: a ``.binvox`` resolution is binvox's cube.
+    """
+    name = getattr(fmt, "name", fmt)
+    if options.like is not None:  # the reference's grid, in its local frame
+        from .reference import load_reference, reject_grid_options
+
+        reject_grid_options(**options.grid_options())  # --cube as given, not a format's default
+        return load_reference(options.like).local_grid()
+    return make_grid(mesh.bounds, **options.grid_options(name))
 
 
 def as_options(options=None, **kw) -> Options:
@@ -213,28 +250,69 @@ def plan(mesh, options=None, path=None, *, fmt=None, stream=None, cluster=False,
 
     o = as_options(options)
     engine = get_backend(o.backend) if isinstance(o.backend, str) else o.backend
-    m = load_mesh(mesh)
-    grid = grid_of(m, o)
+    m = load(mesh, o)
     f = None
     if path is not None:
         from . import formats
 
         f = formats.format_for(path, fmt)
-        if f.check is not None:
-            f.check(grid)  # e.g. binvox needs cubic voxels
+    m, grid, used = _mesh_and_grid(m, o, f)
     colour = colour_of(o.color)
     base = dict(options=o, grid=grid, backend=engine, colour=colour, jobs=resolve_jobs(o.jobs),
-                format=f, path=None if path is None else str(path))
-    if stream is None:
+                format=f, path=None if path is None else str(path), mesh_space=used)
+    lset = _label_set(m, o, f, stream)
+    if lset is not None:
+        base["labels"], stream = lset, False  # labels are made in memory
+    elif stream is None:
         from .stream import streams
 
         stream = f is not None and streams(grid, f, colour, o.density, o.sdf)
     if not stream or f is None:
-        method = Inside(inside_tests.choose(m, o.inside))
-        return Plan(inside=method, axis=o.axis, route=Route.MEMORY,
-                    blocks=((0, grid.shape[2]),),
-                    per_voxel=bytes_per_voxel(colour, o.density, o.sdf), **base)
-    return _streamed_plan(m, base, cluster=cluster, budget=budget, slab=slab)
+        # By parts, each part takes its own inside test (geovox.labels.classify).
+        method = (Inside(o.inside) if lset is not None and lset.source != "material"
+                  else Inside(inside_tests.choose(m, o.inside)))
+        p = Plan(inside=method, axis=o.axis, route=Route.MEMORY, blocks=((0, grid.shape[2]),),
+                 per_voxel=bytes_per_voxel(colour, o.density, o.sdf), **base)
+    else:
+        p = _streamed_plan(m, base, cluster=cluster, budget=budget, slab=slab)
+    # With `like`, the mesh the blocks run on is the moved one (see Plan.mesh_for).
+    object.__setattr__(p, "_mesh", m if used is not None else None)
+    return p
+
+
+def _mesh_and_grid(m, o: Options, f):
+    """``(mesh, grid, mesh space)``: with ``like`` the mesh moved into the reference's frame."""
+    used = None
+    if o.like is not None:
+        from .reference import prepare
+
+        # The mesh moved into the reference's local frame, where its grid is axis-aligned.
+        m, grid, used = prepare(m, o.like, o.mesh_space, sdf=o.sdf, color=o.color,
+                                **o.grid_options())
+    else:
+        grid = grid_of(m, o, f)
+    if f is not None:
+        from . import formats
+
+        formats.check_frame(f, grid)
+        if f.check is not None:
+            f.check(grid)  # e.g. binvox needs cubic voxels
+    return m, grid, used
+
+
+def _label_set(m, o: Options, f, stream):
+    """The labels ``o.labels`` asks for (None without), checked against the format."""
+    if o.labels is None:
+        return None
+    from . import labels as label_mod
+
+    if stream:
+        raise ParameterError("labels are made in memory, not slab by slab (stream=False)")
+    if f is not None:
+        from . import formats
+
+        formats.check_labels(True, f)
+    return label_mod.label_set(m, o.labels)
 
 
 def _streamed_plan(m, base: dict, *, cluster, budget, slab) -> Plan:
@@ -298,13 +376,15 @@ def run(mesh, p: Plan, *, progress=None, client=None, write_options=None) -> Rep
     In memory: one block, written whole where the plan has a path; any other
     route runs slab by slab (:func:`geovox.stream.run_slabs`).
     """
+    mesh = p.mesh_for(mesh)
     if p.route != Route.MEMORY:
         from .stream import run_slabs
 
         return run_slabs(mesh, p, progress=progress, client=client)
     vol = voxelize_block(mesh, p, buffers={"progress": progress})
+    vol.mesh_space = p.mesh_space
     if not vol.occupancy.any():
-        warn(empty_reason(mesh, p.grid, p.inside), stacklevel=3)
+        warn(empty_reason(mesh, p.grid, vol.inside), stacklevel=3)
     files, t = [], vol.timings
     if p.path is not None:
         from . import formats
@@ -312,9 +392,17 @@ def run(mesh, p: Plan, *, progress=None, client=None, write_options=None) -> Rep
         tw = time.perf_counter()
         files = formats.write(vol, p.path, fmt=p.format.name, **(write_options or {}))
         t["write"] = time.perf_counter() - tw
+    lines = []
+    if vol.label_table is not None:
+        table = vol.label_table
+        lines.append(f"labels {p.options.labels}: {len(table) - 1:,} "
+                     f"({', '.join(e['name'] for e in table[1:][:6])}"
+                     f"{', ...' if len(table) > 7 else ''}), "
+                     f"{vol.contested:,} contested voxels (overlap rule {p.options.overlap})")
     return Report(source=mesh.source, grid=p.grid, backend=p.backend.name,
-                  inside_test=str(p.inside), inside=vol.inside_count, route=str(p.route),
-                  slabs=1, volume=vol, files=files, timings=t)
+                  inside_test=vol.inside, inside=vol.inside_count, route=str(p.route),
+                  slabs=1, volume=vol, files=files, timings=t, mesh_space=p.mesh_space,
+                  lines=lines)
 
 
 def voxelize(
@@ -325,6 +413,7 @@ def voxelize(
     *,
     shape=None,
     voxel_size=None,
+    fit=None,
     axis=2,
     color=False,
     diffuse=True,
@@ -337,6 +426,12 @@ def voxelize(
     sdf=False,
     band=3.0,
     kernel=None,
+    references="anywhere",
+    labels=None,
+    overlap="last",
+    fractions=False,
+    like=None,
+    mesh_space=None,
     progress=None,
 ) -> Volume:
     """Turn a closed triangle mesh into a solid voxel volume.
@@ -355,14 +450,21 @@ def voxelize(
     bounds : sequence of 6 float, optional
         Region ``(xmin, ymin, zmin, xmax, ymax, zmax)``; default: the mesh's
         bounding box. The region may cut through the mesh.
-    backend : {"auto", "embree", "numpy", "webgpu"}
+    backend : {"auto", "numpy", "embree", "webgpu"}
         Ray-casting engine; ``"auto"`` is NumPy, measured the faster one for
         column rays (see :mod:`geovox.backends`); all give the same volume.
+        ``"webgpu"`` (the ``gpu`` extra) is used only when named.
     shape : (3,) int, optional
         Voxels along x, y, z (instead of ``resolution``).
     voxel_size : float, optional
         Cubic voxel edge (instead of ``resolution``); the region grows
         symmetrically to a whole number of voxels.
+    fit : {None, "box", "cube", "cube-center"}
+        How ``resolution`` covers the region: ``"box"`` (the default, also
+        for None) N voxels on each axis of the box; ``"cube"`` an N³ cube of
+        cubic voxels whose edge is the box's longest side, at its minimum
+        corner (binvox's ``-d N``); ``"cube-center"`` that cube centred on the
+        box (binvox's ``-cb``).
     axis : {0, 1, 2}
         Direction of the column rays (default z; slab-by-slab conversions
         use y, see :mod:`geovox.stream`). Occupancy is the same up to ties on
@@ -400,6 +502,36 @@ def voxelize(
     kernel : {None, "auto", "compiled", "numpy"}
         Exact colour's nearest-surface search; None reads ``GEOVOX_KERNEL``
         (default ``auto``: the compiled kernel where it was built).
+    references : {"anywhere", "folder"}
+        Where the files a model file names (materials, textures, buffers)
+        may be read from: anywhere (``../textures/x.png`` included), or only
+        under the model's own folder, for files you did not make (see
+        :mod:`geovox.references`). URLs are never fetched.
+    labels : {None, "part", "component", "material", "file"}
+        Also fill ``Volume.labels`` and ``Volume.label_table`` (see
+        :mod:`geovox.labels`): the model's own parts (OBJ objects or groups,
+        scene nodes), its connected components, the material of each
+        voxel's exact nearest surface point, or the file each part came
+        from (``mesh`` a list of files, one scene on one grid). With parts,
+        ``occupancy`` is the union of the parts, each by its own inside test.
+    overlap : {"last", "first", "smallest"}
+        Which part a voxel inside several takes: the later in file order,
+        the earlier, or the one with the smaller enclosed volume.
+    fractions : bool
+        Also fill ``Volume.fractions`` (nx, ny, nz, L): each label's coverage
+        fraction per voxel from ``supersample`` x ``supersample`` rays per
+        column, overlaps settled by ``overlap`` (see
+        :func:`geovox.labels.label_fractions`); uint8 0-255, or float32
+        with ``density_dtype="float32"``. Not with ``labels="material"``.
+    like : path, geovox.reference.Reference or (affine, shape), optional
+        Voxelise onto this reference grid (a NIfTI, NRRD or MetaImage scan,
+        a volume geovox wrote, or a 4 x 4 index-to-world affine and a shape),
+        oblique or not, instead of a grid over the mesh; excludes
+        ``resolution``, ``bounds``, ``shape`` and ``voxel_size``. See
+        :mod:`geovox.reference`.
+    mesh_space : {"lps", "ras"}, optional
+        With ``like``: the mesh's frame, overriding its file's 3D Slicer
+        ``SPACE=`` mark (LPS where there is none).
     progress : callable, optional
         ``progress(event)`` with a :class:`geovox.volume.Progress` as each
         stage starts (``event.stage``: "load", "rays", "colour", "density",
@@ -411,6 +543,30 @@ def voxelize(
     Returns
     -------
     Volume
+        ``occupancy`` an ``(nx, ny, nz)`` bool array indexed ``[x, y, z]``
+        (Fortran order); ``colors`` ``(nx, ny, nz, 4)`` uint8 RGBA (alpha 255
+        inside, 0 outside), ``density`` ``(nx, ny, nz)`` uint8 or float32 and
+        ``sdf`` ``(nx, ny, nz)`` float32 where asked for, else None; the
+        ``grid``, the ``backend`` and ``inside`` test that ran, and
+        ``timings`` in seconds per stage.
+
+    Raises
+    ------
+    InputNotFoundError
+        ``mesh`` is a path that does not exist.
+    MeshError
+        The file cannot be read as a triangle mesh (the message says why).
+    ParameterError
+        A bad value: ``resolution``, ``shape`` or ``voxel_size`` not
+        positive (or more than one given), ``bounds`` with min >= max,
+        ``axis``, ``backend``, ``inside``, ``color``, ``density``,
+        ``supersample``, ``density_dtype``, ``band`` or ``kernel``.
+    BackendUnavailableError
+        The named backend cannot run here (its package or a driver is
+        missing); the message says what to install.
+    GridTooLargeError
+        The arrays would not fit in the available memory (raised before
+        anything is allocated, with the size needed).
     """
     t0 = time.perf_counter()
     given = dict(locals())
@@ -418,7 +574,7 @@ def voxelize(
                                      if k in given and not (k == "kernel" and kernel is None)})
     if progress:
         progress(Progress("load"))
-    m = load_mesh(mesh)
+    m = load(mesh, options)
     t_load = time.perf_counter()
     vol = run(m, plan(m, options), progress=progress).volume
     vol.timings = {"load": t_load - t0, **vol.timings, "total": time.perf_counter() - t0}
@@ -455,7 +611,7 @@ def block_grid(grid: Grid, block=None) -> Grid:
     lo[2] = grid.lo[2] + z0 * h[2]
     hi = grid.hi.copy()
     hi[2] = grid.lo[2] + z1 * h[2] if z1 < nz else grid.hi[2]
-    return Grid(lo=lo, hi=hi, shape=(nx, ny, z1 - z0))
+    return Grid(lo=lo, hi=hi, shape=(nx, ny, z1 - z0), reference=grid.reference)
 
 
 def ray_start(mesh, grid: Grid, axis: int) -> float:
@@ -531,7 +687,7 @@ def voxelize_block(mesh, plan: Plan, block=None, *, buffers=None) -> Volume:
     """
     t0 = time.perf_counter()
     buffers = buffers or {}
-    m = load_mesh(mesh)
+    m = load(mesh, plan.options)
     o = plan.options
     progress = buffers.get("progress")
 
@@ -544,8 +700,21 @@ def voxelize_block(mesh, plan: Plan, block=None, *, buffers=None) -> Volume:
         check_memory(grid, bytes_per_voxel(plan.colour, o.density, o.sdf))
     step("rays")
     crossings = {}
+    classified = None
+    method = plan.inside.value
     if "slices" in buffers:
         occ, t_rays = _fill_in_slices(m, plan, grid, buffers["slices"])
+    elif plan.labels is not None and plan.labels.source != "material":
+        from .labels import classify
+
+        # By parts: each part's own inside test, overlaps settled by the rule.
+        classified = classify(m, grid, plan.labels, axis=plan.axis, jobs=plan.jobs,
+                              cast_mesh=lambda mesh, ax: _cast(mesh, plan, grid, ax),
+                              inside=o.inside, overlap=o.overlap)
+        crossings[plan.axis] = classified.crossings
+        t_rays = time.perf_counter()
+        occ = np.asfortranarray(classified.labels != 0)
+        method = "+".join(sorted(set(classified.methods)))
     else:
         occ, t_rays = _fill(m, plan, grid, crossings, buffers.get("out"))
     t_fill = time.perf_counter()
@@ -559,7 +728,7 @@ def voxelize_block(mesh, plan: Plan, block=None, *, buffers=None) -> Volume:
     if o.density == "coverage":
         step("density")
         t = time.perf_counter()
-        dens = _density(m, plan, grid)
+        dens = _density(m, plan, grid, winding=method == "winding")
         timings["density"] = time.perf_counter() - t
     if o.sdf:
         from .density import signed_distance
@@ -568,9 +737,10 @@ def voxelize_block(mesh, plan: Plan, block=None, *, buffers=None) -> Volume:
         t = time.perf_counter()
         dist = signed_distance(m, grid, occ, band=float(o.band), jobs=plan.jobs)
         timings["sdf"] = time.perf_counter() - t
+    extra = {} if plan.labels is None else _labels(m, plan, grid, block, occ, classified, step,
+                                                   timings)
     return Volume(occupancy=occ, grid=grid, backend=plan.backend.name, source=m.source,
-                  colors=colors, timings=timings, inside=plan.inside.value, density=dens,
-                  sdf=dist)
+                  colors=colors, timings=timings, inside=method, density=dens, sdf=dist, **extra)
 
 
 def _cast(mesh, plan: Plan, grid: Grid, ax: int):
@@ -639,13 +809,25 @@ def _colour(m, plan: Plan, grid: Grid, block, occ, crossings: dict, buffers: dic
                          sink=None if exact else buffers.get("colour_sink"))
 
 
-def _density(m, plan: Plan, grid: Grid):
+def _labels(m, plan: Plan, grid: Grid, block, occ, classified, step, timings) -> dict:
+    """``labels``, ``label_table``, ``contested`` and ``fractions`` of the block (geovox.labels)."""
+    from .labels import label_results
+
+    o = plan.options
+    return label_results(
+        m, grid, occ, plan.labels, classified, engine=plan.backend, axis=plan.axis,
+        jobs=plan.jobs, overlap=o.overlap, fractions=o.fractions, density_dtype=o.density_dtype,
+        supersample=int(o.supersample),
+        frame=(plan.grid.lo, plan.grid.spacing, 0 if block is None else block[0]),
+        start=ray_start(m, grid, plan.axis), timings=timings, step=step)
+
+
+def _density(m, plan: Plan, grid: Grid, winding: bool):
     """Coverage density of the block (see :mod:`geovox.density`)."""
     from . import inside as inside_tests
     from .density import coverage, sub_columns
 
     o, axis = plan.options, plan.axis
-    winding = plan.inside == Inside.WINDING
     target = inside_tests.capped(inside_tests.target(m)[0])[0] if winding else m
     k = int(o.supersample)
     sub = sub_columns(grid.columns(axis, start=ray_start(target, grid, axis)), k)
@@ -671,6 +853,10 @@ def empty_reason(m, grid: Grid, method: str) -> str:
     def fmt(v):
         return "(" + ", ".join(f"{x:.6g}" for x in v) + ")"
 
+    if not _overlaps(m.bounds, grid) and grid.reference is not None:
+        return (f"{m.source}: the mesh lies entirely outside the field of view of "
+                f"{grid.reference.source}; the volume is empty (is the mesh in the image's "
+                f"frame? see --mesh-space)")
     if not _overlaps(m.bounds, grid):
         return (f"the region {fmt(grid.lo)}..{fmt(grid.hi)} misses the mesh "
                 f"{fmt(m.bounds[0])}..{fmt(m.bounds[1])}; the volume is empty")

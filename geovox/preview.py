@@ -104,8 +104,20 @@ def render(volume, panel: int = PANEL):
         font = ImageFont.load_default(size=14)
     except TypeError:  # Pillow < 10.1
         font = ImageFont.load_default()
+    table = getattr(volume, "label_table", None)
+    if getattr(volume, "labels", None) is not None and table:
+        import dataclasses
+
+        from .labels import label_colours
+
+        # Labels are drawn in the table's colours (over any --color), with a legend.
+        volume = dataclasses.replace(volume, colors=label_colours(volume.labels, table),
+                                     density=None)
     extent = np.asarray(volume.bounds[1]) - np.asarray(volume.bounds[0])
     pad, title, footer = 10, 20, 44
+    legend_table = table if getattr(volume, "labels", None) is not None else None
+    legend = _legend_rows(legend_table) if legend_table else []
+    footer += 20 * len(legend)
     width = 3 * panel + 4 * pad
     height = 2 * (panel + title) + 3 * pad + footer
     canvas = Image.new("RGB", (width, height), (12, 12, 14))
@@ -127,10 +139,25 @@ def render(volume, panel: int = PANEL):
     total = nx * ny * nz
     text = (f"grid {nx} x {ny} x {nz}   voxel {dx:.4g} x {dy:.4g} x {dz:.4g}   "
             f"inside {inside:,} ({100.0 * inside / total:.1f}%)"
-            + ("   colour" if volume.colors is not None else ""))
+            + (f"   {len(legend_table) - 1:,} labels" if legend_table
+               else "   colour" if volume.colors is not None else ""))
     draw.text((pad, height - footer + 6), text, fill=(255, 255, 255), font=font)
     draw.text((pad, height - footer + 24), f"{volume.source}", fill=(160, 160, 160), font=font)
+    for r, row in enumerate(legend):
+        x, y = pad, height - footer + 44 + 20 * r
+        for value, name, color in row:
+            draw.rectangle((x, y + 2, x + 12, y + 14), fill=tuple(int(c) for c in color[:3]))
+            draw.text((x + 18, y), f"{value} {name}", fill=(230, 230, 230), font=font)
+            x += 18 + int(draw.textlength(f"{value} {name}", font=font)) + 16
     return canvas
+
+
+def _legend_rows(table, per_row: int = 6, most: int = 30) -> list:
+    """The label legend, ``per_row`` entries a row: ``[(value, name, color)]`` rows."""
+    entries = [(e["value"], str(e["name"])[:24], e["color"]) for e in (table or [])[1:most + 1]]
+    if table and len(table) - 1 > most:
+        entries.append(("", f"... {len(table) - 1 - most:,} more", (12, 12, 14)))
+    return [entries[i:i + per_row] for i in range(0, len(entries), per_row)]
 
 
 def write_preview(volume, path, panel: int = PANEL) -> str:
@@ -143,4 +170,106 @@ def write_preview(volume, path, panel: int = PANEL) -> str:
     check_writable(path)
     with atomic_output(path) as tmp:
         render(volume, panel).save(tmp, format="PNG")
+    return path
+
+
+# --- preview --like: the mask over the reference image -------------------
+
+#: Colour and opacity of the mask drawn over the reference image.
+MASK_RGB = np.array([255.0, 60.0, 40.0])
+MASK_ALPHA = 0.45
+
+
+def _window(image: np.ndarray) -> tuple:
+    """(low, high): the 1st and 99th percentiles of the image, the grey ramp's ends."""
+    finite = np.asarray(image, dtype=np.float64)
+    finite = finite[np.isfinite(finite)]
+    if finite.size == 0:
+        return 0.0, 1.0
+    lo, hi = np.percentile(finite, [1, 99])
+    return float(lo), float(hi if hi > lo else lo + 1.0)
+
+
+def overlay_slice(volume, image: np.ndarray, axis: int, window: tuple) -> np.ndarray:
+    """The middle slice across index ``axis``: the image in grey, the mask in red over it.
+
+    Parameters
+    ----------
+    volume : Volume
+        On the image's grid (same shape).
+    image : (nx, ny, nz) array
+        The reference image's voxels.
+
+    Returns
+    -------
+    (n_vertical, n_horizontal, 3) float64 in [0, 255], oriented as :func:`composite`;
+    the mask's edge is drawn opaque so the boundary shows over bright tissue.
+    """
+    h, v, _ = VIEWS[axis]
+    idx = [slice(None)] * 3
+    idx[axis] = volume.occupancy.shape[axis] // 2
+    lo, hi = window
+    g = np.clip((np.asarray(image[tuple(idx)], dtype=np.float64) - lo) / (hi - lo), 0.0, 1.0)
+    grey = (255.0 * g)[..., None] * np.ones(3)
+    o = volume.occupancy[tuple(idx)]
+    edge = o & ~(np.roll(o, 1, 0) & np.roll(o, -1, 0) & np.roll(o, 1, 1) & np.roll(o, -1, 1))
+    out = np.where(o[..., None], (1 - MASK_ALPHA) * grey + MASK_ALPHA * MASK_RGB, grey)
+    out = np.where(edge[..., None], MASK_RGB, out)
+    return np.flipud(out.transpose(1, 0, 2))
+
+
+def render_like(volume, image: np.ndarray, reference, note: str = "", panel: int = PANEL):
+    """``preview --like``: the mask over the reference image's three middle slices (a PIL image).
+
+    Slices are across the image's own index axes (i, j, k), drawn with the
+    voxels' physical aspect ratio (``spacing``).
+    """
+    from PIL import Image, ImageDraw, ImageFont
+
+    try:
+        font = ImageFont.load_default(size=14)
+    except TypeError:  # Pillow < 10.1
+        font = ImageFont.load_default()
+    extent = np.asarray(volume.shape, dtype=np.float64) * np.asarray(reference.spacing)
+    pad, title, footer = 10, 20, 44
+    width = 3 * panel + 4 * pad
+    height = panel + title + 2 * pad + footer
+    canvas = Image.new("RGB", (width, height), (12, 12, 14))
+    draw = ImageDraw.Draw(canvas)
+    window = _window(image)
+    for col, axis in enumerate((0, 1, 2)):
+        h, v, _ = VIEWS[axis]
+        img = _fit(overlay_slice(volume, image, axis, window), extent[h], extent[v], panel)
+        x0 = pad + col * (panel + pad)
+        draw.text((x0, pad), f"middle slice across {'ijk'[axis]}  ({'ijk'[h]} right, {'ijk'[v]} up)",
+                  fill=(230, 230, 230), font=font)
+        canvas.paste(img, (x0 + (panel - img.width) // 2, pad + title + (panel - img.height) // 2))
+    nx, ny, nz = volume.shape
+    dx, dy, dz = reference.spacing
+    inside = int(np.count_nonzero(volume.occupancy))
+    draw.text((pad, height - footer + 6),
+              f"mask (red) over {reference.source.split('/')[-1]}: grid {nx} x {ny} x {nz}, voxel "
+              f"{dx:.4g} x {dy:.4g} x {dz:.4g}, inside {inside:,}", fill=(255, 255, 255), font=font)
+    draw.text((pad, height - footer + 24), f"{volume.source}" + (f"; {note}" if note else ""),
+              fill=(160, 160, 160), font=font)
+    return canvas
+
+
+def write_preview_like(volume, image, reference, path, note: str = "", panel: int = PANEL) -> str:
+    """Render :func:`render_like` and write the PNG atomically."""
+    import os
+
+    from .errors import ParameterError
+    from .formats import atomic_output, check_writable
+
+    if image is None:
+        raise ParameterError(f"--like {reference.source}: its voxels cannot be read for the "
+                             f"preview (only the grid)")
+    if tuple(image.shape[:3]) != tuple(volume.shape):
+        raise ParameterError(f"the volume's grid {tuple(volume.shape)} is not the reference's "
+                             f"{tuple(image.shape[:3])}")
+    path = os.fspath(path)
+    check_writable(path)
+    with atomic_output(path) as tmp:
+        render_like(volume, image, reference, note, panel).save(tmp, format="PNG")
     return path

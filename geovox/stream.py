@@ -40,9 +40,8 @@ from .errors import ParameterError, collect_warnings, warn
 from .grid import Grid
 from . import memory
 from .memory import bytes_per_voxel
-from .mesh import load_mesh
 from .options import Colour, Inside, Options
-from .pipeline import Plan, Route, _overlaps, empty_reason, plan, ray_start, voxelize_block
+from .pipeline import Plan, Route, _overlaps, empty_reason, load, plan, ray_start, voxelize_block
 from .volume import Progress, Report, Volume
 
 #: Memory a slab's arrays may take, by default: 2048³ occupancy goes in
@@ -459,7 +458,7 @@ def run_slabs(m, p: Plan, *, progress=None, client=None) -> Report:
     timings["total"] = time.perf_counter() - t0
     return Report(source=m.source, grid=grid, backend=p.backend.name, inside_test=str(p.inside),
                   inside=inside, route=str(p.route), slabs=len(p.blocks), files=files,
-                  timings=timings)
+                  timings=timings, mesh_space=p.mesh_space)
 
 
 def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, client=None,
@@ -470,11 +469,14 @@ def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, c
 
     Parameters
     ----------
-    mesh : path, trimesh object or Mesh
-    path : str
-        Output file (``.h5`` / ``.hdf5`` / ``.vtkhdf`` / ``.raw``) or folder (``.zarr``).
+    mesh : str, os.PathLike, trimesh.Trimesh, trimesh.Scene or geovox.mesh.Mesh
+        The model, as for :func:`geovox.voxelize`.
+    path : str or os.PathLike
+        Output file (``.h5`` / ``.hdf5`` / ``.vtkhdf`` / ``.hdf`` / ``.raw``)
+        or folder (``.zarr``).
     fmt : str, optional
-        Format name, overriding the extension.
+        Format name instead of the extension (``"hdf5"``, ``"vtkhdf"``,
+        ``"raw"``, ``"zarr"``).
     budget : float, optional
         Bytes one slab's arrays may take (default ``SLAB_BUDGET``).
     jobs : int, optional
@@ -490,8 +492,8 @@ def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, c
         from ``budget`` here, :func:`cluster_thick` on a cluster).
     **options
         Any field of :class:`geovox.Options` (resolution, shape, voxel_size,
-        bounds, backend, inside, color, diffuse, ambient, density,
-        supersample, density_dtype, sdf, band, kernel); a misspelt one is a
+        fit, bounds, backend, inside, color, diffuse, ambient, density,
+        supersample, density_dtype, sdf, band, kernel, references); a misspelt one is a
         ParameterError naming the closest.
 
     Returns
@@ -501,24 +503,47 @@ def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, c
         ``bounds``, ``inside`` (count), ``inside_test``, ``backend``,
         ``slabs``, ``files``, ``timings``, ``filled_in_slabs`` (True where a
         one-piece occupancy was filled and written 64 slices at a time, see
-        :func:`geovox.parity.fill_slabs`), ``grid``, ``source``.
+        :func:`geovox.parity.fill_slabs`), ``grid``, ``source``, ``mesh_space``;
+        with labels (made in memory: labels do not stream yet) also ``labels``
+        (how many) and ``contested``.
+
+    Raises
+    ------
+    ParameterError
+        A format that cannot be written slab by slab, ``client`` or ``slab``
+        without ``.zarr``, a ``slab`` that is not a multiple of 64, or a bad
+        option as for :func:`geovox.voxelize` (a misspelt one names the closest).
+    InputNotFoundError, MeshError, BackendUnavailableError
+        As for :func:`geovox.voxelize`.
+    OutputError
+        The output cannot be written (missing folder, no permission, disk
+        full; nothing is left behind), or the cluster's workers cannot see
+        the output folder.
+    GridTooLargeError
+        Even one slab would not fit in the available memory.
     """
     from . import formats
 
     t0 = time.perf_counter()
     f = formats.format_for(path, fmt)
-    if f.slab_writer is None:
+    labelled = options.get("labels") is not None or options.get("fractions")
+    if labelled:
+        # Labels do not stream yet: made in memory (the plan's memory route) and written.
+        formats.check_labels(True, f)
+    elif f.slab_writer is None:
         raise ParameterError(f"slab-by-slab output needs .h5, .vtkhdf/.hdf, .raw or .zarr, "
                              f"not {f.name}")
     if f.name != "zarr" and (client is not None or slab is not None):
         raise ParameterError(f"`client` and `slab` are for .zarr output, not {f.name}")
     o = Options.from_kwargs(jobs=jobs, **options)
     formats.check_writable(path)
-    m = load_mesh(mesh)
+    m = load(mesh, o)
     t_load = time.perf_counter()
-    p = plan(m, o, path, fmt=fmt, stream=True, cluster=client is not None, budget=budget,
-             slab=slab)
-    report = run_slabs(m, p, progress=progress, client=client)
-    report.timings["load"] += t_load - t0
+    p = plan(m, o, path, fmt=fmt, stream=not labelled, cluster=client is not None,
+             budget=budget, slab=slab)
+    from .pipeline import run
+
+    report = run(m, p, progress=progress, client=client)
+    report.timings["load"] = report.timings.get("load", 0.0) + t_load - t0
     report.timings["total"] = time.perf_counter() - t0
     return report

@@ -138,6 +138,12 @@ class Mesh:
     problems : list of str
         Missing or unreadable material files and textures found while
         loading; reported as warnings when colour is asked for.
+    face_part : (m,) int64 or None
+        Index into ``parts`` per face: the file's own parts (OBJ ``o``
+        objects, or ``g`` groups where there are none; a scene's nodes).
+        None when the file names no parts.
+    parts : list of str
+        The parts' names, in file order.
     """
 
     vertices: np.ndarray
@@ -148,6 +154,8 @@ class Mesh:
     corner_uv: np.ndarray | None = None
     vertex_colors: np.ndarray | None = None
     problems: list = field(default_factory=list)
+    face_part: np.ndarray | None = None
+    parts: list = field(default_factory=list)
     _cache: dict = field(default_factory=dict, repr=False, compare=False)
 
     @property
@@ -236,5 +244,6 @@ def build_mesh(vertices, faces, source, **extra) -> Mesh:
 def check_mesh(mesh: Mesh) -> Mesh:
     """Validate a Mesh built elsewhere (shapes, indices, finite coordinates)."""
     extra = {k: getattr(mesh, k) for k in
-             ("face_material", "materials", "corner_uv", "vertex_colors", "problems")}
+             ("face_material", "materials", "corner_uv", "vertex_colors", "problems",
+              "face_part", "parts")}
     return build_mesh(mesh.vertices, mesh.faces, mesh.source, **extra)

@@ -24,9 +24,12 @@ class Volume:
         True inside. Indexed ``[x, y, z]``; x is fastest in memory, so
         ``occupancy.T.tobytes()`` is the x-fastest byte order of RAW files.
     grid : Grid
+        The grid the arrays live on: ``lo``, ``hi`` (3,) float64 and
+        ``shape``.
     backend : str
         Name of the backend that ran.
     source : str
+        Where the mesh came from (its path, or a description).
     colors : (nx, ny, nz, 4) uint8 or None
         RGBA colour per voxel, when colour was asked for.
     inside : str
@@ -38,6 +41,21 @@ class Volume:
         exact within ``band`` voxels and clamped to ``+-band`` voxels beyond.
     timings : dict
         Seconds per stage.
+    mesh_space : (str, str) or None
+        On a reference grid (``like=``): the mesh's frame ("LPS" or "RAS") and
+        how it was decided (see :func:`geovox.reference.resolve_mesh_space`).
+    labels : (nx, ny, nz) uint8 or uint16, or None
+        Label value per voxel (0 the background), when labels were asked for
+        (see :mod:`geovox.labels`).
+    label_table : list of dict or None
+        One entry per label value, the background (0) first: ``value``,
+        ``name``, ``source``, ``color`` (RGBA 0-255), ``voxels``, ``volume``
+        (model units cubed).
+    contested : int
+        Voxels inside more than one part (settled by the overlap rule).
+    fractions : (nx, ny, nz, L) uint8 or float32, or None
+        Each label's coverage fraction per voxel (index ``k`` for label
+        value ``k + 1``), when asked for.
     """
 
     occupancy: np.ndarray
@@ -49,6 +67,11 @@ class Volume:
     inside: str = "parity"
     density: np.ndarray | None = None
     sdf: np.ndarray | None = None
+    mesh_space: tuple | None = None
+    labels: np.ndarray | None = None
+    label_table: list | None = None
+    contested: int = 0
+    fractions: np.ndarray | None = None
 
     @property
     def bounds(self) -> tuple:
@@ -137,6 +160,9 @@ class Report:
     files: list = field(default_factory=list)
     timings: dict = field(default_factory=dict)
     warnings: list = field(default_factory=list)
+    mesh_space: tuple | None = None
+    #: More lines for the summary, after the inside count (e.g. the labels made).
+    lines: list = field(default_factory=list)
 
     @property
     def shape(self) -> tuple:
@@ -157,15 +183,22 @@ class Report:
 
     #: The keys of the dict convert_to returned before it returned a Report.
     KEYS = ("shape", "spacing", "bounds", "inside", "inside_test", "backend", "slabs", "files",
-            "timings", "filled_in_slabs", "grid", "source")
+            "timings", "filled_in_slabs", "grid", "source", "mesh_space")
 
     def __getitem__(self, key):
+        if key in ("labels", "contested") and self.volume is not None \
+                and self.volume.label_table is not None:
+            v = self.volume
+            return len(v.label_table) - 1 if key == "labels" else v.contested
         if key not in self.KEYS:
             raise KeyError(key)
         return getattr(self, key)
 
     def get(self, key, default=None):
-        return self[key] if key in self.KEYS else default
+        try:
+            return self[key]
+        except KeyError:
+            return default
 
     def keys(self):
         return self.KEYS
@@ -177,7 +210,9 @@ class Report:
         lo, hi = self.bounds
         t = dict(self.timings)
         t["load"] = t.get("load", 0.0) + extra_load
-        if self.route == "memory":
+        if self.route == "memory" and self.grid.reference is not None:
+            where = " of the reference image"
+        elif self.route == "memory":
             where = (f" over ({lo[0]:.6g}, {lo[1]:.6g}, {lo[2]:.6g})..({hi[0]:.6g}, {hi[1]:.6g}, "
                      f"{hi[2]:.6g})")
         else:
@@ -186,9 +221,19 @@ class Report:
         n = nx * ny * nz
         stages = ", ".join(f"{k} {t[k]:.2f}" for k in ("load", "rays", "fill", "colour", "density",
                                                         "sdf", "write") if k in t)
+        onto = [] if self.mesh_space is None else [reference_line(self.grid.reference,
+                                                                   self.mesh_space)]
         return [f"{os.path.basename(self.source)}: grid {nx} x {ny} x {nz}{where}",
                 f"voxel size {dx:.6g} x {dy:.6g} x {dz:.6g}, backend {self.backend}, "
-                f"inside test {self.inside_test}",
+                f"inside test {self.inside_test}", *onto,
                 f"inside {self.inside:,} of {n:,} voxels ({100.0 * self.inside / n:.2f}%)",
+                *self.lines,
                 f"time {wall:.2f} s ({stages})",
                 "wrote " + ", ".join(self.files)]
+
+
+def reference_line(ref, mesh_space) -> str:
+    """The summary's line on a conversion onto a reference grid."""
+    space, how = mesh_space
+    return (f"onto {os.path.basename(ref.source)} ({ref.space}); mesh space {space} "
+            f"({'--mesh-space' if how == 'given' else how})")

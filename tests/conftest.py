@@ -1,4 +1,4 @@
-"""Shared fixtures: one `backend` fixture over every available backend, and
+"""Shared fixtures: one `backend` fixture over the CPU backends, and
 small meshes built to hit the edge cases of column ray casting."""
 
 from __future__ import annotations
@@ -22,7 +22,12 @@ SPOT = os.path.join(ROOT, "data", "spot", "spot.obj")
 
 @pytest.fixture(params=geovox.available_backends())
 def backend(request):
-    """Every test using this runs once per installed backend."""
+    """Every test using this runs once per installed CPU backend (those `auto` may try).
+
+    The backend contract itself, on every backend that can run here, webgpu
+    included (through lavapipe where there is no GPU), is the class in
+    test_conformance.py: sized for a software GPU, so it can run on all of them.
+    """
     return request.param
 
 

@@ -122,33 +122,27 @@ def test_backends_agree_with_anisotropic_voxels():
     np.testing.assert_array_equal(a.occupancy, b.occupancy)
 
 
-def test_spot_is_closed_so_every_column_is_even(backend):
-    m = geovox.load_mesh(SPOT)
-    grid = geovox.grid.make_grid(m.bounds, resolution=80)
-    columns = grid.columns(2, start=m.bounds[0, 2] - 1)
-    hits = backends.get_backend(backend).cast(m, columns)
-    assert np.all(np.bincount(hits.ray, minlength=columns.count) % 2 == 0)
-
-
-def test_hits_carry_triangle_and_barycentrics(backend):
-    # The hit point rebuilt from (triangle, bary) lies on the ray at `depth`.
-    m = geovox.load_mesh(SPOT)
-    grid = geovox.grid.make_grid(m.bounds, resolution=32)
-    columns = grid.columns(1, start=m.bounds[0, 1] - 1)
-    hits = backends.get_backend(backend).cast(m, columns)
-    tri = m.triangles[hits.triangle]
-    u, v = hits.bary[:, 0:1], hits.bary[:, 1:2]
-    p = (1 - u - v) * tri[:, 0] + u * tri[:, 1] + v * tri[:, 2]
-    assert np.all(hits.bary >= 0) and np.all(hits.bary.sum(axis=1) <= 1 + 1e-12)
-    np.testing.assert_allclose(p[:, 1], columns.w0 + hits.depth, atol=1e-9)
-    np.testing.assert_allclose(p[:, 0], columns.centres_u()[hits.ray % columns.nu], atol=1e-6)
-    np.testing.assert_allclose(p[:, 2], columns.centres_v()[hits.ray // columns.nu], atol=1e-6)
+# Even crossings on closed meshes and hits that lie on their rays: the
+# contract of every backend, in tests/test_conformance.py (webgpu included).
 
 
 def test_available_backends_lists_numpy_first_fallback():
     names = geovox.available_backends()
     assert "numpy" in names
     assert names == [n for n in backends.PREFERENCE if n in names]
+
+
+def test_usable_backends_add_webgpu_where_an_adapter_exists(monkeypatch):
+    import geovox.backends.webgpu as W
+
+    names = geovox.usable_backends()
+    assert names[:len(geovox.available_backends())] == geovox.available_backends()
+    assert ("webgpu" in names) == W.describe().startswith("available")
+    # No adapter: webgpu leaves the list, the others stay.
+    monkeypatch.setattr(W, "describe", lambda: "missing: no GPU adapter; needs lavapipe")
+    assert geovox.usable_backends() == [n for n in names if n != "webgpu"]
+    monkeypatch.setattr(W, "describe", lambda: "available: test adapter (CPU, Vulkan)")
+    assert geovox.usable_backends()[-1] == "webgpu"
 
 
 def test_auto_picks_numpy_the_faster_for_column_rays():

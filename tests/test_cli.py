@@ -68,10 +68,35 @@ def test_convert_options(tmp_path):
         np.testing.assert_allclose(f["occupancy"].attrs["spacing"], 0.05)
 
 
-def test_backends_command(capsys):
+def _backend_lines(capsys) -> dict:
     assert main(["backends"]) == 0
-    text = capsys.readouterr().out
-    assert "numpy" in text and "embree" in text
+    return {line.split()[0]: line.split(None, 1)[1] for line in capsys.readouterr().out.splitlines()}
+
+
+def test_backends_command(capsys, monkeypatch):
+    import importlib
+    import sys
+
+    from geovox import backends
+
+    lines = _backend_lines(capsys)
+    assert list(lines) == ["numpy", "embree", "webgpu"]
+    assert lines["numpy"] == "available"
+    # Each line says what Python says: geovox.usable_backends() lists exactly the available ones.
+    assert [n for n, text in lines.items() if text.startswith("available")] == \
+        geovox.usable_backends()
+    try:  # embree's line is decided by whether embreex imports, checked here on its own
+        importlib.import_module("embreex")
+        assert lines["embree"] == "available"
+    except ImportError:
+        assert lines["embree"] == "missing (pip install embreex)"
+    # Without embreex: the line says so, and Python agrees.
+    monkeypatch.setitem(sys.modules, "embreex", None)
+    monkeypatch.setitem(sys.modules, "trimesh.ray.ray_pyembree", None)
+    monkeypatch.setattr(backends, "_instances", {})
+    lines = _backend_lines(capsys)
+    assert lines["embree"] == "missing (pip install embreex)"
+    assert "embree" not in geovox.usable_backends()
 
 
 def test_python_dash_m(tmp_path):

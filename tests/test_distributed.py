@@ -435,3 +435,32 @@ def test_workers_that_do_not_answer_the_version_check_are_an_error_in_bounded_ti
         cluster_mod.check_versions(client)
     monkeypatch.setattr(cluster_mod, "_versions", real)
     time.sleep(1.5)  # let the workers finish before the next test uses them
+
+
+def test_cluster_tasks_read_references_under_the_rule_given(client, tmp_path):
+    # model/obj/box.obj names ../textures/red.png: read by default, not under
+    # references="folder", on the cluster's workers as in a local run.
+    from PIL import Image
+
+    (tmp_path / "model" / "textures").mkdir(parents=True)
+    (tmp_path / "model" / "obj").mkdir()
+    Image.new("RGB", (2, 2), (255, 0, 0)).save(tmp_path / "model" / "textures" / "red.png")
+    v = ["0 0 0", "1 0 0", "1 1 0", "0 1 0", "0 0 1", "1 0 1", "1 1 1", "0 1 1"]
+    quads = [(1, 4, 3, 2), (5, 6, 7, 8), (1, 2, 6, 5), (2, 3, 7, 6), (3, 4, 8, 7), (4, 1, 5, 8)]
+    (tmp_path / "model" / "obj" / "box.obj").write_text(
+        "mtllib box.mtl\n" + "".join(f"v {p}\n" for p in v) + "vt 0.5 0.5\nusemtl m\n"
+        + "".join("f " + " ".join(f"{i}/1" for i in q) + "\n" for q in quads))
+    (tmp_path / "model" / "obj" / "box.mtl").write_text(
+        "newmtl m\nKd 1 1 1\nmap_Kd ../textures/red.png\n")
+    box = str(tmp_path / "model" / "obj" / "box.obj")
+    for rule, note in (("anywhere", False), ("folder", True)):
+        results = convert_many([box], tmp_path / rule, client=client, resolution=4, color=True,
+                               fmt="npz", references=rule)
+        assert results[0].status == "ok"
+        assert ("'../textures/red.png' (material 'm'" in results[0].note) == note, results[0].note
+        import numpy as np
+
+        with np.load(results[0].outputs[0]) as z:
+            colours = z["colors"][z["occupancy"].astype(bool)][:, :3]
+        red = np.all(colours == (255, 0, 0), axis=-1)
+        assert red.all() if rule == "anywhere" else not red.any()

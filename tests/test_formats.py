@@ -704,7 +704,7 @@ def test_cli_refuses_binvox_with_unequal_voxels_before_work(tmp_path, capsys, mo
         raise AssertionError("voxelised before the grid was checked")
 
     monkeypatch.setattr(pipeline, "voxelize", never)
-    assert main(["convert", SPOT, "-o", str(tmp_path / "s.binvox"), "-r", "16"]) == 2
+    assert main(["convert", SPOT, "-o", str(tmp_path / "s.binvox"), "--shape", "16", "16", "16"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "binvox needs cubic voxels" in err and "--voxel-size" in err
     assert list(tmp_path.iterdir()) == []

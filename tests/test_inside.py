@@ -120,7 +120,7 @@ def test_auto_uses_parity_for_closed_meshes_silently():
 
 
 def test_auto_warns_and_uses_winding_for_open_meshes():
-    with pytest.warns(GeovoxWarning, match=r"not closed and consistently wound \(4 open edges.*winding"):
+    with pytest.warns(GeovoxWarning, match=r"not closed \(4 open edges\); inside by the winding number"):
         vol = geovox.voxelize(open_box(), resolution=8)
     assert vol.inside == "winding"
 

@@ -120,7 +120,8 @@ def test_any_lost_geometry_message_from_trimesh_is_an_error(tmp_path, monkeypatc
     # The rule, not just Draco: a reader that logs that it dropped geometry
     # and carries on gives an error naming the file and trimesh's words.
     path = tmp_path / "box.ply"
-    _box().export(path)
+    # ASCII: a plain binary triangle PLY is read by geovox.ply, not trimesh.
+    path.write_bytes(_box().export(file_type="ply", encoding="ascii"))
     from trimesh.exchange import load
 
     real = load.mesh_loaders["ply"]
@@ -302,16 +303,18 @@ def test_empty_reason_names_faces_wound_against_each_other():
     assert "edges run the same way" in why
 
 
-def test_gltf_triangle_fan_trimesh_skips_is_an_error(tmp_path):
+def test_gltf_triangle_fan_trimesh_skips_is_read_by_geovox(tmp_path):
     # trimesh skips glTF primitives in TRIANGLE_FAN mode (6) with a debug
-    # message only: the volume would silently lack them.
-    data = trimesh.Scene(_box()).export(file_type="glb")
+    # message only; geovox triangulates them itself (tests/test_gltf_modes.py).
+    from geovox.gltf import fan_faces
+
+    box = _box()
+    data = trimesh.Scene(box).export(file_type="glb")
     assert data.count(b'"mode":4') == 1
     path = tmp_path / "fan.glb"
     path.write_bytes(data.replace(b'"mode":4', b'"mode":6'))
-    with pytest.raises(MeshError, match=r"fan\.glb: (part of the geometry could not be read|"
-                                        r"has no faces)"):
-        geovox.load_mesh(str(path))
+    mesh = geovox.load_mesh(str(path))
+    assert np.array_equal(mesh.faces, fan_faces(box.faces.reshape(-1)))
 
 
 def test_broken_file_inside_a_zip_is_an_error_not_a_partial_volume(tmp_path):

@@ -220,8 +220,11 @@ def test_plan_takes_every_decision(tmp_path):
     fill = plan(m, dict(shape=(16, 16, 150)), tmp_path / "v.raw", stream=True)
     assert fill.route == Route.FILL and fill.axis == 2
     assert plan(m, dict(resolution=20), tmp_path / "v.zarr", cluster=True).route == Route.CLUSTER
-    with pytest.raises(ParameterError, match="cubic voxels"):  # the format's check, in the plan
-        plan(m, dict(resolution=20), tmp_path / "v.binvox")
+    # The format decides the grid's fit (.binvox: binvox's -d N cube) and checks it.
+    cube = plan(m, dict(resolution=20), tmp_path / "v.binvox")
+    assert np.ptp(cube.grid.spacing) == 0 and cube.grid.shape == (20, 20, 20)
+    with pytest.raises(ParameterError, match="cubic voxels"):
+        plan(m, dict(shape=(20, 30, 20)), tmp_path / "v.binvox")
     assert any("route: in memory" in line for line in p.describe())
 
 
@@ -241,6 +244,7 @@ def test_one_report_and_one_progress_event(tmp_path):
     seen = []
     vol = geovox.voxelize(SPOT, resolution=12, color="fast", sdf=True, progress=seen.append)
     assert [e.stage for e in seen] == ["load", "rays", "colour", "sdf"]
+    assert vol.colors is not None and vol.sdf is not None
     assert all(isinstance(e, geovox.Progress) and e.done is None for e in seen)
     seen.clear()
     r = geovox.convert_to(SPOT, tmp_path / "v.h5", shape=(8, 8, 150), budget=8 * 8 * 64 * 1.5,
@@ -278,3 +282,30 @@ def test_readme_signature_is_voxelize():
     real = inspect.signature(geovox.voxelize).parameters
     assert names == list(real)
     assert defaults == [p.default for p in real.values() if p.default is not p.empty]
+
+
+def test_convert_to_loads_plans_and_chooses_once(tmp_path, monkeypatch):
+    import geovox.inside
+    import geovox.mesh
+    import geovox.pipeline
+
+    calls = {"load": 0, "plan": 0, "choose": 0, "grid": 0}
+
+    def counting(name, fn):
+        def f(*a, **k):
+            # A loaded Mesh handed to load_mesh passes through: not a load.
+            calls[name] += not (name == "load" and isinstance(a[0], geovox.Mesh))
+            return fn(*a, **k)
+        return f
+
+    import geovox.stream
+
+    monkeypatch.setattr(geovox.mesh, "load_mesh", counting("load", geovox.mesh.load_mesh))
+    monkeypatch.setattr(geovox.stream, "plan", counting("plan", geovox.stream.plan))
+    monkeypatch.setattr(geovox.inside, "choose", counting("choose", geovox.inside.choose))
+    monkeypatch.setattr(geovox.pipeline, "make_grid", counting("grid", geovox.pipeline.make_grid))
+    r = geovox.convert_to(SPOT, tmp_path / "v.raw", shape=(8, 8, 150), color="fast",
+                          budget=8 * 8 * 64 * 25)
+    assert r.slabs == 3
+    # Every slab is a block of the one plan: one load, one plan, one grid, one inside choice.
+    assert calls == {"load": 1, "plan": 1, "choose": 1, "grid": 1}

@@ -12,7 +12,7 @@ first imports trimesh and embreex (0.3-0.8 s in a fresh process), builds a
 scene and checks for coplanar overlapping triangles, and even warm is no
 faster than NumPy on these rays. Measured over every corpus model at
 64³-1024³, first call in a fresh process (``benchmarks/bench_cli.py --only
-auto-rule``, table in ``benchmarks/README.md``), Embree took 1.5-35× as
+auto-rule``, table in ``benchmarks/results/history.md``), Embree took 1.5-35× as
 long as NumPy, so ``auto`` picks NumPy whenever it imports; ``embree``
 stays available by name and gives identical volumes.
 """
@@ -46,8 +46,67 @@ def _present(module: str) -> bool:
 
 
 def available_backends() -> list:
-    """Names of the backends whose packages are installed, in preference order."""
+    """Names of the backends whose packages are installed, in preference order.
+
+    Nothing is imported: each backend's package is looked up with
+    :func:`importlib.util.find_spec`. ``geovox backends`` also says whether
+    each can run here (the WebGPU backend needs an adapter as well).
+
+    Returns
+    -------
+    list of str
+        E.g. ``["numpy", "embree", "webgpu"]``: first those ``"auto"`` tries,
+        in its order, then the others.
+    """
     return [name for name in PREFERENCE if _present(REGISTRY[name][0])]
+
+
+def backend_report() -> dict:
+    """Whether each backend can run here, and the line ``geovox backends`` prints for it.
+
+    A backend can run when its package imports and, for ``webgpu``, a GPU
+    adapter (or lavapipe, Mesa's software Vulkan) is found. Checking imports
+    the packages (trimesh and embreex for ``embree``, wgpu for ``webgpu``)
+    and opens the adapter: a few seconds on lavapipe, once per process.
+
+    Returns
+    -------
+    dict
+        ``name -> (can_run: bool, line: str)``, in :data:`PREFERENCE` order,
+        then ``webgpu``.
+    """
+    report = {}
+    for name in (*PREFERENCE, *(n for n in REGISTRY if n not in PREFERENCE)):
+        module, package, _ = REGISTRY[name]
+        if name == "webgpu":
+            from .webgpu import describe
+
+            line = describe()  # the adapter, or what is missing
+            report[name] = (line.startswith("available"), line)
+            continue
+        try:
+            ok = _present(module) and _load(name) is not None
+        except ImportError:
+            ok = False
+        report[name] = (ok, "available" if ok else f"missing (pip install {package})")
+    return report
+
+
+def usable_backends() -> list:
+    """Names of every backend that can run here: ``geovox backends``' answer.
+
+    Unlike :func:`available_backends` (the order in which ``backend="auto"``
+    tries the installed ones), this includes ``webgpu`` wherever an adapter
+    exists, and checks that each backend imports rather than that its
+    package is installed.
+
+    Returns
+    -------
+    list of str
+        E.g. ``["numpy", "embree", "webgpu"]``: :data:`PREFERENCE` order, then
+        ``webgpu``.
+    """
+    return [name for name, (ok, _) in backend_report().items() if ok]
 
 
 def _load(name: str) -> Backend:
@@ -62,7 +121,14 @@ def get_backend(name: str = "auto") -> Backend:
 
     Parameters
     ----------
-    name : {"auto", "embree", "numpy"}
+    name : {"auto", "numpy", "embree", "webgpu"}
+        A name of :data:`REGISTRY`, or ``"auto"`` for the first of
+        :data:`PREFERENCE` that imports.
+
+    Returns
+    -------
+    Backend
+        One shared instance per name.
 
     Raises
     ------
@@ -97,4 +163,5 @@ def get_backend(name: str = "auto") -> Backend:
         ) from exc
 
 
-__all__ = ["Backend", "Hits", "available_backends", "get_backend", "REGISTRY", "PREFERENCE"]
+__all__ = ["Backend", "Hits", "available_backends", "usable_backends", "backend_report",
+           "get_backend", "REGISTRY", "PREFERENCE"]

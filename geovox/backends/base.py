@@ -46,6 +46,7 @@ class Hits:
 
     @classmethod
     def concatenate(cls, parts) -> "Hits":
+        """One Hits holding every crossing of ``parts`` (an iterable of Hits), in their order."""
         parts = list(parts)
         if not parts:
             return cls.empty()
@@ -62,6 +63,7 @@ class Hits:
 
     @classmethod
     def empty(cls) -> "Hits":
+        """No crossings: arrays of length 0 with the dtypes and shapes above."""
         return cls(
             ray=np.zeros(0, np.int64),
             depth=np.zeros(0, np.float64),
@@ -97,12 +99,21 @@ class Backend(abc.ABC):
         Parameters
         ----------
         mesh : geovox.mesh.Mesh
+            The triangles: ``mesh.triangles`` is (m, 3, 3) float64.
         columns : Columns
+            The lattice of rays, all along ``+columns.axis``.
         jobs : int
             Threads the backend may use; the hits must not depend on it.
 
         Returns
         -------
         Hits
-            Each crossing once, in any order.
+            Each crossing once, in any order, each (ray, triangle) pair
+            decided by :class:`geovox.exact.Projection`.
+
+        Raises
+        ------
+        BackendUnavailableError
+            The engine cannot run (a device lost, out of device memory); the
+            message names ``--backend numpy`` as the way on.
         """

@@ -5,6 +5,10 @@ bounding box; every (column, triangle) candidate is settled by the exact
 integer edge functions of :mod:`geovox.exact`. No rtree, no Embree, no loop
 per triangle or per voxel: candidates are generated and tested in blocks of
 ``block`` pairs, which bounds memory at a few hundred bytes per pair.
+
+Where the compiled lattice search is built (``geovox/_lattice.pyx``, see
+:mod:`geovox.kernels`), :func:`rasterise` runs that instead: the same scan
+as one loop, with the same hits in the same order.
 """
 
 from __future__ import annotations
@@ -13,6 +17,7 @@ import numpy as np
 
 from ..exact import Projection
 from ..grid import Columns
+from ..kernels import lattice
 from ..parallel import for_blocks
 from .base import Backend, Hits
 
@@ -34,9 +39,16 @@ def rasterise(proj: Projection, column_mask: np.ndarray | None = None, block: in
     triangle_mask : (len(proj),) bool, optional
         Only scan these active triangles.
     jobs : int
-        Threads scanning blocks at once (the hits are the same for any value).
+        Threads scanning blocks at once (the hits are the same for any value;
+        the compiled search runs on one).
     """
     nu = proj.columns.nu
+    kernel = lattice()
+    if kernel is not None:
+        ray, depth, tri, bary = kernel.scan(
+            proj.coef, proj.tie, proj.area, proj.z, proj.imin, proj.imax, proj.jmin, proj.jmax,
+            proj.tri, nu, column_mask, triangle_mask)
+        return Hits(ray=ray, depth=depth, triangle=tri, bary=bary)
     width = np.maximum(proj.imax - proj.imin + 1, 0)
     height = np.maximum(proj.jmax - proj.jmin + 1, 0)
     counts = width * height
@@ -80,4 +92,4 @@ class NumpyBackend(Backend):
     name = "numpy"
 
     def cast(self, mesh, columns: Columns, jobs: int = 1) -> Hits:
-        return rasterise(Projection(mesh.triangles, columns), jobs=jobs)
+        return rasterise(Projection(mesh.vertices, columns, faces=mesh.faces), jobs=jobs)

@@ -22,6 +22,24 @@ from ..errors import OutputError, ParameterError
 
 @dataclass(frozen=True)
 class Format:
+    """One output format of the registry (what ``geovox formats`` lists).
+
+    Attributes
+    ----------
+    name : str
+        The name ``fmt=`` and ``--format`` take (``"raw"``, ``"hdf5"``, ...).
+    extensions : tuple of str
+        Lower-case extensions with their dot, the first the default.
+    writer : callable
+        ``writer(volume, path, **options) -> list of str``: the files written.
+    description : str
+        One line: what the files hold.
+    reader : callable or None
+        ``reader(path, **options) -> Volume``, where the format can be read back.
+    check : callable or None
+        ``check(grid)``: raises ParameterError for a grid the format cannot hold.
+    """
+
     name: str
     extensions: tuple
     writer: object
@@ -46,7 +64,13 @@ def register_format(name, extensions, writer, description="", reader=None, check
 
 
 def formats() -> list:
-    """All registered formats."""
+    """All registered formats.
+
+    Returns
+    -------
+    list of Format
+        In registration order, as ``geovox formats`` prints them.
+    """
     return list(_FORMATS.values())
 
 
@@ -136,7 +160,38 @@ def atomic_output(path):
 
 
 def read(path, fmt=None, **options):
-    """Read a volume written by geovox back (occupancy, grid, colour when present)."""
+    """Read a volume written by geovox back (occupancy, grid, colour when present).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A file (or a ``.zarr`` folder) that geovox wrote; for ``.raw``, the
+        ``.raw`` beside its ``.json`` sidecar.
+    fmt : str, optional
+        Format name instead of the extension.
+    **options
+        For the reader: ``max_side`` (int) for ``.zarr``, the finest level
+        of the pyramid with every side at most that.
+
+    Returns
+    -------
+    Volume
+        ``occupancy`` (nx, ny, nz) bool indexed ``[x, y, z]``, the grid, and
+        ``colors`` (nx, ny, nz, 4) uint8 where the file holds colour. A
+        ``.binvox`` comes back as its whole padded cube; a ``.vdb``'s
+        occupancy is its ``density`` grid where that holds 0/1, else
+        ``sdf < 0``, else coverage >= 0.5.
+
+    Raises
+    ------
+    InputNotFoundError
+        No such file.
+    ParameterError
+        The format cannot be told from the extension, or ``fmt`` is unknown.
+    MeshError
+        The file cannot be read as a geovox volume of that format (the
+        message names the reader's own error).
+    """
     from ..errors import InputNotFoundError, MeshError
 
     path = os.fspath(path)
@@ -150,18 +205,84 @@ def read(path, fmt=None, **options):
                         f"({type(exc).__name__}: {exc})") from exc
 
 
+def is_volume_file(path) -> bool:
+    """Whether ``path`` names a file geovox writes (a volume, or a RAW output's
+    ``.json`` sidecar or ``.mhd`` / ``.nhdr`` header), judged by its name."""
+    from .readback import HEADER_EXTENSIONS
+
+    lower = os.fspath(path).lower().rstrip("/" + os.sep)
+    return lower.endswith(HEADER_EXTENSIONS) or any(
+        lower.endswith(e) for f in _FORMATS.values() for e in f.extensions)
+
+
+def read_volume(path, *, max_side=None):
+    """Read back any file geovox writes, data or header, as a Volume.
+
+    The one reader behind ``geovox preview`` and ``geovox view``.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A volume in any format of :func:`formats` (``.raw``, ``.h5``,
+        ``.vtkhdf``, ``.nrrd``, ``.npz``, ``.npy``, ``.binvox``, ``.vox``,
+        ``.vdb``, ``.zarr``); a RAW output's ``NAME.json`` sidecar or
+        ``NAME.mhd`` / ``NAME.nhdr`` header; or the file of one of its extra
+        fields (``NAME_rgba.raw``, ``NAME_sdf.nrrd``, their headers), which
+        reads the whole output it belongs to. A ``.mhd`` / ``.nhdr`` without
+        geovox's sidecar is read through the header alone.
+    max_side : int, optional
+        ``.zarr`` only: read the finest pyramid level with every side at most
+        this; other formats are read whole.
+
+    Returns
+    -------
+    Volume
+        ``occupancy`` (nx, ny, nz) bool and the grid, with ``colors``,
+        ``density`` and ``sdf`` where the output holds them.
+
+    Raises
+    ------
+    InputNotFoundError
+        ``path``, or the data file it names, does not exist.
+    MeshError
+        The file is not one geovox wrote, or is damaged (the message says how).
+    """
+    from ..errors import GeovoxError, InputNotFoundError, MeshError
+    from . import readback
+
+    path = os.fspath(path)
+    if not os.path.exists(path):
+        raise InputNotFoundError(f"volume file not found: {path}")
+    if os.path.isdir(path):  # a .zarr, perhaps named with a trailing slash
+        path = path.rstrip("/" + os.sep) or path
+    try:
+        source, how = readback.volume_source(path)
+        if how == "header":
+            return readback.read_header_volume(source)
+    except GeovoxError:
+        raise
+    except FileNotFoundError as exc:
+        raise InputNotFoundError(f"{path}: refers to a file that is missing: "
+                                 f"{exc.filename or exc}") from exc
+    except Exception as exc:  # JSON, pynrrd and NumPy raise their own types
+        raise MeshError(f"{path}: cannot be read as a geovox volume "
+                        f"({type(exc).__name__}: {exc})") from exc
+    return read(source, how, **({"max_side": max_side} if how == "zarr" and max_side else {}))
+
+
 #: What the values of each extra field mean, by its dtype.
 FIELD_VALUES = {
     "density": lambda dtype: ("inside fraction x 255" if np.dtype(dtype) == np.uint8
                               else "inside fraction, 0 to 1"),
     "sdf": lambda dtype: "signed distance, negative inside, clamped beyond the exact band",
+    "labels": lambda dtype: "label value, 0 the background (see label_table)",
 }
 
 
 def scalar_fields(volume) -> list:
     """The extra scalar volumes to write: ``[(name, [x, y, z] array, dtype name, values)]``."""
     out = []
-    for name in ("density", "sdf"):
+    for name in ("density", "sdf", "labels"):
         arr = getattr(volume, name, None)
         if arr is not None:
             out.append((name, arr, str(arr.dtype), FIELD_VALUES[name](arr.dtype)))
@@ -205,16 +326,78 @@ class SlabWriter:
 def write(volume, path, fmt=None, **options) -> list:
     """Write ``volume`` to ``path`` in the format its extension (or ``fmt``) names.
 
+    Every file goes to a temporary name beside its target and is renamed
+    when complete; the files of one output appear together or not at all.
+
+    Parameters
+    ----------
+    volume : Volume
+        ``occupancy`` (nx, ny, nz) bool, and ``colors`` (nx, ny, nz, 4)
+        uint8, ``density`` (nx, ny, nz) uint8 or float32 and ``sdf``
+        (nx, ny, nz) float32 where set: every format but ``.npy`` and
+        ``.vox`` writes them too.
+    path : str or os.PathLike
+        The main output file (``.raw``, ``.h5``, ``.vtkhdf``, ``.nrrd``,
+        ``.npy``, ``.npz``, ``.binvox``, ``.vdb``, ``.vox``) or ``.zarr``
+        folder; the other files of a format are named after it
+        (``NAME_rgba.raw``, ``NAME.json``, ...).
+    fmt : str, optional
+        Format name (see :func:`formats`) instead of the extension.
+    **options
+        For the writer: ``pack_bits`` (bool) for ``.npz``, ``shell`` (bool)
+        for ``.vox``.
+
     Returns
     -------
     list of str
-        Every file written.
+        Every file written, the main one first.
+
+    Raises
+    ------
+    ParameterError
+        The format cannot be told from the extension, ``fmt`` is unknown,
+        or the format cannot hold the grid (binvox needs cubic voxels).
+    OutputError
+        The folder does not exist or is not writable, the path is a folder,
+        or the disk filled up (nothing is left behind).
     """
     check_writable(path)
-    return format_for(path, fmt).writer(volume, path, **options)
+    f = format_for(path, fmt)
+    check_frame(f, getattr(volume, "grid", None))
+    check_labels(volume, f)
+    return f.writer(volume, path, **options)
 
 
-from . import binvox, hdf5, nrrd, numpy_files, raw, vdb, vox, vtkhdf  # noqa: E402  (registration)
+#: Formats with no way to say where a reference grid's voxels lie (oblique or not).
+NO_FRAME = ("binvox", "vox", "vdb")
+
+
+def check_frame(f: Format, grid) -> None:
+    """ParameterError for a reference grid (``like``) in a format that cannot place it."""
+    if getattr(grid, "reference", None) is not None and f.name in NO_FRAME:
+        raise ParameterError(f"{f.name} cannot record the reference grid's placement (origin, "
+                             f"spacing, direction); onto a reference write .nii.gz, .nrrd, .seg.nrrd, "
+                             f".raw (.mhd/.nhdr), .h5, .vtkhdf, .npz or .zarr")
+
+
+#: The formats that hold a label volume (and its table).
+LABEL_FORMATS = ("seg_nrrd", "nrrd", "nifti", "hdf5", "vtkhdf", "npz", "raw", "vox", "zarr")
+
+
+def check_labels(volume, f) -> None:
+    """ParameterError where ``volume`` has labels and format ``f`` would drop them.
+
+    ``volume`` may be ``True`` for a conversion that will make labels.
+    """
+    labelled = volume is True or getattr(volume, "labels", None) is not None
+    if labelled and f.name not in LABEL_FORMATS:
+        raise ParameterError(
+            f"{f.name} output does not hold labels; write them to .seg.nrrd (3D Slicer), .nrrd, "
+            f".nii.gz, .h5, .vtkhdf, .npz, .raw, .vox or .zarr")
+
+
+from . import binvox, hdf5, nifti, nrrd, numpy_files, raw, seg_nrrd, vdb, vox, vtkhdf  # noqa: E402
+# (imported for registration)
 from . import zarr as zarr_format  # noqa: E402  (registration)
 
 
@@ -237,6 +420,9 @@ register_format("hdf5", (".h5", ".hdf5"), hdf5.write_hdf5,
 register_format("vtkhdf", (".vtkhdf", ".hdf"), vtkhdf.write_vtkhdf,
                 "VTK-HDF 1.0 ImageData for ParaView (opens by name): occupancy, color, density, sdf",
                 reader=vtkhdf.read_vtkhdf, slab_writer=_slabs(vtkhdf.VTKHDFWriter))
+register_format("seg_nrrd", (".seg.nrrd",), seg_nrrd.write_seg_nrrd,
+                "3D Slicer segmentation: the labels (--labels) as named, coloured segments",
+                reader=seg_nrrd.read_seg_nrrd)
 register_format("nrrd", (".nrrd",), nrrd.write_nrrd,
                 "single-file NRRD (gzip), uint8 0/255; colour in NAME_rgba.nrrd",
                 reader=nrrd.read_nrrd)
@@ -246,7 +432,8 @@ register_format("npz", (".npz",), numpy_files.write_npz,
                 "NumPy archive: occupancy (bits with --pack-bits), colors, spacing, bounds, origin",
                 reader=numpy_files.read_npz)
 register_format("binvox", (".binvox",), binvox.write_binvox,
-                "binvox (ShapeNet, 3D-R2N2, ONet): run-length cube; cubic voxels, padded to a cube",
+                "binvox (ShapeNet, 3D-R2N2, ONet): -r N is binvox -d N (N³ cube over the longest "
+                "side; --cube-center: -cb); --voxel-size grids padded to a cube",
                 reader=binvox.read_binvox, check=binvox.check_grid)
 register_format("vdb", (".vdb",), vdb.write_vdb,
                 "OpenVDB for Blender/Houdini: density (fog), color (vec3s), sdf (level set) grids",
@@ -258,7 +445,29 @@ register_format("zarr", (".zarr",), zarr_format.write_zarr,
                 "OME-Zarr 0.5 (Zarr v3) multiscale image for napari, neuroglancer, Fiji, WEBKNOSSOS: "
                 "occupancy, color, density, sdf; written slab by slab, or on a Dask cluster",
                 reader=zarr_format.read_zarr, slab_writer=zarr_format.ZarrWriter)
+register_format("nifti", (".nii.gz", ".nii"), nifti.write_nifti,
+                "NIfTI-1 for 3D Slicer, ITK-SNAP, FSL, nibabel: uint8 mask, sform = qform = the "
+                "grid's RAS affine (needs nibabel: the nifti extra)",
+                reader=nifti.read_nifti)
 
-__all__ = ["register_format", "formats", "format_for", "write", "read", "atomic_output",
+__all__ = ["register_format", "formats", "format_for", "write", "read", "read_volume",
+           "is_volume_file", "atomic_output", "check_frame",
            "atomic_outputs",
            "check_writable"]
+
+
+def label_table_json(volume) -> str:
+    """The volume's label table as JSON text (``"[]"`` without labels)."""
+    import json
+
+    return json.dumps(getattr(volume, "label_table", None) or [])
+
+
+def table_from_json(text):
+    """A label table from :func:`label_table_json`'s text; None when it is empty."""
+    import json
+
+    if isinstance(text, bytes):
+        text = text.decode("utf-8")
+    table = json.loads(str(text))
+    return table or None

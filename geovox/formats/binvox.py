@@ -12,7 +12,10 @@ The format, as binvox itself defines it (Patrick Min's binvox page)::
 
 so voxel ``(i, j, k)`` covers ``translate + s * [i, i + 1] / D`` (and so on)
 and its centre is ``translate + s * (i + 0.5) / D``. binvox is cubic: the
-grid must have cubic voxels, and a grid with unequal sides is padded with
+grid must have cubic voxels. A resolution gives binvox's own ``-d D`` cube
+(``geovox.grid.cube_region``: edge = the bounding box's longest side,
+``translate`` its minimum corner, or the box centred with ``fit="cube-center"``,
+binvox's ``-cb``); a ``voxel_size`` grid with unequal sides is padded with
 empty voxels on the high side of the short axes (with a warning).
 
 trimesh's own writer (``trimesh.exchange.binvox.export_binvox``) and loader
@@ -80,8 +83,8 @@ def check_grid(grid) -> None:
     if not np.allclose(spacing, spacing[0], rtol=1e-6, atol=0.0):
         dx, dy, dz = spacing
         raise ParameterError(
-            f"binvox needs cubic voxels, got {dx:.6g} x {dy:.6g} x {dz:.6g}: "
-            f"use --voxel-size (voxel_size=) instead of --resolution or --shape")
+            f"binvox needs cubic voxels, got {dx:.6g} x {dy:.6g} x {dz:.6g}: use -r N for "
+            f"binvox's -d N cube (fit=\"cube\") or --voxel-size (voxel_size=), not --shape")
 
 
 def cube_of(volume):

@@ -53,7 +53,7 @@ class HDF5Writer(SlabWriter):
             raise
 
     def _layout(self, meta) -> None:
-        from .headers import origin_of
+        from .headers import frame_of
 
         nx, ny, nz = meta.shape
         self.chunks = tuple(min(64, n) for n in meta.shape)
@@ -65,9 +65,10 @@ class HDF5Writer(SlabWriter):
         # VTK requires a fixed-length ASCII string here, not a variable-length one.
         g.attrs.create("Type", np.bytes_("ImageData"))
         g.attrs["WholeExtent"] = np.array([0, nx - 1, 0, ny - 1, 0, nz - 1], dtype=np.int64)
-        g.attrs["Origin"] = origin_of(meta).astype(np.float64)
-        g.attrs["Spacing"] = np.asarray(meta.spacing, dtype=np.float64)
-        g.attrs["Direction"] = np.eye(3).reshape(-1)
+        origin, spacing, direction, space = frame_of(meta)
+        g.attrs["Origin"] = np.asarray(origin, dtype=np.float64)
+        g.attrs["Spacing"] = np.asarray(spacing, dtype=np.float64)
+        g.attrs["Direction"] = (np.eye(3) if direction is None else direction).reshape(-1)
         pd = g.create_group("PointData")
         self.vtk = {"occupancy": _dataset(pd, "occupancy", (nz, ny, nx), np.uint8, zyx)}
         if meta.colors is not None:
@@ -78,7 +79,7 @@ class HDF5Writer(SlabWriter):
             self.vtk["color"] = _dataset(pd, "color", (nz, ny, nx, 4), np.uint8, zyx + (4,))
         from . import FIELD_VALUES
 
-        for name in ("density", "sdf"):
+        for name in ("density", "sdf", "labels"):
             arr = getattr(meta, name, None)
             if arr is not None:
                 d = _dataset(f, name, meta.shape, arr.dtype, self.chunks)
@@ -92,12 +93,19 @@ class HDF5Writer(SlabWriter):
         from .chunks import write_both
 
         arrays = {"occupancy": vol.occupancy.view(np.uint8), "color": vol.colors,
-                  "density": vol.density, "sdf": vol.sdf}
+                  "density": vol.density, "sdf": vol.sdf, "labels": vol.labels}
         for name, dset in self.sets.items():
             arr = arrays[name]
             # VTK's (z, y, x) order is the arrays' memory order (x fastest).
             src = arr.transpose((2, 1, 0) + tuple(range(3, arr.ndim)))
             write_both(src, self.vtk[name], dset, z0=z0, jobs=self.jobs)
+        if getattr(vol, "fractions", None) is not None:
+            # Labelled volumes are written whole (never slab by slab): one dataset.
+            d = self.f.create_dataset("fractions", data=vol.fractions, compression="gzip",
+                                      compression_opts=1)
+            d.attrs["axis_order"] = "xyzl"
+            d.attrs["values"] = ("fraction of the voxel per label (index k: label k + 1), "
+                                 + ("x 255" if vol.fractions.dtype == np.uint8 else "0 to 1"))
 
     def _finish(self) -> list:
         meta = self.meta
@@ -106,9 +114,20 @@ class HDF5Writer(SlabWriter):
                  "bounds": np.asarray([lo, hi], dtype=np.float64),
                  "shape": np.asarray(meta.shape, dtype=np.int64), "axis_order": "xyz",
                  "values": "0 outside, 1 inside", "backend": meta.backend, "source": str(meta.source)}
+        from .headers import frame_metadata
+
+        ref = frame_metadata(meta)
+        if ref:  # a reference grid: index of a voxel centre -> world, in `space`
+            attrs["affine"] = np.asarray(ref["affine"], dtype=np.float64)
+            attrs["space"] = ref["space"]
         for key, value in attrs.items():
             self.sets["occupancy"].attrs[key] = value
             self.f.attrs[key] = value
+        if "labels" in self.sets and meta.label_table:
+            from . import label_table_json
+
+            self.sets["labels"].attrs["label_table"] = label_table_json(meta)
+            self.f.attrs["label_table"] = label_table_json(meta)
         self.f.close()
         self._ctx.__exit__(None, None, None)
         return [self.path]
@@ -146,7 +165,12 @@ def read_hdf5(path):
             base = np.zeros((occ.shape[2], occ.shape[1], occ.shape[0], 4), dtype=np.uint8)
             base[...] = f["color"][...].transpose(2, 1, 0, 3)
             colors = base.transpose(2, 1, 0, 3)
-        extra = {name: np.asfortranarray(f[name][...]) for name in ("density", "sdf") if name in f}
+        extra = {name: np.asfortranarray(f[name][...])
+                 for name in ("density", "sdf", "labels") if name in f}
+        if "labels" in f and "label_table" in f["labels"].attrs:
+            from . import table_from_json
+
+            extra["label_table"] = table_from_json(f["labels"].attrs["label_table"])
         return Volume(occupancy=occ, grid=Grid(bounds[0], bounds[1], occ.shape),
                       backend=str(d.attrs.get("backend", "?")),
                       source=str(d.attrs.get("source", path)), colors=colors, **extra)

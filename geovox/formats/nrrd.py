@@ -16,7 +16,7 @@ import numpy as np
 SLAB_VOXELS = 1 << 24
 
 
-def _write_one(path, arr, volume, components: int = 1, times: int = 1) -> None:
+def _write_one(path, arr, volume, components: int = 1, times: int = 1, keys=None) -> None:
     """One attached NRRD: header, then ``arr`` x fastest.
 
     ``arr`` is ``(nx, ny, nz)`` or ``(nx, ny, nz, components)``, indexed
@@ -28,11 +28,14 @@ def _write_one(path, arr, volume, components: int = 1, times: int = 1) -> None:
     of a gzip-encoded file, so a gzip RGBA file opens with three quarters of
     its voxels black.
     """
-    from .headers import nhdr_header, origin_of
+    from .headers import frame_of, nhdr_header
 
     encoding = "gzip" if components == 1 else "raw"
-    header = nhdr_header(volume.shape, volume.spacing, origin_of(volume), str(arr.dtype), None,
-                         components=components, encoding=encoding)
+    origin, spacing, direction, space = frame_of(volume)
+    header = nhdr_header(volume.shape, spacing, origin, str(arr.dtype), None,
+                         components=components, encoding=encoding, direction=direction, space=space)
+    if keys:  # NRRD key/value pairs ("key:=value"), before the blank line that ends the header
+        header = header[:-1] + "".join(f"{k}:={v}\n" for k, v in keys.items()) + "\n"
     nx, ny, nz = volume.shape
     per = max(1, SLAB_VOXELS // max(1, nx * ny))
     # wbits 31: the gzip container, which NRRD's "gzip" encoding names; level 1
@@ -68,9 +71,22 @@ def write_nrrd(volume, path) -> list:
             written.append(cpath)
         for name, arr, _, _ in scalar_fields(volume):
             fpath = field_path(path, name)
-            _write_one(group.add(fpath), arr, volume)
+            _write_one(group.add(fpath), arr, volume,
+                       keys=_label_keys(volume) if name == "labels" else None)
             written.append(fpath)
     return written
+
+
+def _label_keys(volume) -> dict:
+    """The label table as NRRD key/value pairs: one per label, and the whole as JSON."""
+    from . import label_table_json
+
+    keys = {}
+    for e in volume.label_table or []:
+        name = str(e["name"]).replace("\n", " ")
+        keys[f"label{e['value']}"] = f"{name}|{' '.join(str(c) for c in e['color'])}"
+    keys["geovox_label_table"] = label_table_json(volume)
+    return keys
 
 
 def read_nrrd(path):
@@ -97,5 +113,17 @@ def read_nrrd(path):
         fpath = field_path(os.fspath(path), name)
         if os.path.exists(fpath):
             extra[name] = np.asfortranarray(nrrd.read(fpath)[0])
-    return Volume(occupancy=occ, grid=Grid(lo, lo + spacing * np.asarray(occ.shape), occ.shape),
-                  backend="?", source=os.fspath(path), colors=colors, **extra)
+    grid = Grid(lo, lo + spacing * np.asarray(occ.shape), occ.shape)
+    if "space" in header:  # written onto a reference grid (like=): oblique, perhaps
+        from ..reference import load_reference
+
+        grid = load_reference(os.fspath(path)).local_grid()
+    lpath = field_path(os.fspath(path), "labels")
+    if os.path.exists(lpath):
+        from . import table_from_json
+
+        lab, lheader = nrrd.read(lpath)
+        extra["labels"] = np.asfortranarray(lab)
+        extra["label_table"] = table_from_json(lheader.get("geovox_label_table", "[]"))
+    return Volume(occupancy=occ, grid=grid, backend="?", source=os.fspath(path), colors=colors,
+                  **extra)

@@ -71,12 +71,24 @@ def write_npz(volume, path, pack_bits: bool = False) -> list:
         "bounds": np.asarray(volume.bounds),
         "origin": origin_of(volume),
     })
+    from .headers import frame_metadata
+
+    ref = frame_metadata(volume)
+    if ref:  # a reference grid: index of a voxel centre -> world, in `space`
+        arrays.update(affine=np.asarray(ref["affine"]), space=np.asarray(ref["space"]),
+                      origin=np.asarray(ref["affine"])[:3, 3])
     if volume.colors is not None:
         arrays["colors"] = volume.colors
     from . import scalar_fields
 
     for name, arr, _, _ in scalar_fields(volume):
         arrays[name] = arr
+    if getattr(volume, "fractions", None) is not None:
+        arrays["fractions"] = volume.fractions
+    if getattr(volume, "label_table", None):
+        from . import label_table_json
+
+        arrays["label_table"] = np.array(label_table_json(volume))
     with atomic_output(path) as tmp:
         with open(tmp, "wb") as f:
             np.savez_compressed(f, **arrays)
@@ -99,7 +111,12 @@ def read_npz(path):
         if "colors" in z:
             c = z["colors"]
             colors = np.ascontiguousarray(c.transpose(2, 1, 0, 3)).transpose(2, 1, 0, 3)
-        extra = {name: np.asfortranarray(z[name]) for name in ("density", "sdf") if name in z}
+        extra = {name: np.asfortranarray(z[name]) for name in ("density", "sdf", "labels")
+                 if name in z}
+        if "label_table" in z:
+            from . import table_from_json
+
+            extra["label_table"] = table_from_json(z["label_table"][()])
     return Volume(occupancy=occ, grid=Grid(bounds[0], bounds[1], occ.shape), backend="?",
                   source=os.fspath(path), colors=colors, **extra)
 

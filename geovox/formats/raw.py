@@ -31,7 +31,24 @@ def metadata(volume, data_file: str, dtype: str = "uint8", values: str = "0 outs
         "source": volume.source,
         "numpy": (f"np.fromfile({os.path.basename(data_file)!r}, dtype=np.{dtype})"
                   f".reshape(({nx}, {ny}, {nz}), order='F')"),
+        **_reference_metadata(volume),
     }
+
+
+def _reference_metadata(volume) -> dict:
+    """On a reference grid: the world placement (``affine``, ``space``, its origin; bounds of
+    the voxels' corners, axis-aligned in that space), replacing the local frame's."""
+    from .headers import frame_metadata
+
+    extra = frame_metadata(volume)
+    if extra:
+        a = np.asarray(extra["affine"])
+        corners = np.array([[i, j, k, 1.0] for i in (-0.5, volume.shape[0] - 0.5)
+                            for j in (-0.5, volume.shape[1] - 0.5)
+                            for k in (-0.5, volume.shape[2] - 0.5)]) @ a.T
+        extra["origin_of_first_voxel_centre"] = a[:3, 3].tolist()
+        extra["bounds"] = [corners[:, :3].min(axis=0).tolist(), corners[:, :3].max(axis=0).tolist()]
+    return extra
 
 
 def colour_path(path: str) -> str:
@@ -52,13 +69,16 @@ def _write_text(group, path: str, text: str) -> None:
 
 def _write_headers(group, volume, path: str, dtype: str, components: int = 1) -> list:
     """.mhd and .nhdr headers beside a RAW file, pointing at it."""
-    from .headers import mhd_header, nhdr_header, origin_of
+    from .headers import frame_of, mhd_header, nhdr_header
 
     root = os.path.splitext(path)[0]
     name = os.path.basename(path)
-    args = (volume.shape, volume.spacing, origin_of(volume), dtype, name, components)
-    _write_text(group, root + ".mhd", mhd_header(*args))
-    _write_text(group, root + ".nhdr", nhdr_header(*args))
+    origin, spacing, direction, space = frame_of(volume, "LPS")  # ITK's frame is LPS
+    _write_text(group, root + ".mhd", mhd_header(volume.shape, spacing, origin, dtype, name,
+                                                 components, direction=direction))
+    origin, spacing, direction, space = frame_of(volume)
+    _write_text(group, root + ".nhdr", nhdr_header(volume.shape, spacing, origin, dtype, name,
+                                                   components, direction=direction, space=space))
     return [root + ".mhd", root + ".nhdr"]
 
 
@@ -79,7 +99,7 @@ class RawWriter(SlabWriter):
         self.names = {"occupancy": self.path}
         if meta.colors is not None:
             self.names["color"] = colour_path(self.path)
-        for name in ("density", "sdf"):
+        for name in ("density", "sdf", "labels"):
             if getattr(meta, name, None) is not None:
                 self.names[name] = field_path(self.path, name)
         self.files = {k: open(self.group.add(p), "wb") for k, p in self.names.items()}
@@ -97,7 +117,7 @@ class RawWriter(SlabWriter):
             if "color" in self.files and vol.colors is not None:
                 self.files["color"].write(
                     np.ascontiguousarray(vol.colors[:, :, sl].transpose(2, 1, 0, 3)).data)
-            for name in ("density", "sdf"):
+            for name in ("density", "sdf", "labels"):
                 if name in self.files:
                     arr = getattr(vol, name)[:, :, sl]
                     self.files[name].write(
@@ -144,7 +164,7 @@ class RawWriter(SlabWriter):
                 "numpy": (f"np.fromfile({os.path.basename(cpath)!r}, dtype=np.uint8)"
                           f".reshape(({nz}, {ny}, {nx}, 4)).transpose(2, 1, 0, 3)"),
             }
-        for name in ("density", "sdf"):
+        for name in ("density", "sdf", "labels"):
             if name in self.names:
                 dtype = str(getattr(meta, name).dtype)
                 fpath = self.names[name]
@@ -153,6 +173,8 @@ class RawWriter(SlabWriter):
                               "byte_order": "little", "values": FIELD_VALUES[name](dtype),
                               "numpy": (f"np.fromfile({os.path.basename(fpath)!r}, dtype=np.{dtype})"
                                         f".reshape(({nx}, {ny}, {nz}), order='F')")}
+        if "labels" in info and getattr(meta, "label_table", None):
+            info["labels"]["label_table"] = meta.label_table
         sidecar = os.path.splitext(self.path)[0] + ".json"
         with open(self.group.add(sidecar), "w") as fh:
             json.dump(info, fh, indent=2)
@@ -202,10 +224,12 @@ def read_raw_volume(path):
         colors = np.fromfile(cfile, dtype=np.uint8).reshape(nz, ny, nx, 4).transpose(2, 1, 0, 3)
     lo, hi = (np.asarray(b, dtype=np.float64) for b in meta["bounds"])
     extra = {}
-    for name in ("density", "sdf"):
+    for name in ("density", "sdf", "labels"):
         if name in meta:
             fpath = os.path.join(os.path.dirname(path), meta[name]["data_file"])
             extra[name] = np.fromfile(fpath, dtype=meta[name]["dtype"]).reshape((nx, ny, nz), order="F")
+    if "labels" in meta:
+        extra["label_table"] = meta["labels"].get("label_table")
     return Volume(occupancy=np.asfortranarray(occ), grid=Grid(lo, hi, (nx, ny, nz)),
                   backend=meta.get("backend", "?"), source=meta.get("source", path),
                   colors=colors, **extra)

@@ -86,15 +86,24 @@ def _dict(d: dict) -> bytes:
     return struct.pack("<i", len(d)) + b"".join(_string(k) + _string(v) for k, v in d.items())
 
 
-def encode(occ: np.ndarray, colors: np.ndarray | None, shell: bool = False) -> bytes:
-    """The bytes of a .vox file for an occupancy grid and optional RGBA colours."""
+def encode(occ: np.ndarray, colors: np.ndarray | None, shell: bool = False,
+           labels: np.ndarray | None = None, label_rgb: np.ndarray | None = None) -> bytes:
+    """The bytes of a .vox file for an occupancy grid and optional RGBA colours.
+
+    With ``labels`` (values 1..255 inside) and ``label_rgb`` (L, 3) uint8,
+    label ``v`` is palette entry ``v`` in colour ``label_rgb[v - 1]``, instead
+    of quantised colours.
+    """
     keep = shell_mask(occ) if shell else occ
     idx = np.argwhere(keep)
     if colors is not None:
         rgb = colors[keep][:, :3]
     else:
         rgb = np.tile(np.array(DEFAULT_RGB, np.uint8), (len(idx), 1))
-    palette, pal_index = quantise(rgb)
+    if labels is not None:
+        palette, pal_index = label_rgb, labels[keep].astype(np.int64) - 1
+    else:
+        palette, pal_index = quantise(rgb)
     shape = np.array(occ.shape)
     tiles = [range(0, n, MAX_SIZE) for n in shape]
     models, graph = [], []
@@ -141,7 +150,20 @@ def write_vox(volume, path, shell: bool = False) -> list:
     from . import atomic_output
 
     path = os.fspath(path)
-    data = encode(volume.occupancy, volume.colors, shell=shell)
+    if getattr(volume, "labels", None) is not None:
+        table = volume.label_table or []
+        if len(table) - 1 > 255:
+            from ..errors import ParameterError
+
+            raise ParameterError(f".vox holds at most 255 labels (one palette entry each), "
+                                 f"not {len(table) - 1:,}")
+        rgb = np.zeros((len(table) - 1, 3), np.uint8)
+        for e in table[1:]:
+            rgb[e["value"] - 1] = e["color"][:3]
+        data = encode(volume.labels != 0, None, shell=shell, labels=volume.labels,
+                      label_rgb=rgb)
+    else:
+        data = encode(volume.occupancy, volume.colors, shell=shell)
     with atomic_output(path) as tmp:
         with open(tmp, "wb") as f:
             f.write(data)

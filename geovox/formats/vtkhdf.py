@@ -26,7 +26,7 @@ from . import SlabWriter
 VERSION = (1, 0)
 
 
-def image_attributes(shape, spacing, origin) -> dict:
+def image_attributes(shape, spacing, origin, direction=None) -> dict:
     """The ``/VTKHDF`` attributes of an ImageData file.
 
     Parameters
@@ -35,6 +35,9 @@ def image_attributes(shape, spacing, origin) -> dict:
         ``(nx, ny, nz)``.
     spacing, origin : (3,) float
         Voxel size and the centre of voxel 0.
+    direction : (3, 3) float, optional
+        Direction cosines (columns: the index axes), stored row by row as
+        VTK's ``vtkImageData::DirectionMatrix``; identity by default.
 
     Returns
     -------
@@ -47,7 +50,8 @@ def image_attributes(shape, spacing, origin) -> dict:
         "WholeExtent": np.array([0, nx - 1, 0, ny - 1, 0, nz - 1], dtype=np.int64),
         "Origin": np.asarray(origin, dtype=np.float64),
         "Spacing": np.asarray(spacing, dtype=np.float64),
-        "Direction": np.eye(3).reshape(-1),
+        "Direction": (np.eye(3) if direction is None
+                      else np.asarray(direction, dtype=np.float64)).reshape(-1),
     }
 
 
@@ -63,7 +67,7 @@ class VTKHDFWriter(SlabWriter):
 
         from . import atomic_outputs
         from .chunks import LEVEL
-        from .headers import origin_of
+        from .headers import frame_of
 
         self.path, self.jobs = os.fspath(path), jobs
         self._ctx = atomic_outputs()
@@ -71,14 +75,18 @@ class VTKHDFWriter(SlabWriter):
         try:
             self.f = h5py.File(self._ctx.__enter__().add(self.path), "w")
             g = self.f.create_group("VTKHDF")
-            for key, value in image_attributes(meta.shape, meta.spacing, origin_of(meta)).items():
+            origin, spacing, direction, space = frame_of(meta)
+            for key, value in image_attributes(meta.shape, spacing, origin, direction).items():
                 g.attrs[key] = value
+            if space is not None:  # a reference grid: its frame, and the affine whole
+                g.attrs["space"] = space
+                g.attrs["affine"] = meta.grid.reference.affine
             pd = g.create_group("PointData")
             zyx = tuple(min(64, n) for n in meta.shape[::-1])
             fields = {"occupancy": (np.uint8, ())}
             if meta.colors is not None:
                 fields["color"] = (np.uint8, (4,))
-            for name in ("density", "sdf"):
+            for name in ("density", "sdf", "labels"):
                 if getattr(meta, name, None) is not None:
                     fields[name] = (getattr(meta, name).dtype, ())
             # Chunks arrive compressed (formats.chunks); the level only labels the filter.
@@ -87,6 +95,8 @@ class VTKHDFWriter(SlabWriter):
                                         chunks=zyx + tail, compression="gzip",
                                         compression_opts=LEVEL, fillvalue=0)
                 for name, (dtype, tail) in fields.items()}
+            if getattr(meta, "label_table", None):
+                _label_field_data(g, meta.label_table)
         except BaseException:
             self.abort()
             raise
@@ -96,7 +106,7 @@ class VTKHDFWriter(SlabWriter):
         from .chunks import write_both
 
         arrays = {"occupancy": vol.occupancy.view(np.uint8), "color": vol.colors,
-                  "density": vol.density, "sdf": vol.sdf}
+                  "density": vol.density, "sdf": vol.sdf, "labels": vol.labels}
         for name, dset in self.sets.items():
             arr = arrays[name]
             # VTK's (z, y, x) order is the arrays' memory order (x fastest): no copy.
@@ -111,6 +121,17 @@ class VTKHDFWriter(SlabWriter):
     def _release(self) -> None:
         if self.f is not None:
             self.f.close()
+
+
+def _label_field_data(g, table) -> None:
+    """The label table as field data: ``label_values``, ``label_names``, ``label_colors``."""
+    fd = g.create_group("FieldData")
+    fd.create_dataset("label_values", data=np.asarray([e["value"] for e in table], np.int64))
+    # VTK's HDF reader (9.x) reads no string datasets: the names are one
+    # UTF-8 byte array, each ended by a newline (numeric, so ParaView shows it).
+    text = "".join(str(e["name"]).replace("\n", " ") + "\n" for e in table).encode("utf-8")
+    fd.create_dataset("label_names", data=np.frombuffer(text, dtype=np.uint8))
+    fd.create_dataset("label_colors", data=np.asarray([e["color"] for e in table], np.uint8))
 
 
 def write_vtkhdf(volume, path, jobs: int = 2) -> list:
@@ -135,6 +156,12 @@ def read_vtkhdf(path):
         # (z, y, x) C order read back is the [x, y, z] Fortran-ordered array, transposed.
         occ = pd["occupancy"][...].transpose(2, 1, 0) > 0
         colors = pd["color"][...].transpose(2, 1, 0, 3) if "color" in pd else None
-        extra = {n: pd[n][...].transpose(2, 1, 0) for n in ("density", "sdf") if n in pd}
+        extra = {n: pd[n][...].transpose(2, 1, 0) for n in ("density", "sdf", "labels") if n in pd}
+        if "FieldData" in g and "label_names" in g["FieldData"]:
+            fd = g["FieldData"]
+            names = bytes(fd["label_names"][...]).decode("utf-8").split("\n")[:-1]
+            extra["label_table"] = [
+                {"value": int(v), "name": n, "color": [int(c) for c in rgba]}
+                for v, n, rgba in zip(fd["label_values"][...], names, fd["label_colors"][...])]
     return Volume(occupancy=occ, grid=Grid(lo, lo + spacing * np.asarray(shape), shape),
                   backend="?", source=os.fspath(path), colors=colors, **extra)

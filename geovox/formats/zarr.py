@@ -160,6 +160,9 @@ def make_layout(root, meta, thick: int) -> Layout:
         arr = getattr(meta, name, None)
         if arr is not None:
             fields.append(Field(name, str(arr.dtype), 0, levels(name + "/", 0)))
+    if getattr(meta, "labels", None) is not None:
+        # OME-Zarr's labels/ group: one label image, "labels/labels".
+        fields.append(Field("labels", str(meta.labels.dtype), 0, levels("labels/labels/", 0)))
     return Layout(os.fspath(root), tuple(int(n) for n in meta.shape), thick, in_slab, tuple(fields))
 
 
@@ -199,6 +202,7 @@ def create(layout: Layout, meta, unit=None) -> None:
     from zarr.codecs import BytesCodec, GzipCodec
 
     from . import FIELD_VALUES
+    from .headers import frame_metadata
 
     root = zarr.open_group(layout.root, mode="w", zarr_format=3)
     lo, hi = meta.bounds
@@ -207,10 +211,13 @@ def create(layout: Layout, meta, unit=None) -> None:
         "spacing": list(meta.spacing), "axis_order": "zyx", "source": str(meta.source),
         "backend": meta.backend, "values": "0 outside, 255 inside",
         **{f.name + "_values": FIELD_VALUES[f.name](f.dtype) for f in layout.fields
-           if f.name in FIELD_VALUES}}
+           if f.name in FIELD_VALUES}, **frame_metadata(meta)}
     for field in layout.fields:
-        group = root if field.name == "occupancy" else root.create_group(field.name)
-        group.attrs["ome"] = {"version": "0.5", "multiscales": [multiscales(meta, field, unit)]}
+        if field.name == "labels":
+            group = _label_group(root, meta, field, unit)
+        else:
+            group = root if field.name == "occupancy" else root.create_group(field.name)
+            group.attrs["ome"] = {"version": "0.5", "multiscales": [multiscales(meta, field, unit)]}
         names = (["c"] if field.channels else []) + ["z", "y", "x"]
         chunk = ((field.channels,) if field.channels else ()) + (CHUNK,) * 3
         for level in field.levels:
@@ -224,6 +231,27 @@ def create(layout: Layout, meta, unit=None) -> None:
     assert [c["name"] for c in inner["codecs"]] == ["bytes", "gzip"], inner
     assert [c["name"] for c in inner["index_codecs"]] == ["bytes", "crc32c"], inner
     assert inner.get("index_location", "end") == "end", inner
+
+
+def _label_group(root, meta, field, unit=None):
+    """``labels/`` (listing one label image) and ``labels/labels`` with its ``image-label``
+    metadata: a colour and properties (name, source, voxels, volume) per label value, and
+    the image it labels (``source``: the root, two levels up)."""
+    lg = root.create_group("labels")
+    lg.attrs["ome"] = {"version": "0.5", "labels": ["labels"]}
+    group = lg.create_group("labels")
+    table = [e for e in (meta.label_table or []) if e["value"] != 0]
+    group.attrs["ome"] = {
+        "version": "0.5", "multiscales": [multiscales(meta, field, unit)],
+        "image-label": {
+            "version": "0.5",
+            "colors": [{"label-value": int(e["value"]), "rgba": [int(c) for c in e["color"]]}
+                       for e in table],
+            "properties": [{"label-value": int(e["value"]), "name": str(e["name"]),
+                            "source": str(e.get("source", "")), "voxels": int(e.get("voxels", 0)),
+                            "volume": float(e.get("volume", 0.0))} for e in table],
+            "source": {"image": "../../"}}}
+    return group
 
 
 # --- writing shards -------------------------------------------------------
@@ -402,6 +430,11 @@ def downsample(a: np.ndarray, name: str) -> np.ndarray:
         for ax in axes:
             a = _halve(a, ax, np.minimum, np.inf)
         return a
+    if name == "labels":
+        # The largest child value: a coarse voxel with a labelled child stays labelled.
+        for ax in axes:
+            a = _halve(a, ax, np.maximum, 0)
+        return a
     if name == "color":
         def pick(p, q):
             return np.where(q[3:4] > p[3:4], q, p)
@@ -427,7 +460,7 @@ def slab_fields(vol) -> dict:
     out = {"occupancy": vol.occupancy.view(np.uint8).T}
     if vol.colors is not None:
         out["color"] = vol.colors.transpose(3, 2, 1, 0)
-    for name in ("density", "sdf"):
+    for name in ("density", "sdf", "labels"):
         arr = getattr(vol, name, None)
         if arr is not None:
             out[name] = arr.T
@@ -681,7 +714,9 @@ def _slab_of(volume, z0: int, z1: int):
                   backend=volume.backend,
                   colors=None if volume.colors is None else volume.colors[:, :, cut],
                   density=None if volume.density is None else volume.density[:, :, cut],
-                  sdf=None if volume.sdf is None else volume.sdf[:, :, cut])
+                  sdf=None if volume.sdf is None else volume.sdf[:, :, cut],
+                  labels=None if volume.labels is None else volume.labels[:, :, cut],
+                  label_table=volume.label_table)
 
 
 def whole_thick(shape) -> int:

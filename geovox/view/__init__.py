@@ -1,7 +1,9 @@
-"""Interactive 3D view of a volume (and its source mesh), through PyVista.
+"""Interactive 3D view of a volume (and its source mesh), through PyVista, or in a browser.
 
 PyVista (and VTK) is an optional extra: ``pip install -e '.[view]'``. With a
 screenshot path the view renders off-screen, which works without a display.
+:func:`to_html` (from :mod:`geovox.view.html`) needs neither: it writes one
+self-contained page that shows the volume in any browser with WebGL2.
 """
 
 from __future__ import annotations
@@ -10,13 +12,22 @@ import os
 
 import numpy as np
 
-from .errors import GeovoxError, OutputError
+from ..errors import GeovoxError, OutputError
 
 #: Above this many inside voxels only the visible shell is drawn.
 SHELL_ABOVE = 200_000
 #: A ``.zarr`` is shown from its finest pyramid level with every side at most
 #: this (each voxel is a hexahedron; 256³ is what a desktop GPU turns smoothly).
 LARGEST = 256
+
+
+def __getattr__(name):
+    # geovox.view.to_html without importing the page writer with the PyVista viewer.
+    if name in ("to_html", "render_page"):
+        from . import html
+
+        return getattr(html, name)
+    raise AttributeError(f"module 'geovox.view' has no attribute {name!r}")
 
 
 class ViewerUnavailableError(GeovoxError, ImportError):
@@ -36,7 +47,7 @@ def _pyvista():
 def voxel_cells(volume):
     """The inside voxels as a PyVista UnstructuredGrid of hexahedra (shell only when large)."""
     pv = _pyvista()
-    from .formats.vox import shell_mask
+    from ..formats.vox import shell_mask
 
     occ = volume.occupancy
     keep = shell_mask(occ) if np.count_nonzero(occ) > SHELL_ABOVE else occ
@@ -98,7 +109,7 @@ def show(volume, mesh=None, screenshot=None, window_size=(1200, 600)):
         plotter.link_views()
     plotter.view_isometric()
     if screenshot is not None:
-        from .formats import atomic_outputs, check_writable
+        from ..formats import atomic_outputs, check_writable
 
         check_writable(screenshot)
         png = None

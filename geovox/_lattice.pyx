@@ -1,0 +1,572 @@
+# cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True
+# cython: initializedcheck=False, nonecheck=False
+"""Compiled lattice search of the column rays, and linear checks of a mesh's edges.
+
+:func:`scan` is :func:`geovox.backends.numpy.rasterise`'s NumPy scan
+written as one loop: for every active triangle, every column centre in its
+bounding box, in the same order (triangle, then ``j``, then ``i``); the
+decision is :meth:`geovox.exact.Projection.edge_values`' exact ``int64``
+edge functions, and depth and weights are
+:meth:`geovox.exact.Projection.interpolate`'s float64 formula operation for
+operation (built with ``-ffp-contract=off``, no fast-math; see setup.py), so
+the hits are the NumPy scan's, array for array.
+
+:func:`edge_checks`, :func:`duplicate_faces` and :func:`vertex_connected`
+answer the questions :func:`geovox.inside.choose` asks of every mesh
+(closed? an edge on more than two faces? two faces on the same three
+vertices? one vertex-connected piece?) in time linear in the faces: keys
+are bucketed by their lowest vertex (a counting sort) and settled with
+per-vertex scratch arrays, so nothing is sorted. The NumPy code in
+:mod:`geovox.inside` gives the same answers (it is the fallback where this
+module is not built).
+"""
+
+import numpy as np
+
+from libc.stdint cimport int64_t, uint8_t, uint64_t
+from libc.string cimport memcpy
+from libc.math cimport hypot, rint
+
+#: Buckets of at most this many entries are settled by comparing every pair.
+DEF SMALL = 16
+
+
+def scan(const int64_t[:, :, ::1] coef, const int64_t[:, ::1] tie, const double[::1] area,
+         const double[:, ::1] z, const int64_t[::1] imin, const int64_t[::1] imax,
+         const int64_t[::1] jmin, const int64_t[::1] jmax, const int64_t[::1] tri,
+         int64_t nu, column_mask=None, triangle_mask=None):
+    """Every crossing of the lattice's rays with the active triangles.
+
+    Parameters
+    ----------
+    coef : (m, 3, 3) int64
+    tie : (m, 3) int64
+    area : (m,) float64
+    z : (m, 3) float64
+    imin, imax, jmin, jmax, tri : (m,) int64
+        A :class:`geovox.exact.Projection`'s arrays of the same names.
+    nu : int
+        Columns along ``u``.
+    column_mask : (nu * nv,) bool, optional
+        Only rays where this is True.
+    triangle_mask : (m,) bool, optional
+        Only these active triangles.
+
+    Returns
+    -------
+    ray : (h,) int64
+    depth : (h,) float64
+    triangle : (h,) int64
+    bary : (h, 2) float64
+        As :class:`geovox.backends.base.Hits` holds them, in the NumPy scan's order.
+    """
+    cdef Py_ssize_t m = area.shape[0]
+    cdef const uint8_t[::1] cmask
+    cdef const uint8_t[::1] tmask
+    cdef bint use_c = column_mask is not None
+    cdef bint use_t = triangle_mask is not None
+    if use_c:
+        cmask = np.ascontiguousarray(column_mask, dtype=np.bool_).view(np.uint8)
+    if use_t:
+        tmask = np.ascontiguousarray(triangle_mask, dtype=np.bool_).view(np.uint8)
+    cdef Py_ssize_t cap = 1024, h = 0, t
+    ray_a = np.empty(cap, np.int64)
+    depth_a = np.empty(cap, np.float64)
+    tri_a = np.empty(cap, np.int64)
+    bary_a = np.empty((cap, 2), np.float64)
+    cdef int64_t[::1] o_ray = ray_a
+    cdef double[::1] o_depth = depth_a
+    cdef int64_t[::1] o_tri = tri_a
+    cdef double[:, ::1] o_bary = bary_a
+    cdef int64_t i, j, w0, w1, w2, r
+    cdef int64_t a0, b0, c0, a1, b1, c1, a2, b2, c2
+    cdef double l0, l1, l2, ar, zk, d0, d1, d2, s
+    cdef int k
+    for t in range(m):
+        if use_t and not tmask[t]:
+            continue
+        a0, b0, c0 = coef[t, 0, 0], coef[t, 0, 1], coef[t, 0, 2]
+        a1, b1, c1 = coef[t, 1, 0], coef[t, 1, 1], coef[t, 1, 2]
+        a2, b2, c2 = coef[t, 2, 0], coef[t, 2, 1], coef[t, 2, 2]
+        for j in range(jmin[t], jmax[t] + 1):
+            for i in range(imin[t], imax[t] + 1):
+                r = i + nu * j
+                if use_c and not cmask[r]:
+                    continue
+                w0 = a0 + b0 * i + c0 * j
+                if w0 <= 0:
+                    continue
+                w1 = a1 + b1 * i + c1 * j
+                if w1 <= 0:
+                    continue
+                w2 = a2 + b2 * i + c2 * j
+                if w2 <= 0:
+                    continue
+                if h == cap:
+                    cap *= 2
+                    ray_a = np.resize(ray_a, cap)
+                    depth_a = np.resize(depth_a, cap)
+                    tri_a = np.resize(tri_a, cap)
+                    bary_a = np.resize(bary_a, (cap, 2))
+                    o_ray, o_depth, o_tri, o_bary = ray_a, depth_a, tri_a, bary_a
+                # Projection.interpolate: lam = (w - tie) / area; depth from
+                # the vertex of largest weight (the first on ties, as argmax).
+                ar = area[t]
+                l0 = <double>(w0 - tie[t, 0]) / ar
+                l1 = <double>(w1 - tie[t, 1]) / ar
+                l2 = <double>(w2 - tie[t, 2]) / ar
+                k = 0
+                if l1 > l0:
+                    k = 1
+                if l2 > (l1 if k == 1 else l0):
+                    k = 2
+                zk = z[t, k]
+                d0 = z[t, 0] - zk
+                d1 = z[t, 1] - zk
+                d2 = z[t, 2] - zk
+                if k == 0:
+                    d0 = 0.0
+                elif k == 1:
+                    d1 = 0.0
+                else:
+                    d2 = 0.0
+                # One of the three terms is exactly +0.0, so NumPy's sum
+                # over the length-3 axis rounds as this does in any order.
+                s = l0 * d0
+                s = s + l1 * d1
+                s = s + l2 * d2
+                o_ray[h] = r
+                o_depth[h] = zk + s
+                o_tri[h] = tri[t]
+                o_bary[h, 0] = l1
+                o_bary[h, 1] = l2
+                h += 1
+    return ray_a[:h].copy(), depth_a[:h].copy(), tri_a[:h].copy(), bary_a[:h].copy()
+
+
+def column_boxes(const double[:, ::1] vertices, const int64_t[:, ::1] faces, int a, int b,
+                 double u0, double du, double v0, double dv, double low, double top_u,
+                 double top_v):
+    """:func:`geovox.exact._column_boxes` in one pass: the same float64 operations.
+
+    Parameters
+    ----------
+    vertices : (v, 3) float64
+    faces : (n, 3) int64
+        The triangles ``vertices[faces]`` (not gathered: a fine mesh's
+        triangles are mostly dropped here).
+    a, b : int
+        The axes across the rays (``u`` and ``v``).
+    u0, du, v0, dv : float
+        The lattice's origin and spacing (column units are ``(x - u0) / du``).
+    low, top_u, top_v : float
+        A box is kept when ``hi >= low`` and ``lo <= top`` along both axes.
+
+    Returns
+    -------
+    idx : (k,) int64
+    lo_u, hi_u, lo_v, hi_v : (k,) float64
+    """
+    cdef Py_ssize_t t, k, n = faces.shape[0], h = 0
+    idx_a = np.empty(n, np.int64)
+    box_a = np.empty((4, n), np.float64)
+    cdef int64_t[::1] idx = idx_a
+    cdef double[:, ::1] box = box_a
+    cdef double x, lu, hu, lv, hv
+    cdef int64_t p
+    for t in range(n):
+        # np.minimum / np.maximum of the three, as in NumPy (finite values:
+        # min and max are exact, in any order).
+        p = faces[t, 0]
+        lu = hu = (vertices[p, a] - u0) / du
+        lv = hv = (vertices[p, b] - v0) / dv
+        for k in range(1, 3):
+            p = faces[t, k]
+            x = (vertices[p, a] - u0) / du
+            lu = x if x < lu else lu
+            hu = x if x > hu else hu
+            x = (vertices[p, b] - v0) / dv
+            lv = x if x < lv else lv
+            hv = x if x > hv else hv
+        if hu >= low and lu <= top_u and hv >= low and lv <= top_v:
+            idx[h] = t
+            box[0, h], box[1, h], box[2, h], box[3, h] = lu, hu, lv, hv
+            h += 1
+    return (idx_a[:h].copy(), box_a[0, :h].copy(), box_a[1, :h].copy(), box_a[2, :h].copy(),
+            box_a[3, :h].copy())
+
+
+cdef inline int64_t _floordiv(int64_t x, int64_t y) noexcept nogil:
+    """Python's ``x // y`` for ``y > 0``."""
+    cdef int64_t q = x / y
+    if x % y != 0 and x < 0:
+        q -= 1
+    return q
+
+
+def column_ranges(const double[::1] lo_u, const double[::1] hi_u, const double[::1] lo_v,
+                  const double[::1] hi_v, int s, int64_t nu, int64_t nv):
+    """Exact column ranges of the snapped boxes; only the boxes that hold a centre.
+
+    :class:`geovox.exact.Projection`'s NumPy: ``lu = rint(lo_u * 2**s)``,
+    ``imin = max(-((half - lu) // S), 0)``, ``imax = min((hu - half) // S,
+    nu - 1)``, the same along ``v``, kept where ``imin <= imax`` and ``jmin
+    <= jmax``.
+
+    Returns
+    -------
+    seen : (k,) int64
+        Indices of the boxes kept.
+    imin, imax, jmin, jmax : (k,) int64
+    """
+    cdef Py_ssize_t t, n = lo_u.shape[0], h = 0
+    cdef int64_t S = (<int64_t>1) << s
+    cdef int64_t half = S // 2
+    cdef double fs = <double>S
+    seen_a = np.empty(n, np.int64)
+    rng_a = np.empty((4, n), np.int64)
+    cdef int64_t[::1] seen = seen_a
+    cdef int64_t[:, ::1] rng = rng_a
+    cdef int64_t i0, i1, j0, j1
+    for t in range(n):
+        i0 = -_floordiv(half - <int64_t>rint(lo_u[t] * fs), S)
+        i1 = _floordiv(<int64_t>rint(hi_u[t] * fs) - half, S)
+        j0 = -_floordiv(half - <int64_t>rint(lo_v[t] * fs), S)
+        j1 = _floordiv(<int64_t>rint(hi_v[t] * fs) - half, S)
+        i0 = i0 if i0 > 0 else 0
+        j0 = j0 if j0 > 0 else 0
+        i1 = i1 if i1 < nu - 1 else nu - 1
+        j1 = j1 if j1 < nv - 1 else nv - 1
+        if i0 <= i1 and j0 <= j1:
+            seen[h] = t
+            rng[0, h], rng[1, h], rng[2, h], rng[3, h] = i0, i1, j0, j1
+            h += 1
+    return (seen_a[:h].copy(), rng_a[0, :h].copy(), rng_a[1, :h].copy(), rng_a[2, :h].copy(),
+            rng_a[3, :h].copy())
+
+
+cdef inline int64_t _sign(int64_t x) noexcept nogil:
+    return (x > 0) - (x < 0)
+
+
+def edges(const double[:, ::1] vertices, const int64_t[:, ::1] faces, const int64_t[::1] idx,
+          int a, int b, int c, double u0, double du, double v0, double dv, double w0, int s):
+    """:func:`geovox.exact._edges` of the triangles ``faces[idx]``: the same operations.
+
+    Returns
+    -------
+    sel : (m,) int64
+        Indices into ``idx`` of the triangles of non-zero projected area.
+    coef : (m, 3, 3) int64
+    tie : (m, 3) int64
+    area : (m,) float64
+    edge_len : (m, 3) float64
+    z : (m, 3) float64
+        :class:`geovox.exact.Projection`'s arrays of those names.
+    """
+    cdef Py_ssize_t t, n = idx.shape[0], h = 0
+    cdef int k, A
+    cdef int64_t S = (<int64_t>1) << s
+    cdef int64_t half = S // 2
+    cdef double fs = <double>S
+    sel_a = np.empty(n, np.int64)
+    coef_a = np.empty((n, 3, 3), np.int64)
+    tie_a = np.empty((n, 3), np.int64)
+    area_a = np.empty(n, np.float64)
+    len_a = np.empty((n, 3), np.float64)
+    z_a = np.empty((n, 3), np.float64)
+    cdef int64_t[::1] sel = sel_a
+    cdef int64_t[:, :, ::1] coef = coef_a
+    cdef int64_t[:, ::1] tie = tie_a
+    cdef double[::1] area = area_a
+    cdef double[:, ::1] elen = len_a
+    cdef double[:, ::1] z = z_a
+    cdef int64_t qu[3]
+    cdef int64_t qv[3]
+    cdef int64_t ex[3]
+    cdef int64_t ey[3]
+    cdef int64_t p, area2, sg, const, tie_sign, tk
+    for t in range(n):
+        for k in range(3):
+            p = faces[idx[t], k]
+            qu[k] = <int64_t>rint((vertices[p, a] - u0) / du * fs)
+            qv[k] = <int64_t>rint((vertices[p, b] - v0) / dv * fs)
+        for k in range(3):
+            ex[k] = qu[(k + 2) % 3] - qu[(k + 1) % 3]
+            ey[k] = qv[(k + 2) % 3] - qv[(k + 1) % 3]
+        area2 = ex[0] * (qv[0] - qv[1]) - ey[0] * (qu[0] - qu[1])
+        sg = _sign(area2)
+        if sg == 0:
+            continue  # zero projected area: never crossed
+        for k in range(3):
+            A = (k + 1) % 3
+            const = ey[k] * qu[A] - ex[k] * qv[A]
+            tie_sign = -_sign(ey[k]) if ey[k] != 0 else _sign(ex[k])
+            tk = tie_sign == sg
+            tie[h, k] = tk
+            coef[h, k, 0] = (const + (ex[k] - ey[k]) * half) * sg + tk
+            coef[h, k, 1] = -ey[k] * S * sg
+            coef[h, k, 2] = ex[k] * S * sg
+            elen[h, k] = hypot(<double>ex[k], <double>ey[k])
+            z[h, k] = vertices[faces[idx[t], k], c] - w0
+        area[h] = <double>(area2 if area2 > 0 else -area2)
+        sel[h] = t
+        h += 1
+    return (sel_a[:h].copy(), coef_a[:h].copy(), tie_a[:h].copy(), area_a[:h].copy(),
+            len_a[:h].copy(), z_a[:h].copy())
+
+
+cdef _bucket(const int64_t[:, ::1] faces, int64_t n):
+    """Undirected edges (degenerate ones dropped) bucketed by their lower vertex.
+
+    Returns ``(start, hi, fwd)``: bucket ``v`` holds the edges ``start[v] <=
+    e < start[v + 1]``, each with its higher vertex and whether a face runs
+    it from low to high.
+    """
+    cdef Py_ssize_t f, k, m = faces.shape[0]
+    cdef int64_t a, b, lo
+    start_a = np.zeros(n + 1, np.int64)
+    cdef int64_t[::1] start = start_a
+    for f in range(m):
+        for k in range(3):
+            a, b = faces[f, k], faces[f, (k + 1) % 3]
+            if a != b:
+                start[(a if a < b else b) + 1] += 1
+    for k in range(n):
+        start[k + 1] += start[k]
+    hi_a = np.empty(start[n], np.int64)
+    fwd_a = np.empty(start[n], np.uint8)
+    pos_a = start_a[:n].copy()
+    cdef int64_t[::1] hi = hi_a, pos = pos_a
+    cdef uint8_t[::1] fwd = fwd_a
+    for f in range(m):
+        for k in range(3):
+            a, b = faces[f, k], faces[f, (k + 1) % 3]
+            if a != b:
+                lo = a if a < b else b
+                hi[pos[lo]] = b if a < b else a
+                fwd[pos[lo]] = a < b
+                pos[lo] += 1
+    return start_a, hi_a, fwd_a
+
+
+def edge_checks(faces):
+    """``(closed, non_manifold)`` of a mesh's (geometric) faces, in linear time.
+
+    Parameters
+    ----------
+    faces : (m, 3) int64
+        Vertex indices (a face may repeat one: its degenerate edge is not an edge).
+
+    Returns
+    -------
+    closed : bool
+        Every undirected edge is run as often one way as the other
+        (:func:`geovox.inside.boundary_edges` is empty).
+    non_manifold : bool
+        Some undirected edge is used more than twice.
+    """
+    cdef const int64_t[:, ::1] fv = np.ascontiguousarray(faces, dtype=np.int64)
+    cdef int64_t n = int(np.max(faces)) + 1 if len(faces) else 1
+    start_a, hi_a, fwd_a = _bucket(fv, n)
+    cdef int64_t[::1] start = start_a, hi = hi_a
+    cdef uint8_t[::1] fwd = fwd_a
+    net_a = np.zeros(n, np.int64)
+    uses_a = np.zeros(n, np.int64)
+    cdef int64_t[::1] net = net_a, uses = uses_a
+    cdef bint closed = True, non_manifold = False
+    cdef int64_t v, e, x, e2, a, b, net1, uses1
+    for v in range(n):
+        a, b = start[v], start[v + 1]
+        if b - a <= SMALL:
+            # A few edges (the usual valence): compared in place, which
+            # touches only this bucket's memory.
+            for e in range(a, b):
+                x = hi[e]
+                net1, uses1 = 0, 0
+                for e2 in range(a, b):
+                    if hi[e2] == x:
+                        net1 += 1 if fwd[e2] else -1
+                        uses1 += 1
+                if net1 != 0:
+                    closed = False
+                if uses1 > 2:
+                    non_manifold = True
+            continue
+        for e in range(a, b):
+            x = hi[e]
+            net[x] += 1 if fwd[e] else -1
+            uses[x] += 1
+        for e in range(start[v], start[v + 1]):
+            x = hi[e]
+            if net[x] != 0:
+                closed = False
+            if uses[x] > 2:
+                non_manifold = True
+            net[x] = 0
+            uses[x] = 0
+    return bool(closed), bool(non_manifold)
+
+
+def duplicate_faces(faces):
+    """Whether two faces use the same three vertices (in any order), in linear time.
+
+    Parameters
+    ----------
+    faces : (m, 3) int64
+    """
+    cdef const int64_t[:, ::1] fv = np.ascontiguousarray(faces, dtype=np.int64)
+    cdef Py_ssize_t f, m = fv.shape[0]
+    cdef int64_t n = int(np.max(faces)) + 1 if m else 1
+    s_a = np.empty((m, 3), np.int64)
+    cdef int64_t[:, ::1] s = s_a
+    cdef int64_t p, q, r
+    for f in range(m):  # each row sorted ascending
+        p, q, r = fv[f, 0], fv[f, 1], fv[f, 2]
+        if p > q:
+            p, q = q, p
+        if q > r:
+            q, r = r, q
+        if p > q:
+            p, q = q, p
+        s[f, 0], s[f, 1], s[f, 2] = p, q, r
+    start_a = np.zeros(n + 1, np.int64)
+    cdef int64_t[::1] start = start_a
+    for f in range(m):
+        start[s[f, 0] + 1] += 1
+    cdef int64_t v, e, g, x
+    for v in range(n):
+        start[v + 1] += start[v]
+    member_a = np.empty(m, np.int64)
+    pos_a = start_a[:n].copy()
+    cdef int64_t[::1] member = member_a, pos = pos_a
+    for f in range(m):
+        member[pos[s[f, 0]]] = f
+        pos[s[f, 0]] += 1
+    # Within a bucket (same lowest vertex): faces chained by middle vertex,
+    # then a stamp per highest vertex finds a repeat.
+    head_a = np.full(n, -1, np.int64)
+    nxt_a = np.empty(m, np.int64)
+    stamp_a = np.full(n, -1, np.int64)
+    cdef int64_t[::1] head = head_a, nxt = nxt_a, stamp = stamp_a
+    cdef int64_t mark = 0, a, b, e2
+    for v in range(n):
+        a, b = start[v], start[v + 1]
+        if b - a <= SMALL:
+            for e in range(a, b):
+                f = member[e]
+                for e2 in range(e + 1, b):
+                    g = member[e2]
+                    if s[f, 1] == s[g, 1] and s[f, 2] == s[g, 2]:
+                        return True
+            continue
+        for e in range(a, b):
+            f = member[e]
+            nxt[f] = head[s[f, 1]]
+            head[s[f, 1]] = f
+        for e in range(start[v], start[v + 1]):
+            g = head[s[member[e], 1]]
+            if g < 0:
+                continue
+            head[s[member[e], 1]] = -1
+            while g >= 0:
+                x = s[g, 2]
+                if stamp[x] == mark:
+                    return True
+                stamp[x] = mark
+                g = nxt[g]
+            mark += 1
+    return False
+
+
+cdef inline int64_t _root(int64_t[::1] parent, int64_t x) noexcept nogil:
+    while parent[x] != x:
+        parent[x] = parent[parent[x]]  # path halving
+        x = parent[x]
+    return x
+
+
+def vertex_connected(faces):
+    """Whether the faces' vertices form one connected graph (union-find, linear).
+
+    Parameters
+    ----------
+    faces : (m, 3) int64, m >= 1
+    """
+    cdef const int64_t[:, ::1] fv = np.ascontiguousarray(faces, dtype=np.int64)
+    cdef Py_ssize_t f, m = fv.shape[0]
+    cdef int64_t n = int(np.max(faces)) + 1
+    parent_a = np.arange(n, dtype=np.int64)
+    used_a = np.zeros(n, np.uint8)
+    cdef int64_t[::1] parent = parent_a
+    cdef uint8_t[::1] used = used_a
+    cdef int64_t a, b, k, roots = 0
+    for f in range(m):
+        used[fv[f, 0]] = 1
+        used[fv[f, 1]] = 1
+        used[fv[f, 2]] = 1
+        for k in range(2):
+            a = _root(parent, fv[f, k])
+            b = _root(parent, fv[f, k + 1])
+            if a != b:
+                if a < b:
+                    parent[b] = a
+                else:
+                    parent[a] = b
+    for a in range(n):
+        if used[a] and parent[a] == a:
+            roots += 1
+    return roots == 1
+
+
+cdef inline uint64_t _bits(double x) noexcept nogil:
+    cdef uint64_t u
+    if x == 0.0:
+        x = 0.0  # -0.0 and 0.0 are one position
+    memcpy(&u, &x, 8)
+    return u
+
+
+def merge_positions(vertices):
+    """Vertices numbered by exact position (equal coordinates, one number), in linear time.
+
+    A hash of the coordinates' bits; numbers in order of first appearance
+    (not :attr:`geovox.mesh.Mesh.geometric_faces`' lexicographic order: this
+    numbering serves questions that do not depend on it).
+
+    Parameters
+    ----------
+    vertices : (n, 3) float64, finite
+
+    Returns
+    -------
+    (n,) int64
+    """
+    cdef const double[:, ::1] v = np.ascontiguousarray(vertices, dtype=np.float64)
+    cdef Py_ssize_t i, n = v.shape[0]
+    cdef uint64_t size = 16
+    while size < 2 * <uint64_t>n:
+        size *= 2
+    table_a = np.full(size, -1, np.int64)
+    out_a = np.empty(n, np.int64)
+    cdef int64_t[::1] table = table_a, out = out_a
+    cdef uint64_t h, x, y, z, mask = size - 1
+    cdef int64_t k, count = 0
+    for i in range(n):
+        x, y, z = _bits(v[i, 0]), _bits(v[i, 1]), _bits(v[i, 2])
+        h = x * 0x9E3779B97F4A7C15ULL
+        h = (h ^ (h >> 29) ^ y) * 0xBF58476D1CE4E5B9ULL
+        h = (h ^ (h >> 32) ^ z) * 0x94D049BB133111EBULL
+        h = (h ^ (h >> 31)) & mask
+        while True:
+            k = table[h]
+            if k < 0:
+                table[h] = i
+                out[i] = count
+                count += 1
+                break
+            if v[k, 0] == v[i, 0] and v[k, 1] == v[i, 1] and v[k, 2] == v[i, 2]:
+                out[i] = out[k]
+                break
+            h = (h + 1) & mask
+    return out_a

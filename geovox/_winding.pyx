@@ -1,0 +1,414 @@
+# cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True
+# cython: initializedcheck=False, nonecheck=False
+"""Compiled caps' winding number: the occupancy ``w_{M+K} - w_K > 1/2`` of a capped mesh.
+
+The dual-tree traversal of :func:`geovox.inside.cap_winding` (the same tree
+of cap triangles over bricks of ``2^k`` voxels), written as a depth-first
+loop over (brick, node) pairs per top brick, with OpenMP threads over the
+top bricks; each top brick's sums live in per-thread buffers, so nothing
+grows with the grid.
+
+Each far pair is summed to second order, not as a bare dipole. With
+``f(y) = n . y / |y|^3`` and ``y = x - p`` (x on the node, p a voxel
+centre), expanding about ``y0 = c - p0`` (the node's centre, the brick's
+centre) gives the dipole ``S . K(y0)``, the first moment's term
+``J(y0) : Q`` (``Q = sum_t S_t (x) (centroid_t - c)``, ``J`` the Jacobian
+of ``K(y) = y / |y|^3``, ``I / r^3 - 3 y y^T / r^5``) and a gradient in p,
+``-J^T S``, so each brick carries a linear field. The remainder is at
+most ``|grad^2 f| |y - y0|^2 / 2 <= 3 |y - y0|^2 / d^4`` (``grad^2 f`` is
+the third derivative of ``1/|y|`` along ``n``, of norm ``6 / |y|^4``;
+``d`` the gap between the node's box and the brick's ball, which every
+point of the segment keeps by convexity), so per pair
+``3 A (r + rb)^2 / (4 pi d^4)``: second order in the opening ratio where
+the bare dipole's ``A (r + rb) / (2 pi d^3)`` is first order. That is what
+lets the caps of messy models (fans over boundary loops with much more area
+than net area vector: unsigned solid angles near 1 at most voxels) be
+decided in bulk.
+
+A voxel whose summed bound does not decide it is refined at once, alone: a
+traversal per tighter pass (``passes``), then the exact sum over every cap
+triangle (Van Oosterom and Strackee). Only the time budget (``seconds`` of processor
+time a thread) leaves a voxel to its estimate; such voxels are marked. Every other
+decision is proven by a bound (a margin of 1e-4, far above the float64
+rounding of these sums) or taken on the exact sum.
+"""
+
+from cython.parallel cimport prange, parallel
+from libc.stdlib cimport malloc, free
+from libc.string cimport memset
+from libc.math cimport sqrt, atan2, fabs, M_PI
+from libc.stdint cimport int16_t, int64_t, uint8_t
+from posix.time cimport clock_gettime, timespec, CLOCK_PROCESS_CPUTIME_ID
+
+
+cdef struct Tree:
+    const double *T      # (k, 9) sorted cap triangles
+    const double *S      # (n, 3) area vectors
+    const double *Q      # (n, 9) first moments: sum of S_t (x) (centroid_t - c), row-major
+    const double *A      # (n,) areas
+    const double *C      # (n, 3) box centres
+    const double *H      # (n, 3) box half sizes
+    const double *R      # (n,) radii
+    const int64_t *off   # first node of each tree level
+    const int64_t *size  # nodes per tree level
+    int64_t top          # the root's tree level
+    int64_t ntri
+
+
+cdef struct Grid:
+    int64_t n[3]
+    double lo[3]
+    double d[3]
+    double dnorm
+    int64_t T            # brick level of the top bricks
+    double theta, eps
+
+
+cdef inline double now() noexcept nogil:
+    # The process's processor time, all threads: a loaded machine's waiting
+    # does not spend the budget, so what is proven does not depend on the load.
+    cdef timespec ts
+    clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts)
+    return ts.tv_sec + 1e-9 * ts.tv_nsec
+
+
+cdef inline double tri_angle(const double *t, double px, double py, double pz) noexcept nogil:
+    """Signed solid angle over 4 pi of one triangle at p (geovox.inside._triangle_angles)."""
+    cdef double ax = t[0] - px, ay = t[1] - py, az = t[2] - pz
+    cdef double bx = t[3] - px, by = t[4] - py, bz = t[5] - pz
+    cdef double cx = t[6] - px, cy = t[7] - py, cz = t[8] - pz
+    cdef double la = sqrt(ax * ax + ay * ay + az * az)
+    cdef double lb = sqrt(bx * bx + by * by + bz * bz)
+    cdef double lc = sqrt(cx * cx + cy * cy + cz * cz)
+    cdef double num = ax * (by * cz - bz * cy) + ay * (bz * cx - bx * cz) + az * (bx * cy - by * cx)
+    cdef double den = (la * lb * lc + (ax * bx + ay * by + az * bz) * lc
+                       + (ax * cx + ay * cy + az * cz) * lb + (bx * cx + by * cy + bz * cz) * la)
+    return atan2(num, den) / (2.0 * M_PI)
+
+
+cdef inline double node_gap(const Tree *tr, int64_t node, double px, double py, double pz,
+                            double *vec) noexcept nogil:
+    """Distance from p to the node's box (vec: the node's centre minus p)."""
+    cdef double o, g = 0
+    cdef int a
+    vec[0] = tr.C[3 * node] - px
+    vec[1] = tr.C[3 * node + 1] - py
+    vec[2] = tr.C[3 * node + 2] - pz
+    for a in range(3):
+        o = fabs(vec[a]) - tr.H[3 * node + a]
+        if o > 0:
+            g += o * o
+    return sqrt(g)
+
+
+cdef inline double expansion(const Tree *tr, int64_t node, const double *y, double *grad) noexcept nogil:
+    """The node's solid angle over 4 pi at ``p``, to first order in the node's and p's displacement.
+
+    ``y = c - p0`` (node centre minus expansion point). Returns the value at
+    ``p0`` (dipole plus the first moment's term); ``grad`` (3) is its
+    gradient in ``p`` (see the module notes of geovox.inside._compiled_caps).
+    """
+    cdef double r2 = y[0] * y[0] + y[1] * y[1] + y[2] * y[2]
+    cdef double r = sqrt(r2)
+    cdef double i3 = 1.0 / (r2 * r), i5 = i3 / r2
+    cdef const double *S = tr.S + 3 * node
+    cdef const double *Q = tr.Q + 9 * node
+    cdef double ys = y[0] * S[0] + y[1] * S[1] + y[2] * S[2]
+    cdef double yqy = 0, tr_q = Q[0] + Q[4] + Q[8]
+    cdef int a, b
+    for a in range(3):
+        for b in range(3):
+            yqy += y[a] * Q[3 * a + b] * y[b]
+    cdef double f = 1.0 / (4 * M_PI)
+    for a in range(3):  # -J^T S, J = I / r^3 - 3 y y^T / r^5
+        grad[a] = -f * (S[a] * i3 - 3 * y[a] * ys * i5)
+    return f * (ys * i3 + tr_q * i3 - 3 * yqy * i5)
+
+
+cdef inline void tri_gradient(const double *t, double px, double py, double pz,
+                              double *grad) noexcept nogil:
+    """Gradient in p of :func:`tri_angle`: the Biot-Savart sum over the triangle's edges, over 4 pi."""
+    cdef double a[3]
+    cdef double b[3]
+    cdef double la, lb, f
+    cdef int i, q
+    grad[0] = 0; grad[1] = 0; grad[2] = 0
+    for i in range(3):
+        q = (i + 1) % 3
+        a[0] = t[3 * i] - px; a[1] = t[3 * i + 1] - py; a[2] = t[3 * i + 2] - pz
+        b[0] = t[3 * q] - px; b[1] = t[3 * q + 1] - py; b[2] = t[3 * q + 2] - pz
+        la = sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2])
+        lb = sqrt(b[0] * b[0] + b[1] * b[1] + b[2] * b[2])
+        f = (la + lb) / (la * lb * (la * lb + a[0] * b[0] + a[1] * b[1] + a[2] * b[2]) * 4 * M_PI)
+        grad[0] += (a[1] * b[2] - a[2] * b[1]) * f
+        grad[1] += (a[2] * b[0] - a[0] * b[2]) * f
+        grad[2] += (a[0] * b[1] - a[1] * b[0]) * f
+
+
+cdef inline double single_bound(double area, double rb, double gap) noexcept nogil:
+    """Error bound of one triangle's exact value and gradient at a brick's centre, within ``rb``.
+
+    Half ``rb^2`` times the largest Hessian of its solid angle over 4 pi:
+    at most ``(1 / 4 pi) int 6 / |y|^4 dA``, which is at most
+    ``6 A / gap^4`` and, over a whole plane at least ``gap`` away, ``6 pi / gap^2``.
+    """
+    cdef double g2 = gap * gap
+    cdef double b1 = 3 * area * rb * rb / (4 * M_PI * g2 * g2), b2 = 0.75 * rb * rb / g2
+    return b1 if b1 < b2 else b2
+
+
+cdef inline double second_bound(double area, double reach, double gap) noexcept nogil:
+    """Error bound of :func:`expansion` anywhere within ``reach`` of both centres, ``gap`` apart."""
+    return 3 * area * reach * reach / (4 * M_PI * gap * gap * gap * gap)
+
+
+cdef void brick_pass(const Tree *tr, const Grid *g, const int64_t *tb, double *sums,
+                     const int64_t *lev_off, int64_t *stack) noexcept nogil:
+    """Pass one over top brick ``tb``: every (brick, node) pair, sums per brick into ``sums``.
+
+    ``sums`` holds five doubles per brick of every level ``0 .. g.T`` of this
+    top brick (level ``k``: ``2^(T-k)`` a side, from ``lev_off[k]``): the
+    value at the brick's centre, its gradient (3) and the error bound. A
+    pair is far where ``r + rb <= theta * gap`` or its bound is below ``eps``;
+    else the larger side splits; a voxel and a triangle are summed exactly.
+    """
+    cdef int64_t sp, k, ix, iy, iz, l, j, node, nk, slot, o, cx, cy, cz, a
+    cdef double side, px, py, pz, rb, gap, reach, bound, val
+    cdef double vec[3]
+    cdef double grad[3]
+    cdef bint ok
+    stack[0] = g.T; stack[1] = 0; stack[2] = 0; stack[3] = 0; stack[4] = tr.top; stack[5] = 0
+    sp = 1
+    while sp > 0:
+        sp -= 1
+        k = stack[6 * sp]; ix = stack[6 * sp + 1]; iy = stack[6 * sp + 2]; iz = stack[6 * sp + 3]
+        l = stack[6 * sp + 4]; j = stack[6 * sp + 5]
+        nk = (<int64_t>1) << (g.T - k)
+        side = <double>((<int64_t>1) << k)
+        px = g.lo[0] + ((tb[0] * nk + ix) * side + (side - 1) / 2 + 0.5) * g.d[0]
+        py = g.lo[1] + ((tb[1] * nk + iy) * side + (side - 1) / 2 + 0.5) * g.d[1]
+        pz = g.lo[2] + ((tb[2] * nk + iz) * side + (side - 1) / 2 + 0.5) * g.d[2]
+        rb = 0.5 * (side - 1) * g.dnorm
+        node = tr.off[l] + j
+        gap = node_gap(tr, node, px, py, pz, vec) - rb
+        reach = tr.R[node] + rb
+        slot = 5 * (lev_off[k] + (ix * nk + iy) * nk + iz)
+        if gap > 0 and l == 0 and k > 0:
+            # One triangle: exact at the brick's centre, with its gradient;
+            # the bound does not grow with the triangle (a long sliver of a
+            # fan is taken per brick, not per voxel).
+            bound = single_bound(tr.A[node], rb, gap)
+            if rb <= g.theta * gap or bound <= g.eps:
+                sums[slot] += tri_angle(tr.T + 9 * j, px, py, pz)
+                tri_gradient(tr.T + 9 * j, px, py, pz, grad)
+                sums[slot + 1] += grad[0]; sums[slot + 2] += grad[1]
+                sums[slot + 3] += grad[2]; sums[slot + 4] += bound
+                continue
+        elif gap > 0:
+            bound = second_bound(tr.A[node], reach, gap)
+            if reach <= g.theta * gap or bound <= g.eps:
+                val = expansion(tr, node, vec, grad)
+                sums[slot] += val; sums[slot + 1] += grad[0]; sums[slot + 2] += grad[1]
+                sums[slot + 3] += grad[2]; sums[slot + 4] += bound
+                continue
+        if k == 0 and l == 0:  # a voxel and one triangle: exact
+            sums[slot] += tri_angle(tr.T + 9 * j, px, py, pz)
+            continue
+        if k > 0 and (l == 0 or rb > tr.R[node]):  # eight sub-bricks (those inside the grid)
+            for o in range(8):
+                cx = 2 * ix + (o & 1); cy = 2 * iy + ((o >> 1) & 1); cz = 2 * iz + ((o >> 2) & 1)
+                ok = ((tb[0] * 2 * nk + cx) << (k - 1) < g.n[0]
+                      and (tb[1] * 2 * nk + cy) << (k - 1) < g.n[1]
+                      and (tb[2] * 2 * nk + cz) << (k - 1) < g.n[2])
+                if ok:
+                    a = 6 * sp
+                    stack[a] = k - 1; stack[a + 1] = cx; stack[a + 2] = cy; stack[a + 3] = cz
+                    stack[a + 4] = l; stack[a + 5] = j
+                    sp += 1
+        else:  # the node's two children (the second may not exist)
+            for o in range(2):
+                if 2 * j + o < tr.size[l - 1]:
+                    a = 6 * sp
+                    stack[a] = k; stack[a + 1] = ix; stack[a + 2] = iy; stack[a + 3] = iz
+                    stack[a + 4] = l - 1; stack[a + 5] = 2 * j + o
+                    sp += 1
+
+
+cdef void voxel_pass(const Tree *tr, double theta, double eps, double px, double py, double pz,
+                     int64_t *stack, double *out) noexcept nogil:
+    """One voxel alone, at opening ratio ``theta``: out = (value, bound)."""
+    cdef int64_t sp = 1, l, j, node, o
+    cdef double gap, bound
+    cdef double vec[3]
+    cdef double grad[3]
+    out[0] = 0; out[1] = 0
+    stack[0] = tr.top; stack[1] = 0
+    while sp > 0:
+        sp -= 1
+        l = stack[2 * sp]; j = stack[2 * sp + 1]
+        node = tr.off[l] + j
+        gap = node_gap(tr, node, px, py, pz, vec)
+        if gap > 0:
+            bound = second_bound(tr.A[node], tr.R[node], gap)
+            if tr.R[node] <= theta * gap or bound <= eps:
+                out[0] += expansion(tr, node, vec, grad)
+                out[1] += bound
+                continue
+        if l == 0:  # a voxel and one triangle: exact
+            out[0] += tri_angle(tr.T + 9 * j, px, py, pz)
+            continue
+        for o in range(2):
+            if 2 * j + o < tr.size[l - 1]:
+                stack[2 * sp] = l - 1; stack[2 * sp + 1] = 2 * j + o
+                sp += 1
+
+
+cdef inline int unsure_of(double v, double bound) noexcept nogil:
+    # w_K in [est - bound, est + bound]: w_{M+K} - w_K in [v - bound, v + bound].
+    return (v - bound <= 0.5 + 1e-4) and (v + bound >= 0.5 - 1e-4)
+
+
+cdef void brick_run(const Tree *tr, const Grid *g, int64_t t, const int64_t *nt,
+                    const int16_t *w, uint8_t *occ, uint8_t *est_out, const double *passes,
+                    int64_t npasses, double deadline, double *sums, const int64_t *lev_off,
+                    int64_t *stack, int64_t *counts) noexcept nogil:
+    """Decide every voxel of top brick ``t``; counts += (refined, summed exactly, estimated)."""
+    cdef int64_t tb[3]
+    cdef int64_t side = (<int64_t>1) << g.T, vx, vy, vz, gx, gy, gz, k, nk, slot, lin, q, i
+    cdef double est, bound, v, px, py, pz, s, h
+    cdef double out[2]
+    cdef bint unsure
+    tb[0] = t // (nt[1] * nt[2]); tb[1] = (t // nt[2]) % nt[1]; tb[2] = t % nt[2]
+    memset(sums, 0, 5 * lev_off[g.T + 1] * sizeof(double))
+    brick_pass(tr, g, tb, sums, lev_off, stack)
+    for vx in range(side):
+        gx = tb[0] * side + vx
+        if gx >= g.n[0]:
+            break
+        for vy in range(side):
+            gy = tb[1] * side + vy
+            if gy >= g.n[1]:
+                break
+            for vz in range(side):
+                gz = tb[2] * side + vz
+                if gz >= g.n[2]:
+                    break
+                px = g.lo[0] + (gx + 0.5) * g.d[0]
+                py = g.lo[1] + (gy + 0.5) * g.d[1]
+                pz = g.lo[2] + (gz + 0.5) * g.d[2]
+                est = 0; bound = 0
+                for k in range(g.T + 1):
+                    nk = (<int64_t>1) << (g.T - k)
+                    slot = 5 * (lev_off[k] + ((vx >> k) * nk + (vy >> k)) * nk + (vz >> k))
+                    # The brick's linear field at the voxel: offsets from its centre.
+                    s = <double>((<int64_t>1) << k)
+                    h = (s - 1) / 2 + 0.5
+                    est += (sums[slot] + sums[slot + 1] * (px - (g.lo[0] + ((gx >> k) * s + h) * g.d[0]))
+                            + sums[slot + 2] * (py - (g.lo[1] + ((gy >> k) * s + h) * g.d[1]))
+                            + sums[slot + 3] * (pz - (g.lo[2] + ((gz >> k) * s + h) * g.d[2])))
+                    bound += sums[slot + 4]
+                lin = gx + g.n[0] * (gy + g.n[1] * gz)
+                v = w[lin] - est
+                occ[lin] = v > 0.5
+                if not unsure_of(v, bound):
+                    continue
+                if now() > deadline:
+                    est_out[lin] = 1
+                    counts[2] += 1
+                    continue
+                counts[0] += 1
+                unsure = True
+                for q in range(npasses):
+                    voxel_pass(tr, passes[2 * q], passes[2 * q + 1], px, py, pz, stack, out)
+                    v = w[lin] - out[0]
+                    occ[lin] = v > 0.5
+                    if not unsure_of(v, out[1]):
+                        unsure = False
+                        break
+                if unsure:  # the exact sum over every cap triangle
+                    counts[1] += 1
+                    est = 0
+                    for i in range(tr.ntri):
+                        est += tri_angle(tr.T + 9 * i, px, py, pz)
+                    occ[lin] = (w[lin] - est) > 0.5
+
+
+def cap_occupancy(const double[:, ::1] T, const double[:, ::1] S, const double[:, ::1] Q,
+                  const double[::1] A,
+                  const double[:, ::1] C, const double[:, ::1] H, const double[::1] R,
+                  const int64_t[::1] offset, const int64_t[::1] size,
+                  const int16_t[::1] w, uint8_t[::1] occ, uint8_t[::1] estimated,
+                  shape, lo, spacing, int top, double theta, double eps,
+                  const double[:, ::1] passes, double seconds, int jobs):
+    """Decide ``occ = w - w_K > 1/2`` at every voxel (see the module notes).
+
+    Parameters
+    ----------
+    T : (k, 9) float64
+        The cap triangles in the tree's order (geovox.inside._cap_tree).
+    S, Q, A, C, H, R, offset, size
+        The tree's nodes and levels (geovox.inside._cap_tree; Q from
+        geovox.inside._first_moments).
+    w : (nx * ny * nz,) int16
+        ``w_{M+K}`` per voxel, flat in Fortran order.
+    occ, estimated : (nx * ny * nz,) uint8, written
+        The decision, and 1 where it is the estimate's (the time ran out).
+    shape, lo, spacing : the grid (3 ints, 3 floats, 3 floats).
+    top : int
+        Brick level of the top bricks (``2^top`` voxels a side).
+    theta, eps
+        The first pass's opening ratio and tolerance.
+    passes : (p, 2) float64
+        The refining passes' (theta, eps), tried in turn on a voxel the
+        first pass leaves undecided, before the exact sum.
+    seconds : float
+        Processor time per thread (the process's, from this call) after
+        which an undecided voxel keeps its estimate.
+    jobs : int
+        Threads; the answer does not depend on them (only where the time runs out).
+
+    Returns
+    -------
+    (refined, exact, estimated) : voxels refined alone, of them summed exactly, left to the estimate.
+    """
+    cdef Tree tr
+    cdef Grid g
+    cdef int64_t nt[3]
+    cdef int64_t a, t, ntop, nlev = len(size), stack_len, nsums
+    cdef int64_t[::1] lev_off = __import__("numpy").zeros(top + 2, dtype="int64")
+    cdef int64_t[:, ::1] counts
+    cdef double *sums = NULL
+    cdef int64_t *stack = NULL
+    cdef double deadline
+    cdef const double *pp = NULL
+    cdef int64_t npasses = passes.shape[0]
+    tr.T = &T[0, 0]; tr.S = &S[0, 0]; tr.Q = &Q[0, 0]; tr.A = &A[0]; tr.C = &C[0, 0]; tr.H = &H[0, 0]
+    tr.R = &R[0]; tr.off = &offset[0]; tr.size = &size[0]; tr.top = nlev - 1
+    tr.ntri = T.shape[0]
+    for a in range(3):
+        g.n[a] = shape[a]; g.lo[a] = lo[a]; g.d[a] = spacing[a]
+        # (n + side - 1) // side: with cdivision, // of a negative number truncates.
+        nt[a] = (g.n[a] + ((<int64_t>1) << top) - 1) // ((<int64_t>1) << top)
+    g.dnorm = sqrt(g.d[0] * g.d[0] + g.d[1] * g.d[1] + g.d[2] * g.d[2])
+    g.T = top; g.theta = theta; g.eps = eps
+    for a in range(top + 1):
+        lev_off[a + 1] = lev_off[a] + ((<int64_t>1) << (3 * (top - a)))
+    nsums = 5 * lev_off[top + 1]
+    # Depth-first: each pop pushes at most 8, and each push goes one level
+    # down the bricks or the tree.
+    stack_len = 6 * (8 * (top + nlev + 2) + 8)
+    ntop = nt[0] * nt[1] * nt[2]
+    counts = __import__("numpy").zeros((ntop, 3), dtype="int64")
+    deadline = now() + seconds * jobs
+    if npasses:
+        pp = &passes[0, 0]
+    with nogil, parallel(num_threads=jobs):
+        sums = <double *>malloc(nsums * sizeof(double))
+        stack = <int64_t *>malloc(stack_len * sizeof(int64_t))
+        for t in prange(ntop, schedule="dynamic"):
+            brick_run(&tr, &g, t, nt, &w[0], &occ[0], &estimated[0], pp, npasses, deadline,
+                      sums, &lev_off[0], stack, &counts[t, 0])
+        free(sums)
+        free(stack)
+    tot = __import__("numpy").asarray(counts).sum(axis=0)
+    return int(tot[0]), int(tot[1]), int(tot[2])

@@ -1,0 +1,638 @@
+"""Labelled volumes: which part, component, material or file is in each voxel.
+
+A label source gives every face a label (:func:`label_set`); then each
+part is classified by its own inside test on the shared grid
+(:func:`classify`): parity where the part is closed and its pieces do not
+overlap, the winding number otherwise, as ``inside="auto"`` chooses for a
+whole mesh. For the parity parts the rays are cast once, for the whole
+mesh, and the crossings are split by the part of the triangle they cross;
+each part is filled only over the box of voxels its crossings reach, so a
+small part costs little however large the grid.
+
+Where parts overlap, the ``overlap`` rule decides: ``"last"`` (later parts
+in file order paint over earlier ones), ``"first"``, or ``"smallest"`` (the
+part with the smaller enclosed volume wins; equal volumes: the later part).
+A voxel has label ``k`` exactly where part ``k`` is inside and no part that
+wins over it is. Label 0 is the background.
+
+``"material"`` is different: the inside is the whole mesh's, and each
+inside voxel takes the material of the face holding its exact nearest
+surface point (the search exact colour uses, :mod:`geovox.nearest`).
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import parity
+from .errors import MeshError, ParameterError, warn
+from .surface import Mesh
+
+#: Label sources, in the order the CLI lists them.
+SOURCES = ("part", "component", "material", "file")
+#: Overlap rules.
+OVERLAPS = ("last", "first", "smallest")
+#: The most labels a volume can hold (uint16, 0 the background).
+MAX_LABELS = 65535
+
+# Distinct colours for parts, components and files (the "tab20" palette's
+# first ten, then its light variants); beyond them, hues by the golden ratio.
+_PALETTE = np.array([
+    (31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40), (148, 103, 189),
+    (140, 86, 75), (227, 119, 194), (127, 127, 127), (188, 189, 34), (23, 190, 207),
+    (174, 199, 232), (255, 187, 120), (152, 223, 138), (255, 152, 150), (197, 176, 213),
+    (196, 156, 148), (247, 182, 210), (199, 199, 199), (219, 219, 141), (158, 218, 229),
+], dtype=np.uint8)
+
+
+@dataclass
+class LabelSet:
+    """What a label source makes of a mesh.
+
+    Attributes
+    ----------
+    source : str
+        One of :data:`SOURCES`.
+    names : list of str
+        One per label, label value ``k + 1`` for ``names[k]``.
+    face_label : (m,) int64
+        Each face's label index ``0 .. len(names) - 1``.
+    colors : (L, 4) uint8
+        RGBA per label.
+    """
+
+    source: str
+    names: list
+    face_label: np.ndarray
+    colors: np.ndarray
+
+    @property
+    def dtype(self):
+        """uint8 for up to 255 labels, else uint16."""
+        return np.dtype(np.uint8 if len(self.names) <= 255 else np.uint16)
+
+
+def check(labels, overlap="last", fractions=False) -> None:
+    """ParameterError for an unknown source or overlap rule, or fractions without labels."""
+    if labels is not None and labels not in SOURCES:
+        raise ParameterError(f"`labels` must be one of {', '.join(SOURCES)} or None, "
+                             f"got {labels!r}")
+    if overlap not in OVERLAPS:
+        raise ParameterError(f"`overlap` must be one of {', '.join(OVERLAPS)}, got {overlap!r}")
+    if fractions and labels is None:
+        raise ParameterError("`fractions` needs `labels` (a label source: "
+                             + ", ".join(SOURCES) + ")")
+    if fractions and labels == "material":
+        raise ParameterError("`fractions` are per part (labels='part', 'component' or 'file'); "
+                             "a material's share of a voxel is not defined by its nearest point")
+
+
+def palette(n: int) -> np.ndarray:
+    """(n, 4) uint8: distinct opaque colours, the same for the same ``n``."""
+    out = np.empty((n, 4), dtype=np.uint8)
+    out[:, 3] = 255
+    k = min(n, len(_PALETTE))
+    out[:k, :3] = _PALETTE[:k]
+    if n > k:
+        import colorsys
+
+        for i in range(k, n):
+            h = (i * 0.618033988749895) % 1.0
+            out[i, :3] = np.rint(np.array(colorsys.hsv_to_rgb(h, 0.65, 0.9)) * 255)
+    return out
+
+
+def components(mesh: Mesh) -> np.ndarray:
+    """(m,) int64: each face's connected component, after merging vertices by position.
+
+    Faces sharing a vertex position are connected; components are numbered
+    by their first face.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    f = mesh.geometric_faces
+    n = int(f.max()) + 1
+    rows = np.concatenate([f[:, 0], f[:, 1]])
+    cols = np.concatenate([f[:, 1], f[:, 2]])
+    graph = coo_matrix((np.ones(len(rows), dtype=np.int8), (rows, cols)), shape=(n, n))
+    _, vertex_comp = connected_components(graph, directed=False)
+    raw = vertex_comp[f[:, 0]]
+    # Renumbered in order of first face.
+    _, first, inverse = np.unique(raw, return_index=True, return_inverse=True)
+    rank = np.empty(len(first), dtype=np.int64)
+    rank[np.argsort(first)] = np.arange(len(first))
+    return rank[inverse.reshape(-1)]
+
+
+def label_set(mesh: Mesh, source: str, *, stacklevel: int = 3) -> LabelSet:
+    """The labels ``source`` gives ``mesh`` (see the module notes).
+
+    ``"part"`` on a mesh whose file names no parts warns and falls back to
+    ``"component"``. ``"file"`` on a mesh that is not a scene of files
+    (:func:`scene`) gives one label, named after the file's stem.
+
+    Raises
+    ------
+    ParameterError
+        More than :data:`MAX_LABELS` labels.
+    """
+    key = ("labels", source)
+    if key in mesh._cache:
+        return mesh._cache[key]
+    if source == "part" and mesh.face_part is None:
+        warn(f"{mesh.source}: the file names no parts (OBJ objects or groups, scene nodes); "
+             f"labelling its connected components instead", stacklevel=stacklevel)
+        source = "component"
+    if source == "component":
+        face_label = components(mesh)
+        names = [f"component {k + 1}" for k in range(int(face_label.max()) + 1)]
+        colors = palette(len(names))
+    elif source in ("part", "file"):
+        if source == "file" and "files" in mesh._cache:
+            face_label, names = mesh._cache["files"]
+        elif source == "file":
+            face_label, names = np.zeros(len(mesh.faces), np.int64), [_stem(mesh.source)]
+        else:
+            face_label, names = mesh.face_part, list(mesh.parts)
+        colors = palette(len(names))
+    else:  # material
+        fm = mesh.face_material if mesh.face_material is not None else \
+            np.full(len(mesh.faces), -1, np.int64)
+        names = [m.name for m in mesh.materials]
+        face_label = fm.astype(np.int64)
+        colors = np.empty((len(names), 4), dtype=np.uint8)
+        colors[:, 3] = 255
+        for k, m in enumerate(mesh.materials):
+            colors[k, :3] = np.rint(np.clip(m.diffuse(), 0, 1) * 255)
+        if np.any(face_label < 0):
+            face_label = np.where(face_label < 0, len(names), face_label)
+            names.append("(no material)")
+            colors = np.vstack([colors, [[204, 204, 204, 255]]]).astype(np.uint8)
+    if len(names) > MAX_LABELS:
+        raise ParameterError(f"`labels={source!r}` gives {len(names):,} labels; a label volume "
+                             f"holds at most {MAX_LABELS:,}")
+    out = LabelSet(source=source, names=names, face_label=np.asarray(face_label, np.int64),
+                   colors=colors)
+    mesh._cache[key] = out
+    return out
+
+
+def _stem(path: str) -> str:
+    base = os.path.basename(str(path))
+    for ext in (".gz", ".zip"):
+        if base.lower().endswith(ext):
+            base = base[:-len(ext)]
+    return os.path.splitext(base)[0] or base
+
+
+def scene(sources, *, references: str = "anywhere") -> Mesh:
+    """One mesh of several files (or meshes), each file's faces a label for ``"file"``.
+
+    Each file is read by :func:`geovox.mesh.load_mesh` under the rule
+    ``references``.
+
+    The files' parts are kept as ``"stem: part"`` for ``labels="part"``, and
+    their materials for ``"material"``.
+
+    Raises
+    ------
+    MeshError
+        A file in the scene is not a mesh (the message names it).
+    InputNotFoundError
+        A file does not exist.
+    """
+    from .mesh import load_mesh
+
+    meshes = []
+    for s in sources:
+        try:
+            meshes.append(load_mesh(s, references=references))
+        except MeshError as exc:
+            raise MeshError(f"in the scene: {exc}") from exc
+    if not meshes:
+        raise ParameterError("a scene needs at least one mesh")
+    if len(meshes) == 1:
+        return meshes[0]
+    verts, faces, fm, mats, fp, parts, uvs, vcs = [], [], [], [], [], [], [], []
+    offset = 0
+    stems = [_stem(m.source) for m in meshes]
+    any_uv = any(m.corner_uv is not None for m in meshes)
+    any_vc = any(m.vertex_colors is not None for m in meshes)
+    for m, stem in zip(meshes, stems):
+        verts.append(m.vertices)
+        faces.append(m.faces + offset)
+        offset += len(m.vertices)
+        own = m.face_material if m.face_material is not None else np.full(len(m.faces), -1)
+        fm.append(np.where(own >= 0, own + len(mats), -1))
+        mats.extend(m.materials)
+        if m.face_part is None:
+            fp.append(np.full(len(m.faces), len(parts), np.int64))
+            parts.append(stem)
+        else:
+            fp.append(m.face_part + len(parts))
+            parts.extend(f"{stem}: {p}" for p in m.parts)
+        if any_uv:
+            uvs.append(m.corner_uv if m.corner_uv is not None else
+                       np.full((len(m.faces), 3, 2), np.nan))
+        if any_vc:
+            vcs.append(m.vertex_colors if m.vertex_colors is not None else
+                       np.ones((len(m.vertices), 3)))
+    out = Mesh(vertices=np.concatenate(verts), faces=np.concatenate(faces),
+               source=" + ".join(os.path.basename(str(m.source)) for m in meshes),
+               face_material=np.concatenate(fm).astype(np.int64), materials=mats,
+               corner_uv=np.concatenate(uvs) if any_uv else None,
+               vertex_colors=np.concatenate(vcs) if any_vc else None,
+               problems=[p for m in meshes for p in m.problems],
+               face_part=np.concatenate(fp), parts=parts)
+    out._cache["files"] = (np.repeat(np.arange(len(meshes), dtype=np.int64),
+                                     [len(m.faces) for m in meshes]), stems)
+    return out
+
+
+def part_mesh(mesh: Mesh, faces: np.ndarray, name: str) -> Mesh:
+    """The sub-mesh of ``mesh`` made of the faces ``faces`` (indices), with its own vertices.
+
+    Its vertices are the ones its faces use, so the per-part checks cost the
+    part's size, not the whole mesh's; its merge by position is the whole
+    mesh's, renumbered in the same (lexicographic) order.
+    """
+    f = mesh.faces[faces]
+    used, inverse = np.unique(f, return_inverse=True)
+    fm = None if mesh.face_material is None else mesh.face_material[faces]
+    uv = None if mesh.corner_uv is None else mesh.corner_uv[faces]
+    vc = None if mesh.vertex_colors is None else mesh.vertex_colors[used]
+    part = Mesh(vertices=mesh.vertices[used], faces=inverse.reshape(f.shape).astype(np.int64),
+                source=f"{mesh.source} [{name}]", face_material=fm, materials=mesh.materials,
+                corner_uv=uv, vertex_colors=vc)
+    _, merged = np.unique(mesh.geometric_faces[faces], return_inverse=True)
+    part._cache["geometric_faces"] = merged.reshape(f.shape).astype(np.int64)
+    return part
+
+
+def enclosed_volume(mesh: Mesh) -> float:
+    """|signed volume| of the triangles (the enclosed volume of a closed, wound part)."""
+    t = mesh.triangles
+    return abs(float(np.einsum("ij,ij->i", t[:, 0], np.cross(t[:, 1], t[:, 2])).sum()) / 6.0)
+
+
+def paint_order(lset: LabelSet, parts: list, overlap: str) -> list:
+    """Label indices in the order they are painted: the winner of an overlap last."""
+    n = len(lset.names)
+    if overlap == "last":
+        return list(range(n))
+    if overlap == "first":
+        return list(range(n))[::-1]
+    vols = [enclosed_volume(p) if p is not None else 0.0 for p in parts]
+    # Largest first, so the smallest paints last; equal volumes: the later part wins.
+    return sorted(range(n), key=lambda k: (-vols[k], k))
+
+
+def _box_fill(hits, columns, grid, lo_ray):
+    """A part's parity occupancy over the box of voxels its crossings reach.
+
+    The toggles are those of :func:`geovox.parity.toggle_indices` (the same
+    ``searchsorted`` rule on the same depths), so the box's voxels equal the
+    whole grid's fill of these crossings; voxels outside the box are outside
+    (no crossing reaches their columns, or their ray has passed an even
+    number of crossings beyond the box).
+
+    Returns
+    -------
+    (slices, occupancy) : tuple of 3 slice, (bx, by, bz) bool, or None where
+    no crossing lands in the grid.
+    """
+    axis = columns.axis
+    n = grid.shape[axis]
+    k = np.searchsorted(lo_ray, hits.depth, side="left")
+    keep = k < n
+    k = k[keep].astype(np.int64)
+    ray = hits.ray[keep]
+    if len(k) == 0:
+        return None
+    idx = [None, None, None]
+    idx[columns.u_axis] = ray % columns.nu
+    idx[columns.v_axis] = ray // columns.nu
+    idx[axis] = k
+    lo = [int(i.min()) for i in idx]
+    hi = [int(i.max()) + 1 for i in idx]
+    # A ray with an odd count stays inside to the grid's end, as in the full fill.
+    odd = np.bincount(ray, minlength=columns.nu * columns.nv) & 1
+    if odd.any():
+        hi[axis] = n
+    shape = tuple(h - l for l, h in zip(lo, hi))
+    lin = (idx[0] - lo[0]) + shape[0] * ((idx[1] - lo[1]) + shape[1] * (idx[2] - lo[2]))
+    lin.sort()
+    starts = np.flatnonzero(np.r_[True, lin[1:] != lin[:-1]])
+    odd_voxel = lin[starts[np.diff(np.r_[starts, len(lin)]) % 2 == 1]]
+    t = np.zeros(shape, dtype=np.uint8, order="F")
+    t.reshape(-1, order="F")[odd_voxel] = 1
+    occ = np.bitwise_xor.accumulate(t, axis=axis).astype(bool)
+    return tuple(slice(l, h) for l, h in zip(lo, hi)), occ
+
+
+@dataclass
+class Classified:
+    """One block's labels.
+
+    Attributes
+    ----------
+    labels : (nx, ny, nz) uint8 or uint16, Fortran order
+    contested : int
+        Voxels inside more than one part.
+    methods : list of str
+        The inside test each label's part ran (``"parity"``, ``"winding"``).
+    crossings : (Hits, Columns)
+        The whole mesh's crossings along the ray axis (for colour).
+    """
+
+    labels: np.ndarray
+    contested: int
+    methods: list
+    crossings: tuple
+
+
+def classify(mesh: Mesh, grid, lset: LabelSet, *, cast_mesh, axis: int, jobs: int = 1,
+             inside: str = "auto", overlap: str = "last") -> Classified:
+    """Each part by its own inside test on ``grid``, overlaps settled by ``overlap``.
+
+    Parameters
+    ----------
+    mesh : Mesh
+        The whole model.
+    grid : Grid
+        The block's grid.
+    lset : LabelSet
+        Its ``face_label`` gives the parts (not ``"material"``).
+    cast_mesh : callable
+        ``cast_mesh(mesh, axis) -> (Hits, Columns)`` on ``grid`` (rays from
+        outside the mesh, see :func:`geovox.pipeline.ray_start`).
+    axis, jobs, inside, overlap
+        As for :func:`geovox.voxelize`.
+    """
+    import warnings
+
+    from . import inside as inside_tests
+
+    n = len(lset.names)
+    by_face = np.argsort(lset.face_label, kind="stable")
+    cuts = np.searchsorted(lset.face_label[by_face], np.arange(n + 1))
+    parts, methods = [], []
+    comp = label_set(mesh, "component").face_label if lset.source != "component" else \
+        lset.face_label
+    comp_size = np.bincount(comp)
+    for k in range(n):
+        faces = by_face[cuts[k]:cuts[k + 1]]
+        part = part_mesh(mesh, faces, lset.names[k]) if len(faces) else None
+        parts.append(part)
+        if part is None:
+            methods.append("parity")
+            continue
+        c = comp[faces]
+        if c.min() == c.max() and comp_size[c[0]] == len(faces) and \
+                not inside_tests._non_manifold(part):
+            # The part is one whole connected component of the mesh (known from
+            # one search over it): a single piece, whose boxes cannot overlap.
+            part._cache["overlap"] = False
+        with warnings.catch_warnings():
+            # A part's repair is its own business; the whole mesh's is said once.
+            warnings.simplefilter("ignore")
+            methods.append(inside_tests.choose(part, inside))
+    hits, columns = cast_mesh(mesh, axis)
+    part_of_hit = lset.face_label[hits.triangle]
+    by_part = np.argsort(part_of_hit, kind="stable")
+    hcuts = np.searchsorted(part_of_hit[by_part], np.arange(n + 1))
+    lo_ray = (np.arange(grid.shape[axis]) + 0.5) * grid.spacing[axis]
+    labels = np.zeros(grid.shape, dtype=lset.dtype, order="F")
+    seen = np.zeros(grid.shape, dtype=bool, order="F")
+    multi = None  # voxels inside more than one part
+    for k in paint_order(lset, parts, overlap):
+        if parts[k] is None:
+            continue
+        if methods[k] == "parity":
+            got = _box_fill(hits.take(by_part[hcuts[k]:hcuts[k + 1]]), columns, grid, lo_ray)
+            if got is None:
+                continue
+            box, occ = got
+        elif methods[k] == "vote":
+            votes = sum(parity.fill(*cast_mesh(parts[k], a), grid, jobs=jobs).view(np.uint8)
+                        for a in range(3))
+            box, occ = (slice(None),) * 3, votes >= 2
+        else:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                occ = inside_tests.winding_occupancy(parts[k], grid, cast_mesh, axis, jobs)[0]
+            box = (slice(None),) * 3
+        s = seen[box]
+        both = s & occ
+        if both.any():
+            if multi is None:
+                multi = np.zeros(grid.shape, dtype=bool, order="F")
+            multi[box] |= both
+        s |= occ
+        np.copyto(labels[box], lset.dtype.type(k + 1), where=occ)  # faster than a mask index
+    contested = 0 if multi is None else int(np.count_nonzero(multi))
+    return Classified(labels=labels, contested=contested, methods=methods,
+                      crossings=(hits, columns))
+
+
+def table(lset: LabelSet, labels: np.ndarray, spacing, counts=None) -> list:
+    """The label table: one dict per value, the background (0) first.
+
+    Each entry: ``value`` int, ``name`` str, ``source`` str, ``color``
+    [r, g, b, a] int 0-255, ``voxels`` int, ``volume`` float (model units³).
+    ``counts`` (L + 1,) int64 replaces the count of ``labels``' values.
+    """
+    if counts is None:
+        counts = label_counts(labels, len(lset.names))
+    cell = float(np.prod(np.asarray(spacing, dtype=np.float64)))
+    out = [{"value": 0, "name": "background", "source": lset.source, "color": [0, 0, 0, 0],
+            "voxels": int(counts[0]), "volume": float(counts[0]) * cell}]
+    for k, name in enumerate(lset.names):
+        out.append({"value": k + 1, "name": str(name), "source": lset.source,
+                    "color": [int(c) for c in lset.colors[k]], "voxels": int(counts[k + 1]),
+                    "volume": float(counts[k + 1]) * cell})
+    return out
+
+
+def label_counts(labels: np.ndarray, n: int) -> np.ndarray:
+    """(n + 1,) int64: voxels per label value."""
+    flat = labels.ravel(order="K")
+    counts = np.zeros(n + 1, dtype=np.int64)
+    # In pieces: bincount widens its input to intp, a grid-sized copy at once.
+    for s in range(0, len(flat), 1 << 20):
+        counts += np.bincount(flat[s:s + (1 << 20)], minlength=n + 1)[:n + 1]
+    return counts
+
+
+def material_labels(mesh: Mesh, grid, occupancy: np.ndarray, lset: LabelSet, *, frame,
+                    jobs: int = 1) -> np.ndarray:
+    """Each inside voxel's label: the material of its exact nearest surface point.
+
+    The search is exact colour's (:func:`geovox.nearest.nearest_inside`, with
+    its tie rule between faces); faces of one material are interchangeable,
+    so the NumPy search need not tell them apart.
+
+    Parameters
+    ----------
+    occupancy : (nx, ny, nz) bool
+        The block's inside voxels.
+    frame : (lo, spacing, z0)
+        The whole grid's low corner and voxel size, and the block's first layer.
+
+    Returns
+    -------
+    labels : (nx, ny, nz) uint8 or uint16, Fortran order; 0 outside.
+    """
+    from .nearest import nearest_inside
+
+    nx, ny, _ = grid.shape
+    labels = np.zeros(grid.shape, dtype=lset.dtype, order="F")
+    flat = labels.reshape(-1, order="F")  # a view: Fortran order
+    value = (lset.face_label + 1).astype(lset.dtype)
+    if len(lset.names) == 1:
+        flat[occupancy.reshape(-1, order="F")] = 1
+        return labels
+
+    def emit(vox, tri, uv):
+        flat[vox[:, 0] + nx * (vox[:, 1] + ny * vox[:, 2])] = value[tri]
+
+    lo, spacing, z0 = frame
+    nearest_inside(mesh.triangles, occupancy, spacing, origin=lo, z0=z0, jobs=jobs, emit=emit,
+                   same=lset.face_label)
+    return labels
+
+
+def label_fractions(mesh: Mesh, grid, lset: LabelSet, *, engine, axis: int, start: float,
+                    supersample: int = 4, jobs: int = 1, overlap: str = "last",
+                    dtype: str = "uint8") -> np.ndarray:
+    """Each label's coverage fraction per voxel, overlaps settled by ``overlap``.
+
+    From ``supersample`` x ``supersample`` rays per column, cast once for the
+    whole mesh (as ``density="coverage"``). The parts are taken winners
+    first: ``U_j`` is the coverage of the union of the ``j`` strongest parts
+    (inside where their summed winding number, each part's crossings signed
+    so that it counts +1 inside itself, is not 0), and the ``j``-th part's
+    fraction is ``U_j - U_{j-1}``. So a voxel's fractions sum to its union
+    coverage (at most 1), and where only one part is near, its fraction is
+    its own coverage. uint8 fractions are differences of the rounded
+    ``255 * U_j``, so they too sum to the rounded union. Open parts are
+    taken by their crossing signs without capping their holes.
+
+    Returns
+    -------
+    (nx, ny, nz, L) uint8 (0-255) or float32 (0-1); index ``k`` is label ``k + 1``.
+    """
+    from .density import coverage, sub_columns
+    from .inside import crossing_signs
+
+    n = len(lset.names)
+    by_face = np.argsort(lset.face_label, kind="stable")
+    cuts = np.searchsorted(lset.face_label[by_face], np.arange(n + 1))
+    parts = [part_mesh(mesh, by_face[cuts[k]:cuts[k + 1]], lset.names[k])
+             if cuts[k + 1] > cuts[k] else None for k in range(n)]
+    flip = np.ones(n, dtype=np.int64)
+    for k, p in enumerate(parts):
+        if p is not None:
+            t = p.triangles
+            vol = float(np.einsum("ij,ij->i", t[:, 0], np.cross(t[:, 1], t[:, 2])).sum())
+            flip[k] = -1 if vol < 0 else 1
+    sub = sub_columns(grid.columns(axis, start=start), supersample)
+    hits = engine.cast(mesh, sub, jobs=jobs)
+    part_of = lset.face_label[hits.triangle]
+    sign = crossing_signs(mesh, hits, axis) * flip[part_of]
+    out = np.zeros(grid.shape + (n,), dtype=np.float32 if dtype == "float32" else np.uint8,
+                   order="F")
+    included = np.zeros(n, dtype=bool)
+    prev = None
+    for k in reversed(paint_order(lset, parts, overlap)):
+        if parts[k] is None:
+            continue
+        included[k] = True
+        sel = included[part_of]
+        cov = coverage(hits.take(sel), sub, grid, supersample, jobs, sign=sign[sel])
+        if dtype != "float32":
+            cov = np.rint(cov * np.float32(255.0)).astype(np.int16)
+        out[..., k] = cov if prev is None else np.maximum(cov - prev, 0)
+        prev = cov
+    return out
+
+
+def label_colours(labels: np.ndarray, table: list) -> np.ndarray:
+    """(nx, ny, nz, 4) uint8: each voxel in its label's table colour (alpha 0 outside)."""
+    n = max(int(e["value"]) for e in table) + 1
+    lut = np.zeros((n, 4), dtype=np.uint8)
+    for e in table:
+        lut[int(e["value"])] = e["color"]
+    lut[0] = 0
+    return lut[labels]
+
+
+def parts_report(mesh: Mesh, sources=("part", "component", "material"), most: int = 12) -> str:
+    """What each label source would give ``mesh``: per label its name, triangles,
+    whether it is closed, and its materials (the first ``most`` labels of each)."""
+    import warnings
+
+    from .inside import boundary_edges
+
+    lines = []
+    for source in sources:
+        if source == "part" and mesh.face_part is None:
+            lines.append("labels part: the file names no parts (falls back to component)")
+            continue
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            lset = label_set(mesh, source)
+        lines.append(f"labels {source}: {len(lset.names):,}")
+        for k, name in enumerate(lset.names[:most]):
+            faces = np.flatnonzero(lset.face_label == k)
+            part = part_mesh(mesh, faces, name)
+            closed = "closed" if len(boundary_edges(part)) == 0 else "open"
+            mats = ""
+            if source != "material" and mesh.face_material is not None and mesh.materials:
+                used = np.unique(mesh.face_material[faces])
+                names = [mesh.materials[i].name for i in used if i >= 0]
+                mats = f", materials {', '.join(names[:4])}{', ...' if len(names) > 4 else ''}" \
+                    if names else ""
+            lines.append(f"  {k + 1:>5}  {name}: {len(faces):,} triangles, {closed}{mats}")
+        if len(lset.names) > most:
+            lines.append(f"  ... and {len(lset.names) - most:,} more")
+    return "\n".join(lines)
+
+
+def resolve(mesh: Mesh, labels, overlap="last", fractions=False):
+    """The LabelSet for ``labels`` (a source, a LabelSet, or None), options checked."""
+    if labels is None:
+        check(None, overlap, fractions)
+        return None
+    check(labels if isinstance(labels, str) else labels.source, overlap, fractions)
+    return labels if isinstance(labels, LabelSet) else label_set(mesh, labels)
+
+
+def label_results(mesh: Mesh, grid, occupancy, lset: LabelSet, classified, *, engine, axis,
+                  jobs, overlap, fractions, density_dtype, supersample, frame, start, timings,
+                  step) -> dict:
+    """A block's label fields for its Volume: ``labels``, ``label_table``, ``contested``,
+    ``fractions`` (material labels and fractions are made here, timed into ``timings``)."""
+    import time
+
+    if classified is not None:
+        lab = classified.labels
+    else:
+        t = time.perf_counter()
+        step("labels")
+        lab = material_labels(mesh, grid, occupancy, lset, jobs=jobs, frame=frame)
+        timings["labels"] = time.perf_counter() - t
+    fracs = None
+    if fractions:
+        step("fractions")
+        t = time.perf_counter()
+        fracs = label_fractions(mesh, grid, lset, engine=engine, axis=axis, start=start,
+                                supersample=supersample, jobs=jobs, overlap=overlap,
+                                dtype=density_dtype)
+        timings["fractions"] = time.perf_counter() - t
+    return {"labels": lab, "label_table": table(lset, lab, grid.spacing),
+            "contested": 0 if classified is None else classified.contested, "fractions": fracs}
