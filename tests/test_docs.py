@@ -92,11 +92,31 @@ def site(tmp_path_factory):
 def test_site_has_every_page(site):
     for page in ("index.html", "getting-started/index.html", "formats/index.html",
                  "gallery/index.html", "benchmarks/index.html", "changelog/index.html",
-                 "api/voxelize/index.html", "api/backends/index.html", "guide/colour/index.html"):
+                 "api/voxelize/index.html", "api/backends/index.html", "guide/colour/index.html",
+                 "guide/labels/index.html", "guide/reference-grids/index.html",
+                 "guide/html-viewer/index.html", "api/labels/index.html",
+                 "api/reference/index.html", "api/viewer/index.html"):
         assert (site / page).is_file(), page
     assert (site / "img" / "bench_users_path.png").is_file()
     html = (site / "changelog" / "index.html").read_text(encoding="utf-8")
     assert "Unreleased" in html and "0.1.0" in html
+
+
+def test_viewer_page_is_copied_untouched_and_embedded(site):
+    """docs/viewer/spot.html (a real `geovox view --html` page) is in the site byte for byte, at
+    most 1 MB, and the viewer guide embeds it in an iframe whose address resolves to it."""
+    import re
+
+    source = os.path.join(ROOT, "docs", "viewer", "spot.html")
+    with open(source, "rb") as f:
+        page = f.read()
+    assert len(page) <= 1_000_000, len(page)
+    assert b'id="geovox-meta"' in page and b"geovox-field-occupancy" in page
+    assert (site / "viewer" / "spot.html").read_bytes() == page
+    guide = site / "guide" / "html-viewer" / "index.html"
+    frames = re.findall(r'<iframe[^>]*\ssrc="([^"]+)"', guide.read_text(encoding="utf-8"))
+    assert frames, "no iframe in the viewer guide"
+    assert (guide.parent / frames[0]).resolve() == (site / "viewer" / "spot.html").resolve()
 
 
 def test_site_fetches_nothing_from_the_web(site):
@@ -139,6 +159,8 @@ def browser(tmp_path_factory):
     for flag in ("--headless", "--no-sandbox", "--disable-gpu", "--disable-quic",
                  "--no-first-run", "--disable-background-networking",
                  "--disable-component-update", "--disable-sync", "--window-size=1280,1000",
+                 # SwiftShader's software WebGL2, for the embedded viewer page
+                 "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
                  f"--user-data-dir={tmp_path_factory.mktemp('chromium-profile')}"):
         options.add_argument(flag)
     options.set_capability("goog:loggingPrefs", {"browser": "ALL"})
@@ -189,6 +211,31 @@ def test_api_page_shows_voxelize_parameters(browser, server):
     assert "Parameters" in section and "Returns" in section and "Raises" in section
     missing = [p for p in VOXELIZE_PARAMETERS if p not in section]
     assert not missing, f"voxelize parameters not shown: {missing}"
+
+
+def test_embedded_viewer_renders(browser, server):
+    """The viewer guide's iframe draws spot (the page's own data-rendered flag, no data-error)."""
+    import time
+
+    from selenium.webdriver.common.by import By
+
+    browser.get(server + "guide/html-viewer/")
+    frame = browser.find_element(By.TAG_NAME, "iframe")
+    browser.execute_script("arguments[0].scrollIntoView()", frame)  # loading="lazy"
+    browser.switch_to.frame(frame)
+    try:
+        state = None
+        deadline = time.monotonic() + 120
+        while state is None and time.monotonic() < deadline:
+            state = browser.execute_script(
+                "const b = document.body; if (!b) return null;"
+                "return b.dataset.error ? 'error: ' + b.dataset.error"
+                "     : (b.dataset.rendered ? 'rendered' : null);")
+            time.sleep(0.5)
+        assert state == "rendered", state
+        assert browser.execute_script("return window.geovoxViewer.meta.shape") == [128, 128, 128]
+    finally:
+        browser.switch_to.default_content()
 
 
 def _python_blocks(page):
