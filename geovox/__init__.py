@@ -25,6 +25,14 @@ __version__ = "0.1.0"
 #: public name -> submodule that defines it
 _LAZY = {
     "voxelize": "pipeline",
+    "plan": "pipeline",
+    "Plan": "pipeline",
+    "Route": "pipeline",
+    "voxelize_block": "pipeline",
+    "Options": "options",
+    "Inside": "options",
+    "Report": "volume",
+    "Progress": "volume",
     "Volume": "volume",
     "convert_to": "stream",
     "convert_many": "batch",
@@ -37,6 +45,11 @@ _LAZY = {
 
 __all__ = [
     "voxelize",
+    "plan",
+    "Plan",
+    "Options",
+    "Report",
+    "Progress",
     "convert_to",
     "convert_many",
     "Volume",

@@ -18,17 +18,13 @@ import time
 from dataclasses import dataclass, field
 
 from .errors import GeovoxError, InputNotFoundError, OutputError, ParameterError
+from .volume import Progress
 
 #: File types searched for in folders. Archives (.zip, .tar.gz) are read when
 #: named, but not searched for: a downloaded zip often holds several models or
 #: none, and would be voxelised as one scene.
 MESH_EXTENSIONS = (".obj", ".stl", ".ply", ".off", ".glb", ".gltf", ".3mf", ".dae", ".zae")
 
-#: The keyword options of :func:`geovox.voxelize` a batch passes on to each model
-#: (``jobs`` and ``progress`` belong to the batch, not to one model).
-MODEL_OPTIONS = ("resolution", "bounds", "backend", "shape", "voxel_size", "fit", "axis", "color",
-                 "diffuse", "ambient", "inside", "density", "supersample", "density_dtype",
-                 "sdf", "band", "like", "mesh_space", "references")
 
 
 @dataclass
@@ -55,7 +51,7 @@ class Result:
     seconds : float
         The model's own time, where it ran.
     note : str
-        Inside count and the warnings in a few words.
+        Inside count and warnings, in a few words.
     warnings : list of str
         Every warning in full.
     """
@@ -198,48 +194,31 @@ def _upload(local_files, main, folder) -> list:
 def _convert_one(task) -> Result:
     """Convert one model; the unit of work of every batch (never raises for a bad model).
 
+    A plan (:func:`geovox.plan`, streaming by the one rule) and its run.
     ``task`` is a dict: ``input``, ``stem``, ``out`` (folder or URL),
-    ``options`` (for :func:`geovox.voxelize`), ``ext``, ``overwrite``,
-    ``write_options`` and ``versions`` (the client's geovox and NumPy, which
-    a worker that joined a cluster late must match).
+    ``options`` (an :class:`~geovox.Options`, single-threaded), ``ext``,
+    ``overwrite``, ``write_options`` and ``versions`` (the client's geovox
+    and NumPy, which a worker that joined a cluster late must match).
     """
     from .errors import collect_warnings
 
     t0 = time.perf_counter()
     path, out_dir, options = task["input"], task["out"], task["options"]
     try:
-        from .cluster import _versions
-
-        mine = _versions()
-        if task.get("versions") and mine != task["versions"]:
-            from .errors import ClusterError
-
-            raise ClusterError(f"this worker has geovox {mine['geovox']} and NumPy {mine['numpy']}, "
-                              f"the client geovox {task['versions']['geovox']} and NumPy "
-                              f"{task['versions']['numpy']}")
-        from .formats import format_for, write
+        _check_worker(task)
         from .formats.headers import default_name
-        from .grid import fit_for, make_grid
-        from .mesh import load_mesh
-        from .stream import convert_to, streams
+        from .pipeline import as_options, grid_of, load, plan, run
 
+        options = as_options(options)
         remote = is_url(out_dir)
         # geovox's own collector, not warnings.catch_warnings: tasks may run
         # side by side on threads of one worker (see geovox.errors.warn).
         with collect_warnings() as said:
-            mesh = load_mesh(path, references=options.get("references", "anywhere"))
-            if options.get("like") is not None:  # every model onto the one reference grid
-                from .reference import load_reference
+            mesh = load(path, options)
+            from .formats import format_for
 
-                grid = load_reference(options["like"]).local_grid()
-            else:
-                # .binvox: a resolution is binvox's -d N cube (see geovox.grid.fit_for).
-                fit = fit_for(options.get("fit"), format_for("x" + task["ext"]).name,
-                              shape=options.get("shape"), voxel_size=options.get("voxel_size"))
-                options = {**options, "fit": fit}
-                grid = make_grid(mesh.bounds, bounds=options.get("bounds"),
-                                 resolution=options.get("resolution"), shape=options.get("shape"),
-                                 voxel_size=options.get("voxel_size"), fit=fit)
+            # .binvox: a resolution is binvox's -d N cube (see geovox.grid.fit_for).
+            grid = grid_of(mesh, options, format_for("x" + task["ext"]))
             name = default_name(task["stem"], grid.shape, "uint8", task["ext"])
             target = out_dir.rstrip("/") + "/" + name if remote else os.path.join(out_dir, name)
             if not task["overwrite"] and _output_exists(target):
@@ -256,32 +235,31 @@ def _convert_one(task) -> Result:
                 else:
                     os.makedirs(out_dir, exist_ok=True)  # a worker of a shared file system
                     local = target
-                if streams(grid, format_for(local).name, options.get("color"),
-                           options.get("density"), options.get("sdf")) and options.get("like"):
-                    info = convert_to(mesh, local, jobs=1, **options)
-                    written, inside = info["files"], info["inside"]
-                elif streams(grid, format_for(local).name, options.get("color"),
-                             options.get("density"), options.get("sdf")):
-                    opts = {k: v for k, v in options.items() if k not in ("resolution", "shape",
-                                                                           "voxel_size", "fit",
-                                                                           "bounds")}
-                    info = convert_to(mesh, local, shape=grid.shape,
-                                      bounds=[*grid.lo, *grid.hi], jobs=1, **opts)
-                    written, inside = info["files"], info["inside"]
-                else:
-                    from .pipeline import voxelize
-
-                    vol = voxelize(mesh, jobs=1, **options)
-                    written, inside = write(vol, local, **task["write_options"]), vol.inside_count
-                written = [local] + [f for f in written if f != local]
+                report = run(mesh, plan(mesh, options, local),
+                             write_options=task["write_options"])
+                written = [local] + [f for f in report.files if f != local]
                 outputs = _upload(written, local, out_dir) if remote else written
-        note = f"{inside:,} inside" + (f"; warning: {warning_cell(said, path)}" if said else "")
+        note = f"{report.inside:,} inside" + (f"; warning: {warning_cell(said, path)}" if said
+                                               else "")
         return Result(path, "ok", outputs, "", time.perf_counter() - t0, note, list(said))
     except (GeovoxError, MemoryError) as exc:
         return Result(path, "failed", [], _line(str(exc)), time.perf_counter() - t0)
     except Exception as exc:  # a model must not stop the batch; say what happened
         return Result(path, "failed", [], _line(f"{type(exc).__name__}: {exc}"),
                       time.perf_counter() - t0)
+
+
+def _check_worker(task) -> None:
+    """A ClusterError where this worker's geovox or NumPy is not the client's."""
+    from .cluster import _versions
+
+    mine = _versions()
+    if task.get("versions") and mine != task["versions"]:
+        from .errors import ClusterError
+
+        raise ClusterError(f"this worker has geovox {mine['geovox']} and NumPy {mine['numpy']}, "
+                           f"the client geovox {task['versions']['geovox']} and NumPy "
+                           f"{task['versions']['numpy']}")
 
 
 #: Longest warning cell of a batch's summary row (the full text is in ``Result.warnings``).
@@ -375,11 +353,11 @@ def _read_manifest(path) -> dict:
     return done
 
 
-def _submit_local(tasks, jobs, on_result):
-    if jobs > 1 and len(tasks) > 1:
+def _submit_local(tasks, workers, on_result):
+    if workers > 1 and len(tasks) > 1:
         from concurrent.futures import ProcessPoolExecutor, as_completed
 
-        with ProcessPoolExecutor(max_workers=min(jobs, len(tasks))) as pool:
+        with ProcessPoolExecutor(max_workers=min(workers, len(tasks))) as pool:
             futures = {pool.submit(_convert_one, t): i for i, t in enumerate(tasks)}
             for f in as_completed(futures):
                 on_result(futures[f], f.result())
@@ -467,27 +445,12 @@ def _submit_dask(client, tasks, retries, on_result):
         fill()
 
 
-def _model_options(options: dict) -> dict:
-    """``convert_many``'s model options, checked; ParameterError for an unknown one.
-
-    ``references="anywhere"``, the default, is left out, so that manifests
-    written before the option existed still match.
-    """
-    unknown = sorted(set(options) - set(MODEL_OPTIONS))
-    if unknown:
-        raise ParameterError(f"convert_many got unknown options {', '.join(unknown)}; "
-                             f"known: {', '.join(MODEL_OPTIONS)}")
-    if "references" in options:
-        from .references import check_rule
-
-        if check_rule(options["references"]) == "anywhere":
-            options = {k: v for k, v in options.items() if k != "references"}
-    return options
-
-
-def convert_many(inputs, out, *, client=None, fmt=None, overwrite=False, jobs=1, retries=2,
-                 manifest=None, shard=None, progress=None, write_options=None, **options) -> list:
+def convert_many(inputs, out, *, client=None, fmt=None, overwrite=False, workers=None, retries=2,
+                 manifest=None, shard=None, progress=None, write_options=None, jobs=None,
+                 **options) -> list:
     """Convert every model into the folder ``out``; one :class:`Result` per model, in input order.
+
+    Each model is a plan and a run (:func:`_convert_one`), single-threaded.
 
     Parameters
     ----------
@@ -498,7 +461,7 @@ def convert_many(inputs, out, *, client=None, fmt=None, overwrite=False, jobs=1,
         ``gs://``, ``file://``, ``memory://``): each file is written locally
         and copied up complete.
     client : distributed.Client, optional
-        Run one task per model on this Dask cluster; without it, ``jobs``
+        Run one task per model on this Dask cluster; without it, ``workers``
         local processes (Dask is not imported).
     fmt : str, optional
         Output format name (``"raw"``, ``"h5"``, ...; default ``"raw"``).
@@ -507,9 +470,10 @@ def convert_many(inputs, out, *, client=None, fmt=None, overwrite=False, jobs=1,
     overwrite : bool
         Convert even where the output exists (otherwise ``"skipped"``), and
         ignore what ``manifest`` says was done.
-    jobs : int
-        Local processes (no client). Each model runs single-threaded, so the
-        files never depend on ``jobs`` nor on the cluster.
+    workers : int, optional
+        Local processes (no client; default 1). Each model runs
+        single-threaded, so the files never depend on ``workers`` nor on the
+        cluster.
     retries : int
         With a client: times a model is sent again after its worker died
         under it (a model that fails by itself is not retried: it would fail
@@ -525,12 +489,15 @@ def convert_many(inputs, out, *, client=None, fmt=None, overwrite=False, jobs=1,
         array jobs: input ``i`` (0-based, in the order found) belongs to part
         ``i % N + 1``. Every part must be given the same inputs.
     progress : callable, optional
-        Called with each :class:`Result` as it arrives (any order).
+        ``progress(Progress("model", done, total, result))`` with each
+        :class:`Result` as it arrives (any order).
     write_options : dict, optional
         Passed to the writer (``shell`` for ``.vox``, ``pack_bits`` for ``.npz``).
+    jobs : int, optional
+        Deprecated name of ``workers`` (``jobs`` means threads elsewhere).
     **options
-        As for :func:`geovox.voxelize`: resolution, shape, voxel_size, bounds,
-        backend, inside, color, density, sdf, references, ...
+        Any field of :class:`geovox.Options` but ``jobs``: resolution,
+        shape, voxel_size, bounds, backend, inside, color, density, sdf, ...
 
     Returns
     -------
@@ -543,8 +510,13 @@ def convert_many(inputs, out, *, client=None, fmt=None, overwrite=False, jobs=1,
         Before any model runs; a model's own failure is its Result.
     """
     from .formats import format_for
+    from .options import Options
 
-    options = _model_options(options)
+    workers = _workers(workers, jobs)
+    if "jobs" in options or "workers" in options:
+        raise ParameterError("convert_many's models run single-threaded; give `workers` for "
+                             "processes")
+    opts = Options.from_kwargs(**options).replace(jobs=1)
     if isinstance(retries, bool) or not isinstance(retries, int) or retries < 0:
         raise ParameterError(f"`retries` must be a non-negative integer, got {retries!r}")
     shard = parse_shard(shard)
@@ -552,22 +524,97 @@ def convert_many(inputs, out, *, client=None, fmt=None, overwrite=False, jobs=1,
     if isinstance(inputs, (str, os.PathLike)):
         inputs = [inputs]  # one file or folder, not a list of characters
     found = find_inputs(inputs)
-    if manifest is not None:
-        # Checked before the output folder is made, so that a bad manifest
-        # path leaves nothing behind (the open below still has the last word).
-        folder = os.path.dirname(os.path.abspath(manifest))
-        why = ("No such file or directory" if not os.path.isdir(folder) else
-               "Is a directory" if os.path.isdir(manifest) else
-               "Permission denied" if not os.access(folder, os.W_OK)
-               or (os.path.exists(manifest) and not os.access(manifest, os.W_OK)) else None)
-        if why:
-            raise OutputError(f"cannot write the manifest {manifest}: {why}")
+    _check_manifest_path(manifest)
     # Read even with overwrite: it also refuses a file that is not a manifest
     # before anything is appended to it.
     done = _read_manifest(manifest)
     if overwrite:
         done = {}
     out = os.fspath(out)
+    _make_folder(out)
+    tasks = _tasks(found, shard, out, opts, ext, overwrite, write_options, client)
+    recorded = _record(opts, ext, write_options)
+    # The manifest holds absolute paths: a re-run from another folder still matches.
+    out_key = out if is_url(out) else os.path.abspath(out)
+    results = [None] * len(tasks)
+    todo = []
+    for i, t in enumerate(tasks):
+        rec = done.get(t["input"])
+        if (rec and rec.get("status") in ("ok", "skipped") and rec.get("out") == out_key
+                and _same_options(rec.get("options"), recorded) and rec.get("outputs")
+                and all(_output_exists(o) for o in rec["outputs"][:1])):
+            results[i] = Result(t["shown"], "skipped", list(rec["outputs"]), "", 0.0,
+                                "done (manifest)")
+            if progress:
+                progress(Progress("model", sum(r is not None for r in results), len(tasks),
+                                  results[i]))
+        else:
+            todo.append(i)
+    log = _open_log(manifest)
+
+    def on_result(j, r):
+        i = todo[j]
+        r.input = tasks[i]["shown"]
+        results[i] = r
+        if log is not None:
+            log.write(json.dumps(dict(
+                input=tasks[i]["input"], out=out_key, options=recorded, status=r.status,
+                outputs=[o if is_url(o) else os.path.abspath(o) for o in r.outputs],
+                error=r.error, seconds=round(r.seconds, 4),
+                time=datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")))
+                + "\n")
+            log.flush()  # the record survives the run being killed
+        if progress:
+            progress(Progress("model", sum(x is not None for x in results), len(tasks), r))
+
+    try:
+        sub = [tasks[i] for i in todo]
+        if client is not None:
+            _submit_dask(client, sub, retries, on_result)
+        else:
+            _submit_local(sub, workers, on_result)
+    finally:
+        if log is not None:
+            log.close()
+    return results
+
+
+def _workers(workers, jobs) -> int:
+    """Local processes, from ``workers`` or the deprecated ``jobs``."""
+    if jobs is not None:
+        import warnings
+
+        warnings.warn("convert_many's `jobs=` (processes) is now `workers=`; `jobs` means threads "
+                      "elsewhere", DeprecationWarning, stacklevel=3)
+        if workers is None:
+            workers = jobs
+    if workers is None:
+        return 1
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 0:
+        raise ParameterError(f"`workers` must be a non-negative integer, got {workers!r}")
+    from .parallel import resolve_jobs
+
+    return resolve_jobs(workers)
+
+
+def _check_manifest_path(manifest) -> None:
+    """Checked before the output folder is made, so a bad manifest path leaves nothing behind.
+
+    (The open in :func:`_open_log` still has the last word.)
+    """
+    if manifest is None:
+        return
+    folder = os.path.dirname(os.path.abspath(manifest))
+    why = ("No such file or directory" if not os.path.isdir(folder) else
+           "Is a directory" if os.path.isdir(manifest) else
+           "Permission denied" if not os.access(folder, os.W_OK)
+           or (os.path.exists(manifest) and not os.access(manifest, os.W_OK)) else None)
+    if why:
+        raise OutputError(f"cannot write the manifest {manifest}: {why}")
+
+
+def _make_folder(out: str) -> None:
+    """Create the output folder (or the URL's), or say why not."""
     if is_url(out):
         import fsspec
 
@@ -583,6 +630,10 @@ def convert_many(inputs, out, *, client=None, fmt=None, overwrite=False, jobs=1,
             os.makedirs(out, exist_ok=True)
         except OSError as exc:
             raise OutputError(f"cannot create output folder {out}: {exc.strerror or exc}") from None
+
+
+def _tasks(found, shard, out, opts, ext, overwrite, write_options, client) -> list:
+    """One task dict per model of this shard (see :func:`_convert_one`)."""
     # Names are given over all inputs before sharding, so every part names a
     # model as the whole run would.
     stems, seen = [], {}
@@ -598,66 +649,53 @@ def convert_many(inputs, out, *, client=None, fmt=None, overwrite=False, jobs=1,
         versions = _versions()
         # A worker's working folder is not ours: it gets the absolute path.
         task_out = out if is_url(out) else os.path.abspath(out)
-    tasks = [dict(input=os.path.abspath(found[i]) if not is_url(found[i]) else found[i],
-                  shown=found[i], stem=stems[i], out=task_out, options=dict(options), ext=ext,
-                  overwrite=bool(overwrite), write_options=dict(write_options or {}),
-                  versions=versions, started=time.time()) for i in picked]
-    recorded = _canonical(dict(options=options, format=ext.lstrip("."),
-                               write_options=write_options or {}))
+    return [dict(input=os.path.abspath(found[i]) if not is_url(found[i]) else found[i],
+                 shown=found[i], stem=stems[i], out=task_out, options=opts, ext=ext,
+                 overwrite=bool(overwrite), write_options=dict(write_options or {}),
+                 versions=versions, started=time.time()) for i in picked]
 
-    # The manifest holds absolute paths: a re-run from another folder still matches.
-    out_key = out if is_url(out) else os.path.abspath(out)
-    results = [None] * len(tasks)
-    todo = []
-    for i, t in enumerate(tasks):
-        rec = done.get(t["input"])
-        if (rec and rec.get("status") in ("ok", "skipped") and rec.get("out") == out_key
-                and rec.get("options") == recorded and rec.get("outputs")
-                and all(_output_exists(o) for o in rec["outputs"][:1])):
-            results[i] = Result(t["shown"], "skipped", list(rec["outputs"]), "", 0.0,
-                                "done (manifest)")
-            if progress:
-                progress(results[i])
-        else:
-            todo.append(i)
 
-    log = None
-    if manifest is not None:
-        try:
-            log = open(manifest, "a", encoding="utf-8")
-            if log.tell() > 0:
-                with open(manifest, "rb") as f:
-                    f.seek(-1, os.SEEK_END)
-                    if f.read(1) != b"\n":  # a run killed mid-line: start a fresh line
-                        log.write("\n")
-        except OSError as exc:
-            raise OutputError(f"cannot write the manifest {manifest}: {exc.strerror or exc}") from None
+def _record(opts, ext, write_options) -> dict:
+    """What a manifest record says the model was made with."""
+    return _canonical(dict(options=opts.to_record(), format=ext.lstrip("."),
+                           write_options=write_options or {}))
 
-    def on_result(j, r):
-        i = todo[j]
-        r.input = tasks[i]["shown"]
-        results[i] = r
-        if log is not None:
-            log.write(json.dumps(dict(
-                input=tasks[i]["input"], out=out_key, options=recorded, status=r.status,
-                outputs=[o if is_url(o) else os.path.abspath(o) for o in r.outputs],
-                error=r.error, seconds=round(r.seconds, 4),
-                time=datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")))
-                + "\n")
-            log.flush()  # the record survives the run being killed
-        if progress:
-            progress(r)
 
+def _same_options(old, recorded) -> bool:
+    """Whether a manifest's ``options`` record asks for what ``recorded`` does.
+
+    A record holds the options the run named; two are the same where they
+    are with the others at their defaults (``resolution=8`` and
+    ``resolution=8, backend="auto"`` make the same files).
+    """
+    if old == recorded:
+        return True
     try:
-        sub = [tasks[i] for i in todo]
-        if client is not None:
-            _submit_dask(client, sub, retries, on_result)
-        else:
-            _submit_local(sub, jobs, on_result)
-    finally:
-        if log is not None:
-            log.close()
-    return results
+        from .options import Options
+
+        def full(rec):
+            return _canonical(dict(rec, options=Options.from_kwargs(**rec["options"])
+                                   .to_record(full=True)))
+
+        return full(old) == full(recorded)
+    except (GeovoxError, TypeError, KeyError, AttributeError):
+        return False
+
+
+def _open_log(manifest):
+    """The manifest opened for appending, on a fresh line (None without one)."""
+    if manifest is None:
+        return None
+    try:
+        log = open(manifest, "a", encoding="utf-8")
+        if log.tell() > 0:
+            with open(manifest, "rb") as f:
+                f.seek(-1, os.SEEK_END)
+                if f.read(1) != b"\n":  # a run killed mid-line: start a fresh line
+                    log.write("\n")
+    except OSError as exc:
+        raise OutputError(f"cannot write the manifest {manifest}: {exc.strerror or exc}") from None
+    return log
 
 
 def summary_table(results) -> str:

@@ -1,11 +1,17 @@
 """Command-line interface: a thin layer over the library.
 
+One function that adds its arguments and one that runs it, per subcommand
+(:data:`COMMANDS`); ``choices`` come from the registries; a conversion is
+:class:`~geovox.Options` from the arguments, a plan and a run, its warnings
+printed by :func:`collecting` and its summary by :meth:`geovox.volume.Report.summary`.
+
 Only :func:`main` turns exceptions into one line on stderr and exit status 2.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import math
 import os
 import sys
@@ -73,12 +79,148 @@ _positive_float = _number(positive=True)
 _finite_float = _number(positive=False)
 
 
-def build_parser() -> argparse.ArgumentParser:
-    p = _Parser(prog="geovox", description="Turn polygon meshes into voxel volumes.")
-    p.add_argument("--version", action="version", version=f"geovox {__version__}")
-    p.add_argument("--debug", action="store_true", help="show tracebacks on errors")
-    sub = p.add_subparsers(dest="command", parser_class=_Parser)
+class _Choices:
+    """argparse ``choices`` read from a registry only when first needed.
 
+    Parsing ``geovox --help`` or ``geovox formats`` must not import the
+    backends (NumPy) to list the names a ``convert`` option takes. (An
+    argument with these choices needs a ``metavar``: argparse lists the
+    choices of one without it as soon as it is added; its help shows them
+    through ``%(choices)s``, formatted only when that help is printed.)
+    """
+
+    def __init__(self, names):
+        self._names, self._list = names, None
+
+    def _get(self):
+        if self._list is None:
+            self._list = list(self._names())
+        return self._list
+
+    def __contains__(self, item):
+        return item in self._get()
+
+    def __iter__(self):
+        return iter(self._get())
+
+    def __len__(self):
+        return len(self._get())
+
+    def __str__(self):
+        return ", ".join(self._get())
+
+
+def _backend_names():
+    from .backends import REGISTRY
+
+    return ["auto", *REGISTRY]
+
+
+def _inside_names():
+    from .options import Inside
+
+    return [m.value for m in Inside]
+
+
+def _label_sources():
+    from .labels import SOURCES
+
+    return list(SOURCES)
+
+
+def _overlap_rules():
+    from .labels import OVERLAPS
+
+    return list(OVERLAPS)
+
+
+def _format_names():
+    from .formats import formats
+
+    return [f.name for f in formats()]
+
+
+def add_grid_arguments(c, *, grid_only=False):
+    """The conversion options (one argument per :class:`geovox.Options` field the CLI sets)."""
+    res = c.add_mutually_exclusive_group()
+    res.add_argument("-r", "--resolution", type=_positive_int, metavar="N",
+                     help="N voxels on every axis (default 128)")
+    res.add_argument("--shape", type=_positive_int, nargs=3, metavar=("NX", "NY", "NZ"),
+                     help="voxels along x, y, z")
+    res.add_argument("--voxel-size", type=_positive_float, metavar="S",
+                     help="edge of a cubic voxel; the region grows to fit whole voxels")
+    cube = c.add_mutually_exclusive_group()
+    cube.add_argument("--cube", dest="fit", action="store_const", const="cube",
+                      help="with -r N: an N³ cube of cubic voxels whose edge is the box's longest "
+                           "side, at its minimum corner (binvox -d N; what -r means for .binvox)")
+    cube.add_argument("--cube-center", "--cube-centre", dest="fit", action="store_const",
+                      const="cube-center", help="the same cube, centred on the box (binvox -cb)")
+    c.add_argument("--bounds", type=_finite_float, nargs=6,
+                   metavar=("XMIN", "YMIN", "ZMIN", "XMAX", "YMAX", "ZMAX"),
+                   help="region of interest (default: the mesh's bounding box)")
+    c.add_argument("--like", metavar="IMAGE",
+                   help="voxelise onto this image's grid (NIfTI .nii/.nii.gz, NRRD .nrrd/.seg.nrrd/"
+                        ".nhdr, MetaImage .mhd/.mha, or a volume geovox wrote): its shape, spacing, "
+                        "origin and direction, oblique included; excludes the grid options")
+    c.add_argument("--mesh-space", choices=["lps", "ras"], type=str.lower, default=None,
+                   help="with --like: the mesh's coordinate frame, overriding its 3D Slicer "
+                        "SPACE= mark (default: the mark, else LPS)")
+    _references_argument(c)
+    if grid_only:
+        return
+    c.add_argument("--backend", default="auto", choices=_Choices(_backend_names), metavar="NAME",
+                   help="ray-casting backend: %(choices)s (default: auto = numpy, the faster one "
+                        "for these column rays; all give the same volume)")
+    c.add_argument("--inside", default="auto", choices=_Choices(_inside_names), metavar="TEST",
+                   help="inside test: %(choices)s (default: auto = parity for closed meshes, "
+                        "winding number otherwise)")
+    # One of the two: both share `color`, and argparse would let the last one win silently.
+    colour = c.add_mutually_exclusive_group()
+    colour.add_argument("--color", "--colour", dest="color", action="store_true",
+                        help="also colour the voxels from the model's materials and textures, "
+                        "every voxel from its exact nearest surface point")
+    colour.add_argument("--exact-color", "--exact-colour", dest="color", action="store_const",
+                        const="exact", help="the same as --color (exact is its method)")
+    colour.add_argument("--fast-color", "--fast-colour", dest="color", action="store_const",
+                        const="fast", help="as --color, from the nearest of the six axis "
+                        "crossings around each voxel (a nearby surface point, not always the "
+                        "nearest; faster without the compiled kernel)")
+    c.add_argument("--no-diffuse", dest="diffuse", action="store_false",
+                   help="with --color: do not multiply by the material's Kd")
+    c.add_argument("--ambient", action="store_true",
+                   help="with --color: add the material's Ka")
+    c.add_argument("--density", choices=["coverage"], default=None,
+                   help="also compute each voxel's inside fraction (anti-aliased density)")
+    c.add_argument("--supersample", type=_positive_int, default=4, metavar="K",
+                   help="with --density: K x K rays per voxel column (default 4)")
+    c.add_argument("--density-float", action="store_true",
+                   help="with --density: store float32 0..1 instead of uint8 0..255")
+    c.add_argument("--sdf", action="store_true",
+                   help="also compute the signed distance (float32, negative inside)")
+    c.add_argument("--band", type=_positive_float, default=3.0, metavar="VOXELS",
+                   help="with --sdf: half-width of the exact band, in voxels (default 3)")
+    c.add_argument("-j", "--jobs", type=int, default=None, metavar="N",
+                   help="threads to use (default: one per core); with several models, worker "
+                        "processes; the result does not depend on it")
+    c.add_argument("--labels", default=None, choices=_Choices(_label_sources), metavar="SOURCE",
+                   help="also label each voxel (%(choices)s): the model's parts (OBJ objects or "
+                        "groups, scene nodes), connected components, the nearest surface's "
+                        "material, or the input file (several inputs: one scene on one grid)")
+    c.add_argument("--overlap", default="last", choices=_Choices(_overlap_rules), metavar="RULE",
+                   help="with --labels: which part a voxel inside several takes: %(choices)s "
+                        "(default: the last in file order)")
+    c.add_argument("--fractions", action="store_true",
+                   help="with --labels: each label's coverage fraction per voxel")
+
+
+def _references_argument(c):
+    c.add_argument("--references", choices=["anywhere", "folder"], default="anywhere",
+                   help="files the model names (materials, textures, glTF buffers): read from "
+                        "anywhere (default), or only from under the model's own folder, for "
+                        "files you did not make; URLs are never fetched")
+
+
+def add_convert(sub):
     c = sub.add_parser("convert", help="voxelise a mesh and write the volume")
     c.add_argument("input", nargs="+",
                    help="mesh files (OBJ, STL, PLY, GLB, ... anything trimesh reads) or folders of "
@@ -89,8 +231,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "size and type such as spot_128x128x128_uint8.raw; either may be an "
                         "fsspec URL (s3://bucket/spot.zarr, gs://bucket/out/; the cloud extra), "
                         "written here first and then copied up")
-    _grid_options(c)
-    c.add_argument("--format", dest="fmt", help="output format, overriding the extension")
+    add_grid_arguments(c)
+    c.add_argument("--format", dest="fmt", choices=_Choices(_format_names), metavar="FORMAT",
+                   help="output format, overriding the extension: %(choices)s (see "
+                        "`geovox formats`)")
     c.add_argument("--shell", action="store_true",
                    help=".vox: keep only the voxels with a face on the outside")
     c.add_argument("--pack-bits", action="store_true",
@@ -121,12 +265,16 @@ def build_parser() -> argparse.ArgumentParser:
                       help="convert only part K of N (K from 1) of the inputs, for array jobs")
     c.add_argument("-q", "--quiet", action="store_true", help="print nothing on success")
 
+
+def add_preview(sub):
     pv = sub.add_parser("preview", help="write a PNG picture of a volume (or of a mesh, voxelised)")
     pv.add_argument("input", help="any file geovox wrote (a volume, its .json sidecar or .mhd/.nhdr "
                     "header), or a mesh")
     pv.add_argument("-o", "--output", required=True, help="PNG file to write")
-    _grid_options(pv)
+    add_grid_arguments(pv)
 
+
+def add_view(sub):
     vw = sub.add_parser("view", help="interactive 3D view of a volume (needs the 'view' extra), "
                                      "or with --html one self-contained page for any browser")
     vw.add_argument("input", help="any file geovox wrote (a volume, its .json sidecar or .mhd/.nhdr "
@@ -139,172 +287,96 @@ def build_parser() -> argparse.ArgumentParser:
     vw.add_argument("--max-side", type=_positive_int, default=None, metavar="N",
                     help="with --html: show a volume with a side above N voxels downsampled "
                          "(default 256)")
-    _grid_options(vw)
+    add_grid_arguments(vw)
 
+
+def add_info(sub):
     info = sub.add_parser("info", help="what a mesh is like, and what a grid would cost")
     info.add_argument("input", help="mesh file")
-    res = info.add_mutually_exclusive_group()
-    res.add_argument("-r", "--resolution", type=_positive_int, metavar="N",
-                     help="grid to cost (default 128)")
-    res.add_argument("--shape", type=_positive_int, nargs=3, metavar=("NX", "NY", "NZ"))
-    res.add_argument("--voxel-size", type=_positive_float, metavar="S")
-    _cube_options(info)
-    info.add_argument("--bounds", type=_finite_float, nargs=6,
-                      metavar=("XMIN", "YMIN", "ZMIN", "XMAX", "YMAX", "ZMAX"))
-    _like_options(info)
-    _references_option(info)
+    add_grid_arguments(info, grid_only=True)
 
+
+def add_backends(sub):
     sub.add_parser("backends", help="list the ray-casting backends and whether each can run")
+
+
+def add_formats(sub):
     sub.add_parser("formats", help="list the output formats")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = _Parser(prog="geovox", description="Turn polygon meshes into voxel volumes.")
+    p.add_argument("--version", action="version", version=f"geovox {__version__}")
+    p.add_argument("--debug", action="store_true", help="show tracebacks on errors")
+    sub = p.add_subparsers(dest="command", parser_class=_Parser)
+    for add, _ in COMMANDS.values():
+        add(sub)
     return p
 
 
-def _cube_options(c):
-    """--cube / --cube-center: binvox's -d N (and -cb) cube, for any format."""
-    cube = c.add_mutually_exclusive_group()
-    cube.add_argument("--cube", dest="fit", action="store_const", const="cube",
-                      help="with -r N: an N³ cube of cubic voxels whose edge is the box's longest "
-                           "side, at its minimum corner (binvox -d N; what -r means for .binvox)")
-    cube.add_argument("--cube-center", "--cube-centre", dest="fit", action="store_const",
-                      const="cube-center", help="the same cube, centred on the box (binvox -cb)")
+# --- what every handler shares --------------------------------------------
+
+def _options(args):
+    """The :class:`geovox.Options` the arguments set (imported here: ``--help`` needs none)."""
+    from .options import Options
+
+    return Options.from_args(args)
 
 
-def _grid_options(c):
-    res = c.add_mutually_exclusive_group()
-    res.add_argument("-r", "--resolution", type=_positive_int, metavar="N",
-                     help="N voxels on every axis (default 128)")
-    res.add_argument("--shape", type=_positive_int, nargs=3, metavar=("NX", "NY", "NZ"),
-                     help="voxels along x, y, z")
-    res.add_argument("--voxel-size", type=_positive_float, metavar="S",
-                     help="edge of a cubic voxel; the region grows to fit whole voxels")
-    _cube_options(c)
-    c.add_argument("--bounds", type=_finite_float, nargs=6,
-                   metavar=("XMIN", "YMIN", "ZMIN", "XMAX", "YMAX", "ZMAX"),
-                   help="region of interest (default: the mesh's bounding box)")
-    _like_options(c)
-    c.add_argument("--backend", default="auto", choices=["auto", "embree", "numpy", "webgpu"],
-                   help="ray-casting backend (default: auto = numpy, the faster one for these "
-                        "column rays; embree gives the same volume)")
-    c.add_argument("--inside", default="auto", choices=["auto", "parity", "vote", "winding"],
-                   help="inside test (default: auto = parity for closed meshes, winding number "
-                        "otherwise)")
-    # One of the two: both share `color`, and argparse would let the last one win silently.
-    colour = c.add_mutually_exclusive_group()
-    colour.add_argument("--color", "--colour", dest="color", action="store_true",
-                        help="also colour the voxels from the model's materials and textures, "
-                        "every voxel from its exact nearest surface point")
-    colour.add_argument("--exact-color", "--exact-colour", dest="color", action="store_const",
-                        const="exact", help="the same as --color (exact is its method)")
-    colour.add_argument("--fast-color", "--fast-colour", dest="color", action="store_const",
-                        const="fast", help="as --color, from the nearest of the six axis "
-                        "crossings around each voxel (a nearby surface point, not always the "
-                        "nearest; faster without the compiled kernel)")
-    c.add_argument("--no-diffuse", dest="diffuse", action="store_false",
-                   help="with --color: do not multiply by the material's Kd")
-    c.add_argument("--ambient", action="store_true",
-                   help="with --color: add the material's Ka")
-    c.add_argument("--density", choices=["coverage"], default=None,
-                   help="also compute each voxel's inside fraction (anti-aliased density)")
-    c.add_argument("--supersample", type=_positive_int, default=4, metavar="K",
-                   help="with --density: K x K rays per voxel column (default 4)")
-    c.add_argument("--density-float", action="store_true",
-                   help="with --density: store float32 0..1 instead of uint8 0..255")
-    c.add_argument("--sdf", action="store_true",
-                   help="also compute the signed distance (float32, negative inside)")
-    c.add_argument("--band", type=_positive_float, default=3.0, metavar="VOXELS",
-                   help="with --sdf: half-width of the exact band, in voxels (default 3)")
-    c.add_argument("-j", "--jobs", type=int, default=None, metavar="N",
-                   help="threads to use (default: one per core); the result does not depend on it")
-    c.add_argument("--labels", default=None, choices=["part", "component", "material", "file"],
-                   help="also label each voxel: the model's parts (OBJ objects or groups, scene "
-                        "nodes), connected components, the nearest surface's material, or the "
-                        "input file (several inputs: one scene on one grid)")
-    c.add_argument("--overlap", default="last", choices=["last", "first", "smallest"],
-                   help="with --labels: which part a voxel inside several takes (default: the "
-                        "last in file order)")
-    c.add_argument("--fractions", action="store_true",
-                   help="with --labels: each label's coverage fraction per voxel")
-    _references_option(c)
+@contextlib.contextmanager
+def collecting():
+    """Print geovox's warnings of the block as ``geovox: warning: ...`` lines when it ends.
+
+    The one place the CLI reads warnings: :func:`geovox.errors.collect_warnings`
+    for this thread, plus the GeovoxWarnings said on the library's worker
+    threads (which the collector, being per thread, does not see). Other
+    warnings pass through as Python shows them.
+    """
+    import warnings
+
+    from .errors import GeovoxWarning, collect_warnings
+
+    with warnings.catch_warnings(record=True) as caught, collect_warnings() as said:
+        warnings.simplefilter("always", GeovoxWarning)
+        try:
+            yield said
+        finally:
+            lines = list(said)
+    for w in caught:
+        if issubclass(w.category, GeovoxWarning):
+            lines.append(str(w.message))
+        else:
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    for line in lines:
+        print(f"geovox: warning: {line}", file=sys.stderr)
 
 
-def _like_options(c):
-    """--like and --mesh-space (convert, preview, view, info)."""
-    c.add_argument("--like", metavar="IMAGE",
-                   help="voxelise onto this image's grid (NIfTI .nii/.nii.gz, NRRD .nrrd/.seg.nrrd/"
-                        ".nhdr, MetaImage .mhd/.mha, or a volume geovox wrote): its shape, spacing, "
-                        "origin and direction, oblique included; excludes the grid options")
-    c.add_argument("--mesh-space", choices=["lps", "ras"], type=str.lower, default=None,
-                   help="with --like: the mesh's coordinate frame, overriding its 3D Slicer "
-                        "SPACE= mark (default: the mark, else LPS)")
-
-
-def _references_option(c):
-    c.add_argument("--references", choices=["anywhere", "folder"], default="anywhere",
-                   help="files the model names (materials, textures, glTF buffers): read from "
-                        "anywhere (default), or only from under the model's own folder, for "
-                        "files you did not make; URLs are never fetched")
-
-
-def _stage_bar(args):
-    """A progress bar over the conversion's stages, on a terminal only (tqdm)."""
+def _progress_bar(args, options):
+    """``(bar, progress)``: a bar over the stages or the slabs, on a terminal only (tqdm)."""
     if getattr(args, "quiet", False) or not sys.stderr.isatty():
         return None, None
     try:
         from tqdm import tqdm
     except ImportError:
         return None, None
-    stages = ["load", "rays"] + [s for s, on in (("colour", args.color), ("density", args.density),
-                                                 ("sdf", args.sdf)) if on]
+    stages = ["load", "rays"] + [s for s, on in (("colour", options.color),
+                                                 ("density", options.density),
+                                                 ("sdf", options.sdf)) if on]
     bar = tqdm(total=len(stages) + 1, file=sys.stderr, leave=False,
-               bar_format="{desc:<8} {bar} {n_fmt}/{total_fmt} stages {elapsed}")
+               bar_format="{desc:<8} {bar} {n_fmt}/{total_fmt} {elapsed}")
     started = []
 
-    def progress(stage):
+    def progress(event):
+        if event.stage == "slab":
+            bar.total = event.total
+            bar.update(event.done - bar.n)
+            return
         if started:
             bar.update(1)
-        started.append(stage)
-        bar.set_description_str(stage)
+        started.append(event.stage)
+        bar.set_description_str(event.stage)
 
     return bar, progress
-
-
-def _options(args) -> dict:
-    """The keyword arguments of voxelize / convert_to that the CLI options set."""
-    # `fit` only where set: a batch's manifest records these options.
-    return dict(resolution=args.resolution, shape=args.shape, voxel_size=args.voxel_size,
-                **({"fit": args.fit} if args.fit else {}),
-                bounds=args.bounds, backend=args.backend, color=args.color, diffuse=args.diffuse,
-                ambient=args.ambient, inside=args.inside, density=args.density,
-                supersample=args.supersample,
-                density_dtype="float32" if args.density_float else "uint8",
-                sdf=args.sdf, band=args.band, references=args.references,
-                **{k: getattr(args, k) for k in ("like", "mesh_space")
-                   if getattr(args, k, None) is not None},
-                **({"labels": args.labels, "overlap": args.overlap, "fractions": args.fractions}
-                   if getattr(args, "labels", None) else {}))
-
-
-def _voxelize(args, path):
-    """voxelize() with the CLI's grid options, printing GeovoxWarnings as one line each."""
-    import warnings
-
-    from .errors import GeovoxWarning
-    from .pipeline import voxelize
-
-    bar, progress = _stage_bar(args)
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always", GeovoxWarning)
-        vol = voxelize(path, jobs=args.jobs, progress=progress, **_options(args))
-    if bar is not None:
-        bar.update(bar.total - bar.n - 1)
-        bar.set_description_str("write")
-        bar.close()
-    for w in caught:
-        if issubclass(w.category, GeovoxWarning):
-            print(f"geovox: warning: {w.message}", file=sys.stderr)
-        else:
-            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
-    return vol
 
 
 def _volume_or_mesh(args, path, largest=None):
@@ -316,7 +388,16 @@ def _volume_or_mesh(args, path, largest=None):
 
     if formats.is_volume_file(path):
         return formats.read_volume(path, max_side=largest)
-    return _voxelize(args, path)
+    return _voxelize(path, _options(args))
+
+
+def _voxelize(mesh, options):
+    """The volume of ``mesh`` in memory (a plan and a run), its warnings printed."""
+    from .pipeline import load, plan, run
+
+    with collecting():
+        m = load(mesh, options)
+        return run(m, plan(m, options)).volume
 
 
 def _output_path(args, input_path, shape) -> str:
@@ -344,15 +425,24 @@ def _write_options(args, fmt) -> dict:
             **({"pack_bits": True} if args.pack_bits else {})}
 
 
+def _cluster(args):
+    """``client_from_options`` for the cluster arguments ($DASK_SCHEDULER_ADDRESS included)."""
+    from .cluster import client_from_options
+
+    return client_from_options(getattr(args, "scheduler", None),
+                               getattr(args, "scheduler_file", None),
+                               getattr(args, "local_cluster", None))
+
+
+# --- convert --------------------------------------------------------------
+
 def _batch(args) -> int:
     from . import formats
     from .batch import convert_many, find_inputs, is_url, parse_shard, summary_table
-    from .cluster import client_from_options
     from .errors import ParameterError
-    from .parallel import resolve_jobs
 
     inputs = find_inputs(args.input)  # a missing input or an empty folder says so before anything else
-    parse_shard(args.shard)
+    shard = parse_shard(args.shard)
     if args.output is None:
         args.output = os.getcwd()
     if not (is_url(args.output) or os.path.isdir(args.output)
@@ -363,13 +453,13 @@ def _batch(args) -> int:
         raise ParameterError("--preview takes one input; run geovox preview on each output instead")
     fmt = formats.format_for("x.raw", args.fmt)
     write_options = _write_options(args, fmt)
-    with client_from_options(args.scheduler, args.scheduler_file, args.local_cluster) as client:
+    options = _options(args)
+    with _cluster(args) as client:
         bar = None
         if not args.quiet and sys.stderr.isatty():
             try:
                 from tqdm import tqdm
 
-                shard = parse_shard(args.shard)
                 total = len(inputs) if shard is None else len(range(shard[0] - 1, len(inputs),
                                                                     shard[1]))
                 bar = tqdm(total=total, unit="model", file=sys.stderr)
@@ -377,99 +467,28 @@ def _batch(args) -> int:
                 bar = None
         failed = []
 
-        def progress(r):
-            failed.append(r.status == "failed")
+        def progress(event):
+            failed.append(event.result.status == "failed")
             bar.update(1)
             bar.set_postfix_str(f"{sum(failed)} failed")
 
+        from .parallel import resolve_jobs
+
         try:
+            # -j is processes here: each model runs single-threaded.
             results = convert_many(args.input, args.output, client=client, fmt=fmt.name,
-                                   overwrite=args.overwrite, jobs=resolve_jobs(args.jobs),
+                                   overwrite=args.overwrite, workers=resolve_jobs(args.jobs),
                                    retries=args.retries, manifest=args.manifest, shard=args.shard,
                                    progress=progress if bar else None,
-                                   write_options=write_options, **_options(args))
+                                   write_options=write_options,
+                                   **{k: v for k, v in options.given_kwargs().items()
+                                      if k != "jobs"})
         finally:
             if bar:
                 bar.close()
     if not args.quiet or any(r.status == "failed" for r in results):
         print(summary_table(results))
     return EXIT_ERROR if any(r.status == "failed" for r in results) else EXIT_OK
-
-
-def _convert_streaming(args, mesh, output, t0, t_read=0.0) -> int:
-    """A grid too big for one piece: slab by slab into .h5 or .raw."""
-    import warnings
-
-    from .errors import GeovoxWarning
-    from .stream import convert_to
-
-    bar = None
-    if not args.quiet and sys.stderr.isatty():
-        try:
-            from tqdm import tqdm
-
-            bar = tqdm(total=1, unit="slab", file=sys.stderr, leave=False)
-        except ImportError:
-            bar = None
-
-    def progress(done, total):
-        if bar is not None:
-            bar.total = total
-            bar.update(done - bar.n)
-
-    import contextlib
-
-    from . import formats
-    from .cluster import client_from_options
-
-    # Only a .zarr runs on a cluster ($DASK_SCHEDULER_ADDRESS included).
-    cluster = client_from_options(
-        getattr(args, "scheduler", None), getattr(args, "scheduler_file", None),
-        getattr(args, "local_cluster", None)) if formats.format_for(output, args.fmt).name == "zarr" \
-        else contextlib.nullcontext()
-    with warnings.catch_warnings(record=True) as caught, cluster as client:
-        warnings.simplefilter("always", GeovoxWarning)
-        info = convert_to(mesh, output, args.fmt, jobs=args.jobs, progress=progress,
-                          **({"client": client} if client is not None else {}), **_options(args))
-    if bar is not None:
-        bar.close()
-    for w in caught:
-        if issubclass(w.category, GeovoxWarning):
-            print(f"geovox: warning: {w.message}", file=sys.stderr)
-    written = info["files"]
-    if args.preview:
-        # The preview of a grid this size is drawn from a 256³ conversion of the same model.
-        from .preview import write_preview
-
-        small = _voxelize(argparse.Namespace(**{**vars(args), "resolution": 256, "shape": None,
-                                                 "voxel_size": None, "quiet": True}), mesh)
-        written.append(write_preview(small, args.preview))
-    if not args.quiet:
-        nx, ny, nz = info["shape"]
-        dx, dy, dz = info["spacing"]
-        t = dict(info["timings"])
-        t["load"] = t.get("load", 0.0) + t_read  # the file was read before convert_to
-        slabs = (f" in {info['slabs']} slabs" if info["slabs"] > 1 else
-                 " in 64-slice slabs" if info.get("filled_in_slabs") else "")
-        print(f"{os.path.basename(info['source'])}: grid {nx} x {ny} x {nz}{slabs}")
-        print(f"voxel size {dx:.6g} x {dy:.6g} x {dz:.6g}, backend {info['backend']}, "
-              f"inside test {info['inside_test']}")
-        if info.get("mesh_space") is not None:
-            print(_reference_line(info["grid"].reference, info["mesh_space"]))
-        print(f"inside {info['inside']:,} of {nx * ny * nz:,} voxels "
-              f"({100.0 * info['inside'] / (nx * ny * nz):.2f}%)")
-        stages = ", ".join(f"{k} {t[k]:.2f}" for k in ("load", "rays", "fill", "colour", "density",
-                                                        "sdf", "write") if k in t)
-        print(f"time {time.perf_counter() - t0:.2f} s ({stages})")
-        print("wrote " + ", ".join(written))
-    return EXIT_OK
-
-
-def _reference_line(ref, mesh_space) -> str:
-    """The summary's line on a conversion onto a reference grid."""
-    space, how = mesh_space
-    return (f"onto {os.path.basename(ref.source)} ({ref.space}); mesh space {space} "
-            f"({'--mesh-space' if how == 'given' else how})")
 
 
 def _names_a_file(url: str) -> bool:
@@ -484,7 +503,6 @@ def _convert_to_url(args) -> int:
     the volume (a ``.zarr``'s root ``zarr.json``) last, so nothing half-written
     is taken for a volume. What the local run prints is reprinted with the URL.
     """
-    import contextlib
     import io
     import shutil
     import tempfile
@@ -507,7 +525,7 @@ def _convert_to_url(args) -> int:
         args.output = os.path.join(tmp, name)
         said = io.StringIO()
         with contextlib.redirect_stdout(said):
-            rc = _convert(args)
+            rc = run_convert(args)
         if rc == EXIT_OK:
             local = sorted(os.path.join(tmp, f) for f in os.listdir(tmp))
             _upload(local, args.output, parent)
@@ -517,25 +535,22 @@ def _convert_to_url(args) -> int:
         shutil.rmtree(tmp, ignore_errors=True)
 
 
-def _convert(args) -> int:
+def _is_batch(args) -> bool:
+    """Many models, or one sent as a batch of one to a cluster (several with --labels: a scene)."""
+    cluster = args.scheduler or args.scheduler_file or args.local_cluster
+    out = args.output
+    if args.labels is not None and len(args.input) > 1:
+        return False
+    return bool(len(args.input) > 1 or os.path.isdir(args.input[0]) or args.manifest or args.shard
+                or (cluster and (out is None or out.endswith(("/", os.sep))
+                                 or (os.path.isdir(out) and not out.lower().endswith(".zarr"))))
+                or (out and "://" in out and not _names_a_file(out)))
+
+
+def _check_outputs(args) -> None:
+    """Fail before any work where the outputs cannot be written."""
     from . import formats
 
-    if args.fractions and not args.labels:
-        from .errors import ParameterError
-
-        raise ParameterError("--fractions needs --labels (part, component, material or file)")
-    scene = args.labels is not None and len(args.input) > 1
-    if not scene and (len(args.input) > 1 or os.path.isdir(args.input[0]) or args.manifest or args.shard
-            or ((args.scheduler or args.scheduler_file or args.local_cluster)
-                and (args.output is None or args.output.endswith(("/", os.sep))
-                     or (os.path.isdir(args.output)
-                         and not args.output.lower().endswith(".zarr"))))
-            or (args.output and "://" in args.output and not _names_a_file(args.output))):
-        return _batch(args)  # many models, or one sent as a batch of one to a cluster
-    if "://" in (args.output or ""):
-        return _convert_to_url(args)
-    inputs, args.input = args.input, args.input[0]
-    t0 = time.perf_counter()
     default_out = args.output is None or args.output.endswith(("/", os.sep)) or (
         os.path.isdir(args.output) and not args.output.lower().endswith(".zarr"))
     if not default_out:
@@ -545,104 +560,77 @@ def _convert(args) -> int:
         formats.check_writable(os.path.join(args.output, "x"))
     if args.preview:
         formats.check_writable(args.preview)
-    from .grid import fit_for, make_grid
-    from .mesh import load_mesh
-    from .stream import streams
 
-    if scene:
-        from .labels import scene as make_scene
 
-        mesh = make_scene(inputs, references=args.references)  # several files, one grid: --labels file names them
+def run_convert(args) -> int:
+    """``geovox convert``: one model a plan and a run; many models a batch."""
+    from . import formats
+    from .errors import ParameterError
+    from .pipeline import grid_of, load, plan, run
+
+    if args.fractions and not args.labels:
+        raise ParameterError("--fractions needs --labels (part, component, material or file)")
+    if _is_batch(args):
+        return _batch(args)
+    if "://" in (args.output or ""):
+        return _convert_to_url(args)
+    inputs = args.input if isinstance(args.input, list) else [args.input]
+    args.input = inputs[0]
+    t0 = time.perf_counter()
+    _check_outputs(args)
+    options = _options(args)
+    # Several files with --labels: one scene on one grid (--labels file names them).
+    mesh = load(inputs if len(inputs) > 1 else args.input, options)
+    if len(inputs) > 1:
         args.input = "scene"
-    else:
-        mesh = load_mesh(args.input, references=args.references)
     t_read = time.perf_counter() - t0
-    if args.like is not None:
-        from .reference import load_reference, reject_grid_options
-
-        reject_grid_options(bounds=args.bounds, resolution=args.resolution, shape=args.shape,
-                            voxel_size=args.voxel_size, fit=args.fit)
-        grid = load_reference(args.like).local_grid()
-    else:
-        # .binvox: -r N is binvox's -d N cube (geovox.grid.fit_for).
-        args.fit = fit_for(args.fit, formats.format_for(
-            "x.raw" if default_out else args.output, args.fmt).name,
-            shape=args.shape, voxel_size=args.voxel_size)
-        grid = make_grid(mesh.bounds, bounds=args.bounds, resolution=args.resolution,
-                         shape=args.shape, voxel_size=args.voxel_size, fit=args.fit)
-    output = _output_path(args, args.input, grid.shape)
+    default_out = args.output is None or args.output.endswith(("/", os.sep)) or (
+        os.path.isdir(args.output) and not args.output.lower().endswith(".zarr"))
+    # .binvox: -r N is binvox's -d N cube (geovox.grid.fit_for).
+    named = formats.format_for("x.raw" if default_out else args.output, args.fmt)
+    output = _output_path(args, args.input, grid_of(mesh, options, named).shape)
     fmt = formats.format_for(output, args.fmt)
-    formats.check_frame(fmt, grid)
     write_options = _write_options(args, fmt)  # a bad combination fails before any work
-    if args.labels:
-        formats.check_labels(True, fmt)
     if (args.scheduler or args.scheduler_file or args.local_cluster) and fmt.name != "zarr":
-        from .errors import ParameterError
-
         raise ParameterError(f"a cluster writes one volume only into .zarr, not {fmt.name}; "
                              f"give -o a folder to send models to it as tasks")
-    if fmt.check is not None:
-        fmt.check(grid)  # e.g. binvox needs cubic voxels
-    if not args.labels and streams(grid, fmt.name, args.color, args.density, args.sdf):
-        return _convert_streaming(args, mesh, output, t0, t_read)
-    vol = _voxelize(args, mesh)
-    t1 = time.perf_counter()
-    import warnings
+    bar, progress = _progress_bar(args, options)
+    # Only a .zarr runs on a cluster ($DASK_SCHEDULER_ADDRESS included).
+    cluster = _cluster(args) if fmt.name == "zarr" else contextlib.nullcontext()
+    with collecting(), cluster as client:
+        p = plan(mesh, options, output, fmt=args.fmt, cluster=client is not None)
+        report = run(mesh, p, progress=progress, client=client, write_options=write_options)
+        if bar is not None:
+            bar.close()
+        if args.preview:
+            from .preview import write_preview
 
-    from .errors import GeovoxWarning
-
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always", GeovoxWarning)
-        written = formats.write(vol, output, fmt=args.fmt, **write_options)
-    for w in caught:  # e.g. binvox padding a grid to a cube
-        if issubclass(w.category, GeovoxWarning):
-            print(f"geovox: warning: {w.message}", file=sys.stderr)
-        else:
-            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
-    if args.preview:
-        from .preview import write_preview
-
-        written.append(write_preview(vol, args.preview))
-    t2 = time.perf_counter()
+            vol = report.volume
+            if vol is None:
+                # The preview of a grid this size is drawn from a 256³ conversion of the same model.
+                small = options.replace(resolution=256, shape=None, voxel_size=None)
+                vol = run(mesh, plan(mesh, small)).volume
+            report.files.append(write_preview(vol, args.preview))
     if not args.quiet:
-        nx, ny, nz = vol.shape
-        dx, dy, dz = vol.spacing
-        lo, hi = vol.bounds
-        inside = vol.inside_count
-        t = vol.timings
-        over = (f"over ({lo[0]:.6g}, {lo[1]:.6g}, {lo[2]:.6g})..({hi[0]:.6g}, {hi[1]:.6g}, "
-                f"{hi[2]:.6g})" if vol.grid.reference is None else "of the reference image")
-        print(f"{os.path.basename(vol.source)}: grid {nx} x {ny} x {nz} {over}")
-        print(f"voxel size {dx:.6g} x {dy:.6g} x {dz:.6g}, backend {vol.backend}, "
-              f"inside test {vol.inside}")
-        if vol.mesh_space is not None:
-            print(_reference_line(vol.grid.reference, vol.mesh_space))
-        print(f"inside {inside:,} of {nx * ny * nz:,} voxels ({100.0 * inside / (nx * ny * nz):.2f}%)")
-        if vol.label_table is not None:
-            print(f"labels {args.labels}: {len(vol.label_table) - 1:,} "
-                  f"({', '.join(e['name'] for e in vol.label_table[1:][:6])}"
-                  f"{', ...' if len(vol.label_table) > 7 else ''}), "
-                  f"{vol.contested:,} contested voxels (overlap rule {args.overlap})")
-        extra = "".join(f", {k} {t[k]:.2f}" for k in ("colour", "density", "sdf") if k in t)
-        print(f"time {t2 - t0:.2f} s (load {t_read + t['load']:.2f}, rays {t['rays']:.2f}, "
-              f"fill {t['fill']:.2f}{extra}, write {t2 - t1:.2f})")
-        print("wrote " + ", ".join(written))
+        print("\n".join(report.summary(time.perf_counter() - t0, t_read)))
     return EXIT_OK
 
 
-def _preview(args) -> int:
-    from .preview import LARGEST, write_preview
+# --- the other subcommands ------------------------------------------------
 
+def run_preview(args) -> int:
     from . import formats
+    from .preview import LARGEST, write_preview
 
     formats.check_writable(args.output)
     if args.like is not None:
         from .preview import write_preview_like
         from .reference import load_reference
+        from .volume import reference_line
 
         ref, image = load_reference(args.like, with_data=True)
         vol = _volume_or_mesh(args, args.input)
-        note = "" if vol.mesh_space is None else _reference_line(ref, vol.mesh_space).split("; ")[1]
+        note = "" if vol.mesh_space is None else reference_line(ref, vol.mesh_space).split("; ")[1]
         print(f"wrote {write_preview_like(vol, image, ref, args.output, note)}")
         return EXIT_OK
     vol = _volume_or_mesh(args, args.input, LARGEST)
@@ -668,7 +656,7 @@ def _view_html(args) -> int:
     return EXIT_OK
 
 
-def _view(args) -> int:
+def run_view(args) -> int:
     if args.html:
         return _view_html(args)
     if args.max_side is not None:
@@ -686,37 +674,33 @@ def _view(args) -> int:
     return EXIT_OK
 
 
-def _info(args) -> int:
-    from .mesh import load_mesh
+def run_info(args) -> int:
+    from .errors import collect_warnings
+    from .pipeline import load, plan
     from .report import format_report, grid_cost, mesh_report
 
-    mesh = load_mesh(args.input, references=args.references)
-    if args.like is not None:
-        from .reference import field_of_view, format_field_of_view, load_reference, \
-            reject_grid_options
+    options = _options(args)
+    mesh = load(args.input, options)
+    with collect_warnings(drop=True):  # the report says what a repair does
+        p = plan(mesh, options)
+    cost = grid_cost(mesh, options)
+    if options.like is not None:
+        from .reference import field_of_view, format_field_of_view, load_reference
 
-        reject_grid_options(bounds=args.bounds, resolution=args.resolution, shape=args.shape,
-                            voxel_size=args.voxel_size, fit=args.fit)
-        ref = load_reference(args.like)
-        cost = grid_cost(mesh, shape=ref.shape, bounds=[*ref.local_grid().lo, *ref.local_grid().hi])
+        ref = load_reference(options.like)
         cost["spacing"] = ref.spacing.tolist()
         print(format_report(mesh_report(mesh), cost))
-        print(format_field_of_view(ref, field_of_view(mesh, ref, args.mesh_space)))
-        return EXIT_OK
-    if args.mesh_space is not None:
-        from .errors import ParameterError
-
-        raise ParameterError("--mesh-space applies only with --like")
-    cost = grid_cost(mesh, bounds=args.bounds, resolution=args.resolution, shape=args.shape,
-                     voxel_size=args.voxel_size, fit=args.fit or "box")
-    print(format_report(mesh_report(mesh), cost))
+        print(format_field_of_view(ref, field_of_view(mesh, ref, options.mesh_space)))
+    else:
+        print(format_report(mesh_report(mesh), cost))
     from .labels import parts_report
 
     print(parts_report(mesh))
+    print("\n".join(p.describe()))
     return EXIT_OK
 
 
-def _backends(args) -> int:
+def run_backends(args) -> int:
     from .backends import backend_report
 
     # The same answer as geovox.usable_backends(); webgpu with its adapter.
@@ -725,12 +709,23 @@ def _backends(args) -> int:
     return EXIT_OK
 
 
-def _formats(args) -> int:
+def run_formats(args) -> int:
     from .formats import formats
 
     for f in formats():
         print(f"{f.name:6s} {' '.join(f.extensions):12s} {f.description}")
     return EXIT_OK
+
+
+#: subcommand -> (adds its arguments, runs it)
+COMMANDS = {
+    "convert": (add_convert, run_convert),
+    "preview": (add_preview, run_preview),
+    "view": (add_view, run_view),
+    "info": (add_info, run_info),
+    "backends": (add_backends, run_backends),
+    "formats": (add_formats, run_formats),
+}
 
 
 def main(argv=None) -> int:
@@ -743,10 +738,8 @@ def main(argv=None) -> int:
     if args.command is None:
         parser.print_help()
         return EXIT_USAGE
-    handler = {"convert": _convert, "preview": _preview, "view": _view, "info": _info,
-               "backends": _backends, "formats": _formats}[args.command]
     try:
-        return handler(args)
+        return COMMANDS[args.command][1](args)
     except GeovoxError as exc:
         if args.debug:
             raise

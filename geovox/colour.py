@@ -789,7 +789,7 @@ def shading_tables(mesh, *, diffuse=True, ambient=False) -> tuple:
 
 
 def colour_volume(mesh, grid, occupancy, cast=None, *, diffuse=True, ambient=False, jobs=1,
-                  exact=False, frame=None, out=None, sink=None):
+                  exact=False, frame=None, out=None, sink=None, kernel=None):
     """RGBA colours of the inside voxels; alpha 0 outside.
 
     Parameters
@@ -806,6 +806,8 @@ def colour_volume(mesh, grid, occupancy, cast=None, *, diffuse=True, ambient=Fal
         crossings.
     frame : (lo, spacing, z0), optional
         With ``exact``: see :func:`exact_colours`.
+    kernel : {None, "auto", "compiled", "numpy"}
+        With ``exact``: the nearest-surface search (see :func:`exact_colours`).
     out : (nz, ny, nx, 4) uint8, C order, optional
         Without ``exact``: the array to write every voxel's colour into
         (reused by a caller making many blocks, so that its memory is not
@@ -828,7 +830,7 @@ def colour_volume(mesh, grid, occupancy, cast=None, *, diffuse=True, ambient=Fal
     load_textures(mesh, ambient=ambient)
     if exact:
         return exact_colours(mesh, grid, occupancy, diffuse=diffuse, ambient=ambient, jobs=jobs,
-                             frame=frame)
+                             frame=frame, kernel=kernel)
     nx, ny, nz = grid.shape
     # Each chunk clears its own layers just before filling them (in cache).
     base = None if sink else np.empty((nz, ny, nx, 4), dtype=np.uint8) if out is None else out

@@ -1,25 +1,408 @@
-"""The pipeline: load -> grid -> rays -> parity fill, and the Volume it makes.
+"""The pipeline: options -> plan -> blocks, and the Volume a block makes.
 
-:func:`voxelize_block` runs the stages on one block of a grid (the whole grid,
-or a slab of it along z) with every option; :func:`voxelize` is load + grid +
-one block, and the slab streamer (:mod:`geovox.stream`) runs one block per
-slab. Rays always start outside the whole mesh, never at the block's edge, so
-a block's voxels are classified exactly as the full grid's would be.
+Every conversion is a plan and then a run. :func:`plan` takes every
+decision once -- the grid, the backend, the inside test, the colour method,
+the memory budget, the route (in memory, slabs, the 64-slice occupancy fill,
+cluster tasks) and the writer from the format registry -- and
+:func:`voxelize_block` runs the stages (rays, fill, colour, density,
+distance) on one block of the plan's grid: the whole grid, or a slab of it
+along z. :func:`voxelize` is load + plan + one block; the slab streamer
+(:mod:`geovox.stream`) runs one block per slab, here or as cluster tasks.
+Rays always start outside the whole mesh, never at the block's edge, so a
+block's voxels are classified exactly as the full grid's would be.
 """
 
 from __future__ import annotations
 
+import enum
 import time
+from dataclasses import dataclass, fields
 
 import numpy as np
 
 from . import parity
-from .backends import get_backend
 from .errors import ParameterError, warn
 from .grid import Grid, make_grid
 from .memory import bytes_per_voxel, check_memory
-from .mesh import load_mesh
-from .volume import Volume
+from .options import Colour, Inside, Options, colour_of
+from .volume import Progress, Report, Volume
+
+
+class Route(enum.StrEnum):
+    """How a plan's blocks are run and written."""
+
+    MEMORY = "memory"  #: one block, the whole grid, held in memory (then written whole)
+    SLABS = "slabs"  #: blocks along z, each written into the file before the next is made
+    FILL = "64-slice fill"  #: occupancy alone: rays once, parity filled and written 64 slices at a time
+    CLUSTER = "cluster"  #: ``.zarr`` slabs as tasks on a Dask cluster's workers
+
+
+@dataclass(frozen=True)
+class Plan:
+    """Every decision of one conversion, taken once by :func:`plan`.
+
+    Attributes
+    ----------
+    options : Options
+        What was asked for.
+    grid : Grid
+        The whole grid.
+    backend : geovox.backends.Backend
+        The ray-casting engine (shipped to cluster tasks by name).
+    inside : Inside
+        The inside test that runs (``auto`` resolved).
+    colour : Colour or None
+        The colour method, None without colour.
+    jobs : int
+        Threads (>= 1).
+    axis : int
+        Direction of the blocks' column rays.
+    route : Route
+    blocks : tuple of (z0, z1)
+        Layers of each block; one block ``(0, nz)`` in memory.
+    per_voxel : float
+        Working bytes per voxel of a block (the memory budget's unit).
+    budget : float or None
+        Bytes one slab may take (streamed routes).
+    format : geovox.formats.Format or None
+        Output format (None: no file).
+    path : str or None
+        Output file or folder.
+    reuse_z : bool
+        Fast colour over several slabs: the rays along z are cast once for
+        the whole grid and each slab takes its part (see :mod:`geovox.stream`).
+    chunk_slab : int or None
+        ``.zarr``: the slab thickness its shards are laid out for (a
+        multiple of 64; the last block may be thinner).
+    mesh_space : (str, str) or None
+        With ``like``: the mesh's frame and how it was decided (see
+        :func:`geovox.reference.resolve_mesh_space`).
+    labels : geovox.labels.LabelSet or None
+        With ``labels``: what each label is (by parts, ``inside`` is the
+        test asked for, which each part resolves for itself).
+    """
+
+    options: Options
+    grid: Grid
+    backend: object
+    inside: Inside
+    colour: Colour | None
+    jobs: int
+    axis: int
+    route: Route = Route.MEMORY
+    blocks: tuple = ()
+    per_voxel: float = 1.0
+    budget: float | None = None
+    format: object = None
+    path: str | None = None
+    reuse_z: bool = False
+    chunk_slab: int | None = None
+    mesh_space: tuple | None = None
+    labels: object = None
+
+    def mesh_for(self, mesh):
+        """The mesh the blocks run on: ``mesh``, or with ``like`` the copy moved into the
+        reference's frame that :func:`plan` made from it."""
+        moved = self.__dict__.get("_mesh")
+        return mesh if moved is None else moved
+
+    @property
+    def thick(self) -> int:
+        """Layers of the first block (slab thickness)."""
+        z0, z1 = self.blocks[0]
+        return z1 - z0
+
+    def writer(self, meta, client=None):
+        """A slab writer for this plan's output (the format's, from the registry)."""
+        return self.format.slab_writer(self.path, meta, self.jobs, thick=self.chunk_slab,
+                                       client=client)
+
+    def for_task(self) -> "Plan":
+        """The plan a cluster task runs a slab with: single-threaded, no writer (it writes shards)."""
+        from dataclasses import replace
+
+        return replace(self, jobs=1, format=None, path=None)
+
+    def __getstate__(self):
+        # The backend travels by name: a worker uses its own instance.
+        # (The moved mesh of `like` stays here: a task is handed its mesh.)
+        state = {f.name: getattr(self, f.name) for f in fields(self)}
+        from .backends import REGISTRY
+
+        if getattr(self.backend, "name", None) in REGISTRY:
+            state["backend"] = self.backend.name
+        return state
+
+    def __setstate__(self, state):
+        if isinstance(state["backend"], str):
+            from .backends import get_backend
+
+            state = dict(state, backend=get_backend(state["backend"]))
+        for k, v in state.items():
+            object.__setattr__(self, k, v)
+
+    def describe(self) -> list:
+        """Lines for ``geovox info``: what this plan will do."""
+        nx, ny, nz = self.grid.shape
+        o = self.options
+        lines = [f"plan: backend {self.backend.name}, inside test {self.inside}, "
+                 f"colour {self.colour or 'none'}"
+                 + (f", density {o.density} ({o.density_dtype})" if o.density else "")
+                 + (f", sdf (band {float(o.band):g} voxels)" if o.sdf else "")
+                 + f", {self.jobs} thread{'s' if self.jobs > 1 else ''}"]
+        if self.route == Route.MEMORY:
+            where = "in memory, one block"
+        else:
+            where = (f"{self.route}, {len(self.blocks)} block{'s' if len(self.blocks) > 1 else ''}"
+                     f" of {self.thick} layers")
+        need = self.per_voxel * nx * ny * (self.thick if self.blocks else nz)
+        lines.append(f"route: {where}; rays along {'xyz'[self.axis]}; about "
+                     f"{_size(need)} of working memory"
+                     + (f" (slab budget {_size(self.budget)})" if self.budget else ""))
+        if self.format is not None:
+            lines.append(f"writer: {self.format.name} -> {self.path}")
+        return lines
+
+
+def _size(b) -> str:
+    return f"{b / 2**20:,.1f} MiB" if b < 2**30 else f"{b / 2**30:,.2f} GiB"
+
+
+def load(mesh, options: Options):
+    """``mesh`` loaded as ``options`` say (a loaded Mesh passes through): the load stage."""
+    from . import mesh as loader  # looked up at call time (a test's stand-in, a worker's plugin)
+
+    if isinstance(mesh, (list, tuple)):
+        if options.labels is None:
+            raise ParameterError("several meshes make one scene only with `labels` (e.g. "
+                                 "labels='file'); convert them one by one otherwise")
+        from .labels import scene
+
+        return scene(mesh, references=options.references)
+    return loader.load_mesh(mesh, references=options.references)
+
+
+def grid_of(mesh, options: Options, fmt=None) -> Grid:
+    """The grid ``options`` ask for over ``mesh`` (a loaded Mesh): the one place grids are made.
+
+    ``fmt`` (a Format or its name) is the output's: a ``.binvox`` resolution is binvox's cube.
+    """
+    name = getattr(fmt, "name", fmt)
+    if options.like is not None:  # the reference's grid, in its local frame
+        from .reference import load_reference, reject_grid_options
+
+        reject_grid_options(**options.grid_options())  # --cube as given, not a format's default
+        return load_reference(options.like).local_grid()
+    return make_grid(mesh.bounds, **options.grid_options(name))
+
+
+def as_options(options=None, **kw) -> Options:
+    """``options`` (an Options, a dict or None) with keywords ``kw`` on top, validated."""
+    if options is None:
+        return Options.from_kwargs(**kw)
+    if isinstance(options, dict):
+        return Options.from_kwargs(**{**options, **kw})
+    return options.replace(**kw) if kw else options
+
+
+def plan(mesh, options=None, path=None, *, fmt=None, stream=None, cluster=False, budget=None,
+         slab=None) -> Plan:
+    """Take every decision of one conversion once.
+
+    Parameters
+    ----------
+    mesh : geovox.mesh.Mesh
+        The loaded model (anything :func:`geovox.mesh.load_mesh` reads is loaded first).
+    options : Options or dict, optional
+        What to make (a dict is checked by :meth:`Options.from_kwargs`).
+    path : str, optional
+        The output: its format comes from the extension (or ``fmt``).
+        Without it the plan is in memory.
+    fmt : str, optional
+        Format name, overriding the extension.
+    stream : bool, optional
+        True: slab by slab whatever the size (:func:`geovox.convert_to`);
+        False: in memory; None: the rule of :func:`geovox.stream.streams`
+        (the command line and batches).
+    cluster : bool
+        The slabs run as tasks on a cluster (``.zarr`` only).
+    budget : float, optional
+        Bytes one slab's arrays may take (default: :func:`geovox.stream.slab_budget`).
+    slab : int, optional
+        ``.zarr`` only: slab thickness, a multiple of 64.
+
+    Returns
+    -------
+    Plan
+
+    Raises
+    ------
+    ParameterError
+        An option, format or combination that cannot be made.
+    GridTooLargeError
+        The grid does not fit in memory, even slab by slab.
+    BackendUnavailableError
+        The backend named cannot run here.
+    """
+    from . import inside as inside_tests
+    from .backends import get_backend
+    from .parallel import resolve_jobs
+
+    o = as_options(options)
+    engine = get_backend(o.backend) if isinstance(o.backend, str) else o.backend
+    m = load(mesh, o)
+    f = None
+    if path is not None:
+        from . import formats
+
+        f = formats.format_for(path, fmt)
+    m, grid, used = _mesh_and_grid(m, o, f)
+    colour = colour_of(o.color)
+    base = dict(options=o, grid=grid, backend=engine, colour=colour, jobs=resolve_jobs(o.jobs),
+                format=f, path=None if path is None else str(path), mesh_space=used)
+    lset = _label_set(m, o, f, stream)
+    if lset is not None:
+        base["labels"], stream = lset, False  # labels are made in memory
+    elif stream is None:
+        from .stream import streams
+
+        stream = f is not None and streams(grid, f, colour, o.density, o.sdf)
+    if not stream or f is None:
+        # By parts, each part takes its own inside test (geovox.labels.classify).
+        method = (Inside(o.inside) if lset is not None and lset.source != "material"
+                  else Inside(inside_tests.choose(m, o.inside)))
+        p = Plan(inside=method, axis=o.axis, route=Route.MEMORY, blocks=((0, grid.shape[2]),),
+                 per_voxel=bytes_per_voxel(colour, o.density, o.sdf), **base)
+    else:
+        p = _streamed_plan(m, base, cluster=cluster, budget=budget, slab=slab)
+    # With `like`, the mesh the blocks run on is the moved one (see Plan.mesh_for).
+    object.__setattr__(p, "_mesh", m if used is not None else None)
+    return p
+
+
+def _mesh_and_grid(m, o: Options, f):
+    """``(mesh, grid, mesh space)``: with ``like`` the mesh moved into the reference's frame."""
+    used = None
+    if o.like is not None:
+        from .reference import prepare
+
+        # The mesh moved into the reference's local frame, where its grid is axis-aligned.
+        m, grid, used = prepare(m, o.like, o.mesh_space, sdf=o.sdf, color=o.color,
+                                **o.grid_options())
+    else:
+        grid = grid_of(m, o, f)
+    if f is not None:
+        from . import formats
+
+        formats.check_frame(f, grid)
+        if f.check is not None:
+            f.check(grid)  # e.g. binvox needs cubic voxels
+    return m, grid, used
+
+
+def _label_set(m, o: Options, f, stream):
+    """The labels ``o.labels`` asks for (None without), checked against the format."""
+    if o.labels is None:
+        return None
+    from . import labels as label_mod
+
+    if stream:
+        raise ParameterError("labels are made in memory, not slab by slab (stream=False)")
+    if f is not None:
+        from . import formats
+
+        formats.check_labels(True, f)
+    return label_mod.label_set(m, o.labels)
+
+
+def _streamed_plan(m, base: dict, *, cluster, budget, slab) -> Plan:
+    """The slab routes' part of :func:`plan`: blocks within the budget, the route, the axis."""
+    from . import inside as inside_tests
+    from .memory import check_memory as fits
+    from .stream import LOCAL_ZARR_SLAB, cluster_thick, slab_budget, slab_plan
+
+    o, grid, colour, f = base["options"], base["grid"], base["colour"], base["format"]
+    method = Inside(inside_tests.choose(m, o.inside))
+    per = bytes_per_voxel(colour, o.density, o.sdf) + inside_tests.working_bytes(m, method)
+    budget = slab_budget() if budget is None else budget
+    blocks = slab_plan(grid, per, budget)
+    nx, ny, nz = grid.shape
+    thick = None
+    if f.name == "zarr":
+        from .formats.zarr import check_thick
+
+        if slab is None:
+            # Here: the budget's slabs in whole chunks, at most LOCAL_ZARR_SLAB;
+            # on a cluster: cluster_thick.
+            slab = cluster_thick(grid, per) if cluster else \
+                min(LOCAL_ZARR_SLAB, -(-(blocks[0][1] - blocks[0][0]) // 64) * 64)
+        thick = check_thick(slab)
+        blocks = [(z, min(z + thick, nz)) for z in range(0, nz, thick)]
+    z0, z1 = blocks[0]
+    try:
+        fits(Grid(grid.lo, grid.hi, (nx, ny, z1 - z0)), per)
+    except MemoryError:
+        from .errors import GridTooLargeError
+
+        raise GridTooLargeError(
+            f"a {nx} x {ny} x {nz} grid does not fit in memory even slab by slab "
+            f"({z1 - z0}-voxel slabs need {nx * ny * (z1 - z0) * per / 2**30:.1f} GiB); "
+            f"use a smaller resolution") from None
+    if cluster:
+        route = Route.CLUSTER
+    elif (f.name != "zarr" and len(blocks) == 1 and method == Inside.PARITY
+          and not (colour or o.density or o.sdf)):
+        # Occupancy alone, one piece: the rays along z are cast once for the
+        # whole grid (as voxelize casts them, so the file is the same) and the
+        # fill runs 64 slices at a time in two reused buffers, each piece
+        # written as the next is made (see parity.fill_slabs): no grid-sized
+        # array is ever allocated.
+        route = Route.FILL
+    else:
+        route = Route.SLABS
+    # Several slabs: rays along y, so a slab's columns are its own (x, z)
+    # pairs and no ray is cast twice. One piece: voxelize's default axis, so
+    # the file equals the in-memory volume.
+    axis = 1 if len(blocks) > 1 else 2
+    # Vote casts z itself; exact colour needs no rays.
+    reuse_z = colour == Colour.FAST and len(blocks) > 1 and method != Inside.VOTE
+    return Plan(inside=method, axis=axis, route=route, blocks=tuple(blocks), per_voxel=per,
+                budget=budget, reuse_z=reuse_z, chunk_slab=thick, **base)
+
+
+def run(mesh, p: Plan, *, progress=None, client=None, write_options=None) -> Report:
+    """Run plan ``p`` on ``mesh`` (the loaded Mesh it was made for): one Report.
+
+    In memory: one block, written whole where the plan has a path; any other
+    route runs slab by slab (:func:`geovox.stream.run_slabs`).
+    """
+    mesh = p.mesh_for(mesh)
+    if p.route != Route.MEMORY:
+        from .stream import run_slabs
+
+        return run_slabs(mesh, p, progress=progress, client=client)
+    vol = voxelize_block(mesh, p, buffers={"progress": progress})
+    vol.mesh_space = p.mesh_space
+    if not vol.occupancy.any():
+        warn(empty_reason(mesh, p.grid, vol.inside), stacklevel=3)
+    files, t = [], vol.timings
+    if p.path is not None:
+        from . import formats
+
+        tw = time.perf_counter()
+        files = formats.write(vol, p.path, fmt=p.format.name, **(write_options or {}))
+        t["write"] = time.perf_counter() - tw
+    lines = []
+    if vol.label_table is not None:
+        table = vol.label_table
+        lines.append(f"labels {p.options.labels}: {len(table) - 1:,} "
+                     f"({', '.join(e['name'] for e in table[1:][:6])}"
+                     f"{', ...' if len(table) > 7 else ''}), "
+                     f"{vol.contested:,} contested voxels (overlap rule {p.options.overlap})")
+    return Report(source=mesh.source, grid=p.grid, backend=p.backend.name,
+                  inside_test=vol.inside, inside=vol.inside_count, route=str(p.route),
+                  slabs=1, volume=vol, files=files, timings=t, mesh_space=p.mesh_space,
+                  lines=lines)
 
 
 def voxelize(
@@ -42,13 +425,14 @@ def voxelize(
     density_dtype="uint8",
     sdf=False,
     band=3.0,
-    progress=None,
-    like=None,
-    mesh_space=None,
+    kernel=None,
+    references="anywhere",
     labels=None,
     overlap="last",
     fractions=False,
-    references="anywhere",
+    like=None,
+    mesh_space=None,
+    progress=None,
 ) -> Volume:
     """Turn a closed triangle mesh into a solid voxel volume.
 
@@ -115,18 +499,14 @@ def voxelize(
         Also fill ``Volume.sdf`` (float32, negative inside).
     band : float
         Half-width in voxels of the exact band of the signed distance.
-    progress : callable, optional
-        Called with the name of each stage as it starts ("load", "rays",
-        "colour", "density", "sdf").
-    like : path, geovox.reference.Reference or (affine, shape), optional
-        Voxelise onto this reference grid (a NIfTI, NRRD or MetaImage scan,
-        a volume geovox wrote, or a 4 x 4 index-to-world affine and a shape),
-        oblique or not, instead of a grid over the mesh; excludes
-        ``resolution``, ``bounds``, ``shape`` and ``voxel_size``. See
-        :mod:`geovox.reference`.
-    mesh_space : {"lps", "ras"}, optional
-        With ``like``: the mesh's frame, overriding its file's 3D Slicer
-        ``SPACE=`` mark (LPS where there is none).
+    kernel : {None, "auto", "compiled", "numpy"}
+        Exact colour's nearest-surface search; None reads ``GEOVOX_KERNEL``
+        (default ``auto``: the compiled kernel where it was built).
+    references : {"anywhere", "folder"}
+        Where the files a model file names (materials, textures, buffers)
+        may be read from: anywhere (``../textures/x.png`` included), or only
+        under the model's own folder, for files you did not make (see
+        :mod:`geovox.references`). URLs are never fetched.
     labels : {None, "part", "component", "material", "file"}
         Also fill ``Volume.labels`` and ``Volume.label_table`` (see
         :mod:`geovox.labels`): the model's own parts (OBJ objects or groups,
@@ -143,11 +523,22 @@ def voxelize(
         column, overlaps settled by ``overlap`` (see
         :func:`geovox.labels.label_fractions`); uint8 0-255, or float32
         with ``density_dtype="float32"``. Not with ``labels="material"``.
-    references : {"anywhere", "folder"}
-        Where the files a model file names (materials, textures, buffers)
-        may be read from: anywhere (``../textures/x.png`` included), or only
-        under the model's own folder, for files you did not make (see
-        :mod:`geovox.references`). URLs are never fetched.
+    like : path, geovox.reference.Reference or (affine, shape), optional
+        Voxelise onto this reference grid (a NIfTI, NRRD or MetaImage scan,
+        a volume geovox wrote, or a 4 x 4 index-to-world affine and a shape),
+        oblique or not, instead of a grid over the mesh; excludes
+        ``resolution``, ``bounds``, ``shape`` and ``voxel_size``. See
+        :mod:`geovox.reference`.
+    mesh_space : {"lps", "ras"}, optional
+        With ``like``: the mesh's frame, overriding its file's 3D Slicer
+        ``SPACE=`` mark (LPS where there is none).
+    progress : callable, optional
+        ``progress(event)`` with a :class:`geovox.volume.Progress` as each
+        stage starts (``event.stage``: "load", "rays", "colour", "density",
+        "sdf").
+
+    Every option is a field of :class:`geovox.Options` (a test checks that
+    this signature matches it).
 
     Returns
     -------
@@ -169,7 +560,7 @@ def voxelize(
         A bad value: ``resolution``, ``shape`` or ``voxel_size`` not
         positive (or more than one given), ``bounds`` with min >= max,
         ``axis``, ``backend``, ``inside``, ``color``, ``density``,
-        ``supersample``, ``density_dtype`` or ``band``.
+        ``supersample``, ``density_dtype``, ``band`` or ``kernel``.
     BackendUnavailableError
         The named backend cannot run here (its package or a driver is
         missing); the message says what to install.
@@ -178,45 +569,15 @@ def voxelize(
         anything is allocated, with the size needed).
     """
     t0 = time.perf_counter()
-    if axis not in (0, 1, 2):
-        raise ParameterError(f"`axis` must be 0, 1 or 2, got {axis!r}")
-    from .parallel import resolve_jobs
-
-    jobs = resolve_jobs(jobs)
-    from . import labels as label_mod
-
-    label_mod.check(labels, overlap, fractions)
-    (progress or (lambda stage: None))("load")
-    engine = get_backend(backend)
-    if isinstance(mesh, (list, tuple)):
-        if labels is None:
-            raise ParameterError("several meshes make one scene only with `labels` (e.g. "
-                                 "labels='file'); convert them one by one otherwise")
-        m = label_mod.scene(mesh, references=references)
-    else:
-        m = load_mesh(mesh, references=references)
+    given = dict(locals())
+    options = Options.from_kwargs(**{k: given[k] for k in Options.names()
+                                     if k in given and not (k == "kernel" and kernel is None)})
+    if progress:
+        progress(Progress("load"))
+    m = load(mesh, options)
     t_load = time.perf_counter()
-    used = None
-    if like is not None:
-        from .reference import prepare
-
-        m, grid, used = prepare(m, like, mesh_space, sdf=sdf, color=color, bounds=bounds,
-                                resolution=resolution, shape=shape, voxel_size=voxel_size,
-                                fit=fit)
-    else:
-        if mesh_space is not None:
-            raise ParameterError("`mesh_space` (--mesh-space) applies only onto a reference grid "
-                                 "(`like`, --like)")
-        grid = make_grid(m.bounds, bounds=bounds, resolution=resolution, shape=shape,
-                         voxel_size=voxel_size, fit="box" if fit is None else fit)
-    lset = None if labels is None else label_mod.label_set(m, labels)
-    vol = voxelize_block(m, grid, engine=engine, inside=inside, axis=axis, jobs=jobs, color=color,
-                         diffuse=diffuse, ambient=ambient, density=density,
-                         supersample=supersample, density_dtype=density_dtype, sdf=sdf,
-                         band=band, progress=progress, labels=lset, overlap=overlap,
-                         fractions=fractions, _stacklevel=3)
+    vol = run(m, plan(m, options), progress=progress).volume
     vol.timings = {"load": t_load - t0, **vol.timings, "total": time.perf_counter() - t0}
-    vol.mesh_space = used
     return vol
 
 
@@ -263,248 +624,220 @@ def ray_start(mesh, grid: Grid, axis: int) -> float:
     return min(float(mesh.bounds[0, axis]), float(grid.lo[axis])) - 1e-3 * mesh.scale
 
 
-def _check_options(density, density_dtype, supersample, sdf, band):
-    """Validated ``(supersample, band)``; ParameterError for a bad option."""
-    if density not in (None, "coverage"):
-        raise ParameterError(f"`density` must be None or 'coverage', got {density!r}")
-    if density_dtype not in ("uint8", "float32"):
-        raise ParameterError(f"`density_dtype` must be 'uint8' or 'float32', got {density_dtype!r}")
-    if density is not None:
-        from .grid import _check_positive_int
-
-        supersample = _check_positive_int("supersample", supersample)
-    if sdf:
-        try:
-            band = float(band)
-        except (TypeError, ValueError):
-            raise ParameterError(f"`band` must be a positive number of voxels, got {band!r}") from None
-        if not band > 0:
-            raise ParameterError(f"`band` must be a positive number of voxels, got {band!r}")
-    return supersample, band
-
-
-def voxelize_block(
-    mesh,
-    grid: Grid,
-    block=None,
-    *,
-    engine="auto",
-    inside="auto",
-    axis=2,
-    jobs=1,
-    color=False,
-    diffuse=True,
-    ambient=False,
-    density=None,
-    supersample=4,
-    density_dtype="uint8",
-    sdf=False,
-    band=3.0,
-    progress=None,
-    labels=None,
-    overlap="last",
-    fractions=False,
-    shared_crossings=None,
-    out=None,
-    colour_out=None,
-    colour_sink=None,
-    _stacklevel=2,
-) -> Volume:
-    """Voxelise one block of a grid -- the whole grid or a slab along z -- with every option.
+def voxelize_block(mesh, plan: Plan, block=None, *, buffers=None) -> Volume:
+    """Voxelise one block of the plan's grid -- the whole grid or a slab along z -- with every option.
 
     The one place the stages (rays, fill, colour, density, distance) are
-    run: :func:`voxelize` calls it once for the whole grid, and slab-by-slab
-    conversions once per slab. A block is classified exactly as the whole
-    grid would be: its rays start outside the whole mesh (see
-    :func:`ray_start`).
+    run: :func:`voxelize` calls it once for the whole grid, slab-by-slab
+    conversions once per slab, cluster tasks once per task. A block is
+    classified exactly as the whole grid would be: its rays start outside
+    the whole mesh (see :func:`ray_start`).
 
     Parameters
     ----------
     mesh : geovox.mesh.Mesh
         The loaded model (anything :func:`geovox.mesh.load_mesh` reads is
         loaded first, once per call).
-    grid : Grid
-        The whole grid.
+    plan : Plan
+        What to make (:func:`plan`): the grid, backend, inside test, colour
+        method, ray axis, threads and every option.
     block : (z0, z1) int, optional
         Voxel layers ``z0 <= k < z1`` to make (see :func:`block_grid`);
         default the whole grid.
-    engine : str or geovox.backends.Backend
-        Ray-casting backend, or its name.
-    inside : {"auto", "parity", "vote", "winding"}
-        Inside test, resolved by :func:`geovox.inside.choose` (a resolved
-        name is kept as it is).
-    axis, jobs, color, diffuse, ambient, density, supersample, density_dtype, sdf, band, progress
-        As for :func:`voxelize` (``jobs`` already resolved: an int >= 1;
-        ``progress`` is not told "load").
-    labels : str or geovox.labels.LabelSet, optional
-        A label source, or the labels :func:`geovox.labels.label_set` made.
-    overlap, fractions
-        As for :func:`voxelize`.
-    shared_crossings : dict, optional
-        ``axis -> f(block_grid) -> (Hits, Columns)``: the colour step's
-        crossings along that axis, cast once for the whole grid by the
-        caller instead of again for every block.
-    out : (nx, ny, nz_block) bool, Fortran order, optional
-        Array the parity fill writes the occupancy into (reused by a caller
-        making many blocks, so its memory is not faulted in afresh each time).
-    colour_out : (nz_block, ny, nx, 4) uint8, C order, optional
-        The same for the colours (``color=True``; see
-        :func:`geovox.colour.colour_volume`).
-    colour_sink : callable, optional
-        With ``color=True``: ``sink(z0, rgba)`` is handed the colours chunk by
-        chunk (layers from the block's first) instead of the volume holding
-        them (``colors`` is then None; see
-        :func:`geovox.colour.colour_volume`).
+    buffers : dict, optional
+        Working arrays and hand-offs of a caller that makes many blocks:
+
+        ``out`` : (nx, ny, nz_block) bool, Fortran order
+            Array the parity fill writes the occupancy into (reused, so its
+            memory is not faulted in afresh for every block).
+        ``colour_out`` : (nz_block, ny, nx, 4) uint8, C order
+            The same for fast colour (see :func:`geovox.colour.colour_volume`).
+        ``colour_sink`` : callable
+            Fast colour: ``sink(z0, rgba)`` is handed the colours chunk by
+            chunk (layers from the block's first) instead of the volume
+            holding them (``colors`` is then None).
+        ``crossings`` : dict
+            ``axis -> f(block_grid) -> (Hits, Columns)``: the colour step's
+            crossings along that axis, cast once for the whole grid by the
+            caller instead of again for every block.
+        ``slices`` : callable
+            The 64-slice occupancy fill (:attr:`Route.FILL`: parity, rays
+            along z, occupancy alone): ``slices(z0, occ)`` is handed each
+            64-layer piece of the occupancy as it is filled, in order, in
+            one of two buffers taken in turn (a piece's buffer is filled
+            again only after the next call returns); ``occupancy`` is then
+            None, and no block-sized array is ever allocated.
+        ``progress`` : callable
+            ``progress(Progress(stage))`` as each stage starts.
 
     Returns
     -------
     Volume
         Over the block's sub-grid: ``occupancy`` (nx, ny, nz_block) bool,
         Fortran order, and ``colors`` / ``density`` / ``sdf`` as asked for.
-        ``timings`` holds "rays", "fill", then "colour",
-        "density", "sdf" as run (seconds); no "total".
+        ``timings`` holds "rays", "fill", then "colour", "density", "sdf" as
+        run (seconds); no "total".
 
     Raises
     ------
     ParameterError
-        A bad option or block.
+        A bad block.
     GridTooLargeError
         The block's arrays would not fit in the available memory.
     """
     t0 = time.perf_counter()
-    if axis not in (0, 1, 2):
-        raise ParameterError(f"`axis` must be 0, 1 or 2, got {axis!r}")
-    if isinstance(engine, str):
-        engine = get_backend(engine)
-    m = load_mesh(mesh)
-    step = progress or (lambda stage: None)
-    whole, grid = grid, block_grid(grid, block)
-    supersample, band = _check_options(density, density_dtype, supersample, sdf, band)
-    from .colour import colour_method
+    buffers = buffers or {}
+    m = load(mesh, plan.options)
+    o = plan.options
+    progress = buffers.get("progress")
 
-    color = colour_method(color)  # None, "exact" (True) or "fast"
-    check_memory(grid, bytes_per_voxel(color, density, sdf))
+    def step(stage):
+        if progress:
+            progress(Progress(stage))
 
-    from . import inside as inside_tests
-
-    from . import labels as label_mod
-
-    lset = label_mod.resolve(m, labels, overlap, fractions)
-    by_parts = lset is not None and lset.source != "material"
-    method = None if by_parts else inside_tests.choose(m, inside)
-
-    def cast_mesh(mesh, ax):
-        columns = grid.columns(ax, start=ray_start(mesh, grid, ax))
-        return engine.cast(mesh, columns, jobs=jobs), columns
-
-    def cast(ax):
-        return cast_mesh(m, ax)
-
-    crossings = {}
+    grid = block_grid(plan.grid, block)
+    if "slices" not in buffers:
+        check_memory(grid, bytes_per_voxel(plan.colour, o.density, o.sdf))
     step("rays")
-    if by_parts:
-        classified = label_mod.classify(m, grid, lset, cast_mesh=cast_mesh, axis=axis, jobs=jobs,
-                                        inside=inside, overlap=overlap)
-        crossings[axis] = classified.crossings
+    crossings = {}
+    classified = None
+    method = plan.inside.value
+    if "slices" in buffers:
+        occ, t_rays = _fill_in_slices(m, plan, grid, buffers["slices"])
+    elif plan.labels is not None and plan.labels.source != "material":
+        from .labels import classify
+
+        # By parts: each part's own inside test, overlaps settled by the rule.
+        classified = classify(m, grid, plan.labels, axis=plan.axis, jobs=plan.jobs,
+                              cast_mesh=lambda mesh, ax: _cast(mesh, plan, grid, ax),
+                              inside=o.inside, overlap=o.overlap)
+        crossings[plan.axis] = classified.crossings
         t_rays = time.perf_counter()
         occ = np.asfortranarray(classified.labels != 0)
         method = "+".join(sorted(set(classified.methods)))
-    elif method == "parity":
-        crossings[axis] = cast(axis)
-        t_rays = time.perf_counter()
-        occ = parity.fill(*crossings[axis], grid, out=out, jobs=jobs)
-    elif method == "vote":
-        votes = None
-        for ax in (axis,) + tuple(a for a in range(3) if a != axis):
-            crossings[ax] = cast(ax)
-            one = parity.fill(*crossings[ax], grid, jobs=jobs).view(np.uint8)
-            votes = one if votes is None else np.add(votes, one, out=votes)
-        t_rays = time.perf_counter()  # the three fills are counted with the rays
-        occ = np.asfortranarray(votes >= 2)
-        del votes
     else:
-        # The winding fill is counted with the rays.
-        occ, hits, columns = inside_tests.winding_occupancy(m, grid, cast_mesh, axis, jobs)
-        crossings[axis] = (hits, columns)
-        t_rays = time.perf_counter()
+        occ, t_rays = _fill(m, plan, grid, crossings, buffers.get("out"))
     t_fill = time.perf_counter()
     # The checks and the inside test's choice count with the rays.
     timings = {"rays": t_rays - t0, "fill": t_fill - t_rays}
-    if not occ.any():
-        warn(empty_reason(m, grid, method), stacklevel=_stacklevel)
-    colors = None
-    if color:
-        from .colour import colour_volume
-
+    colors = dens = dist = None
+    if plan.colour:
         step("colour")
-        for a, crossings_of in (shared_crossings or {}).items():
-            if a not in crossings:
-                crossings[a] = crossings_of(grid)
-        # Exact colour needs no crossings at all.
-        others = [a for a in range(3) if a not in crossings and color != "exact"]
-        if jobs > 1 and len(others) > 1:
-            from concurrent.futures import ThreadPoolExecutor
-
-            with ThreadPoolExecutor(max_workers=2) as pool:
-                for a, result in zip(others, pool.map(cast, others)):
-                    crossings[a] = result
-        else:
-            for a in others:
-                crossings[a] = cast(a)
-        colors = colour_volume(m, grid, occ, crossings, diffuse=diffuse, ambient=ambient,
-                               jobs=jobs, exact=color == "exact",
-                               frame=(whole.lo, whole.spacing, 0 if block is None else block[0]),
-                               out=None if color == "exact" else colour_out,
-                               sink=None if color == "exact" else colour_sink)
+        colors = _colour(m, plan, grid, block, occ, crossings, buffers)
         timings["colour"] = time.perf_counter() - t_fill
-    dens = None
-    if density == "coverage":
-        from .density import coverage, sub_columns
-
+    if o.density == "coverage":
         step("density")
         t = time.perf_counter()
-        target = m
-        if method == "winding":
-            target = inside_tests.capped(inside_tests.target(m)[0])[0]
-        sub = sub_columns(grid.columns(axis, start=ray_start(target, grid, axis)), supersample)
-        sub_hits = engine.cast(target, sub, jobs=jobs)
-        # The occupancy's rule: the winding number's, not parity (inside_tests.crossing_signs).
-        sign = inside_tests.crossing_signs(target, sub_hits, axis) if method == "winding" else None
-        frac = coverage(sub_hits, sub, grid, supersample, jobs, sign=sign)
-        if density_dtype == "uint8":
-            dens = np.asfortranarray(np.rint(frac * np.float32(255.0)).astype(np.uint8))
-        else:
-            dens = frac
+        dens = _density(m, plan, grid, winding=method == "winding")
         timings["density"] = time.perf_counter() - t
-    dist = None
-    if sdf:
+    if o.sdf:
         from .density import signed_distance
 
         step("sdf")
         t = time.perf_counter()
-        dist = signed_distance(m, grid, occ, band=band, jobs=jobs)
+        dist = signed_distance(m, grid, occ, band=float(o.band), jobs=plan.jobs)
         timings["sdf"] = time.perf_counter() - t
-    extra = {}
-    if lset is not None:
-        extra = label_mod.label_results(
-            m, grid, occ, lset, classified if by_parts else None, engine=engine, axis=axis,
-            jobs=jobs, overlap=overlap, fractions=fractions, density_dtype=density_dtype,
-            supersample=supersample if density is not None else
-            _check_options("coverage", density_dtype, supersample, False, band)[0],
-            frame=(whole.lo, whole.spacing, 0 if block is None else block[0]),
-            start=ray_start(m, grid, axis), timings=timings, step=step)
-    return Volume(
-        **extra,
-        occupancy=occ,
-        grid=grid,
-        backend=engine.name,
-        source=m.source,
-        colors=colors,
-        timings=timings,
-        inside=method,
-        density=dens,
-        sdf=dist,
-    )
+    extra = {} if plan.labels is None else _labels(m, plan, grid, block, occ, classified, step,
+                                                   timings)
+    return Volume(occupancy=occ, grid=grid, backend=plan.backend.name, source=m.source,
+                  colors=colors, timings=timings, inside=method, density=dens, sdf=dist, **extra)
+
+
+def _cast(mesh, plan: Plan, grid: Grid, ax: int):
+    """``(Hits, Columns)`` of the block ``grid``'s column rays along ``ax`` through ``mesh``."""
+    columns = grid.columns(ax, start=ray_start(mesh, grid, ax))
+    return plan.backend.cast(mesh, columns, jobs=plan.jobs), columns
+
+
+def _fill(m, plan: Plan, grid: Grid, crossings: dict, out=None):
+    """``(occupancy, time the rays ended)`` by the plan's inside test; fills ``crossings``."""
+    axis, jobs = plan.axis, plan.jobs
+    if plan.inside == Inside.PARITY:
+        crossings[axis] = _cast(m, plan, grid, axis)
+        t_rays = time.perf_counter()
+        return parity.fill(*crossings[axis], grid, out=out, jobs=jobs), t_rays
+    if plan.inside == Inside.VOTE:
+        votes = None
+        for ax in (axis,) + tuple(a for a in range(3) if a != axis):
+            crossings[ax] = _cast(m, plan, grid, ax)
+            one = parity.fill(*crossings[ax], grid, jobs=jobs).view(np.uint8)
+            votes = one if votes is None else np.add(votes, one, out=votes)
+        t_rays = time.perf_counter()  # the three fills are counted with the rays
+        return np.asfortranarray(votes >= 2), t_rays
+    from . import inside as inside_tests
+
+    # The winding fill is counted with the rays.
+    occ, hits, columns = inside_tests.winding_occupancy(
+        m, grid, lambda mesh, ax: _cast(mesh, plan, grid, ax), axis, jobs)
+    crossings[axis] = (hits, columns)
+    return occ, time.perf_counter()
+
+
+def _fill_in_slices(m, plan: Plan, grid: Grid, sink):
+    """The 64-slice occupancy fill: rays along z once, each piece handed to ``sink(z0, occ)``."""
+    hits, columns = _cast(m, plan, grid, 2)
+    t_rays = time.perf_counter()
+    for z0, occ in parity.fill_slabs(hits, columns, grid, thick=64, buffers=2):
+        sink(z0, occ)
+    return None, t_rays
+
+
+def _colour(m, plan: Plan, grid: Grid, block, occ, crossings: dict, buffers: dict):
+    """The block's colours (see :func:`geovox.colour.colour_volume`)."""
+    from .colour import colour_volume
+
+    o = plan.options
+    for a, crossings_of in (buffers.get("crossings") or {}).items():
+        if a not in crossings:
+            crossings[a] = crossings_of(grid)
+    exact = plan.colour == Colour.EXACT
+    # Exact colour needs no crossings at all.
+    others = [a for a in range(3) if a not in crossings and not exact]
+    if plan.jobs > 1 and len(others) > 1:
+        from concurrent.futures import ThreadPoolExecutor
+
+        with ThreadPoolExecutor(max_workers=2) as pool:
+            for a, result in zip(others, pool.map(lambda a: _cast(m, plan, grid, a), others)):
+                crossings[a] = result
+    else:
+        for a in others:
+            crossings[a] = _cast(m, plan, grid, a)
+    return colour_volume(m, grid, occ, crossings, diffuse=o.diffuse, ambient=o.ambient,
+                         jobs=plan.jobs, exact=exact, kernel=o.kernel,
+                         frame=(plan.grid.lo, plan.grid.spacing, 0 if block is None else block[0]),
+                         out=None if exact else buffers.get("colour_out"),
+                         sink=None if exact else buffers.get("colour_sink"))
+
+
+def _labels(m, plan: Plan, grid: Grid, block, occ, classified, step, timings) -> dict:
+    """``labels``, ``label_table``, ``contested`` and ``fractions`` of the block (geovox.labels)."""
+    from .labels import label_results
+
+    o = plan.options
+    return label_results(
+        m, grid, occ, plan.labels, classified, engine=plan.backend, axis=plan.axis,
+        jobs=plan.jobs, overlap=o.overlap, fractions=o.fractions, density_dtype=o.density_dtype,
+        supersample=int(o.supersample),
+        frame=(plan.grid.lo, plan.grid.spacing, 0 if block is None else block[0]),
+        start=ray_start(m, grid, plan.axis), timings=timings, step=step)
+
+
+def _density(m, plan: Plan, grid: Grid, winding: bool):
+    """Coverage density of the block (see :mod:`geovox.density`)."""
+    from . import inside as inside_tests
+    from .density import coverage, sub_columns
+
+    o, axis = plan.options, plan.axis
+    target = inside_tests.capped(inside_tests.target(m)[0])[0] if winding else m
+    k = int(o.supersample)
+    sub = sub_columns(grid.columns(axis, start=ray_start(target, grid, axis)), k)
+    sub_hits = plan.backend.cast(target, sub, jobs=plan.jobs)
+    # The occupancy's rule: the winding number's, not parity (inside_tests.crossing_signs).
+    sign = inside_tests.crossing_signs(target, sub_hits, axis) if winding else None
+    frac = coverage(sub_hits, sub, grid, k, plan.jobs, sign=sign)
+    if o.density_dtype == "uint8":
+        return np.asfortranarray(np.rint(frac * np.float32(255.0)).astype(np.uint8))
+    return frac
 
 
 def empty_reason(m, grid: Grid, method: str) -> str:

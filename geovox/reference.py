@@ -561,29 +561,6 @@ def prepare(mesh, like, mesh_space=None, *, sdf=False, color=None, **grid_option
     return moved, ref.local_grid(), used
 
 
-def grid_for(mesh, options: dict) -> tuple:
-    """``(mesh, Grid, mesh space or None)`` for a conversion's options, popping the grid's from ``options``.
-
-    ``bounds``, ``resolution``, ``shape``, ``voxel_size``, ``fit``, ``like`` and
-    ``mesh_space`` are removed from ``options``; with ``like`` the mesh comes
-    back moved into the reference's local frame (:func:`prepare`), else the
-    grid is :func:`geovox.grid.make_grid`'s over the mesh.
-    """
-    from .grid import fit_for, make_grid
-
-    grid_options = {k: options.pop(k, None)
-                    for k in ("bounds", "resolution", "shape", "voxel_size", "fit")}
-    like, mesh_space = options.pop("like", None), options.pop("mesh_space", None)
-    if like is not None:
-        return prepare(mesh, like, mesh_space, sdf=options.get("sdf"), color=options.get("color"),
-                       **grid_options)
-    if mesh_space is not None:
-        raise ParameterError("`mesh_space` (--mesh-space) applies only onto a reference grid "
-                             "(`like`, --like)")
-    grid_options["fit"] = fit_for(grid_options["fit"])
-    return mesh, make_grid(mesh.bounds, **grid_options), None
-
-
 def field_of_view(mesh, ref: Reference, mesh_space=None) -> dict:
     """How much of ``mesh`` lies in ``ref``'s field of view (the voxels' extent).
 

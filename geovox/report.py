@@ -6,7 +6,6 @@ import os
 
 import numpy as np
 
-from .grid import make_grid
 from .inside import boundary_edges, consistent, edge_counts, overlapping_pieces, target
 from .mesh import Mesh
 
@@ -85,9 +84,19 @@ def mesh_report(mesh: Mesh) -> dict:
     }
 
 
-def grid_cost(mesh: Mesh, **grid_options) -> dict:
-    """Grid shape and the memory a conversion needs, without allocating it."""
-    grid = make_grid(mesh.bounds, **grid_options)
+def grid_cost(mesh: Mesh, options=None, **grid_options) -> dict:
+    """Grid shape and the memory a conversion needs, without allocating it.
+
+    Parameters
+    ----------
+    mesh : Mesh
+    options : geovox.Options, optional
+        The grid's options (or give them as keywords: ``resolution=256``).
+    """
+    from .options import Options
+    from .pipeline import grid_of
+
+    grid = grid_of(mesh, options if options is not None else Options(**grid_options))
     n = grid.size
     return {"shape": list(grid.shape), "spacing": grid.spacing.tolist(), "voxels": n,
             "occupancy_bytes": n, "with_colour_bytes": n * 21}

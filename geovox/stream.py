@@ -40,17 +40,20 @@ from .errors import ParameterError, collect_warnings, warn
 from .grid import Grid
 from . import memory
 from .memory import bytes_per_voxel
-from .mesh import load_mesh
-from .pipeline import empty_reason, ray_start, voxelize_block
+from .options import Colour, Inside, Options
+from .pipeline import Plan, Route, _overlaps, empty_reason, load, plan, ray_start, voxelize_block
+from .volume import Progress, Report, Volume
 
 #: Memory a slab's arrays may take, by default: 2048³ occupancy goes in
 #: 256-voxel slabs and stays under 3 GiB; occupancy up to 1024³ is one slab.
 SLAB_BUDGET = 1 << 30
-STREAMABLE = ("hdf5", "raw", "vtkhdf", "zarr")
 #: Thickest slab of a local .zarr conversion: at 1024³ four 256-layer slabs
 #: took 5.2-6.8 s where one piece took 8.4 s (its 1 GiB array is touched
 #: fresh), and 256 layers still write pyramid levels 0-2 in the slab.
 LOCAL_ZARR_SLAB = 256
+#: Voxels from which a one-piece occupancy is filled and written 64 slices at a
+#: time anyway (512³; see :func:`streams_whole`).
+WHOLE_STREAM_VOXELS = 1 << 27
 #: Memory one slab task may take on a cluster worker (its occupancy and working arrays).
 WORKER_SLAB_BUDGET = 1 << 30
 
@@ -69,20 +72,29 @@ def slab_budget() -> float:
     return SLAB_BUDGET if avail is None else min(SLAB_BUDGET, 0.5 * avail)
 
 
-def streams(grid: Grid, fmt: str, color=False, density=None, sdf=False) -> bool:
+def streams(grid: Grid, fmt, color=False, density=None, sdf=False) -> bool:
     """Whether a conversion into format ``fmt`` runs slab by slab (:func:`convert_to`).
 
-    The one rule for the command line and batches: a streamable format, and
-    a grid that needs several slabs within :func:`slab_budget`, or whose
-    occupancy is worth streaming in one piece (:func:`streams_whole`).
-    Either way the file is the same as one written from memory.
+    The one rule for the command line and batches (:func:`geovox.plan` with
+    ``stream=None`` applies it): a format with a slab writer, and a grid
+    that needs several slabs within :func:`slab_budget`, or whose occupancy
+    is worth streaming in one piece (:func:`streams_whole`). Either way the
+    file is the same as one written from memory.
+
+    Parameters
+    ----------
+    fmt : geovox.formats.Format or str
+        The format, or its name.
     """
-    if fmt not in STREAMABLE:
+    from .formats import format_for
+
+    f = format_for("", fmt) if isinstance(fmt, str) else fmt
+    if f.slab_writer is None:
         return False
-    if fmt == "zarr":
+    if f.name == "zarr":
         return True  # always slab by slab: each slab writes its own shards
-    plan = slab_plan(grid, bytes_per_voxel(color, density, sdf), slab_budget())
-    return len(plan) > 1 or streams_whole(grid, color, density, sdf)
+    blocks = slab_plan(grid, bytes_per_voxel(color, density, sdf), slab_budget())
+    return len(blocks) > 1 or streams_whole(grid, color, density, sdf)
 
 
 def streams_whole(grid: Grid, color=False, density=None, sdf=False) -> bool:
@@ -93,7 +105,8 @@ def streams_whole(grid: Grid, color=False, density=None, sdf=False) -> bool:
     array, which on a 1024³ grid costs 0.2-2.5 s by itself, depending on
     the machine's memory state.
     """
-    return not (color or density or sdf) and grid.size >= 1 << 27 and grid.shape[2] > 64
+    return (not (color or density or sdf) and grid.size >= WHOLE_STREAM_VOXELS
+            and grid.shape[2] > 64)
 
 
 def cluster_thick(grid: Grid, per_voxel: float, budget: float = WORKER_SLAB_BUDGET) -> int:
@@ -151,13 +164,11 @@ def _release_slab_buffers() -> None:
     _SLAB_BUFFERS.clear()
 
 
-def _zarr_slab(m, grid, block, layout, options, z_part=None, z_start=None):
-    """One cluster task: voxelise slab ``block`` and write it into its own shards.
+def _zarr_slab(m, p: Plan, block, layout, z_part=None, z_start=None):
+    """One cluster task: voxelise slab ``block`` of plan ``p`` and write it into its own shards.
 
     Returns ``(inside count, timings)``.
     """
-    import os
-
     from .errors import OutputError
     from .formats.zarr import write_slab
 
@@ -165,13 +176,12 @@ def _zarr_slab(m, grid, block, layout, options, z_part=None, z_start=None):
         # Shards written here would never reach the output.
         raise OutputError(f"a worker cannot see the output folder {layout.root}: put the .zarr on "
                           f"a file system that the client and every worker share")
-    shared = None
+    buffers = {}
     if z_part is not None:
-        shared = {2: lambda g: (z_part, g.columns(2, start=z_start))}
+        buffers["crossings"] = {2: lambda g: (z_part, g.columns(2, start=z_start))}
     t = time.perf_counter()
-    shape = (grid.shape[0], grid.shape[1], block[1] - block[0])
-    out = None
-    if options.get("inside") == "parity":
+    shape = (p.grid.shape[0], p.grid.shape[1], block[1] - block[0])
+    if p.inside == Inside.PARITY:
         # One occupancy buffer per worker thread, reused by its slabs:
         # faulting 1 GiB in afresh for every slab cost more system time
         # than the fill itself.
@@ -180,8 +190,9 @@ def _zarr_slab(m, grid, block, layout, options, z_part=None, z_start=None):
         if out is None or out.shape != shape:
             _SLAB_BUFFERS.pop(me, None)
             out = _SLAB_BUFFERS[me] = np.empty(shape, dtype=bool, order="F")
+        buffers["out"] = out
     with collect_warnings(drop=True):  # said once, on the client
-        vol = voxelize_block(m, grid, block, jobs=1, shared_crossings=shared, out=out, **options)
+        vol = voxelize_block(m, p, block, buffers=buffers)
     tb = time.perf_counter()
     write_slab(layout, block[0], vol, 1)
     timings = {k: v for k, v in vol.timings.items() if k != "total"}
@@ -190,26 +201,27 @@ def _zarr_slab(m, grid, block, layout, options, z_part=None, z_start=None):
     return vol.inside_count, timings
 
 
-def _run_on_cluster(client, m, grid, plan, layout, options, reuse_z, progress, timings) -> int:
+def _run_on_cluster(client, m, p: Plan, layout, reuse_z, progress, timings) -> int:
     """Submit one :func:`_zarr_slab` task per slab; their inside counts summed, timings added up."""
     from dask.distributed import as_completed
 
-    if options.get("color"):
+    if p.colour:
         from .colour import load_textures
 
         # Read here, once: the tasks of one worker share its copy of the
         # mesh, and reading textures in each would race on it.
         load_textures(m)
     mesh = client.scatter(m, broadcast=True, hash=False)
+    task = p.for_task()
     futures = []
-    for z0, z1 in plan:
+    for z0, z1 in p.blocks:
         extra = {}
         if reuse_z is not None:
             z_hits, z_start = reuse_z
-            extra = {"z_part": z_crossings_of_slab(z_hits, grid, (z0, z1), z_start),
+            extra = {"z_part": z_crossings_of_slab(z_hits, p.grid, (z0, z1), z_start),
                      "z_start": z_start}
-        futures.append(client.submit(_zarr_slab, mesh, grid, (z0, z1), layout, options,
-                                     pure=False, **extra))
+        futures.append(client.submit(_zarr_slab, mesh, task, (z0, z1), layout, pure=False,
+                                     **extra))
     inside = 0
     try:
         for n, future in enumerate(as_completed(futures)):
@@ -218,7 +230,7 @@ def _run_on_cluster(client, m, grid, plan, layout, options, reuse_z, progress, t
             for key, value in t.items():
                 timings[key] = timings.get(key, 0.0) + value
             if progress:
-                progress(n + 1, len(plan))
+                progress(Progress("slab", n + 1, len(p.blocks)))
     except BaseException:
         client.cancel(futures)
         raise
@@ -232,47 +244,46 @@ def _run_on_cluster(client, m, grid, plan, layout, options, reuse_z, progress, t
     return inside
 
 
-def _stream_occupancy(m, grid, engine, writer, jobs, timings, progress) -> int:
-    """Occupancy of the whole grid by rays along z, filled and written slab by slab."""
-    from . import parity
-    from .volume import Volume
+def _run_fill(m, p: Plan, writer, timings, progress) -> int:
+    """The 64-slice occupancy fill (:attr:`Route.FILL`): each piece written as the next is filled.
 
-    t = time.perf_counter()
-    columns = grid.columns(2, start=ray_start(m, grid, 2))
-    hits = engine.cast(m, columns, jobs=jobs)
-    timings["rays"] += time.perf_counter() - t
-    inside = 0
-    nx, ny, nz = grid.shape
-    n_slabs = -(-nz // 64)
-    # Two buffers: a slab is written (compressed, on the pool's threads)
-    # while the next one is filled; one write in flight at a time, so a
-    # buffer is refilled only after its slab has been written.
-    slabs = parity.fill_slabs(hits, columns, grid, thick=64, buffers=2)
+    Two buffers: a piece is written (compressed, on the pool's thread) while
+    the next one is filled; one write in flight at a time, so a buffer is
+    refilled only after its piece has been written (see
+    :func:`geovox.pipeline.voxelize_block`'s ``slices``).
+    """
     from concurrent.futures import ThreadPoolExecutor
+
+    grid = p.grid
+    n_slabs = -(-grid.shape[2] // 64)
+    state = {"inside": 0, "n": 0, "pending": None, "wait": 0.0}
 
     def write(z0, occ):
         t = time.perf_counter()
         # Only the slab's shape and arrays are read by the writers.
         writer.write(z0, Volume(occupancy=occ, grid=Grid(grid.lo, grid.hi, occ.shape),
-                                backend=engine.name))
+                                backend=p.backend.name))
         return time.perf_counter() - t
 
-    pending = None
     with ThreadPoolExecutor(max_workers=1) as pool:
-        try:
-            for n in range(n_slabs):
+
+        def piece(z0, occ):
+            state["inside"] += int(np.count_nonzero(occ))
+            if state["pending"] is not None:
                 t = time.perf_counter()
-                z0, occ = next(slabs)
-                inside += int(np.count_nonzero(occ))
-                timings["fill"] += time.perf_counter() - t
-                if pending is not None:
-                    # "write": time spent writing, partly overlapping "fill".
-                    timings["write"] += pending.result()
-                    if progress:
-                        progress(n, n_slabs)
-                pending = pool.submit(write, z0, occ)
-            timings["write"] += pending.result()
+                # "write": time spent writing, partly overlapping "fill".
+                timings["write"] += state["pending"].result()
+                state["wait"] += time.perf_counter() - t
+                if progress:
+                    progress(Progress("slab", state["n"], n_slabs))
+            state["pending"] = pool.submit(write, z0, occ)
+            state["n"] += 1
+
+        try:
+            vol = voxelize_block(m, p, buffers={"slices": piece})
+            timings["write"] += state["pending"].result()
         except BaseException:
+            pending = state["pending"]
             if pending is not None:
                 pending.cancel()
                 try:
@@ -280,31 +291,181 @@ def _stream_occupancy(m, grid, engine, writer, jobs, timings, progress) -> int:
                 except BaseException:
                     pass
             raise
+    timings["rays"] += vol.timings["rays"]
+    timings["fill"] += vol.timings["fill"] - state["wait"]
     if progress:
-        progress(n_slabs, n_slabs)
+        progress(Progress("slab", n_slabs, n_slabs))
+    return state["inside"]
+
+
+def _slab_buffers(p: Plan, overlap: bool, to_file: bool) -> dict:
+    """One occupancy (two where writes overlap) and one colour array, reused by every slab.
+
+    Faulting a slab's worth of fresh memory in for each one cost more system
+    time than filling it (the writers are done with a slab when write returns).
+    """
+    if len(p.blocks) < 2 or p.format.name == "zarr":
+        return {}
+    nx, ny, _ = p.grid.shape
+    out = {"out": np.empty((nx, ny, p.thick), dtype=bool, order="F")}
+    if overlap:
+        out["out2"] = np.empty((nx, ny, p.thick), dtype=bool, order="F")
+    if p.colour == Colour.FAST and not to_file:
+        out["colour_out"] = np.empty((p.thick, ny, nx, 4), dtype=np.uint8)
+    return out
+
+
+def _run_blocks(m, p: Plan, writer, reuse, timings, progress) -> int:
+    """The slab route here: each block voxelised, then written into its place."""
+    # RAW colours go into their file chunk by chunk as they are made (from
+    # the colour step's threads): no slab of colours is held or copied.
+    # Not where the OS has no positional write (os.pwrite: Windows).
+    several = len(p.blocks) > 1
+    to_file = (p.format.name == "raw" and p.colour == Colour.FAST and several
+               and hasattr(os, "pwrite"))
+    # Exact colour: a slab is written on a thread while the next one is
+    # computed (the kernel runs without the GIL), as the fast colour's
+    # chunks are; two occupancy buffers take turns, and a slab's write
+    # is finished before its buffer is filled again.
+    overlap = several and p.format.name != "zarr" and p.colour == Colour.EXACT
+    arrays = _slab_buffers(p, overlap, to_file)
+    pool = pending = None
+    inside = 0
+    try:
+        for n, (z0, z1) in enumerate(p.blocks):
+            turn = "out2" if overlap and n % 2 else "out"
+            buffers = {"out": arrays[turn][:, :, :z1 - z0]} if arrays else {}
+            if "colour_out" in arrays:
+                buffers["colour_out"] = arrays["colour_out"][:z1 - z0]
+            if to_file:
+                buffers["colour_sink"] = lambda z, rgba, z0=z0: writer.write_colours(z0 + z, rgba)
+            if reuse:
+                buffers["crossings"] = reuse
+            with collect_warnings(drop=True):  # said once, by run_slabs
+                # Several slabs: rays along y, so a slab's columns are its own
+                # (x, z) pairs and no ray is cast twice. One piece: voxelize's
+                # default axis, so the file equals the in-memory volume.
+                vol = voxelize_block(m, p, (z0, z1), buffers=buffers)
+            tb = time.perf_counter()
+            if overlap:
+                if pending is not None:
+                    pending.result()  # the slab before: done (and its error raised)
+                if pool is None:
+                    from concurrent.futures import ThreadPoolExecutor
+
+                    pool = ThreadPoolExecutor(1)
+                pending = pool.submit(writer.write, z0, vol)
+            else:
+                writer.write(z0, vol)
+            for key, value in vol.timings.items():
+                timings[key] = timings.get(key, 0.0) + value
+            timings["write"] += time.perf_counter() - tb
+            inside += vol.inside_count
+            del vol
+            if progress:
+                progress(Progress("slab", n + 1, len(p.blocks)))
+        if pending is not None:
+            tb = time.perf_counter()
+            pending.result()
+            timings["write"] += time.perf_counter() - tb
+    finally:
+        if pool is not None:
+            pool.shutdown(wait=True)  # no write may still run into the files abort removes
     return inside
 
 
-def _labelled_to(mesh, path, f, jobs, t0, options) -> dict:
-    """:func:`convert_to` with labels: made in memory (labels do not stream yet) and written."""
-    from . import formats
-    from .pipeline import voxelize
+def _z_once(m, p: Plan, timings):
+    """Fast colour over several slabs: the rays along z, cast once for the whole grid.
 
-    formats.check_labels(True, f)
-    formats.check_writable(path)
-    vol = voxelize(mesh, jobs=jobs, **options)
-    files = formats.write(vol, path, fmt=f.name)
-    timings = dict(vol.timings, total=time.perf_counter() - t0)
-    return {"shape": vol.shape, "spacing": vol.spacing, "bounds": vol.bounds,
-            "inside": vol.inside_count, "inside_test": vol.inside, "backend": vol.backend,
-            "slabs": 1, "files": files, "timings": timings, "filled_in_slabs": False,
-            "grid": vol.grid, "source": vol.source, "labels": len(vol.label_table) - 1,
-            "contested": vol.contested}
+    Those rays run through every slab, so each slab takes them with depths
+    measured from its own low face (its rays along x and y are its own).
+    Returns ``({2: f(block_grid) -> (Hits, Columns)}, (z_hits, z_start))``.
+    """
+    from .backends.base import Hits
+
+    grid = p.grid
+    tz = time.perf_counter()
+    z_start = ray_start(m, grid, 2)
+    # Sorted once here, so each slab only picks its part.
+    z_hits = p.backend.cast(m, grid.columns(2, start=z_start), jobs=p.jobs).sorted()
+    timings["colour"] = time.perf_counter() - tz
+
+    def along_z(g):
+        cols = g.columns(2, start=z_start)
+        shift = cols.w0 - float(grid.lo[2])
+        # A constant shift keeps the order.
+        return Hits(z_hits.ray, z_hits.depth - shift, z_hits.triangle, z_hits.bary,
+                    ordered=True), cols
+
+    return {2: along_z}, (z_hits, z_start)
+
+
+def _meta(m, p: Plan) -> Volume:
+    """The whole grid's facts for headers and attributes.
+
+    The arrays stand only for presence and dtype (the data comes slab by slab).
+    """
+    o = p.options
+    return Volume(occupancy=None, grid=p.grid, backend=p.backend.name, source=m.source,
+                  colors=np.zeros(0, np.uint8) if p.colour else None,
+                  density=np.zeros(0, o.density_dtype) if o.density else None,
+                  sdf=np.zeros(0, np.float32) if o.sdf else None)
+
+
+def run_slabs(m, p: Plan, *, progress=None, client=None) -> Report:
+    """Run a streamed plan (slabs, the 64-slice fill or cluster tasks) into its file.
+
+    Parameters
+    ----------
+    m : geovox.mesh.Mesh
+        The loaded mesh the plan was made for.
+    p : Plan
+        Its route one of :attr:`Route.SLABS`, :attr:`Route.FILL`, :attr:`Route.CLUSTER`.
+    progress : callable, optional
+        ``progress(Progress("slab", done, total))`` after each slab.
+    client : dask.distributed.Client, optional
+        For :attr:`Route.CLUSTER`.
+
+    Returns
+    -------
+    Report
+        Without a volume; nothing is left behind on failure.
+    """
+    t0 = time.perf_counter()
+    grid = p.grid
+    # Said once here; the slabs are silenced.
+    if p.colour:
+        for problem in m.problems:
+            warn(problem, stacklevel=3)
+    if not _overlaps(m.bounds, grid):
+        warn("the region misses the mesh; the volume is empty", stacklevel=3)
+    writer = p.writer(_meta(m, p), client=client)
+    timings = {"load": 0.0, "rays": 0.0, "fill": 0.0, "write": 0.0}
+    try:
+        reuse, reuse_z = _z_once(m, p, timings) if p.reuse_z else (None, None)
+        if p.route == Route.CLUSTER:
+            inside = _run_on_cluster(client, m, p, writer.layout, reuse_z, progress, timings)
+        elif p.route == Route.FILL:
+            inside = _run_fill(m, p, writer, timings, progress)
+        else:
+            inside = _run_blocks(m, p, writer, reuse, timings, progress)
+        files = writer.close()
+        if inside == 0 and _overlaps(m.bounds, grid):
+            warn(empty_reason(m, grid, p.inside), stacklevel=3)
+    except BaseException:
+        writer.abort()
+        raise
+    timings["total"] = time.perf_counter() - t0
+    return Report(source=m.source, grid=grid, backend=p.backend.name, inside_test=str(p.inside),
+                  inside=inside, route=str(p.route), slabs=len(p.blocks), files=files,
+                  timings=timings, mesh_space=p.mesh_space)
 
 
 def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, client=None,
                slab=None, **options):
-    """Voxelise ``mesh`` into ``path`` slab by slab (HDF5, RAW or OME-Zarr).
+    """Voxelise ``mesh`` into ``path`` slab by slab (HDF5, VTK-HDF, RAW or OME-Zarr).
+
+    A plan (:func:`geovox.plan` with ``stream=True``) and its run.
 
     Parameters
     ----------
@@ -319,9 +480,9 @@ def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, c
     budget : float, optional
         Bytes one slab's arrays may take (default ``SLAB_BUDGET``).
     jobs : int, optional
-        Threads (default: one per core); the file is the same for any value.
+        Threads (default: one per core); the files do not depend on it.
     progress : callable, optional
-        Called with ``(slabs_done, n_slabs)`` after each slab.
+        ``progress(Progress("slab", done, total))`` after each slab.
     client : dask.distributed.Client, optional
         ``.zarr`` only: voxelise and write each slab as a task on the
         cluster's workers (which must reach ``path``, e.g. a shared file
@@ -330,30 +491,28 @@ def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, c
         ``.zarr`` only: slab thickness in voxels, a multiple of 64 (default:
         from ``budget`` here, :func:`cluster_thick` on a cluster).
     **options
-        As for :func:`geovox.voxelize` (resolution, shape, voxel_size, fit,
-        bounds, backend, inside, color, diffuse, ambient, density,
-        supersample, density_dtype, sdf, band, labels, overlap, fractions,
-        references).
-        With ``labels`` the volume is made in memory (labels do not stream
-        yet) and written to any format that holds labels; the result also
-        gives ``labels`` (how many) and ``contested``.
+        Any field of :class:`geovox.Options` (resolution, shape, voxel_size,
+        fit, bounds, backend, inside, color, diffuse, ambient, density,
+        supersample, density_dtype, sdf, band, kernel, references); a misspelt one is a
+        ParameterError naming the closest.
 
     Returns
     -------
-    dict with ``shape``, ``spacing``, ``bounds``, ``inside`` (count),
-    ``inside_test``, ``backend``, ``slabs``, ``files`` and ``timings``;
-    ``filled_in_slabs`` is True where a one-piece occupancy was filled and
-    written 64 slices at a time (see :func:`geovox.parity.fill_slabs`).
-    ``shape`` is a tuple of 3 int, ``spacing`` of 3 float, ``bounds`` two
-    tuples of 3 float (low and high corners), ``files`` a list of str and
-    ``timings`` seconds per stage.
+    Report
+        Also read as the dict this returned before: ``shape``, ``spacing``,
+        ``bounds``, ``inside`` (count), ``inside_test``, ``backend``,
+        ``slabs``, ``files``, ``timings``, ``filled_in_slabs`` (True where a
+        one-piece occupancy was filled and written 64 slices at a time, see
+        :func:`geovox.parity.fill_slabs`), ``grid``, ``source``, ``mesh_space``;
+        with labels (made in memory: labels do not stream yet) also ``labels``
+        (how many) and ``contested``.
 
     Raises
     ------
     ParameterError
         A format that cannot be written slab by slab, ``client`` or ``slab``
         without ``.zarr``, a ``slab`` that is not a multiple of 64, or a bad
-        option as for :func:`geovox.voxelize`.
+        option as for :func:`geovox.voxelize` (a misspelt one names the closest).
     InputNotFoundError, MeshError, BackendUnavailableError
         As for :func:`geovox.voxelize`.
     OutputError
@@ -364,206 +523,27 @@ def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, c
         Even one slab would not fit in the available memory.
     """
     from . import formats
-    from . import inside as inside_tests
-    from .backends import get_backend
-    from .parallel import resolve_jobs
-    from .volume import Volume
 
     t0 = time.perf_counter()
     f = formats.format_for(path, fmt)
-    if options.get("labels") is not None or options.get("fractions"):
-        return _labelled_to(mesh, path, f, jobs, t0, options)
-    if f.name not in STREAMABLE:
+    labelled = options.get("labels") is not None or options.get("fractions")
+    if labelled:
+        # Labels do not stream yet: made in memory (the plan's memory route) and written.
+        formats.check_labels(True, f)
+    elif f.slab_writer is None:
         raise ParameterError(f"slab-by-slab output needs .h5, .vtkhdf/.hdf, .raw or .zarr, "
                              f"not {f.name}")
     if f.name != "zarr" and (client is not None or slab is not None):
         raise ParameterError(f"`client` and `slab` are for .zarr output, not {f.name}")
+    o = Options.from_kwargs(jobs=jobs, **options)
     formats.check_writable(path)
-    jobs = resolve_jobs(jobs)
-    m = load_mesh(mesh, references=options.pop("references", "anywhere"))
-    engine = get_backend(options.pop("backend", "auto"))
+    m = load(mesh, o)
     t_load = time.perf_counter()
-    from .reference import grid_for
+    p = plan(m, o, path, fmt=fmt, stream=not labelled, cluster=client is not None,
+             budget=budget, slab=slab)
+    from .pipeline import run
 
-    m, grid, used = grid_for(m, options)  # pops the grid options (and like, mesh_space)
-    method = inside_tests.choose(m, options.pop("inside", "auto"))
-    # Said once here; the slabs below are silenced.
-    if options.get("color"):
-        for problem in m.problems:
-            warn(problem, stacklevel=2)
-    if not (np.all(m.bounds[0] <= grid.hi) and np.all(m.bounds[1] >= grid.lo)):
-        warn(empty_reason(m, grid, method) if grid.reference is not None else
-             "the region misses the mesh; the volume is empty", stacklevel=2)
-    per = bytes_per_voxel(options.get("color"), options.get("density"), options.get("sdf"))
-    per += inside_tests.working_bytes(m, method)
-    if budget is None:
-        budget = slab_budget()
-    plan = slab_plan(grid, per, budget)
-    if f.name == "zarr":
-        from .formats.zarr import check_thick
-
-        if slab is None:
-            # Here: the budget's slabs in whole chunks, at most LOCAL_ZARR_SLAB;
-            # on a cluster: cluster_thick.
-            slab = cluster_thick(grid, per) if client is not None else \
-                min(LOCAL_ZARR_SLAB, -(-(plan[0][1] - plan[0][0]) // 64) * 64)
-        thick = check_thick(slab)
-        plan = [(z, min(z + thick, grid.shape[2])) for z in range(0, grid.shape[2], thick)]
-    try:
-        z0, z1 = plan[0]
-        memory.check_memory(Grid(grid.lo, grid.hi, (grid.shape[0], grid.shape[1], z1 - z0)), per)
-    except MemoryError:
-        nx, ny, nz = grid.shape
-        from .errors import GridTooLargeError
-
-        raise GridTooLargeError(
-            f"a {nx} x {ny} x {nz} grid does not fit in memory even slab by slab "
-            f"({z1 - z0}-voxel slabs need {nx * ny * (z1 - z0) * per / 2**30:.1f} GiB); "
-            f"use a smaller resolution") from None
-    dens_dtype = options.get("density_dtype", "uint8")
-    # The whole grid's facts for headers and attributes; the arrays stand
-    # only for presence and dtype (the data comes slab by slab).
-    meta = Volume(occupancy=None, grid=grid, backend=engine.name, source=m.source,
-                  colors=np.zeros(0, np.uint8) if options.get("color") else None,
-                  density=np.zeros(0, dens_dtype) if options.get("density") else None,
-                  sdf=np.zeros(0, np.float32) if options.get("sdf") else None)
-    from .formats.hdf5 import HDF5Writer
-    from .formats.raw import RawWriter
-
-    from .formats.vtkhdf import VTKHDFWriter
-
-    if f.name == "zarr":
-        from .formats.zarr import ZarrWriter
-
-        writer = ZarrWriter(path, meta, thick, jobs)
-    else:
-        writer = {"hdf5": HDF5Writer, "raw": RawWriter, "vtkhdf": VTKHDFWriter}[f.name](path, meta,
-                                                                                      jobs)
-    inside = 0
-    timings = {"load": 0.0, "rays": 0.0, "fill": 0.0, "write": 0.0}
-    h = grid.spacing
-    reuse = None
-    pool = pending = None  # exact colour's slab writes on a thread (see below)
-    try:
-        from .colour import colour_method
-
-        if (colour_method(options.get("color")) == "fast" and len(plan) > 1
-                and method != "vote"):  # vote casts z itself; exact colour needs no rays
-            # Colour wants the crossings along z as well; those rays run
-            # through every slab, so they are cast once, for the whole grid,
-            # and each slab takes them with depths measured from its own
-            # low face (the slab's rays along x and y are its own).
-            tz = time.perf_counter()
-            z_start = ray_start(m, grid, 2)
-            # Sorted once here, so each slab only picks its part.
-            z_hits = engine.cast(m, grid.columns(2, start=z_start), jobs=jobs).sorted()
-            timings["colour"] = time.perf_counter() - tz
-
-            from .backends.base import Hits
-
-            def along_z(g):
-                cols = g.columns(2, start=z_start)
-                shift = cols.w0 - float(grid.lo[2])
-                # A constant shift keeps the order.
-                return Hits(z_hits.ray, z_hits.depth - shift, z_hits.triangle, z_hits.bary,
-                            ordered=True), cols
-
-            reuse = {2: along_z}
-        axis = 1 if len(plan) > 1 else 2
-        if client is not None:
-            # The same blocks as below, as tasks; z crossings for colour as above.
-            block_options = dict(options, engine=engine.name, inside=method, axis=axis)
-            inside = _run_on_cluster(client, m, grid, plan, writer.layout, block_options,
-                                     (z_hits, z_start) if reuse else None, progress, timings)
-            plan_left, streamed = [], False
-        elif f.name != "zarr" and len(plan) == 1 and method == "parity" and not any(
-                options.get(k) for k in ("color", "density", "sdf")):
-            # Occupancy alone, one piece: the rays along z are cast once for
-            # the whole grid (as voxelize casts them, so the file is the same)
-            # and the fill runs 64 slices at a time in one reused buffer,
-            # each slab written before the next is made (see
-            # parity.fill_slabs): no grid-sized array is ever allocated.
-            inside = _stream_occupancy(m, grid, engine, writer, jobs, timings, progress)
-            plan_left, streamed = [], True
-        else:
-            plan_left, streamed = plan, False
-        # RAW colours go into their file chunk by chunk as they are made (from
-        # the colour step's threads): no slab of colours is held or copied.
-        # Not where the OS has no positional write (os.pwrite: Windows).
-        to_file = (f.name == "raw" and colour_method(options.get("color")) == "fast"
-                   and len(plan_left) > 1 and hasattr(os, "pwrite"))
-        buffers = {}
-        # Exact colour: a slab is written on a thread while the next one is
-        # computed (the kernel runs without the GIL), as the fast colour's
-        # chunks are; two occupancy buffers take turns, and a slab's write
-        # is finished before its buffer is filled again.
-        overlap = (len(plan_left) > 1 and f.name != "zarr"
-                   and colour_method(options.get("color")) == "exact")
-        if len(plan_left) > 1 and f.name != "zarr":
-            # One occupancy and one colour array, reused by every slab:
-            # faulting a slab's worth of fresh memory in for each one cost
-            # more system time than filling it (the writers are done with
-            # a slab when write returns).
-            nx, ny, _ = grid.shape
-            thick = plan_left[0][1] - plan_left[0][0]
-            buffers["out"] = np.empty((nx, ny, thick), dtype=bool, order="F")
-            if overlap:
-                buffers["out2"] = np.empty((nx, ny, thick), dtype=bool, order="F")
-            if colour_method(options.get("color")) == "fast" and not to_file:
-                buffers["colour_out"] = np.empty((thick, ny, nx, 4), dtype=np.uint8)
-        for n, (z0, z1) in enumerate(plan_left):
-            turn = "out2" if overlap and n % 2 else "out"
-            slab_arrays = {"out": buffers[turn][:, :, :z1 - z0]} if buffers else {}
-            if "colour_out" in buffers:
-                slab_arrays["colour_out"] = buffers["colour_out"][:z1 - z0]
-            if to_file:
-                slab_arrays["colour_sink"] = (
-                    lambda z, rgba, z0=z0: writer.write_colours(z0 + z, rgba))
-            with collect_warnings(drop=True):  # said once, above
-                # Several slabs: rays along y, so a slab's columns are its own
-                # (x, z) pairs and no ray is cast twice. One piece: voxelize's
-                # default axis, so the file equals the in-memory volume.
-                vol = voxelize_block(m, grid, (z0, z1), engine=engine, inside=method, jobs=jobs,
-                                     axis=axis, shared_crossings=reuse, **slab_arrays,
-                                     **options)
-            tb = time.perf_counter()
-            if overlap:
-                if pending is not None:
-                    pending.result()  # the slab before: done (and its error raised)
-                if pool is None:
-                    from concurrent.futures import ThreadPoolExecutor
-
-                    pool = ThreadPoolExecutor(1)
-                pending = pool.submit(writer.write, z0, vol)
-            else:
-                writer.write(z0, vol)
-            for key, value in vol.timings.items():
-                if key != "total":
-                    timings[key] = timings.get(key, 0.0) + value
-            timings["write"] += time.perf_counter() - tb
-            inside += vol.inside_count
-            del vol
-            if progress:
-                progress(n + 1, len(plan))
-        if pending is not None:
-            tb = time.perf_counter()
-            pending.result()
-            timings["write"] += time.perf_counter() - tb
-        files = writer.close(client) if f.name == "zarr" else writer.close()
-        if inside == 0 and np.all(m.bounds[0] <= grid.hi) and np.all(m.bounds[1] >= grid.lo):
-            warn(empty_reason(m, grid, method), stacklevel=2)
-    except BaseException:
-        if pool is not None:
-            pool.shutdown(wait=True)  # no write may still run into the files abort removes
-        writer.abort()
-        raise
-    finally:
-        if pool is not None:
-            pool.shutdown(wait=True)
-    timings["load"] += t_load - t0
-    timings["total"] = time.perf_counter() - t0
-    return {"shape": tuple(grid.shape), "spacing": tuple(float(x) for x in h),
-            "bounds": meta.bounds, "inside": inside, "inside_test": method,
-            "backend": engine.name, "slabs": len(plan), "files": files, "timings": timings,
-            "filled_in_slabs": streamed,
-            "grid": grid, "source": m.source, "mesh_space": used}
+    report = run(m, p, progress=progress, client=client)
+    report.timings["load"] = report.timings.get("load", 0.0) + t_load - t0
+    report.timings["total"] = time.perf_counter() - t0
+    return report

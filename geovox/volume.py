@@ -6,6 +6,7 @@ read volumes without importing the pipeline that makes them.
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -90,3 +91,149 @@ class Volume:
     @property
     def inside_count(self) -> int:
         return int(np.count_nonzero(self.occupancy))
+
+
+@dataclass(frozen=True)
+class Progress:
+    """What a ``progress`` callback is handed, by every entry point.
+
+    Attributes
+    ----------
+    stage : str
+        ``"load"``, ``"rays"``, ``"colour"``, ``"density"``, ``"sdf"`` as a
+        block's stage starts; ``"slab"`` after each slab of a streamed
+        conversion; ``"model"`` after each model of a batch.
+    done, total : int or None
+        Slabs or models done, and how many in all (None for a stage).
+    result : object
+        ``"model"``: that model's :class:`geovox.batch.Result`.
+    """
+
+    stage: str
+    done: int | None = None
+    total: int | None = None
+    result: object = None
+
+
+@dataclass
+class Report:
+    """What one conversion did: the one result type of every entry point.
+
+    :func:`geovox.voxelize` returns its ``volume``; :func:`geovox.convert_to`
+    the Report itself (which also reads as the dict it used to return:
+    ``report["files"]``); a batch's :class:`geovox.batch.Result` is made
+    from one; the command line prints it (:meth:`summary`).
+
+    Attributes
+    ----------
+    source : str
+    grid : Grid
+        The whole grid.
+    backend : str
+    inside_test : str
+        The inside test that ran.
+    inside : int
+        Voxels inside.
+    route : str
+        How it ran (:class:`geovox.pipeline.Route`).
+    slabs : int
+        Blocks it ran in.
+    volume : Volume or None
+        The volume, where it was held in memory.
+    files : list of str
+        Every file written, the volume first.
+    timings : dict
+        Seconds per stage ("load", "rays", "fill", "colour", "density",
+        "sdf", "write", "total" as run).
+    warnings : list of str
+        What was said (where the caller collected it).
+    """
+
+    source: str
+    grid: Grid
+    backend: str
+    inside_test: str
+    inside: int
+    route: str = "memory"
+    slabs: int = 1
+    volume: Volume | None = None
+    files: list = field(default_factory=list)
+    timings: dict = field(default_factory=dict)
+    warnings: list = field(default_factory=list)
+    mesh_space: tuple | None = None
+    #: More lines for the summary, after the inside count (e.g. the labels made).
+    lines: list = field(default_factory=list)
+
+    @property
+    def shape(self) -> tuple:
+        return tuple(self.grid.shape)
+
+    @property
+    def spacing(self) -> tuple:
+        return tuple(float(x) for x in self.grid.spacing)
+
+    @property
+    def bounds(self) -> tuple:
+        return (tuple(float(x) for x in self.grid.lo), tuple(float(x) for x in self.grid.hi))
+
+    @property
+    def filled_in_slabs(self) -> bool:
+        """Whether a one-piece occupancy was filled and written 64 slices at a time."""
+        return self.route == "64-slice fill"
+
+    #: The keys of the dict convert_to returned before it returned a Report.
+    KEYS = ("shape", "spacing", "bounds", "inside", "inside_test", "backend", "slabs", "files",
+            "timings", "filled_in_slabs", "grid", "source", "mesh_space")
+
+    def __getitem__(self, key):
+        if key in ("labels", "contested") and self.volume is not None \
+                and self.volume.label_table is not None:
+            v = self.volume
+            return len(v.label_table) - 1 if key == "labels" else v.contested
+        if key not in self.KEYS:
+            raise KeyError(key)
+        return getattr(self, key)
+
+    def get(self, key, default=None):
+        try:
+            return self[key]
+        except KeyError:
+            return default
+
+    def keys(self):
+        return self.KEYS
+
+    def summary(self, wall: float, extra_load: float = 0.0) -> list:
+        """The lines the command line prints after a conversion."""
+        nx, ny, nz = self.shape
+        dx, dy, dz = self.spacing
+        lo, hi = self.bounds
+        t = dict(self.timings)
+        t["load"] = t.get("load", 0.0) + extra_load
+        if self.route == "memory" and self.grid.reference is not None:
+            where = " of the reference image"
+        elif self.route == "memory":
+            where = (f" over ({lo[0]:.6g}, {lo[1]:.6g}, {lo[2]:.6g})..({hi[0]:.6g}, {hi[1]:.6g}, "
+                     f"{hi[2]:.6g})")
+        else:
+            where = (f" in {self.slabs} slabs" if self.slabs > 1 else
+                     " in 64-slice slabs" if self.filled_in_slabs else "")
+        n = nx * ny * nz
+        stages = ", ".join(f"{k} {t[k]:.2f}" for k in ("load", "rays", "fill", "colour", "density",
+                                                        "sdf", "write") if k in t)
+        onto = [] if self.mesh_space is None else [reference_line(self.grid.reference,
+                                                                   self.mesh_space)]
+        return [f"{os.path.basename(self.source)}: grid {nx} x {ny} x {nz}{where}",
+                f"voxel size {dx:.6g} x {dy:.6g} x {dz:.6g}, backend {self.backend}, "
+                f"inside test {self.inside_test}", *onto,
+                f"inside {self.inside:,} of {n:,} voxels ({100.0 * self.inside / n:.2f}%)",
+                *self.lines,
+                f"time {wall:.2f} s ({stages})",
+                "wrote " + ", ".join(self.files)]
+
+
+def reference_line(ref, mesh_space) -> str:
+    """The summary's line on a conversion onto a reference grid."""
+    space, how = mesh_space
+    return (f"onto {os.path.basename(ref.source)} ({ref.space}); mesh space {space} "
+            f"({'--mesh-space' if how == 'given' else how})")

@@ -11,7 +11,8 @@ import geovox
 from geovox.errors import ParameterError
 from geovox.grid import make_grid
 from geovox.mesh import load_mesh
-from geovox.pipeline import block_grid, voxelize_block
+from geovox.options import Options
+from geovox.pipeline import Route, block_grid, plan, voxelize_block
 
 from conftest import SPOT
 
@@ -26,8 +27,10 @@ def test_blocks_put_together_are_the_whole_grid(inside, backend):
                      bounds=np.r_[m.bounds[0] - [0.0, 0.1, 0.0], m.bounds[1]])
     ref = geovox.voxelize(m, shape=grid.shape, bounds=np.r_[grid.lo, grid.hi], axis=1,
                           backend=backend, inside=inside, jobs=1, **opts)
-    parts = [voxelize_block(m, grid, b, engine=backend, inside=inside, axis=1, **opts)
-             for b in [(0, 5), (5, 20), (20, 37)]]
+    p = plan(m, Options(shape=grid.shape, bounds=np.r_[grid.lo, grid.hi], backend=backend,
+                        inside=inside, axis=1, jobs=1, **opts))
+    assert p.grid.shape == grid.shape and np.array_equal(p.grid.lo, grid.lo)
+    parts = [voxelize_block(m, p, b) for b in [(0, 5), (5, 20), (20, 37)]]
     assert [p.occupancy.shape[2] for p in parts] == [5, 15, 17]
     np.testing.assert_allclose(parts[-1].grid.hi, grid.hi, rtol=0, atol=0)
     join = {k: np.concatenate([getattr(p, k) for p in parts], axis=2)
@@ -43,9 +46,10 @@ def test_blocks_put_together_are_the_whole_grid(inside, backend):
 
 def test_whole_grid_block_is_voxelize(backend):
     m = load_mesh(SPOT)
-    grid = make_grid(m.bounds, resolution=20)
-    vol = voxelize_block(m, grid, engine=backend, color=True)
+    p = plan(m, Options(resolution=20, backend=backend, color=True))
+    vol = voxelize_block(m, p)
     ref = geovox.voxelize(m, resolution=20, backend=backend, color=True)
+    grid = p.grid
     assert vol.grid is grid and block_grid(grid, (0, 20)) is grid
     np.testing.assert_array_equal(vol.occupancy, ref.occupancy)
     np.testing.assert_array_equal(vol.colors, ref.colors)
@@ -65,18 +69,19 @@ def test_batch_streams_by_the_cli_rule(tmp_path, monkeypatch):
     from geovox.batch import convert_many
 
     calls = []
-    real = stream.convert_to
-    monkeypatch.setattr(stream, "convert_to", lambda *a, **k: calls.append(a) or real(*a, **k))
+    real = stream.run_slabs
+    monkeypatch.setattr(stream, "run_slabs", lambda m, p, **k: calls.append(p) or real(m, p, **k))
     opts = dict(shape=(16, 16, 150))
     [r] = convert_many([SPOT], tmp_path / "mem", **opts)  # one slab: in memory
     assert r.status == "ok" and calls == []
     monkeypatch.setattr(stream, "SLAB_BUDGET", 16 * 16 * 64)  # three slabs: streamed
     [s] = convert_many([SPOT], tmp_path / "slabs", **opts)
     assert s.status == "ok" and len(calls) == 1
+    assert calls[0].route == Route.SLABS and calls[0].blocks == ((0, 64), (64, 128), (128, 150))
     ref = geovox.voxelize(SPOT, axis=1, **opts)  # several slabs cast along y
     np.testing.assert_array_equal(F.read(s.output).occupancy, ref.occupancy)
     monkeypatch.setattr(stream, "SLAB_BUDGET", 1 << 30)
     monkeypatch.setattr(stream, "streams_whole", lambda grid, *a: True)  # one piece, streamed
     [w] = convert_many([SPOT], tmp_path / "whole", **opts)
-    assert len(calls) == 2
+    assert len(calls) == 2 and calls[1].route == Route.FILL
     assert Path(w.output).read_bytes() == Path(r.output).read_bytes()

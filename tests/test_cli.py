@@ -251,17 +251,29 @@ def test_convert_with_colour_writes_rgba_raw_and_hdf5(tmp_path):
 
 def test_convert_colour_options_and_warnings(tmp_path, capsys):
     obj = tmp_path / "m.obj"
-    obj.write_text("mtllib missing.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\n"
-                   "f 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n")
+    tet = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n"
+    obj.write_text("mtllib missing.mtl\n" + tet)
     out = tmp_path / "m.h5"
-    assert main(["convert", str(obj), "-o", str(out), "-r", "8", "--color", "--no-diffuse",
-                 "--ambient", "-q"]) == 0
+    assert main(["convert", str(obj), "-o", str(out), "-r", "8", "--color", "-q"]) == 0
     err = capsys.readouterr().err
     assert err.startswith("geovox: warning: material file not found: 'missing.mtl'")
-    with h5py.File(out) as f:
-        c = f["color"][...]
-        occ = f["occupancy"][...] == 1
-    assert np.all(c[occ, :3] == 255)  # no Kd factor, no Ka: base colour 1
+    # A material with both factors: Kd multiplies the base colour (white
+    # here), --no-diffuse drops it, --ambient adds Ka (clipped at 1).
+    (tmp_path / "k.mtl").write_text("newmtl k\nKd 0.5 0.25 0.125\nKa 0.25 0.5 0.125\n")
+    lit = tmp_path / "k.obj"
+    lit.write_text("mtllib k.mtl\nusemtl k\n" + tet)
+    expect = {(): (0.5, 0.25, 0.125), ("--ambient",): (0.75, 0.75, 0.25),
+              ("--no-diffuse",): (1, 1, 1), ("--no-diffuse", "--ambient"): (1, 1, 1)}
+    for flags, rgb in expect.items():
+        assert main(["convert", str(lit), "-o", str(out), "-r", "8", "--color", *flags,
+                     "-q"]) == 0, flags
+        with h5py.File(out) as f:
+            c = f["color"][...]
+            occ = f["occupancy"][...] == 1
+        assert occ.sum() > 5
+        got = c[occ, :3].astype(int)
+        assert np.abs(got - np.round(255 * np.array(rgb))).max() <= 1, (flags, np.unique(got, axis=0))
+    assert capsys.readouterr().err == ""
 
 
 def test_faces_indexing_missing_vertices(tmp_path, capsys):
@@ -408,10 +420,19 @@ def test_manifest_with_a_cut_last_line_still_resumes(tmp_path, capsys):
     manifest = tmp_path / "m.jsonl"
     out = tmp_path / "out"
     assert main(["convert", SPOT, "-o", str(out), "-r", "8", "--manifest", str(manifest), "-q"]) == 0
+    [volume] = out.glob("*.raw")
+    before = volume.stat().st_mtime_ns
     with open(manifest, "a") as f:
         f.write('{"input": "/half')  # a run killed mid-line
-    assert main(["convert", SPOT, "-o", str(out), "-r", "8", "--manifest", str(manifest), "-q"]) == 0
     capsys.readouterr()
+    assert main(["convert", SPOT, "-o", str(out), "-r", "8", "--manifest", str(manifest)]) == 0
+    printed = capsys.readouterr().out
+    # The model the whole first line records is not converted again.
+    assert "done (manifest)" in printed and "0 converted, 1 skipped, 0 failed" in printed
+    assert volume.stat().st_mtime_ns == before
+    lines = manifest.read_text().splitlines()
+    assert len(lines) == 2 and lines[1] == '{"input": "/half'
+    assert json.loads(lines[0])["status"] == "ok"
 
 
 def test_review_regressions_give_one_line(tmp_path, capsys):

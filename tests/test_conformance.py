@@ -191,8 +191,8 @@ class TestBackendConformance:
         m = geovox.load_mesh(SPOT)
         grid = make_grid(m.bounds, shape=(12, 10, 23))
         ref = geovox.voxelize(m, shape=grid.shape, axis=1, backend=engine, color=True)
-        parts = [voxelize_block(m, grid, blk, engine=engine, axis=1, color=True)
-                 for blk in [(0, 7), (7, 23)]]
+        p = geovox.plan(m, dict(shape=grid.shape, backend=engine, axis=1, color=True))
+        parts = [voxelize_block(m, p, blk) for blk in [(0, 7), (7, 23)]]
         np.testing.assert_array_equal(np.concatenate([p.occupancy for p in parts], axis=2),
                                       ref.occupancy)
         np.testing.assert_array_equal(np.concatenate([p.colors for p in parts], axis=2), ref.colors)

@@ -361,7 +361,8 @@ def test_a_task_on_a_worker_with_other_versions_fails_its_model(tmp_path):
     from geovox.batch import _convert_one
     from geovox.cluster import _versions
 
-    task = dict(input=SPOT, stem="spot", out=str(tmp_path), options={"resolution": 8}, ext=".raw",
+    task = dict(input=SPOT, stem="spot", out=str(tmp_path), options=geovox.Options(resolution=8,
+                                                                                  jobs=1), ext=".raw",
                 overwrite=False, write_options={}, versions=dict(_versions(), geovox="0.0.1"))
     r = _convert_one(task)
     assert r.status == "failed" and "the client geovox 0.0.1" in r.error

@@ -118,9 +118,10 @@ def test_slabs_give_the_whole_grid_labels(backend):
     grid = make_grid(m.bounds, shape=(30, 22, 27))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        whole = voxelize_block(m, grid, engine=backend, axis=1, labels="part", overlap="smallest")
-        parts = [voxelize_block(m, grid, b, engine=backend, axis=1, labels="part",
-                                overlap="smallest") for b in [(0, 7), (7, 8), (8, 27)]]
+        p = geovox.plan(m, dict(shape=grid.shape, backend=backend, axis=1, labels="part",
+                                overlap="smallest"))
+        whole = voxelize_block(m, p)
+        parts = [voxelize_block(m, p, b) for b in [(0, 7), (7, 8), (8, 27)]]
     np.testing.assert_array_equal(np.concatenate([p.labels for p in parts], axis=2),
                                   whole.labels)
 

@@ -22,6 +22,7 @@ from geovox.backends import get_backend
 from geovox.formats.chunks import _transpose_binary
 from geovox.grid import make_grid
 from geovox.mesh import Mesh
+from geovox.pipeline import ray_start
 from geovox.stream import convert_to
 
 from conftest import ROOT, SPOT, box_mesh
@@ -32,7 +33,7 @@ from conftest import ROOT, SPOT, box_mesh
 def test_fill_slabs_equals_fill(shape, thick, backend):
     m = geovox.load_mesh(SPOT)
     g = make_grid(m.bounds, shape=shape)
-    cols = g.columns(2, start=float(m.bounds[0, 2]) - 1e-3 * m.scale)
+    cols = g.columns(2, start=ray_start(m, g, 2))
     hits = get_backend(backend).cast(m, cols)
     ref = parity.fill(hits, cols, g)
     got = [(z0, occ.copy()) for z0, occ in parity.fill_slabs(hits, cols, g, thick=thick)]
@@ -44,7 +45,7 @@ def test_fill_slabs_equals_fill(shape, thick, backend):
 def test_fill_slabs_two_buffers_keep_the_last_slab():
     m = geovox.load_mesh(SPOT)
     g = make_grid(m.bounds, shape=(16, 16, 200))
-    cols = g.columns(2, start=float(m.bounds[0, 2]) - 1e-3 * m.scale)
+    cols = g.columns(2, start=ray_start(m, g, 2))
     ref = parity.fill(get_backend("numpy").cast(m, cols), cols, g)
     slabs = parity.fill_slabs(get_backend("numpy").cast(m, cols), cols, g, thick=64, buffers=2)
     last = None
@@ -158,17 +159,33 @@ def test_default_convert_to_raw_imports_only_what_it_uses(tmp_path):
     assert not HEAVY & mods, HEAVY & mods
 
 
-def test_streams_whole_only_for_big_occupancy_grids():
+def test_streams_whole_only_for_big_occupancy_grids(tmp_path):
     from geovox.grid import Grid
-    from geovox.stream import streams_whole
+    from geovox.pipeline import Route, plan
+    from geovox.stream import WHOLE_STREAM_VOXELS, streams_whole
 
-    big = Grid(np.zeros(3), np.ones(3), (512, 512, 512))
-    assert streams_whole(big)
-    assert not streams_whole(big, color=True)
-    assert not streams_whole(big, density="coverage")
-    assert not streams_whole(big, sdf=True)
-    assert not streams_whole(Grid(np.zeros(3), np.ones(3), (256, 256, 256)))
-    assert not streams_whole(Grid(np.zeros(3), np.ones(3), (4096, 4096, 64)))
+    def grid(nx, ny, nz):
+        return Grid(np.zeros(3), np.ones(3), (nx, ny, nz))
+
+    # At the threshold and one voxel layer short of it, whatever its value.
+    side = 2 * round(WHOLE_STREAM_VOXELS ** (1 / 3) / 2)
+    nz = -(-WHOLE_STREAM_VOXELS // (side * side))
+    at, short = grid(side, side, nz), grid(side, side, nz - 1)
+    assert at.size >= WHOLE_STREAM_VOXELS > short.size and nz - 1 > 64
+    assert streams_whole(at) and not streams_whole(short)
+    for extra in (dict(color=True), dict(color="fast"), dict(density="coverage"), dict(sdf=True)):
+        assert not streams_whole(at, **extra), extra
+    # 64 layers or fewer are one slice of the fill: nothing to gain.
+    flat = grid(-(-WHOLE_STREAM_VOXELS // (64 * 4096)) * 2, 4096, 64)
+    assert flat.size >= WHOLE_STREAM_VOXELS and not streams_whole(flat)
+    # The plan applies the rule: such a grid to .h5 takes the 64-slice fill,
+    # with colour (or below the threshold) it is made in memory.
+    m = geovox.load_mesh(SPOT)
+    shape = at.shape
+    assert plan(m, dict(shape=shape), tmp_path / "a.h5").route == Route.FILL
+    assert plan(m, dict(shape=short.shape), tmp_path / "a.h5").route == Route.MEMORY
+    assert plan(m, dict(shape=shape), tmp_path / "a.npy").route == Route.MEMORY
+    assert plan(m, dict(shape=shape, color="fast"), tmp_path / "a.h5").route != Route.FILL
 
 
 def test_cli_fills_big_occupancy_in_slabs(tmp_path, capsys, monkeypatch):

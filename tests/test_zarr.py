@@ -190,7 +190,7 @@ def test_misaligned_slabs_are_refused(tmp_path, client):
         convert_to(SPOT, tmp_path / "c.h5", slab=64, shape=(8, 8, 200))
     assert list(tmp_path.iterdir()) == []
     vol = geovox.voxelize(SPOT, shape=(8, 9, 200))
-    w = Z.ZarrWriter(tmp_path / "d.zarr", vol, 128)
+    w = Z.ZarrWriter(tmp_path / "d.zarr", vol, thick=128)
     # Two writers on one shard: a slab starting inside another's shard row.
     with pytest.raises(ParameterError, match="multiple of 128"):
         w.write(64, Z._slab_of(vol, 64, 192))
@@ -287,8 +287,10 @@ def test_a_worker_that_cannot_see_the_output_says_so(tmp_path):
 
     vol = geovox.voxelize(SPOT, shape=(8, 8, 64))
     layout = Z.make_layout(str(tmp_path / "elsewhere"), vol, 64)
+    m = geovox.load_mesh(SPOT)
+    p = geovox.plan(m, geovox.Options(shape=(8, 8, 64))).for_task()
     with pytest.raises(geovox.errors.OutputError, match="share"):
-        _zarr_slab(geovox.load_mesh(SPOT), vol.grid, (0, 64), layout, {})
+        _zarr_slab(m, p, (0, 64), layout)
 
 
 def test_levels_from_full_and_empty_chunks(tmp_path, small_top):
@@ -301,7 +303,7 @@ def test_levels_from_full_and_empty_chunks(tmp_path, small_top):
     occ[:, :, :100] = True
     occ[3, 5, 120] = True  # a lone voxel survives to the top
     vol = Volume(occupancy=occ, grid=Grid(np.zeros(3), np.ones(3), occ.shape), backend="numpy")
-    Z.ZarrWriter(tmp_path / "v.zarr", vol, 64).write_whole(vol)
+    Z.ZarrWriter(tmp_path / "v.zarr", vol, thick=64).write_whole(vol)
     a = arrays(tmp_path / "v.zarr")
     assert sorted(a) == ["0", "1", "2", "3"]  # occupancy only
     for k in range(1, 4):
@@ -309,10 +311,25 @@ def test_levels_from_full_and_empty_chunks(tmp_path, small_top):
     assert a["3"][120 // 8, 5 // 8, 3 // 8] == 255 and a["3"][17].max() == 0
 
 
-def test_scheduler_variable_is_only_for_zarr(tmp_path, monkeypatch):
+def test_scheduler_variable_is_only_for_zarr(tmp_path, monkeypatch, capsys):
+    import geovox.cluster
     import geovox.stream
 
-    # A big .h5 streams here even with a scheduler in the environment.
+    # A big .h5 streams here even with a scheduler in the environment: no
+    # client is asked for (the address answers nothing), the file is the
+    # in-memory volume's.
     monkeypatch.setenv("DASK_SCHEDULER_ADDRESS", "tcp://127.0.0.1:1")
     monkeypatch.setattr(geovox.stream, "streams", lambda *a, **k: True)
-    assert main(["convert", SPOT, "-o", str(tmp_path / "v.h5"), "-r", "16", "-q"]) == 0
+    asked = []
+    monkeypatch.setattr(geovox.cluster, "client_from_options", lambda *a: asked.append(a))
+    out = tmp_path / "v.h5"
+    capsys.readouterr()
+    assert main(["convert", SPOT, "-o", str(out), "-r", "16"]) == 0
+    printed = capsys.readouterr().out
+    assert asked == [] and "in 64-slice slabs" in printed
+    np.testing.assert_array_equal(geovox.formats.read(out).occupancy,
+                                  geovox.voxelize(SPOT, resolution=16).occupancy)
+    # A .zarr does ask for it.
+    with pytest.raises(TypeError):  # the stand-in above is no context manager
+        main(["convert", SPOT, "-o", str(tmp_path / "v.zarr"), "-r", "16", "-q"])
+    assert len(asked) == 1

@@ -47,16 +47,20 @@ class Format:
     reader: object = None
     #: ``check(grid)``: raises ParameterError for a grid the format cannot hold, before any work.
     check: object = None
+    #: ``slab_writer(path, meta, jobs, *, thick=None, client=None)``: a :class:`SlabWriter`
+    #: that takes the volume one z-slab at a time (None: the format is written whole).
+    slab_writer: object = None
 
 
 _FORMATS: dict = {}
 
 
-def register_format(name, extensions, writer, description="", reader=None, check=None):
-    """Register ``writer`` for the given extensions (with dot), with an optional ``reader``
-    and grid ``check``."""
+def register_format(name, extensions, writer, description="", reader=None, check=None,
+                    slab_writer=None):
+    """Register ``writer`` for the given extensions (with dot), with an optional ``reader``,
+    grid ``check`` and ``slab_writer`` (for slab-by-slab conversions)."""
     _FORMATS[name] = Format(name, tuple(e.lower() for e in extensions), writer, description, reader,
-                            check)
+                            check, slab_writer)
 
 
 def formats() -> list:
@@ -396,15 +400,26 @@ from . import binvox, hdf5, nifti, nrrd, numpy_files, raw, seg_nrrd, vdb, vox, v
 # (imported for registration)
 from . import zarr as zarr_format  # noqa: E402  (registration)
 
+
+def _slabs(cls):
+    """The slab writer of a format whose writer class takes ``(path, meta, jobs)``."""
+    def make(path, meta, jobs, *, thick=None, client=None):
+        return cls(path, meta, jobs)
+
+    make.__name__ = make.__qualname__ = f"slab_writer_{cls.__name__}"
+    return make
+
+
+
 register_format("raw", (".raw",), raw.write_raw,
                 "headerless uint8 (0/255), x fastest; .json sidecar, .mhd and .nhdr headers",
-                reader=raw.read_raw_volume)
+                reader=raw.read_raw_volume, slab_writer=_slabs(raw.RawWriter))
 register_format("hdf5", (".h5", ".hdf5"), hdf5.write_hdf5,
                 "HDF5: `occupancy`/`color` [x, y, z] datasets plus a VTK-HDF ImageData group",
-                reader=hdf5.read_hdf5)
+                reader=hdf5.read_hdf5, slab_writer=_slabs(hdf5.HDF5Writer))
 register_format("vtkhdf", (".vtkhdf", ".hdf"), vtkhdf.write_vtkhdf,
                 "VTK-HDF 1.0 ImageData for ParaView (opens by name): occupancy, color, density, sdf",
-                reader=vtkhdf.read_vtkhdf)
+                reader=vtkhdf.read_vtkhdf, slab_writer=_slabs(vtkhdf.VTKHDFWriter))
 register_format("seg_nrrd", (".seg.nrrd",), seg_nrrd.write_seg_nrrd,
                 "3D Slicer segmentation: the labels (--labels) as named, coloured segments",
                 reader=seg_nrrd.read_seg_nrrd)
@@ -429,7 +444,7 @@ register_format("vox", (".vox",), vox.write_vox,
 register_format("zarr", (".zarr",), zarr_format.write_zarr,
                 "OME-Zarr 0.5 (Zarr v3) multiscale image for napari, neuroglancer, Fiji, WEBKNOSSOS: "
                 "occupancy, color, density, sdf; written slab by slab, or on a Dask cluster",
-                reader=zarr_format.read_zarr)
+                reader=zarr_format.read_zarr, slab_writer=zarr_format.ZarrWriter)
 register_format("nifti", (".nii.gz", ".nii"), nifti.write_nifti,
                 "NIfTI-1 for 3D Slicer, ITK-SNAP, FSL, nibabel: uint8 mask, sform = qform = the "
                 "grid's RAS affine (needs nibabel: the nifti extra)",

@@ -612,16 +612,19 @@ class ZarrWriter:
     ``meta`` is anything with ``shape``, ``spacing``, ``bounds``, ``backend``,
     ``source`` and ``colors`` / ``density`` / ``sdf`` (None when absent; for
     ``density`` and ``sdf`` an array whose dtype is the one to store).
-    Slabs are ``thick`` layers (a multiple of 64) starting on multiples of
-    ``thick``; any process that can reach the folder may write them (see
-    :attr:`layout` and :func:`write_slab`).
+    Slabs are ``thick`` layers (a multiple of 64; default the whole depth,
+    :func:`whole_thick`) starting on multiples of ``thick``; any process that
+    can reach the folder may write them (see :attr:`layout` and
+    :func:`write_slab`). The first three parameters are every slab writer's
+    (see :class:`geovox.formats.Format`); ``client``, a Dask client, makes
+    the coarser pyramid levels on its workers when the writer is closed.
     """
 
-    def __init__(self, path, meta, thick: int, jobs: int = 2, unit=None):
+    def __init__(self, path, meta, jobs: int = 2, *, thick=None, client=None, unit=None):
         import tempfile
 
-        self.path, self.jobs = os.fspath(path), jobs
-        thick = check_thick(thick)
+        self.path, self.jobs, self.client = os.fspath(path), jobs, client
+        thick = check_thick(whole_thick(meta.shape) if thick is None else thick)
         folder = os.path.dirname(os.path.abspath(self.path))
         try:
             tmp = tempfile.mkdtemp(prefix="." + os.path.basename(self.path) + ".", suffix=".tmp",
@@ -650,10 +653,10 @@ class ZarrWriter:
             self._fail(exc)
         return self.close()
 
-    def close(self, client=None) -> list:
-        """Make the remaining levels (on ``client``'s workers if given) and rename into place."""
+    def close(self) -> list:
+        """Make the remaining levels (on the client's workers if there is one) and rename into place."""
         try:
-            build_levels(self.layout, client, self.jobs)
+            build_levels(self.layout, self.client, self.jobs)
             _replace_folder(self.layout.root, self.path)
         except BaseException as exc:
             self._fail(exc)
@@ -723,7 +726,7 @@ def whole_thick(shape) -> int:
 
 def write_zarr(volume, path, jobs: int = 2) -> list:
     """Write the volume as an OME-Zarr 0.5 image (see the module's docstring for the layout)."""
-    return ZarrWriter(path, volume, whole_thick(volume.shape), jobs).write_whole(volume)
+    return ZarrWriter(path, volume, jobs).write_whole(volume)
 
 
 def pick_level(shapes, max_side=None) -> int:
