@@ -267,9 +267,8 @@ def test_backend_example_gives_the_numpy_backends_crossings(axis):
 
 
 def _readme():
-    """The short README: docs/README_new.md until it replaces README.md, then README.md."""
-    new = os.path.join(ROOT, "docs", "README_new.md")
-    return new if os.path.exists(new) else os.path.join(ROOT, "README.md")
+    """The README, the project's front door."""
+    return os.path.join(ROOT, "README.md")
 
 
 def test_short_readme_keeps_its_limits():
