@@ -196,6 +196,40 @@ def _uv_transform(tt: dict) -> np.ndarray:
     return translate @ rotate @ np.diag([sx, sy, 1.0])
 
 
+def _base_colour_texture(fact: dict, ref, textures, samplers, images, folder: str, rule: str):
+    """Fill ``fact``'s wrap, texture, uri, file and transform from a ``baseColorTexture`` reference.
+
+    Returns the texture coordinate set it reads (an int), or None where
+    ``ref`` names no texture of the file.
+    """
+    index = ref.get("index") if isinstance(ref, dict) else None
+    if not (isinstance(index, int) and 0 <= index < len(textures)):
+        return None
+    tex = textures[index]
+    sampler = tex.get("sampler")
+    if isinstance(sampler, int) and 0 <= sampler < len(samplers):
+        codes = (samplers[sampler].get(k, 10497) for k in ("wrapS", "wrapT"))
+        fact["wrap"] = tuple(WRAP_MODES.get(c, "repeat") if isinstance(c, int)
+                             else "repeat" for c in codes)
+    source = tex.get("source")
+    for e in (tex.get("extensions") or {}).values():
+        if source is None and isinstance(e, dict):
+            source = e.get("source")
+    uri = (images[source].get("uri") if isinstance(source, int)
+           and 0 <= source < len(images) else None)
+    external = isinstance(uri, str) and not uri.startswith("data:")
+    fact["texture"] = repr(uri) if external else f"(image {source}, embedded)"
+    fact["uri"] = uri if external else None
+    if external:
+        fact["file"] = locate(uri, folder, rule)[0]
+    n = ref.get("texCoord", 0)
+    tt = (ref.get("extensions") or {}).get("KHR_texture_transform")
+    if isinstance(tt, dict):
+        fact["transform"] = _uv_transform(tt)
+        n = tt.get("texCoord", n)
+    return n if isinstance(n, int) else 0
+
+
 def _gltf_rewrite(header: dict, path: str, rule: str = "anywhere", read_buffer=None) -> dict:
     """Rewrite a glTF JSON header in place for trimesh (see above).
 
@@ -269,32 +303,10 @@ def _gltf_rewrite(header: dict, path: str, rule: str = "anywhere", read_buffer=N
             factor = np.ones(4)
         fact = {"name": name, "kd": np.clip(factor[:3], 0.0, 1.0), "wrap": ("repeat", "repeat"),
                 "transform": None, "texture": None, "file": None}
-        ref = pbr.get("baseColorTexture")
-        index = ref.get("index") if isinstance(ref, dict) else None
-        if isinstance(index, int) and 0 <= index < len(textures):
-            tex = textures[index]
-            sampler = tex.get("sampler")
-            if isinstance(sampler, int) and 0 <= sampler < len(samplers):
-                codes = (samplers[sampler].get(k, 10497) for k in ("wrapS", "wrapT"))
-                fact["wrap"] = tuple(WRAP_MODES.get(c, "repeat") if isinstance(c, int)
-                                     else "repeat" for c in codes)
-            source = tex.get("source")
-            for e in (tex.get("extensions") or {}).values():
-                if source is None and isinstance(e, dict):
-                    source = e.get("source")
-            uri = (images[source].get("uri") if isinstance(source, int)
-                   and 0 <= source < len(images) else None)
-            external = isinstance(uri, str) and not uri.startswith("data:")
-            fact["texture"] = repr(uri) if external else f"(image {source}, embedded)"
-            fact["uri"] = uri if external else None
-            if external:
-                fact["file"] = locate(uri, folder, rule)[0]
-            n = ref.get("texCoord", 0)
-            tt = (ref.get("extensions") or {}).get("KHR_texture_transform")
-            if isinstance(tt, dict):
-                fact["transform"] = _uv_transform(tt)
-                n = tt.get("texCoord", n)
-            texcoord[i] = n if isinstance(n, int) else 0
+        n = _base_colour_texture(fact, pbr.get("baseColorTexture"), textures, samplers, images,
+                                 folder, rule)
+        if n is not None:
+            texcoord[i] = n
         tag = _GLTF_TAG + str(i)
         mat["name"] = tag
         facts[tag] = fact
