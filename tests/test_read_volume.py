@@ -146,3 +146,15 @@ def test_view_reads_through_the_same_function(tmp_path, monkeypatch, full):
     monkeypatch.setattr(view, "show", lambda vol, mesh=None, screenshot=None: seen.update(vol=vol))
     assert main(["view", str(tmp_path / "v.nhdr")]) == 0
     _same(seen["vol"], full)
+
+
+def test_a_segmentation_reads_with_its_labels(tmp_path):
+    """A .seg.nrrd is one file (not a .nrrd's companion): its labels and table come back."""
+    from test_labels import assembly
+
+    vol = geovox.voxelize(assembly(), resolution=12, labels="part")
+    path = str(tmp_path / "scene.seg.nrrd")
+    F.write(vol, path)
+    back = F.read_volume(path)
+    np.testing.assert_array_equal(back.labels, vol.labels)
+    assert [e["name"] for e in back.label_table] == [e["name"] for e in vol.label_table]

@@ -103,7 +103,7 @@ def volume_source(path):
             if os.path.isfile(root + ext):
                 return root + ext, "header"
         raise ValueError(f"no sidecar {os.path.basename(root)}.json or header beside it")
-    if lower.endswith(".nrrd"):
+    if lower.endswith(".nrrd") and not lower.endswith(".seg.nrrd"):  # a segmentation is whole
         root = os.path.splitext(path)[0]
         for suffix in COMPANIONS:
             main = root[:-len(suffix)] + ".nrrd"
