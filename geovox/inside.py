@@ -1114,22 +1114,9 @@ def winding_kernel(kernel=None):
     ``GEOVOX_KERNEL``): ``numpy`` forces the NumPy traversal, ``compiled``
     insists on the kernel, ``auto`` (the default) uses it where it was built.
     """
-    from .nearest import KERNEL_ENV
+    from .kernels import compiled
 
-    choice = kernel if kernel is not None else (os.environ.get(KERNEL_ENV) or "auto")
-    if choice not in ("auto", "compiled", "numpy"):
-        raise ParameterError(f"the compiled kernel choice must be auto, compiled or numpy, "
-                             f"got {choice!r}")
-    if choice == "numpy":
-        return None
-    try:
-        from . import _winding
-    except ImportError:
-        if choice == "compiled":
-            raise ParameterError("the compiled winding-number kernel is not built "
-                                 "(pip install . with a C compiler builds it)") from None
-        return None
-    return _winding
+    return compiled("_winding", "winding-number", kernel)
 
 
 def _compiled_caps(module, occ, w, grid, cap_tris, jobs) -> None:

@@ -774,22 +774,9 @@ def kernel_module(kernel=None):
     ParameterError
         An unknown choice, or ``compiled`` where it was not built.
     """
-    from .errors import ParameterError
+    from .kernels import compiled
 
-    choice = kernel if kernel is not None else (os.environ.get(KERNEL_ENV) or "auto")
-    if choice not in ("auto", "compiled", "numpy"):
-        raise ParameterError(f"the nearest-surface kernel must be auto, compiled or numpy, "
-                             f"got {choice!r}")
-    if choice == "numpy":
-        return None
-    try:
-        from . import _nearest
-    except ImportError:
-        if choice == "compiled":
-            raise ParameterError("the compiled nearest-surface kernel is not built "
-                                 "(pip install . with a C compiler builds it)") from None
-        return None
-    return _nearest
+    return compiled("_nearest", "nearest-surface", kernel)
 
 
 #: Whether this process has started the compiled kernel's OpenMP threads, and
