@@ -96,6 +96,13 @@ def _fit(img: np.ndarray, width_len: float, height_len: float, box: int):
     return pil.resize((w, h), Image.NEAREST)
 
 
+def _panel(canvas, draw, font, img, corner, panel: int, title: int, caption: str) -> None:
+    """One picture of a preview: its caption at ``corner``, the image centred in the square below."""
+    x0, y0 = corner
+    draw.text((x0, y0), caption, fill=(230, 230, 230), font=font)
+    canvas.paste(img, (x0 + (panel - img.width) // 2, y0 + title + (panel - img.height) // 2))
+
+
 def render(volume, panel: int = PANEL):
     """The preview as a ``PIL.Image``."""
     from PIL import Image, ImageDraw, ImageFont
@@ -130,9 +137,8 @@ def render(volume, panel: int = PANEL):
             img = _fit(make(volume, axis), extent[h], extent[v], panel)
             x0 = pad + col * (panel + pad)
             y0 = pad + row * (panel + title + pad)
-            draw.text((x0, y0), f"{label} {AXIS[axis]}  ({AXIS[h]} right, {AXIS[v]} up)",
-                      fill=(230, 230, 230), font=font)
-            canvas.paste(img, (x0 + (panel - img.width) // 2, y0 + title + (panel - img.height) // 2))
+            _panel(canvas, draw, font, img, (x0, y0), panel, title,
+                   f"{label} {AXIS[axis]}  ({AXIS[h]} right, {AXIS[v]} up)")
     nx, ny, nz = volume.shape
     dx, dy, dz = volume.spacing
     inside = int(np.count_nonzero(volume.occupancy))
@@ -241,9 +247,8 @@ def render_like(volume, image: np.ndarray, reference, note: str = "", panel: int
         h, v, _ = VIEWS[axis]
         img = _fit(overlay_slice(volume, image, axis, window), extent[h], extent[v], panel)
         x0 = pad + col * (panel + pad)
-        draw.text((x0, pad), f"middle slice across {'ijk'[axis]}  ({'ijk'[h]} right, {'ijk'[v]} up)",
-                  fill=(230, 230, 230), font=font)
-        canvas.paste(img, (x0 + (panel - img.width) // 2, pad + title + (panel - img.height) // 2))
+        _panel(canvas, draw, font, img, (x0, pad), panel, title,
+               f"middle slice across {'ijk'[axis]}  ({'ijk'[h]} right, {'ijk'[v]} up)")
     nx, ny, nz = volume.shape
     dx, dy, dz = reference.spacing
     inside = int(np.count_nonzero(volume.occupancy))
