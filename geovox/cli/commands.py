@@ -17,8 +17,8 @@ import os
 import sys
 import time
 
-from . import __version__
-from .errors import GeovoxError
+from .. import __version__
+from ..errors import GeovoxError
 
 EXIT_OK, EXIT_ERROR, EXIT_USAGE = 0, 2, 2
 
@@ -111,31 +111,31 @@ class _Choices:
 
 
 def _backend_names():
-    from .backends import REGISTRY
+    from ..backends import REGISTRY
 
     return ["auto", *REGISTRY]
 
 
 def _inside_names():
-    from .options import Inside
+    from ..options import Inside
 
     return [m.value for m in Inside]
 
 
 def _label_sources():
-    from .labels import SOURCES
+    from ..labels import SOURCES
 
     return list(SOURCES)
 
 
 def _overlap_rules():
-    from .labels import OVERLAPS
+    from ..labels import OVERLAPS
 
     return list(OVERLAPS)
 
 
 def _format_names():
-    from .formats import formats
+    from ..formats import formats
 
     return [f.name for f in formats()]
 
@@ -318,7 +318,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _options(args):
     """The :class:`geovox.Options` the arguments set (imported here: ``--help`` needs none)."""
-    from .options import Options
+    from ..options import Options
 
     return Options.from_args(args)
 
@@ -334,7 +334,7 @@ def collecting():
     """
     import warnings
 
-    from .errors import GeovoxWarning, collect_warnings
+    from ..errors import GeovoxWarning, collect_warnings
 
     with warnings.catch_warnings(record=True) as caught, collect_warnings() as said:
         warnings.simplefilter("always", GeovoxWarning)
@@ -384,7 +384,7 @@ def _volume_or_mesh(args, path, largest=None):
 
     A ``.zarr`` is read from its finest pyramid level with every side at most ``largest``.
     """
-    from . import formats
+    from .. import formats
 
     if formats.is_volume_file(path):
         return formats.read_volume(path, max_side=largest)
@@ -393,7 +393,7 @@ def _volume_or_mesh(args, path, largest=None):
 
 def _voxelize(mesh, options):
     """The volume of ``mesh`` in memory (a plan and a run), its warnings printed."""
-    from .pipeline import load, plan, run
+    from ..pipeline import load, plan, run
 
     with collecting():
         m = load(mesh, options)
@@ -402,8 +402,8 @@ def _voxelize(mesh, options):
 
 def _output_path(args, input_path, shape) -> str:
     """The -o path, or a default name carrying the grid size inside a folder."""
-    from . import formats
-    from .formats.headers import default_name
+    from .. import formats
+    from ..formats.headers import default_name
 
     out = args.output
     if out is not None and not (os.path.isdir(out) or out.endswith(("/", os.sep))) or (
@@ -417,7 +417,7 @@ def _output_path(args, input_path, shape) -> str:
 
 def _write_options(args, fmt) -> dict:
     """The writer's keyword options the CLI sets (``--shell`` for .vox, ``--pack-bits`` for .npz)."""
-    from .errors import ParameterError
+    from ..errors import ParameterError
 
     if args.pack_bits and fmt.name != "npz":
         raise ParameterError(f"--pack-bits is for .npz output, not {fmt.name}")
@@ -427,7 +427,7 @@ def _write_options(args, fmt) -> dict:
 
 def _cluster(args):
     """``client_from_options`` for the cluster arguments ($DASK_SCHEDULER_ADDRESS included)."""
-    from .cluster import client_from_options
+    from ..cluster import client_from_options
 
     return client_from_options(getattr(args, "scheduler", None),
                                getattr(args, "scheduler_file", None),
@@ -437,9 +437,9 @@ def _cluster(args):
 # --- convert --------------------------------------------------------------
 
 def _batch(args) -> int:
-    from . import formats
-    from .batch import convert_many, find_inputs, is_url, parse_shard, summary_table
-    from .errors import ParameterError
+    from .. import formats
+    from ..batch import convert_many, find_inputs, is_url, parse_shard, summary_table
+    from ..errors import ParameterError
 
     inputs = find_inputs(args.input)  # a missing input or an empty folder says so before anything else
     shard = parse_shard(args.shard)
@@ -472,7 +472,7 @@ def _batch(args) -> int:
             bar.update(1)
             bar.set_postfix_str(f"{sum(failed)} failed")
 
-        from .parallel import resolve_jobs
+        from ..parallel import resolve_jobs
 
         try:
             # -j is processes here: each model runs single-threaded.
@@ -507,8 +507,8 @@ def _convert_to_url(args) -> int:
     import shutil
     import tempfile
 
-    from .batch import _upload
-    from .errors import ParameterError
+    from ..batch import _upload
+    from ..errors import ParameterError
 
     url = args.output
     parent, name = url.rsplit("/", 1)
@@ -549,7 +549,7 @@ def _is_batch(args) -> bool:
 
 def _check_outputs(args) -> None:
     """Fail before any work where the outputs cannot be written."""
-    from . import formats
+    from .. import formats
 
     default_out = args.output is None or args.output.endswith(("/", os.sep)) or (
         os.path.isdir(args.output) and not args.output.lower().endswith(".zarr"))
@@ -564,9 +564,9 @@ def _check_outputs(args) -> None:
 
 def run_convert(args) -> int:
     """``geovox convert``: one model a plan and a run; many models a batch."""
-    from . import formats
-    from .errors import ParameterError
-    from .pipeline import grid_of, load, plan, run
+    from .. import formats
+    from ..errors import ParameterError
+    from ..pipeline import grid_of, load, plan, run
 
     if args.fractions and not args.labels:
         raise ParameterError("--fractions needs --labels (part, component, material or file)")
@@ -603,7 +603,7 @@ def run_convert(args) -> int:
         if bar is not None:
             bar.close()
         if args.preview:
-            from .preview import write_preview
+            from ..preview import write_preview
 
             vol = report.volume
             if vol is None:
@@ -619,14 +619,14 @@ def run_convert(args) -> int:
 # --- the other subcommands ------------------------------------------------
 
 def run_preview(args) -> int:
-    from . import formats
-    from .preview import LARGEST, write_preview
+    from .. import formats
+    from ..preview import LARGEST, write_preview
 
     formats.check_writable(args.output)
     if args.like is not None:
-        from .preview import write_preview_like
-        from .reference import load_reference
-        from .volume import reference_line
+        from ..preview import write_preview_like
+        from ..reference import load_reference
+        from ..volume import reference_line
 
         ref, image = load_reference(args.like, with_data=True)
         vol = _volume_or_mesh(args, args.input)
@@ -639,10 +639,10 @@ def run_preview(args) -> int:
 
 
 def _view_html(args) -> int:
-    from . import formats
-    from .errors import ParameterError
-    from .view import LARGEST
-    from .view.html import MAX_SIDE, to_html
+    from .. import formats
+    from ..errors import ParameterError
+    from ..view import LARGEST
+    from ..view.html import MAX_SIDE, to_html
 
     if args.mesh or args.screenshot:
         raise ParameterError("--html writes a page on its own: drop --mesh and --screenshot")
@@ -660,11 +660,11 @@ def run_view(args) -> int:
     if args.html:
         return _view_html(args)
     if args.max_side is not None:
-        from .errors import ParameterError
+        from ..errors import ParameterError
 
         raise ParameterError("--max-side is for --html")
-    from .mesh import load_mesh
-    from .view import LARGEST, show
+    from ..mesh import load_mesh
+    from ..view import LARGEST, show
 
     vol = _volume_or_mesh(args, args.input, LARGEST)
     mesh = load_mesh(args.mesh, references=args.references) if args.mesh else None
@@ -675,9 +675,9 @@ def run_view(args) -> int:
 
 
 def run_info(args) -> int:
-    from .errors import collect_warnings
-    from .pipeline import load, plan
-    from .report import format_report, grid_cost, mesh_report
+    from ..errors import collect_warnings
+    from ..pipeline import load, plan
+    from ..report import format_report, grid_cost, mesh_report
 
     options = _options(args)
     mesh = load(args.input, options)
@@ -685,7 +685,7 @@ def run_info(args) -> int:
         p = plan(mesh, options)
     cost = grid_cost(mesh, options)
     if options.like is not None:
-        from .reference import field_of_view, format_field_of_view, load_reference
+        from ..reference import field_of_view, format_field_of_view, load_reference
 
         ref = load_reference(options.like)
         cost["spacing"] = ref.spacing.tolist()
@@ -693,7 +693,7 @@ def run_info(args) -> int:
         print(format_field_of_view(ref, field_of_view(mesh, ref, options.mesh_space)))
     else:
         print(format_report(mesh_report(mesh), cost))
-    from .labels import parts_report
+    from ..labels import parts_report
 
     print(parts_report(mesh))
     print("\n".join(p.describe()))
@@ -701,7 +701,7 @@ def run_info(args) -> int:
 
 
 def run_backends(args) -> int:
-    from .backends import backend_report
+    from ..backends import backend_report
 
     # The same answer as geovox.usable_backends(); webgpu with its adapter.
     for name, (_, line) in backend_report().items():
@@ -710,7 +710,7 @@ def run_backends(args) -> int:
 
 
 def run_formats(args) -> int:
-    from .formats import formats
+    from ..formats import formats
 
     for f in formats():
         print(f"{f.name:6s} {' '.join(f.extensions):12s} {f.description}")

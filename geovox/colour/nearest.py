@@ -774,7 +774,7 @@ def kernel_module(kernel=None):
     ParameterError
         An unknown choice, or ``compiled`` where it was not built.
     """
-    from .kernels import compiled
+    from ..kernels import compiled
 
     return compiled("_nearest", "nearest-surface", kernel)
 
@@ -876,7 +876,7 @@ def nearest_inside(triangles, occupancy, spacing, *, origin, z0=0, jobs=1, emit,
         function with it (it shades in the kernel, see
         :func:`geovox.colour.exact_colours`).
     """
-    from .parallel import for_blocks
+    from ..parallel import for_blocks
 
     occupancy = np.asarray(occupancy, bool)
     if not occupancy.any() or len(triangles) == 0:

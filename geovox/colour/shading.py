@@ -55,7 +55,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .errors import ParameterError, warn
+from ..errors import ParameterError, warn
 
 #: Voxels whose nearest axis crossing is closer than this many voxels get the
 #: exact closest point on that crossing's triangle.
@@ -80,7 +80,7 @@ def load_textures(mesh, ambient=False) -> None:
     """
     from PIL import Image
 
-    from .surface import texels
+    from ..surface import texels
 
     if ambient:
         named = [m.name for m in mesh.materials if getattr(m, "ambient_map", None)]
@@ -382,7 +382,7 @@ def _prepare(mesh, grid, cast, jobs: int = 1) -> _Crossings:
     jobs : int
         Threads (the axes are prepared side by side).
     """
-    from .backends.base import Hits
+    from ..backends.base import Hits
 
     normals = _unit_normals(mesh)
     order = [a for a in (2, 1, 0) if a in cast]  # ties go to z, then y, then x

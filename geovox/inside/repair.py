@@ -36,7 +36,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .mesh import Mesh
+from ..mesh import Mesh
 
 
 @dataclass
@@ -130,7 +130,7 @@ class Repair:
             The same crossings, ``triangle`` indexing the original faces and
             ``bary`` the original vertices 1 and 2.
         """
-        from .backends.base import Hits
+        from ..backends.base import Hits
 
         swap = self.swapped[hits.triangle]
         bary = np.where(swap[:, None], hits.bary[:, ::-1], hits.bary)

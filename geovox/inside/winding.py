@@ -34,11 +34,11 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from .backends.base import Hits
-from .errors import ParameterError, warn
-from .kernels import lattice
-from .mesh import Mesh
-from .parallel import scan_along
+from ..backends.base import Hits
+from ..errors import ParameterError, warn
+from ..kernels import lattice
+from ..mesh import Mesh
+from ..parallel import scan_along
 
 METHODS = ("auto", "parity", "vote", "winding")
 
@@ -320,7 +320,7 @@ def winding_occupancy(mesh: Mesh, grid, cast, axis: int, jobs: int = 1):
         return np.zeros(grid.shape, dtype=bool, order="F"), hits, columns
     closed, cap_tris, _ = capped(tmesh)
     nf = len(tmesh.faces)
-    from .memory import check_memory
+    from ..memory import check_memory
 
     check_memory(grid, 1.0 + working_bytes(mesh, "winding"))
     hits, columns = cast(closed, axis)
@@ -1114,7 +1114,7 @@ def winding_kernel(kernel=None):
     ``GEOVOX_KERNEL``): ``numpy`` forces the NumPy traversal, ``compiled``
     insists on the kernel, ``auto`` (the default) uses it where it was built.
     """
-    from .kernels import compiled
+    from ..kernels import compiled
 
     return compiled("_winding", "winding-number", kernel)
 
@@ -1129,7 +1129,7 @@ def _compiled_caps(module, occ, w, grid, cap_tris, jobs) -> None:
     undecided voxel left to its estimate (with the
     warning of :func:`_estimated`).
     """
-    from . import nearest
+    from ..colour import nearest
 
     tris, nodes, offset, size = _cap_tree(cap_tris)
     shape = np.asarray(grid.shape)

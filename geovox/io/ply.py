@@ -72,7 +72,7 @@ def read_plain_ply(path: str):
         None where the file is not the plain case (see the module's
         docstring): the caller reads it with trimesh.
     """
-    from .mesh import build_mesh
+    from ..mesh import build_mesh
 
     head = _header(path)
     if head is None:

@@ -25,7 +25,7 @@ from __future__ import annotations
 import os
 import re
 
-from .errors import ParameterError
+from ..errors import ParameterError
 
 #: The rules :func:`check_rule` accepts.
 RULES = ("anywhere", "folder")

@@ -30,7 +30,7 @@ import io
 import xml.etree.ElementTree as ET
 import zipfile
 
-from .errors import MeshError
+from ..errors import MeshError
 
 _CORE = "http://schemas.microsoft.com/3dmanufacturing/core/2015/02"
 _PROD = "http://schemas.microsoft.com/3dmanufacturing/production/2015/06"
