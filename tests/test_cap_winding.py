@@ -19,7 +19,7 @@ import trimesh
 
 import geovox
 from geovox.errors import GeovoxWarning
-from geovox import inside
+from geovox.inside import winding as inside
 
 
 def cap_heavy(n=24, seed=5):

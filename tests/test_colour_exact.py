@@ -374,7 +374,7 @@ def test_small_chunks_never_split_a_voxels_candidates(monkeypatch):
 def test_one_colour_over_the_whole_surface_needs_no_search(monkeypatch, kd):
     # An uncoloured mesh (the default grey) or one untextured material: every
     # inside voxel takes that colour at once, the same as the search gives.
-    import geovox.colour as C
+    import geovox.colour.shading as C
     from geovox.surface import Material
 
     box = trimesh.creation.icosphere(subdivisions=2)

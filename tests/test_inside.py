@@ -51,7 +51,7 @@ OPEN = [("holed_sphere", holed_sphere(), 20), ("big_hole", holed_sphere(0.0), 20
 def test_winding_equals_brute_force_generalised_winding_number(name, mesh, res, backend, direct,
                                                                monkeypatch):
     if not direct:  # every refining pass runs, no shortcut to the exact sum
-        monkeypatch.setattr(geovox.inside, "DIRECT", 0)
+        monkeypatch.setattr(geovox.inside.winding, "DIRECT", 0)
     assert len(boundary_edges(mesh)) > 0
     vol = geovox.voxelize(mesh, resolution=res, inside="winding", backend=backend,
                           bounds=np.r_[mesh.bounds[0] - 0.13, mesh.bounds[1] + 0.11])
@@ -193,7 +193,7 @@ def test_voxel_sums_merged_in_many_parts_give_the_same_volume(monkeypatch):
     # The voxel-level sums of the caps' winding number are kept sparse and
     # merged whenever MERGE_AT pairs are pending; merging after every few
     # must change nothing, and both must match the brute force.
-    from geovox import inside
+    from geovox.inside import winding as inside
 
     mesh = many_holes()
     kw = dict(resolution=26, inside="winding", bounds=np.r_[mesh.bounds[0] - 0.1, mesh.bounds[1] + 0.1])

@@ -357,7 +357,7 @@ def _sphere_with(material, uv_scale, uv_shift):
 def test_border_wrap_mode(kernel):
     # MTL `-clamp on` ("border", from main's materials work): sampled as
     # clamp on the texture, untextured (Kd alone) off it.
-    import geovox.colour as colour
+    import geovox.colour.shading as colour
 
     img = np.random.default_rng(3).integers(0, 256, size=(6, 9, 3), dtype=np.uint8)
     kd = np.array([0.5, 0.25, 1.0])
@@ -390,7 +390,7 @@ def test_border_wrap_mode(kernel):
 def test_a_material_the_kernel_does_not_know_is_shaded_by_numpy(kernel, monkeypatch):
     # A wrap mode the tables have no code for: the NumPy search and shade()
     # colour the voxels instead of a wrong or failed kernel run.
-    import geovox.colour as colour
+    import geovox.colour.shading as colour
 
     mesh = _sphere_with(Material(image=np.zeros((4, 4, 3), np.uint8), texture_file="x.png",
                                  wrap=("spiral", "repeat")), 1.0, 0.0)

@@ -11,7 +11,7 @@ import trimesh
 from scipy import ndimage
 
 import geovox
-from geovox import inside
+from geovox.inside import winding as inside
 from geovox.errors import GeovoxWarning, GridTooLargeError
 from geovox.repair import repair
 

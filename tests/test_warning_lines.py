@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 import geovox
-from geovox import inside
+from geovox.inside import winding as inside
 from geovox.cli import main
 from geovox.errors import GeovoxWarning
 

@@ -1,0 +1,163 @@
+"""The sub-package layout (issue 21): every old import path still works, as the same module.
+
+``geovox.obj`` and the other moved modules are one module object under two names; the
+packages ``geovox.inside``, ``geovox.colour`` and ``geovox.cli`` show their main module's
+names live, and refuse a patch that their module's code would not see. Nothing is left at
+an old path, so git follows each move as a whole-file rename.
+"""
+
+import importlib
+import os
+import subprocess
+import sys
+
+import pytest
+
+import geovox
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+#: old module -> new module, for every module the layout moved
+MOVED = {
+    "geovox.obj": "geovox.io.obj",
+    "geovox.gltf": "geovox.io.gltf",
+    "geovox.ply": "geovox.io.ply",
+    "geovox.threemf": "geovox.io.threemf",
+    "geovox.references": "geovox.io.references",
+    "geovox.repair": "geovox.inside.repair",
+    "geovox.nearest": "geovox.colour.nearest",
+}
+#: module that became a package -> the module whose names the package shows
+PACKAGES = {
+    "geovox.inside": "geovox.inside.winding",
+    "geovox.colour": "geovox.colour.shading",
+    "geovox.cli": "geovox.cli.commands",
+}
+
+
+def test_the_alias_table_is_the_layout():
+    assert geovox._MOVED == MOVED
+
+
+@pytest.mark.parametrize("old", sorted(MOVED) + sorted(PACKAGES))
+def test_no_file_is_left_at_an_old_path(old):
+    path = os.path.join(ROOT, *old.split("."))
+    assert not os.path.exists(path + ".py"), path
+    if old in PACKAGES:
+        assert os.path.isfile(os.path.join(path, "__init__.py"))
+
+
+@pytest.mark.parametrize("old, new", sorted(MOVED.items()))
+def test_an_old_path_is_the_same_module(old, new):
+    by_old = importlib.import_module(old)
+    assert by_old is importlib.import_module(new) is sys.modules[old] is sys.modules[new]
+    assert by_old.__name__ == new and by_old.__spec__.name == new  # its own spec, kept
+    assert getattr(geovox, old.rsplit(".", 1)[1]) is by_old  # `from geovox import obj`
+
+
+def test_old_from_imports():
+    from geovox import nearest, obj, repair
+    from geovox.gltf import fan_faces
+    from geovox.nearest import nearest_inside
+    from geovox.obj import read_obj
+    from geovox.ply import read_plain_ply
+    from geovox.references import locate
+    from geovox.repair import repair as repair_fn
+    from geovox.threemf import flatten
+
+    assert read_obj is obj.read_obj is geovox.io.obj.read_obj
+    assert nearest_inside is nearest.nearest_inside is geovox.colour.nearest.nearest_inside
+    assert repair_fn is repair.repair is geovox.inside.repair.repair
+    assert fan_faces is geovox.io.gltf.fan_faces and read_plain_ply is geovox.io.ply.read_plain_ply
+    assert locate is geovox.io.references.locate and flatten is geovox.io.threemf.flatten
+
+
+@pytest.mark.parametrize("package, module", sorted(PACKAGES.items()))
+def test_a_package_shows_its_modules_names(package, module):
+    pkg, mod = importlib.import_module(package), importlib.import_module(module)
+    names = [n for n in vars(mod) if not n.startswith("__")]
+    assert names
+    for name in names:
+        assert getattr(pkg, name) is getattr(mod, name), name
+    assert set(names) <= set(dir(pkg))
+    with pytest.raises(AttributeError, match="no attribute 'not_a_name'"):
+        pkg.not_a_name  # noqa: B018
+
+
+def test_old_names_of_the_packages():
+    from geovox.cli import build_parser, main, main_exit
+    from geovox.colour import colour_volume, exact_colours, relevant_crossings, shade
+    from geovox.inside import boundary_edges, cap_winding, choose, winding_occupancy
+
+    assert main is geovox.cli.commands.main and main_exit is geovox.cli.commands.main_exit
+    assert build_parser is geovox.cli.commands.build_parser
+    assert colour_volume is geovox.colour.shading.colour_volume
+    assert (exact_colours, relevant_crossings, shade) == (
+        geovox.colour.shading.exact_colours, geovox.colour.shading.relevant_crossings,
+        geovox.colour.shading.shade)
+    assert (boundary_edges, cap_winding, choose, winding_occupancy) == (
+        geovox.inside.winding.boundary_edges, geovox.inside.winding.cap_winding,
+        geovox.inside.winding.choose, geovox.inside.winding.winding_occupancy)
+
+
+def test_a_patch_of_the_module_is_what_the_package_shows(monkeypatch):
+    import geovox.inside
+
+    def fake(*a, **k):
+        raise AssertionError("not called")
+
+    monkeypatch.setattr(geovox.inside.winding, "choose", fake)
+    assert geovox.inside.choose is fake  # pipeline reads it there: it sees the patch
+    monkeypatch.undo()
+    assert geovox.inside.choose is geovox.inside.winding.choose is not fake
+
+
+@pytest.mark.parametrize("package, name", [("geovox.inside", "PAIR_BUDGET"),
+                                           ("geovox.colour", "CHUNK_VOXELS"),
+                                           ("geovox.cli", "main")])
+def test_a_patch_of_the_package_is_refused_with_where_to_set_it(monkeypatch, package, name):
+    pkg = importlib.import_module(package)
+    before = getattr(pkg, name)
+    with pytest.raises(AttributeError, match=rf"set it there") as caught:
+        monkeypatch.setattr(pkg, name, object())
+    assert f"{PACKAGES[package]}.{name}" in str(caught.value)
+    monkeypatch.undo()  # putting back the value it shows is no copy, and no error
+    with pytest.raises(AttributeError, match="set it there"):
+        delattr(pkg, name)
+    assert getattr(pkg, name) is before and name not in vars(pkg)
+
+
+def test_a_package_keeps_its_own_names_and_submodules():
+    import geovox.colour
+    import geovox.colour.nearest
+
+    assert geovox.colour.nearest is sys.modules["geovox.colour.nearest"]
+    geovox.colour.own_name_for_this_test = 1  # not the module's: the package's own
+    try:
+        assert vars(geovox.colour)["own_name_for_this_test"] == 1
+    finally:
+        del geovox.colour.own_name_for_this_test
+
+
+def test_old_paths_in_a_fresh_process_import_lazily_and_warn_nothing():
+    code = ("import sys, warnings\nwarnings.simplefilter('error')\nimport geovox\n"
+            "assert not [m for m in sys.modules if m.startswith(('geovox.io', 'geovox.inside',"
+            " 'geovox.colour', 'geovox.cli'))], 'imported at import geovox'\n"
+            "import geovox.obj, geovox.nearest, geovox.repair\n"
+            "from geovox.inside import choose\nfrom geovox.colour import shade\n"
+            "from geovox.cli import main\nassert geovox.obj is geovox.io.obj\nprint('ok')\n")
+    env = dict(os.environ, PYTHONPATH=ROOT + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    out = subprocess.run([sys.executable, "-W", "error", "-c", code], capture_output=True,
+                         text=True, env=env, cwd=ROOT)
+    assert out.returncode == 0 and out.stdout.strip() == "ok", out.stderr
+
+
+def test_the_console_script_and_python_dash_m_still_reach_main():
+    with open(os.path.join(ROOT, "pyproject.toml"), encoding="utf-8") as f:
+        assert 'geovox = "geovox.cli:main_exit"' in f.read()
+    module, _, name = "geovox.cli:main_exit".partition(":")
+    assert getattr(importlib.import_module(module), name) is geovox.cli.commands.main_exit
+    env = dict(os.environ, PYTHONPATH=ROOT + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    out = subprocess.run([sys.executable, "-m", "geovox", "--version"], capture_output=True,
+                         text=True, env=env, cwd=ROOT)
+    assert out.returncode == 0 and geovox.__version__ in out.stdout + out.stderr, out.stderr
