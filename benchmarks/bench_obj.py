@@ -46,7 +46,7 @@ def worker(reader, path):
     import numpy as np  # noqa: F401  (imported before timing, as the CLI would)
 
     if reader != "trimesh":
-        import geovox.obj  # noqa: F401  (load_mesh imports it lazily; not part of a read)
+        import geovox.io.obj  # noqa: F401  (load_mesh imports it lazily; not part of a read)
 
     if reader == "trimesh":
         import trimesh
@@ -61,7 +61,7 @@ def worker(reader, path):
     elif reader == "load":
         from geovox.mesh import load_mesh as read
     else:
-        from geovox.obj import read_obj as read
+        from geovox.io.obj import read_obj as read
     wall, cpu = time.perf_counter(), time.process_time()
     try:
         out = read(path)
