@@ -72,7 +72,7 @@ __all__ = [
 #: old module path -> the module's path since the sub-packages (issue 21): both names
 #: are one module object, so `geovox.obj is geovox.io.obj` and a patch on either is seen by
 #: both. (`geovox.inside`, `geovox.colour` and `geovox.cli` are now the packages themselves,
-#: which re-export their modules' names.)
+#: which show their modules' names, live: geovox/_forward.py.)
 _MOVED = {
     "geovox.obj": "geovox.io.obj",
     "geovox.gltf": "geovox.io.gltf",
