@@ -7,6 +7,7 @@ an old path, so git follows each move as a whole-file rename.
 """
 
 import importlib
+import importlib.util
 import os
 import subprocess
 import sys
@@ -161,3 +162,31 @@ def test_the_console_script_and_python_dash_m_still_reach_main():
     out = subprocess.run([sys.executable, "-m", "geovox", "--version"], capture_output=True,
                          text=True, env=env, cwd=ROOT)
     assert out.returncode == 0 and geovox.__version__ in out.stdout + out.stderr, out.stderr
+
+
+@pytest.mark.parametrize("package", ["io", "inside", "colour", "cli"])
+def test_relative_imports_in_the_sub_packages_name_real_modules(package):
+    # An edit merged in from a branch that still had the module at geovox/X.py may bring a
+    # `from .errors import ...` (one level: geovox/<package>/errors, which does not exist),
+    # often inside a function, where it fails only on the path that runs it.
+    import ast
+
+    folder = os.path.join(ROOT, "geovox", package)
+    for name in sorted(os.listdir(folder)):
+        if not name.endswith(".py"):
+            continue
+        with open(os.path.join(folder, name), encoding="utf-8") as f:
+            tree = ast.parse(f.read())
+        for node in ast.walk(tree):
+            if not (isinstance(node, ast.ImportFrom) and node.level):
+                continue
+            where = f"geovox/{package}/{name}:{node.lineno}"
+            parent = "geovox" + f".{package}" * (node.level == 1)
+            if node.module is None:  # from .. import x: a module or a name of the package
+                pkg = importlib.import_module(parent)
+                for alias in node.names:
+                    assert hasattr(pkg, alias.name) or importlib.util.find_spec(
+                        f"{parent}.{alias.name}"), f"{where}: {parent}.{alias.name}"
+            else:
+                assert importlib.util.find_spec(f"{parent}.{node.module}"), (
+                    f"{where}: {'.' * node.level}{node.module} is not a module")
