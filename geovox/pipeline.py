@@ -537,9 +537,6 @@ def voxelize(
         stage starts (``event.stage``: "load", "rays", "colour", "density",
         "sdf").
 
-    Every option is a field of :class:`geovox.Options` (a test checks that
-    this signature matches it).
-
     Returns
     -------
     Volume
@@ -567,6 +564,11 @@ def voxelize(
     GridTooLargeError
         The arrays would not fit in the available memory (raised before
         anything is allocated, with the size needed).
+
+    Notes
+    -----
+    Every option is a field of :class:`geovox.Options` (a test checks that
+    this signature matches it).
     """
     t0 = time.perf_counter()
     given = dict(locals())
