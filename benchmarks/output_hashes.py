@@ -37,6 +37,7 @@ last line, and count as a difference when compared.
 from __future__ import annotations
 
 import argparse
+import fcntl
 import gzip
 import hashlib
 import json
@@ -356,6 +357,11 @@ def main(argv=None) -> int:
     ap.add_argument("--out", help="write the hashes to this JSON file")
     ap.add_argument("--compare", help="JSON file of earlier hashes to compare with")
     args = ap.parse_args(argv)
+    # Outputs (sidecars, manifests) name the scratch folder, so it cannot differ between runs:
+    # two runs at once wait for each other instead of sharing it.
+    os.makedirs(SCRATCH, exist_ok=True)
+    lock = open(SCRATCH + ".lock", "w")
+    fcntl.flock(lock, fcntl.LOCK_EX)
     root = os.path.abspath(args.root)
     names = args.only.split(",") if args.only else list(CASES)
     models = os.path.join(SCRATCH, "models")
