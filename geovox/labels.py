@@ -216,11 +216,11 @@ def scene(sources, options=None) -> Mesh:
     """
     from .mesh import load_mesh
 
+    rule = "anywhere" if options is None else options.references
     meshes = []
     for s in sources:
         try:
-            meshes.append(load_mesh(s, references="anywhere" if options is None
-                                    else options.references))
+            meshes.append(load_mesh(s, references=rule))
         except MeshError as exc:
             raise MeshError(f"in the scene: {exc}") from exc
     if not meshes:
@@ -290,7 +290,7 @@ def enclosed_volume(mesh: Mesh) -> float:
 
 
 def paint_order(lset: LabelSet, parts: list) -> list:
-    """Label indices in the order they are painted: the winner of an overlap (``lset.overlap``) last."""
+    """Label indices in the order they are painted: ``lset.overlap``'s winner last."""
     n = len(lset.names)
     if lset.overlap == "last":
         return list(range(n))

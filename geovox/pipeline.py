@@ -14,9 +14,9 @@ block's voxels are classified exactly as the full grid's would be.
 
 from __future__ import annotations
 
+import dataclasses
 import enum
 import time
-import dataclasses
 from dataclasses import dataclass, fields
 
 import numpy as np

@@ -137,3 +137,31 @@ def test_no_function_is_longer_than_100_lines():
 ])
 def test_code_lines_counts_after_the_docstring(source, lines):
     assert code_lines(ast.parse(source).body[0]) == lines
+
+
+#: ``(function called, module) -> why`` a module other than the plan's calls it.
+DECIDED_ELSEWHERE = {
+    ("choose", "labels.py"): "by parts, each part's own inside test, chosen as the block "
+                             "classifies it (geovox.labels.classify)",
+}
+
+
+def test_the_grid_the_streaming_and_the_inside_test_are_decided_in_the_plan():
+    """``make_grid``, ``streams`` and ``inside.choose`` are called from pipeline.py alone."""
+    decisions = {"make_grid", "streams", "choose"}
+    callers = collections.defaultdict(set)
+    for d, _, names in os.walk(ROOT):
+        for name in names:
+            if name.endswith(".py"):
+                with open(os.path.join(d, name), encoding="utf-8") as f:
+                    tree = ast.parse(f.read())
+                for node in ast.walk(tree):
+                    if isinstance(node, ast.Call):
+                        fn = node.func
+                        called = fn.attr if isinstance(fn, ast.Attribute) else \
+                            getattr(fn, "id", None)
+                        if called in decisions:
+                            callers[called].add(name)
+    assert callers["make_grid"] and callers["choose"] and callers["streams"]
+    elsewhere = {(c, m) for c, ms in callers.items() for m in ms if m != "pipeline.py"}
+    assert elsewhere == set(DECIDED_ELSEWHERE), elsewhere
