@@ -447,7 +447,8 @@ def voxelize(
 
     Each voxel centre is classified by casting one ray per voxel column
     along ``axis`` from outside the whole mesh and counting crossings
-    (odd = inside).
+    (odd = inside). Every option is a field of :class:`geovox.Options` (a
+    test checks that this signature matches it).
 
     Parameters
     ----------
@@ -545,9 +546,6 @@ def voxelize(
         ``progress(event)`` with a :class:`geovox.volume.Progress` as each
         stage starts (``event.stage``: "load", "rays", "colour", "density",
         "sdf").
-
-    Every option is a field of :class:`geovox.Options` (a test checks that
-    this signature matches it).
 
     Returns
     -------
