@@ -1,23 +1,58 @@
-"""Which compiled kernels this process uses: the one switch, ``GEOVOX_KERNEL``.
+"""Which compiled kernels a conversion uses: :attr:`Options.kernel <geovox.Options.kernel>`.
 
 geovox's compiled code is optional (setup.py builds it where a C compiler
 exists) and every kernel has a NumPy twin that gives the same answers bit for
-bit: ``geovox._nearest`` (the exact nearest-surface search of colour, chosen
-by :func:`geovox.nearest.kernel_module`), ``geovox._lattice`` (the column
-rays' lattice search and the inside test's mesh checks, :func:`lattice`) and
-``geovox._winding`` (the caps' winding number of open models, chosen by
+bit: ``geovox._nearest`` (the exact nearest-surface search of colour,
+:func:`geovox.nearest.kernel_module`), ``geovox._lattice`` (the column rays'
+lattice search and the inside test's mesh checks, :func:`lattice`) and
+``geovox._winding`` (the caps' winding number of open models,
 :func:`geovox.inside.winding_kernel`), each chosen by :func:`compiled`.
-``GEOVOX_KERNEL=numpy`` runs the NumPy code everywhere; ``compiled``
-insists on the compiled kernels; ``auto`` (the default) uses them where
-they import.
+``numpy`` runs the NumPy code everywhere; ``compiled`` insists on the
+compiled kernels; ``auto`` (the default) uses them where they import.
+
+The choice is an option (``voxelize(..., kernel="numpy")``, whose default is
+``$GEOVOX_KERNEL``, read by :class:`geovox.Options`); the plan and the block
+function run under it (:func:`chosen`, :func:`follows_plan`), so the stages
+deep below them -- the lattice search inside a backend's ``cast``, the mesh
+checks of the inside test -- ask :func:`compiled` and take no parameter.
 """
 
 from __future__ import annotations
 
-import os
+import contextlib
+import contextvars
+import functools
 
-#: Environment variable choosing compiled kernels or their NumPy twins.
-KERNEL_ENV = "GEOVOX_KERNEL"
+from .options import KERNEL_ENV
+
+#: The kernel choice of the conversion running in this context (None: none
+#: runs; Options' default then decides).
+_CHOICE = contextvars.ContextVar("geovox_kernel", default=None)
+
+
+@contextlib.contextmanager
+def chosen(kernel):
+    """Run the enclosed code with the kernel choice ``kernel`` (``auto``, ``compiled``, ``numpy``).
+
+    A context variable: each thread (a Dask worker's, a caller's) has its own;
+    a thread pool's workers start with none (see :func:`follows_plan`).
+    """
+    token = _CHOICE.set(kernel)
+    try:
+        yield
+    finally:
+        _CHOICE.reset(token)
+
+
+def follows_plan(fn):
+    """Decorate ``fn(mesh, plan, ...)`` to run under ``plan.options.kernel`` (see :func:`chosen`)."""
+
+    @functools.wraps(fn)
+    def under_plan(mesh, plan, *args, **kw):
+        with chosen(plan.options.kernel):
+            return fn(mesh, plan, *args, **kw)
+
+    return under_plan
 
 
 def compiled(name: str, what: str, kernel=None):
@@ -34,26 +69,29 @@ def compiled(name: str, what: str, kernel=None):
     what : str
         How messages name the kernel, e.g. ``"lattice search"``.
     kernel : {None, "auto", "compiled", "numpy"}
-        None reads :data:`KERNEL_ENV` (default ``auto``).
+        None: the choice of the conversion running (:func:`chosen`), or
+        outside one, :class:`~geovox.Options`' default (``$GEOVOX_KERNEL``,
+        else ``auto``).
 
     Raises
     ------
     ParameterError
         An unknown choice, or ``compiled`` where the module was not built.
     """
-    import importlib
-
     from .errors import ParameterError
+    from .options import _kernel_default
 
-    choice = kernel if kernel is not None else (os.environ.get(KERNEL_ENV) or "auto")
+    choice = kernel if kernel is not None else _CHOICE.get()
+    where = ""
+    if choice is None:
+        choice, where = _kernel_default(), f" (${KERNEL_ENV})"
     if choice not in ("auto", "compiled", "numpy"):
-        where = f" (${KERNEL_ENV})" if kernel is None else ""
         raise ParameterError(f"the {what} kernel{where} must be auto, compiled or numpy, "
                              f"got {choice!r}")
     if choice == "numpy":
         return None
     try:
-        return importlib.import_module(f"geovox.{name}")
+        return _load(name)
     except ImportError:
         if choice == "compiled":
             raise ParameterError(f"the compiled {what} kernel is not built "
@@ -61,17 +99,21 @@ def compiled(name: str, what: str, kernel=None):
         return None
 
 
-def lattice(kernel=None):
+def _load(name: str):
+    """Import ``geovox.<name>`` (the one place a compiled kernel is loaded)."""
+    import importlib
+
+    return importlib.import_module(f"geovox.{name}")
+
+
+def lattice():
     """The compiled lattice search and mesh checks (``geovox._lattice``), or None for NumPy.
 
-    Parameters
-    ----------
-    kernel : {None, "auto", "compiled", "numpy"}
-        None reads :data:`KERNEL_ENV` (default ``auto``).
+    As the running conversion's kernel choice says (see :func:`compiled`).
 
     Raises
     ------
     ParameterError
         An unknown choice, or ``compiled`` where the module was not built.
     """
-    return compiled("_lattice", "lattice-search", kernel)
+    return compiled("_lattice", "lattice-search")

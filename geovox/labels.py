@@ -62,12 +62,16 @@ class LabelSet:
         Each face's label index ``0 .. len(names) - 1``.
     colors : (L, 4) uint8
         RGBA per label.
+    overlap : str
+        Which part a voxel inside several takes (:data:`OVERLAPS`; the
+        option ``overlap``, which the plan sets here).
     """
 
     source: str
     names: list
     face_label: np.ndarray
     colors: np.ndarray
+    overlap: str = "last"
 
     @property
     def dtype(self):
@@ -75,8 +79,12 @@ class LabelSet:
         return np.dtype(np.uint8 if len(self.names) <= 255 else np.uint16)
 
 
-def check(labels, overlap="last", fractions=False) -> None:
-    """ParameterError for an unknown source or overlap rule, or fractions without labels."""
+def check(options) -> None:
+    """ParameterError for an unknown source or overlap rule, or fractions without labels.
+
+    ``options``: an :class:`~geovox.Options` (its ``labels``, ``overlap`` and ``fractions``).
+    """
+    labels, overlap, fractions = options.labels, options.overlap, options.fractions
     if labels is not None and labels not in SOURCES:
         raise ParameterError(f"`labels` must be one of {', '.join(SOURCES)} or None, "
                              f"got {labels!r}")
@@ -189,10 +197,11 @@ def _stem(path: str) -> str:
     return os.path.splitext(base)[0] or base
 
 
-def scene(sources, *, references: str = "anywhere") -> Mesh:
+def scene(sources, options=None) -> Mesh:
     """One mesh of several files (or meshes), each file's faces a label for ``"file"``.
 
-    Each file is read by :func:`geovox.mesh.load_mesh` under the rule
+    Each file is read by :func:`geovox.mesh.load_mesh` as ``options`` (an
+    :class:`~geovox.Options`; default its defaults) say: the rule
     ``references``.
 
     The files' parts are kept as ``"stem: part"`` for ``labels="part"``, and
@@ -207,10 +216,11 @@ def scene(sources, *, references: str = "anywhere") -> Mesh:
     """
     from .mesh import load_mesh
 
+    rule = "anywhere" if options is None else options.references
     meshes = []
     for s in sources:
         try:
-            meshes.append(load_mesh(s, references=references))
+            meshes.append(load_mesh(s, references=rule))
         except MeshError as exc:
             raise MeshError(f"in the scene: {exc}") from exc
     if not meshes:
@@ -279,12 +289,12 @@ def enclosed_volume(mesh: Mesh) -> float:
     return abs(float(np.einsum("ij,ij->i", t[:, 0], np.cross(t[:, 1], t[:, 2])).sum()) / 6.0)
 
 
-def paint_order(lset: LabelSet, parts: list, overlap: str) -> list:
-    """Label indices in the order they are painted: the winner of an overlap last."""
+def paint_order(lset: LabelSet, parts: list) -> list:
+    """Label indices in the order they are painted: ``lset.overlap``'s winner last."""
     n = len(lset.names)
-    if overlap == "last":
+    if lset.overlap == "last":
         return list(range(n))
-    if overlap == "first":
+    if lset.overlap == "first":
         return list(range(n))[::-1]
     vols = [enclosed_volume(p) if p is not None else 0.0 for p in parts]
     # Largest first, so the smallest paints last; equal volumes: the later part wins.
@@ -356,8 +366,8 @@ class Classified:
 
 
 def classify(mesh: Mesh, grid, lset: LabelSet, *, cast_mesh, axis: int, jobs: int = 1,
-             inside: str = "auto", overlap: str = "last") -> Classified:
-    """Each part by its own inside test on ``grid``, overlaps settled by ``overlap``.
+             inside: str = "auto") -> Classified:
+    """Each part by its own inside test on ``grid``, overlaps settled by ``lset.overlap``.
 
     Parameters
     ----------
@@ -370,7 +380,7 @@ def classify(mesh: Mesh, grid, lset: LabelSet, *, cast_mesh, axis: int, jobs: in
     cast_mesh : callable
         ``cast_mesh(mesh, axis) -> (Hits, Columns)`` on ``grid`` (rays from
         outside the mesh, see :func:`geovox.pipeline.ray_start`).
-    axis, jobs, inside, overlap
+    axis, jobs, inside
         As for :func:`geovox.voxelize`.
     """
     import warnings
@@ -409,7 +419,7 @@ def classify(mesh: Mesh, grid, lset: LabelSet, *, cast_mesh, axis: int, jobs: in
     labels = np.zeros(grid.shape, dtype=lset.dtype, order="F")
     seen = np.zeros(grid.shape, dtype=bool, order="F")
     multi = None  # voxels inside more than one part
-    for k in paint_order(lset, parts, overlap):
+    for k in paint_order(lset, parts):
         if parts[k] is None:
             continue
         if methods[k] == "parity":
@@ -507,9 +517,8 @@ def material_labels(mesh: Mesh, grid, occupancy: np.ndarray, lset: LabelSet, *, 
 
 
 def label_fractions(mesh: Mesh, grid, lset: LabelSet, *, engine, axis: int, start: float,
-                    supersample: int = 4, jobs: int = 1, overlap: str = "last",
-                    dtype: str = "uint8") -> np.ndarray:
-    """Each label's coverage fraction per voxel, overlaps settled by ``overlap``.
+                    supersample: int = 4, jobs: int = 1, dtype: str = "uint8") -> np.ndarray:
+    """Each label's coverage fraction per voxel, overlaps settled by ``lset.overlap``.
 
     From ``supersample`` x ``supersample`` rays per column, cast once for the
     whole mesh (as ``density="coverage"``). The parts are taken winners
@@ -548,7 +557,7 @@ def label_fractions(mesh: Mesh, grid, lset: LabelSet, *, engine, axis: int, star
                    order="F")
     included = np.zeros(n, dtype=bool)
     prev = None
-    for k in reversed(paint_order(lset, parts, overlap)):
+    for k in reversed(paint_order(lset, parts)):
         if parts[k] is None:
             continue
         included[k] = True
@@ -603,17 +612,8 @@ def parts_report(mesh: Mesh, sources=("part", "component", "material"), most: in
     return "\n".join(lines)
 
 
-def resolve(mesh: Mesh, labels, overlap="last", fractions=False):
-    """The LabelSet for ``labels`` (a source, a LabelSet, or None), options checked."""
-    if labels is None:
-        check(None, overlap, fractions)
-        return None
-    check(labels if isinstance(labels, str) else labels.source, overlap, fractions)
-    return labels if isinstance(labels, LabelSet) else label_set(mesh, labels)
-
-
 def label_results(mesh: Mesh, grid, occupancy, lset: LabelSet, classified, *, engine, axis,
-                  jobs, overlap, fractions, density_dtype, supersample, frame, start, timings,
+                  jobs, fractions, density_dtype, supersample, frame, start, timings,
                   step) -> dict:
     """A block's label fields for its Volume: ``labels``, ``label_table``, ``contested``,
     ``fractions`` (material labels and fractions are made here, timed into ``timings``)."""
@@ -631,7 +631,7 @@ def label_results(mesh: Mesh, grid, occupancy, lset: LabelSet, classified, *, en
         step("fractions")
         t = time.perf_counter()
         fracs = label_fractions(mesh, grid, lset, engine=engine, axis=axis, start=start,
-                                supersample=supersample, jobs=jobs, overlap=overlap,
+                                supersample=supersample, jobs=jobs,
                                 dtype=density_dtype)
         timings["fractions"] = time.perf_counter() - t
     return {"labels": lab, "label_table": table(lset, lab, grid.spacing),

@@ -25,14 +25,17 @@ def _available_memory() -> int | None:
     return None
 
 
-def bytes_per_voxel(color=False, density=None, sdf=False) -> float:
-    """Working memory per voxel of one conversion (occupancy and what is asked for).
+def bytes_per_voxel(options) -> float:
+    """Working memory per voxel of one conversion (occupancy and what ``options`` ask for).
 
     Occupancy is 1 byte a voxel; colour adds 4 for RGBA and about 16 of
     working arrays while nearest crossings are found; density and distance
     4 each plus a float32 working copy.
     """
-    return 1.0 + (20.0 if color else 0.0) + (8.0 if density else 0.0) + (8.0 if sdf else 0.0)
+    from .options import colour_of
+
+    return (1.0 + (20.0 if colour_of(options.color) else 0.0)
+            + (8.0 if options.density else 0.0) + (8.0 if options.sdf else 0.0))
 
 
 def check_memory(grid: Grid, bytes_per_voxel: float = 1.0) -> None:

@@ -1030,7 +1030,7 @@ def load_mesh(source, *, references: str = "anywhere") -> Mesh:
         if path.lower().endswith(".obj"):
             from .obj import read_obj
 
-            return check_mesh(read_obj(path, references=rule))
+            return check_mesh(read_obj(path, rule=rule))
         if path.lower().endswith(".ply"):
             from .ply import read_plain_ply
 

@@ -320,7 +320,7 @@ def _validate_fields(o: Options) -> None:
     if o.labels is not None or o.fractions or o.overlap != "last":
         from .labels import check
 
-        check(o.labels, o.overlap, o.fractions)
+        check(o)
     if o.mesh_space is not None:
         if o.like is None:
             raise ParameterError("`mesh_space` (--mesh-space) applies only onto a reference grid "

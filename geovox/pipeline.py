@@ -14,6 +14,7 @@ block's voxels are classified exactly as the full grid's would be.
 
 from __future__ import annotations
 
+import dataclasses
 import enum
 import time
 from dataclasses import dataclass, fields
@@ -23,6 +24,7 @@ import numpy as np
 from . import parity
 from .errors import ParameterError, warn
 from .grid import Grid, make_grid
+from .kernels import chosen, follows_plan
 from .memory import bytes_per_voxel, check_memory
 from .options import Colour, Inside, Options, colour_of
 from .volume import Progress, Report, Volume
@@ -178,7 +180,7 @@ def load(mesh, options: Options):
                                  "labels='file'); convert them one by one otherwise")
         from .labels import scene
 
-        return scene(mesh, references=options.references)
+        return scene(mesh, options)
     return loader.load_mesh(mesh, references=options.references)
 
 
@@ -244,11 +246,17 @@ def plan(mesh, options=None, path=None, *, fmt=None, stream=None, cluster=False,
     BackendUnavailableError
         The backend named cannot run here.
     """
+    o = as_options(options)
+    with chosen(o.kernel):  # the inside test's mesh checks run compiled or not, as asked
+        return _plan(mesh, o, path, fmt, stream, cluster, budget, slab)
+
+
+def _plan(mesh, o: Options, path, fmt, stream, cluster, budget, slab) -> Plan:
+    """:func:`plan`, with ``o`` validated."""
     from . import inside as inside_tests
     from .backends import get_backend
     from .parallel import resolve_jobs
 
-    o = as_options(options)
     engine = get_backend(o.backend) if isinstance(o.backend, str) else o.backend
     m = load(mesh, o)
     f = None
@@ -266,13 +274,13 @@ def plan(mesh, options=None, path=None, *, fmt=None, stream=None, cluster=False,
     elif stream is None:
         from .stream import streams
 
-        stream = f is not None and streams(grid, f, colour, o.density, o.sdf)
+        stream = f is not None and streams(grid, f, o)
     if not stream or f is None:
         # By parts, each part takes its own inside test (geovox.labels.classify).
         method = (Inside(o.inside) if lset is not None and lset.source != "material"
                   else Inside(inside_tests.choose(m, o.inside)))
         p = Plan(inside=method, axis=o.axis, route=Route.MEMORY, blocks=((0, grid.shape[2]),),
-                 per_voxel=bytes_per_voxel(colour, o.density, o.sdf), **base)
+                 per_voxel=bytes_per_voxel(o), **base)
     else:
         p = _streamed_plan(m, base, cluster=cluster, budget=budget, slab=slab)
     # With `like`, the mesh the blocks run on is the moved one (see Plan.mesh_for).
@@ -287,8 +295,7 @@ def _mesh_and_grid(m, o: Options, f):
         from .reference import prepare
 
         # The mesh moved into the reference's local frame, where its grid is axis-aligned.
-        m, grid, used = prepare(m, o.like, o.mesh_space, sdf=o.sdf, color=o.color,
-                                **o.grid_options())
+        m, grid, used = prepare(m, o)
     else:
         grid = grid_of(m, o, f)
     if f is not None:
@@ -312,7 +319,8 @@ def _label_set(m, o: Options, f, stream):
         from . import formats
 
         formats.check_labels(True, f)
-    return label_mod.label_set(m, o.labels)
+    # The overlap rule travels with the labels (geovox.labels.paint_order reads it).
+    return dataclasses.replace(label_mod.label_set(m, o.labels), overlap=o.overlap)
 
 
 def _streamed_plan(m, base: dict, *, cluster, budget, slab) -> Plan:
@@ -323,7 +331,7 @@ def _streamed_plan(m, base: dict, *, cluster, budget, slab) -> Plan:
 
     o, grid, colour, f = base["options"], base["grid"], base["colour"], base["format"]
     method = Inside(inside_tests.choose(m, o.inside))
-    per = bytes_per_voxel(colour, o.density, o.sdf) + inside_tests.working_bytes(m, method)
+    per = bytes_per_voxel(o) + inside_tests.working_bytes(m, method)
     budget = slab_budget() if budget is None else budget
     blocks = slab_plan(grid, per, budget)
     nx, ny, nz = grid.shape
@@ -370,6 +378,7 @@ def _streamed_plan(m, base: dict, *, cluster, budget, slab) -> Plan:
                 budget=budget, reuse_z=reuse_z, chunk_slab=thick, **base)
 
 
+@follows_plan
 def run(mesh, p: Plan, *, progress=None, client=None, write_options=None) -> Report:
     """Run plan ``p`` on ``mesh`` (the loaded Mesh it was made for): one Report.
 
@@ -438,7 +447,8 @@ def voxelize(
 
     Each voxel centre is classified by casting one ray per voxel column
     along ``axis`` from outside the whole mesh and counting crossings
-    (odd = inside).
+    (odd = inside). Every option is a field of :class:`geovox.Options` (a
+    test checks that this signature matches it).
 
     Parameters
     ----------
@@ -564,11 +574,6 @@ def voxelize(
     GridTooLargeError
         The arrays would not fit in the available memory (raised before
         anything is allocated, with the size needed).
-
-    Notes
-    -----
-    Every option is a field of :class:`geovox.Options` (a test checks that
-    this signature matches it).
     """
     t0 = time.perf_counter()
     given = dict(locals())
@@ -626,6 +631,7 @@ def ray_start(mesh, grid: Grid, axis: int) -> float:
     return min(float(mesh.bounds[0, axis]), float(grid.lo[axis])) - 1e-3 * mesh.scale
 
 
+@follows_plan
 def voxelize_block(mesh, plan: Plan, block=None, *, buffers=None) -> Volume:
     """Voxelise one block of the plan's grid -- the whole grid or a slab along z -- with every option.
 
@@ -699,7 +705,7 @@ def voxelize_block(mesh, plan: Plan, block=None, *, buffers=None) -> Volume:
 
     grid = block_grid(plan.grid, block)
     if "slices" not in buffers:
-        check_memory(grid, bytes_per_voxel(plan.colour, o.density, o.sdf))
+        check_memory(grid, bytes_per_voxel(o))
     step("rays")
     crossings = {}
     classified = None
@@ -712,7 +718,7 @@ def voxelize_block(mesh, plan: Plan, block=None, *, buffers=None) -> Volume:
         # By parts: each part's own inside test, overlaps settled by the rule.
         classified = classify(m, grid, plan.labels, axis=plan.axis, jobs=plan.jobs,
                               cast_mesh=lambda mesh, ax: _cast(mesh, plan, grid, ax),
-                              inside=o.inside, overlap=o.overlap)
+                              inside=o.inside)
         crossings[plan.axis] = classified.crossings
         t_rays = time.perf_counter()
         occ = np.asfortranarray(classified.labels != 0)
@@ -745,6 +751,7 @@ def voxelize_block(mesh, plan: Plan, block=None, *, buffers=None) -> Volume:
                   colors=colors, timings=timings, inside=method, density=dens, sdf=dist, **extra)
 
 
+@follows_plan  # also on the colour step's threads
 def _cast(mesh, plan: Plan, grid: Grid, ax: int):
     """``(Hits, Columns)`` of the block ``grid``'s column rays along ``ax`` through ``mesh``."""
     columns = grid.columns(ax, start=ray_start(mesh, grid, ax))
@@ -786,7 +793,7 @@ def _fill_in_slices(m, plan: Plan, grid: Grid, sink):
 
 def _colour(m, plan: Plan, grid: Grid, block, occ, crossings: dict, buffers: dict):
     """The block's colours (see :func:`geovox.colour.colour_volume`)."""
-    from .colour import colour_volume
+    from .colour import Shading, colour_volume
 
     o = plan.options
     for a, crossings_of in (buffers.get("crossings") or {}).items():
@@ -804,8 +811,8 @@ def _colour(m, plan: Plan, grid: Grid, block, occ, crossings: dict, buffers: dic
     else:
         for a in others:
             crossings[a] = _cast(m, plan, grid, a)
-    return colour_volume(m, grid, occ, crossings, diffuse=o.diffuse, ambient=o.ambient,
-                         jobs=plan.jobs, exact=exact, kernel=o.kernel,
+    return colour_volume(m, grid, occ, crossings, shading=Shading.of(o), jobs=plan.jobs,
+                         exact=exact,
                          frame=(plan.grid.lo, plan.grid.spacing, 0 if block is None else block[0]),
                          out=None if exact else buffers.get("colour_out"),
                          sink=None if exact else buffers.get("colour_sink"))
@@ -818,7 +825,7 @@ def _labels(m, plan: Plan, grid: Grid, block, occ, classified, step, timings) ->
     o = plan.options
     return label_results(
         m, grid, occ, plan.labels, classified, engine=plan.backend, axis=plan.axis,
-        jobs=plan.jobs, overlap=o.overlap, fractions=o.fractions, density_dtype=o.density_dtype,
+        jobs=plan.jobs, fractions=o.fractions, density_dtype=o.density_dtype,
         supersample=int(o.supersample),
         frame=(plan.grid.lo, plan.grid.spacing, 0 if block is None else block[0]),
         start=ray_start(m, grid, plan.axis), timings=timings, step=step)
@@ -901,5 +908,6 @@ def empty_reason(m, grid: Grid, method: str) -> str:
     return f"{m.source}: the volume is empty: {why}"
 
 
-def _overlaps(bounds, grid) -> bool:
-    return bool(np.all(bounds[0] <= grid.hi) and np.all(bounds[1] >= grid.lo))
+def _overlaps(box, grid) -> bool:
+    """Whether the (2, 3) box ``box`` (a mesh's bounds) meets the grid's region."""
+    return bool(np.all(box[0] <= grid.hi) and np.all(box[1] >= grid.lo))

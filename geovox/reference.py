@@ -512,28 +512,27 @@ def resolve_mesh_space(mesh, mesh_space=None) -> tuple:
     return "LPS", "assumed: no file to read a SPACE= mark from"
 
 
-def to_local(mesh, ref: Reference, mesh_space=None):
-    """``(mesh in ref's local frame, (space, how))``: vertices moved once, in float64.
+def to_local(mesh, ref: Reference, space: str):
+    """``mesh`` in ref's local frame, from its frame ``space`` (``"LPS"`` or ``"RAS"``).
 
-    Everything else (faces, materials, UVs, colours) is shared with ``mesh``:
-    an affine map keeps barycentric coordinates, so colours are unchanged.
+    The vertices are moved once, in float64. Everything else (faces,
+    materials, UVs, colours) is shared with ``mesh``: an affine map keeps
+    barycentric coordinates, so colours are unchanged.
     """
-    space, how = resolve_mesh_space(mesh, mesh_space)
     m = ref.world_to_local(space)
     v = mesh.vertices @ m[:3, :3].T + m[:3, 3]
-    moved = dataclasses.replace(mesh, vertices=np.ascontiguousarray(v), _cache={})
-    return moved, (space, how)
+    return dataclasses.replace(mesh, vertices=np.ascontiguousarray(v), _cache={})
 
 
-def check_reference_options(ref: Reference, *, sdf=False, color=None) -> None:
+def check_reference_options(ref: Reference, options) -> None:
     """Refuse or warn about options a sheared (non-orthogonal) reference cannot give exactly."""
     if ref.orthogonal:
         return
-    if sdf:
+    if options.sdf:
         raise ParameterError(f"--like {ref.source}: the grid's direction cosines are not orthogonal "
                              f"(a sheared grid), so a signed distance in world units cannot be "
                              f"computed on it exactly; drop --sdf")
-    if color:
+    if options.color:
         warn(f"{ref.source}: the grid is sheared (direction cosines not orthogonal): colours come "
              f"from the nearest surface point measured in the grid's scaled index space, which "
              f"is not the nearest in world space", stacklevel=3)
@@ -549,19 +548,19 @@ def reject_grid_options(**given) -> None:
         raise ParameterError(f"`like` (--like) sets the grid; it cannot be combined with {flags}")
 
 
-def prepare(mesh, like, mesh_space=None, *, sdf=False, color=None, **grid_options):
-    """``(local mesh, Grid, (space, how))`` for a conversion onto reference ``like``.
+def prepare(mesh, options):
+    """``(local mesh, Grid, (space, how))`` for a conversion onto reference ``options.like``.
 
     The one entry the pipeline, the streamer and the CLI use.
     """
-    reject_grid_options(**grid_options)
-    ref = load_reference(like)
-    check_reference_options(ref, sdf=sdf, color=color)
-    moved, used = to_local(mesh, ref, mesh_space)
-    return moved, ref.local_grid(), used
+    reject_grid_options(**options.grid_options())
+    ref = load_reference(options.like)
+    check_reference_options(ref, options)
+    used = resolve_mesh_space(mesh, options.mesh_space)
+    return to_local(mesh, ref, used[0]), ref.local_grid(), used
 
 
-def field_of_view(mesh, ref: Reference, mesh_space=None) -> dict:
+def field_of_view(mesh, ref: Reference, options) -> dict:
     """How much of ``mesh`` lies in ``ref``'s field of view (the voxels' extent).
 
     Returns
@@ -570,9 +569,11 @@ def field_of_view(mesh, ref: Reference, mesh_space=None) -> dict:
     vertices), ``area_inside`` (fraction of the surface area, by each
     triangle's centroid), ``inside`` ("all", "part", "around": no surface inside but
     the boxes meet, or "none") and the mesh's
-    extent in index coordinates ``index_lo``, ``index_hi``.
+    extent in index coordinates ``index_lo``, ``index_hi``; the mesh's frame
+    is ``options.mesh_space``'s (see :func:`resolve_mesh_space`).
     """
-    moved, (space, how) = to_local(mesh, ref, mesh_space)
+    space, how = resolve_mesh_space(mesh, options.mesh_space)
+    moved = to_local(mesh, ref, space)
     s = ref.spacing
     lo, hi = -0.5 * s, (np.asarray(ref.shape) - 0.5) * s
     t = moved.triangles

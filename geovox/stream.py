@@ -38,6 +38,7 @@ import numpy as np
 
 from .errors import ParameterError, collect_warnings, warn
 from .grid import Grid
+from .kernels import follows_plan
 from . import memory
 from .memory import bytes_per_voxel
 from .options import Colour, Inside, Options
@@ -72,7 +73,7 @@ def slab_budget() -> float:
     return SLAB_BUDGET if avail is None else min(SLAB_BUDGET, 0.5 * avail)
 
 
-def streams(grid: Grid, fmt, color=False, density=None, sdf=False) -> bool:
+def streams(grid: Grid, fmt, options: Options) -> bool:
     """Whether a conversion into format ``fmt`` runs slab by slab (:func:`convert_to`).
 
     The one rule for the command line and batches (:func:`geovox.plan` with
@@ -85,6 +86,8 @@ def streams(grid: Grid, fmt, color=False, density=None, sdf=False) -> bool:
     ----------
     fmt : geovox.formats.Format or str
         The format, or its name.
+    options : Options
+        What the conversion makes (its memory per voxel).
     """
     from .formats import format_for
 
@@ -93,20 +96,21 @@ def streams(grid: Grid, fmt, color=False, density=None, sdf=False) -> bool:
         return False
     if f.name == "zarr":
         return True  # always slab by slab: each slab writes its own shards
-    blocks = slab_plan(grid, bytes_per_voxel(color, density, sdf), slab_budget())
-    return len(blocks) > 1 or streams_whole(grid, color, density, sdf)
+    blocks = slab_plan(grid, bytes_per_voxel(options), slab_budget())
+    return len(blocks) > 1 or streams_whole(grid, options)
 
 
-def streams_whole(grid: Grid, color=False, density=None, sdf=False) -> bool:
+def streams_whole(grid: Grid, options: Options | None = None) -> bool:
     """Whether a one-piece conversion to .h5 / .raw is worth streaming anyway.
 
     Occupancy alone of a grid of 512³ voxels or more: filling and writing
     64 slices at a time skips allocating (and first touching) the whole
     array, which on a 1024³ grid costs 0.2-2.5 s by itself, depending on
-    the machine's memory state.
+    the machine's memory state. ``options``: what is made (default
+    occupancy alone).
     """
-    return (not (color or density or sdf) and grid.size >= WHOLE_STREAM_VOXELS
-            and grid.shape[2] > 64)
+    alone = options is None or bytes_per_voxel(options) == 1.0  # occupancy: 1 byte a voxel
+    return alone and grid.size >= WHOLE_STREAM_VOXELS and grid.shape[2] > 64
 
 
 def cluster_thick(grid: Grid, per_voxel: float, budget: float = WORKER_SLAB_BUDGET) -> int:
@@ -164,6 +168,7 @@ def _release_slab_buffers() -> None:
     _SLAB_BUFFERS.clear()
 
 
+@follows_plan
 def _zarr_slab(m, p: Plan, block, layout, z_part=None, z_start=None):
     """One cluster task: voxelise slab ``block`` of plan ``p`` and write it into its own shards.
 
@@ -298,7 +303,7 @@ def _run_fill(m, p: Plan, writer, timings, progress) -> int:
     return state["inside"]
 
 
-def _slab_buffers(p: Plan, overlap: bool, to_file: bool) -> dict:
+def _slab_buffers(p: Plan, two: bool, to_file: bool) -> dict:
     """One occupancy (two where writes overlap) and one colour array, reused by every slab.
 
     Faulting a slab's worth of fresh memory in for each one cost more system
@@ -308,7 +313,7 @@ def _slab_buffers(p: Plan, overlap: bool, to_file: bool) -> dict:
         return {}
     nx, ny, _ = p.grid.shape
     out = {"out": np.empty((nx, ny, p.thick), dtype=bool, order="F")}
-    if overlap:
+    if two:
         out["out2"] = np.empty((nx, ny, p.thick), dtype=bool, order="F")
     if p.colour == Colour.FAST and not to_file:
         out["colour_out"] = np.empty((p.thick, ny, nx, 4), dtype=np.uint8)
@@ -412,6 +417,7 @@ def _meta(m, p: Plan) -> Volume:
                   sdf=np.zeros(0, np.float32) if o.sdf else None)
 
 
+@follows_plan
 def run_slabs(m, p: Plan, *, progress=None, client=None) -> Report:
     """Run a streamed plan (slabs, the 64-slice fill or cluster tasks) into its file.
 

@@ -232,8 +232,12 @@ class Report:
                 "wrote " + ", ".join(self.files)]
 
 
-def reference_line(ref, mesh_space) -> str:
-    """The summary's line on a conversion onto a reference grid."""
-    space, how = mesh_space
+def reference_line(ref, decided) -> str:
+    """The summary's line on a conversion onto a reference grid.
+
+    ``decided``: the mesh's frame and how it was decided, ``(space, how)``
+    (a Volume's or a Plan's ``mesh_space``).
+    """
+    space, how = decided
     return (f"onto {os.path.basename(ref.source)} ({ref.space}); mesh space {space} "
             f"({'--mesh-space' if how == 'given' else how})")

@@ -20,6 +20,7 @@ import trimesh
 import geovox
 from geovox.errors import GeovoxWarning
 from geovox.inside import winding as inside
+from geovox.kernels import chosen
 
 
 def cap_heavy(n=24, seed=5):
@@ -50,6 +51,12 @@ def cap_heavy(n=24, seed=5):
 
 
 MESH = cap_heavy()
+
+
+def _compiled_winding():
+    """The compiled winding module where it was built, else None."""
+    with chosen("auto"):
+        return inside.winding_kernel()
 RES = 20
 #: Voxels the compiled first pass leaves undecided on MESH at RES (see the tests below).
 ESTIMATED_AT_ZERO = 25
@@ -96,7 +103,7 @@ def test_the_model_is_cap_heavy():
 
 
 KERNELS = ["numpy", pytest.param("compiled", marks=pytest.mark.skipif(
-    inside.winding_kernel("auto") is None, reason="the compiled winding kernel is not built"))]
+    _compiled_winding() is None, reason="the compiled winding kernel is not built"))]
 
 
 @pytest.mark.parametrize("kernel", KERNELS)
@@ -129,7 +136,7 @@ def test_past_a_small_budget_proven_voxels_are_the_brute_force(reference, monkey
     assert np.count_nonzero(estimated) == 5340
 
 
-@pytest.mark.skipif(inside.winding_kernel("auto") is None, reason="the compiled winding kernel is not built")
+@pytest.mark.skipif(_compiled_winding() is None, reason="the compiled winding kernel is not built")
 def test_compiled_past_its_time_the_proven_voxels_are_the_brute_force(reference, monkeypatch):
     # No time at all: every voxel the first pass (bricks, second-order far
     # field) leaves undecided keeps its estimate. The rest are proven and
@@ -144,7 +151,7 @@ def test_compiled_past_its_time_the_proven_voxels_are_the_brute_force(reference,
     assert np.count_nonzero(estimated) == inside.STATS["estimated"] == ESTIMATED_AT_ZERO
 
 
-@pytest.mark.skipif(inside.winding_kernel("auto") is None, reason="the compiled winding kernel is not built")
+@pytest.mark.skipif(_compiled_winding() is None, reason="the compiled winding kernel is not built")
 @pytest.mark.parametrize("jobs", [1, 3])
 def test_compiled_refines_every_voxel_alone_and_agrees(reference, monkeypatch, jobs):
     # With time, the voxels the first pass leaves are refined alone (tighter
@@ -159,9 +166,10 @@ def test_compiled_refines_every_voxel_alone_and_agrees(reference, monkeypatch, j
 
 
 def test_kernel_choice():
-    assert inside.winding_kernel("numpy") is None
-    with pytest.raises(geovox.ParameterError, match="auto, compiled or numpy"):
-        inside.winding_kernel("fast")
+    with chosen("numpy"):
+        assert inside.winding_kernel() is None
+    with pytest.raises(geovox.ParameterError, match="auto, compiled or numpy"), chosen("fast"):
+        inside.winding_kernel()
 
 
 def test_boundary_pieces_split_into_closed_loops():

@@ -20,7 +20,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import geovox
-from geovox.colour import load_textures, shade
+from geovox.colour import Shading, load_textures, shade
+from geovox.kernels import chosen
 from geovox.errors import GeovoxWarning
 from geovox.mesh import Mesh
 from geovox.nearest import TIE, nearest_inside
@@ -161,7 +162,7 @@ def _check_against_reference(path_or_mesh, res, exact_ties=False, **kw):
     h = float(min(vol.spacing))
     load_textures(mesh)
     tri, bary, dist, tie = reference_nearest(mesh.triangles, _centres(vol, idx), h)
-    ref = np.rint(shade(mesh, tri, bary, **kw) * 255)
+    ref = np.rint(shade(mesh, tri, bary, Shading(**kw)) * 255)
     got = vol.colors[tuple(idx.T)]
     assert np.all(got[:, 3] == 255)
     err = np.abs(got[:, :3].astype(int) - ref).max(axis=1)
@@ -196,7 +197,7 @@ def test_corpus_textured_tetrahedron():
                              exact_ties=True)
 
 
-def _nearest_triangles(mesh, res, kernel=None):
+def _nearest_triangles(mesh, res, kernel="auto"):
     """Nearest triangle of every inside voxel, from nearest_inside, and the reference."""
     vol = geovox.voxelize(mesh, resolution=res)
     got = np.full(vol.shape, -1)
@@ -207,8 +208,9 @@ def _nearest_triangles(mesh, res, kernel=None):
         got[tuple(vox.T)] = t
         uv[tuple(vox.T)] = b
 
-    nearest_inside(mesh.triangles, vol.occupancy, vol.grid.spacing, origin=vol.grid.lo, emit=emit,
-                   kernel=kernel)
+    with chosen(kernel):
+        nearest_inside(mesh.triangles, vol.occupancy, vol.grid.spacing, origin=vol.grid.lo,
+                       emit=emit)
     idx = np.argwhere(vol.occupancy)
     assert np.all(got[vol.occupancy] >= 0) and np.all(got[~vol.occupancy] == -1)
     ref = reference_nearest(mesh.triangles, _centres(vol, idx), float(min(vol.spacing)))

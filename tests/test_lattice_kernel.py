@@ -25,7 +25,7 @@ from geovox.backends.numpy import rasterise
 from geovox.errors import ParameterError
 from geovox.exact import Projection
 from geovox.grid import make_grid
-from geovox.kernels import lattice
+from geovox.kernels import chosen, lattice
 from geovox.mesh import Mesh
 from geovox.pipeline import ray_start
 
@@ -45,7 +45,8 @@ def _have_compiler():
 def kernel():
     """The compiled module: a failure where it should have been built, a skip elsewhere."""
     try:
-        return lattice("compiled")
+        with chosen("compiled"):
+            return lattice()
     except ParameterError:
         if _have_compiler():
             pytest.fail("a C compiler and Python's headers are here, but geovox._lattice "
@@ -58,8 +59,8 @@ def test_the_lattice_kernel_is_built_where_a_compiler_exists(kernel):
 
 
 def test_kernel_choice_is_checked(monkeypatch):
-    with pytest.raises(ParameterError, match="auto, compiled or numpy"):
-        lattice("fast")
+    with pytest.raises(ParameterError, match="auto, compiled or numpy"), chosen("fast"):
+        lattice()
     monkeypatch.setenv("GEOVOX_KERNEL", "numpy")
     assert lattice() is None
     monkeypatch.setenv("GEOVOX_KERNEL", "nonsense")

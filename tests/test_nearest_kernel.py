@@ -23,7 +23,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import geovox
-from geovox.colour import exact_colours, load_textures, shade
+from geovox.colour import Shading, exact_colours, load_textures, shade
+from geovox.kernels import chosen
 from geovox.errors import GeovoxWarning, ParameterError
 from geovox.mesh import Mesh
 from geovox.nearest import brute_force, kernel_module, nearest_inside, prepare, run_kernel
@@ -45,7 +46,8 @@ def _have_compiler():
 def kernel():
     """The compiled module: a failure where it should have been built, a skip elsewhere."""
     try:
-        return kernel_module("compiled")
+        with chosen("compiled"):
+            return kernel_module()
     except ParameterError:
         if _have_compiler():
             pytest.fail("a C compiler and Python's headers are here, but geovox._nearest "
@@ -58,8 +60,8 @@ def test_the_kernel_is_built_where_a_compiler_exists(kernel):
 
 
 def test_kernel_choice_is_checked(monkeypatch):
-    with pytest.raises(ParameterError, match="auto, compiled or numpy"):
-        kernel_module("fast")
+    with pytest.raises(ParameterError, match="auto, compiled or numpy"), chosen("fast"):
+        kernel_module()
     monkeypatch.setenv("GEOVOX_KERNEL", "numpy")
     assert kernel_module() is None
     monkeypatch.setenv("GEOVOX_KERNEL", "nonsense")
@@ -77,8 +79,8 @@ def _kernel_answers(triangles, occupancy, spacing, origin, z0=0, jobs=1, kernel=
         got[tuple(vox.T)] = t
         uv[tuple(vox.T)] = b
 
-    nearest_inside(triangles, occupancy, spacing, origin=origin, z0=z0, jobs=jobs, emit=emit,
-                   kernel=kernel)
+    with chosen(kernel):
+        nearest_inside(triangles, occupancy, spacing, origin=origin, z0=z0, jobs=jobs, emit=emit)
     assert np.all(got[occupancy] >= 0) and np.all(got[~occupancy] == -1)
     idx = np.argwhere(occupancy)
     return got[tuple(idx.T)], uv[tuple(idx.T)]
@@ -254,13 +256,19 @@ def _coloured_meshes(tmp_path):
     return out
 
 
+def _exact(kernel, mesh, vol, shading=Shading()):
+    """exact_colours of ``vol``'s inside voxels with the ``kernel`` search."""
+    with chosen(kernel):
+        return exact_colours(mesh, vol.grid, vol.occupancy, shading=shading)
+
+
 @pytest.mark.parametrize("opts", [{}, {"diffuse": False, "ambient": True}])
 def test_both_kernels_give_the_same_colours(kernel, tmp_path, opts):
     for name, mesh in _coloured_meshes(tmp_path).items():
         load_textures(mesh)
         vol = geovox.voxelize(mesh, resolution=16)
-        a = exact_colours(mesh, vol.grid, vol.occupancy, kernel="compiled", **opts)
-        b = exact_colours(mesh, vol.grid, vol.occupancy, kernel="numpy", **opts)
+        a = _exact("compiled", mesh, vol, Shading(**opts))
+        b = _exact("numpy", mesh, vol, Shading(**opts))
         assert vol.inside_count > 100
         np.testing.assert_array_equal(a, b, err_msg=name)
         if len(mesh.faces) > 400:
@@ -268,7 +276,7 @@ def test_both_kernels_give_the_same_colours(kernel, tmp_path, opts):
         # And both are shade() at the brute-force nearest point.
         idx = np.argwhere(vol.occupancy)
         t, uv = _brute(mesh.triangles, vol.occupancy, vol.grid.spacing, vol.grid.lo)
-        ref = np.rint(shade(mesh, t, uv, **opts) * 255)
+        ref = np.rint(shade(mesh, t, uv, Shading(**opts)) * 255)
         np.testing.assert_array_equal(a[tuple(idx.T)][:, :3], ref, err_msg=name)
 
 
@@ -364,7 +372,7 @@ def test_border_wrap_mode(kernel):
 
     def colours(mesh):
         vol = geovox.voxelize(mesh, resolution=12)
-        return vol, exact_colours(mesh, vol.grid, vol.occupancy, kernel="compiled")
+        return vol, _exact("compiled", mesh, vol)
 
     # All UVs off the texture: every inside voxel is Kd.
     off = _sphere_with(Material(kd=kd, image=img, texture_file="x.png", wrap=("border", "border")),
@@ -382,9 +390,7 @@ def test_border_wrap_mode(kernel):
         mixed = _sphere_with(Material(kd=kd, image=img, texture_file="x.png",
                                       wrap=("border", "repeat")), 1.6, -0.3)
         vol = geovox.voxelize(mixed, resolution=16)
-        np.testing.assert_array_equal(
-            exact_colours(mixed, vol.grid, vol.occupancy, kernel="compiled"),
-            exact_colours(mixed, vol.grid, vol.occupancy, kernel="numpy"))
+        np.testing.assert_array_equal(_exact("compiled", mixed, vol), _exact("numpy", mixed, vol))
 
 
 def test_a_material_the_kernel_does_not_know_is_shaded_by_numpy(kernel, monkeypatch):

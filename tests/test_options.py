@@ -4,18 +4,20 @@ from __future__ import annotations
 
 import dataclasses
 import inspect
+import os
 import pickle
+import warnings
 
 import numpy as np
 import pytest
 
 import geovox
 from geovox.cli import build_parser, main
-from geovox.errors import ParameterError
+from geovox.errors import GeovoxWarning, ParameterError
 from geovox.options import KERNEL_ENV, Colour, Inside, Options
 from geovox.pipeline import Route, plan, voxelize_block
 
-from conftest import SPOT
+from conftest import DATA, SPOT
 
 #: The fourteen options manifests have always recorded (the command line's).
 RECORDED = {"ambient", "backend", "band", "bounds", "color", "density", "density_dtype", "diffuse",
@@ -157,18 +159,96 @@ def test_kernel_default_reads_the_environment(monkeypatch):
         Options()
 
 
-def test_kernel_option_reaches_the_colour_step(monkeypatch):
-    import geovox.nearest as N
+#: Every compiled kernel: the nearest-surface search, the lattice search and
+#: mesh checks, the caps' winding number.
+COMPILED = {"_nearest", "_lattice", "_winding"}
 
-    asked = []
-    real = N.kernel_module
-    monkeypatch.setattr(N, "kernel_module", lambda kernel=None: asked.append(kernel) or real(kernel))
-    a = geovox.voxelize(SPOT, resolution=12, color=True, kernel="numpy")
-    assert asked and set(asked) == {"numpy"}
-    asked.clear()
-    b = geovox.voxelize(SPOT, resolution=12, color=True, kernel="auto")
-    assert asked and set(asked) == {"auto"}
-    np.testing.assert_array_equal(a.colors, b.colors)
+
+def _built():
+    from geovox import kernels
+
+    try:
+        return all(kernels._load(n) for n in COMPILED)
+    except ImportError:
+        return False
+
+
+#: A real model of each path: occupancy and exact colour (spot, closed), fast
+#: colour, and the winding number of a leaky one (suzanne's open eyes).
+KERNEL_CASES = {
+    "occupancy": (SPOT, dict(resolution=40)),
+    "exact colour": (SPOT, dict(resolution=40, color=True)),
+    "fast colour": (SPOT, dict(resolution=40, color="fast")),
+    "winding": (os.path.join(DATA, "suzanne", "suzanne.obj"), dict(resolution=40)),
+}
+
+
+def _voxelize_quietly(path, **kw):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", GeovoxWarning)  # suzanne is open, and said so
+        return geovox.voxelize(path, **kw)
+
+
+@pytest.mark.skipif(not _built(), reason="the compiled kernels are not built")
+@pytest.mark.parametrize("case", KERNEL_CASES)
+def test_kernel_option_chooses_every_compiled_kernel(case, monkeypatch):
+    """kernel="numpy" never loads a compiled module, "compiled" uses them; the same bytes."""
+    from geovox import kernels
+
+    path, kw = KERNEL_CASES[case]
+    real = kernels._load
+    loaded = []
+
+    def refuse(name):
+        raise AssertionError(f"geovox.{name} loaded with kernel='numpy'")
+
+    # The environment says the opposite each time: the option decides.
+    monkeypatch.setenv(KERNEL_ENV, "compiled")
+    monkeypatch.setattr(kernels, "_load", refuse)
+    a = _voxelize_quietly(path, kernel="numpy", **kw)
+    monkeypatch.setenv(KERNEL_ENV, "numpy")
+    monkeypatch.setattr(kernels, "_load", lambda name: loaded.append(name) or real(name))
+    b = _voxelize_quietly(path, kernel="compiled", **kw)
+    assert a.inside == b.inside == ("winding" if case == "winding" else "parity")
+    assert a.inside_count > 1000
+    for field in ("occupancy", "colors"):
+        x, y = getattr(a, field), getattr(b, field)
+        assert (x is None) == (y is None) == (field == "colors" and "color" not in kw)
+        if x is not None:
+            assert x.dtype == y.dtype and x.shape == y.shape and x.tobytes() == y.tobytes()
+    # The lattice search always runs; the nearest search only for exact
+    # colour, the winding kernel only for the leaky model.
+    want = {"_lattice"} | ({"_nearest"} if kw.get("color") is True else set()) \
+        | ({"_winding"} if case == "winding" else set())
+    assert set(loaded) == want, loaded
+    assert kernels._CHOICE.get() is None  # the choice ends with the conversion
+
+
+@pytest.mark.skipif(not _built(), reason="the compiled kernels are not built")
+def test_kernel_option_reaches_slabs_and_files(tmp_path, monkeypatch):
+    # Streamed slabs (the rays cast on the colour step's threads too): still the option's choice.
+    from geovox import kernels
+
+    monkeypatch.setattr(kernels, "_load", lambda name: pytest.fail(f"geovox.{name} loaded"))
+    r = geovox.convert_to(SPOT, tmp_path / "a.raw", shape=(20, 20, 150), color="fast", jobs=2,
+                          budget=20 * 20 * 64 * 25, kernel="numpy")
+    assert r.slabs == 3
+    monkeypatch.undo()
+    b = geovox.convert_to(SPOT, tmp_path / "b.raw", shape=(20, 20, 150), color="fast", jobs=2,
+                          budget=20 * 20 * 64 * 25, kernel="compiled")
+    for name in ("a.raw", "a_rgba.raw"):  # the headers name their own files
+        assert str(tmp_path / name) in r.files
+        assert (tmp_path / name).read_bytes() == (tmp_path / name.replace("a", "b", 1)).read_bytes()
+
+
+def test_outside_a_conversion_the_default_is_the_environment(monkeypatch):
+    from geovox import kernels
+    from geovox.nearest import kernel_module
+
+    monkeypatch.setenv(KERNEL_ENV, "numpy")
+    assert kernel_module() is None and kernels.lattice() is None
+    with kernels.chosen("auto"):
+        assert kernels.lattice() is kernels.compiled("_lattice", "lattice", "auto")
 
 
 def test_engine_is_a_deprecated_name_of_backend(tmp_path):

@@ -174,7 +174,7 @@ def test_streams_whole_only_for_big_occupancy_grids(tmp_path):
     assert at.size >= WHOLE_STREAM_VOXELS > short.size and nz - 1 > 64
     assert streams_whole(at) and not streams_whole(short)
     for extra in (dict(color=True), dict(color="fast"), dict(density="coverage"), dict(sdf=True)):
-        assert not streams_whole(at, **extra), extra
+        assert not streams_whole(at, geovox.Options(**extra)), extra
     # 64 layers or fewer are one slice of the fill: nothing to gain.
     flat = grid(-(-WHOLE_STREAM_VOXELS // (64 * 4096)) * 2, 4096, 64)
     assert flat.size >= WHOLE_STREAM_VOXELS and not streams_whole(flat)

@@ -690,7 +690,7 @@ def run_info(args) -> int:
         ref = load_reference(options.like)
         cost["spacing"] = ref.spacing.tolist()
         print(format_report(mesh_report(mesh), cost))
-        print(format_field_of_view(ref, field_of_view(mesh, ref, options.mesh_space)))
+        print(format_field_of_view(ref, field_of_view(mesh, ref, options)))
     else:
         print(format_report(mesh_report(mesh), cost))
     from ..labels import parts_report

@@ -53,7 +53,7 @@ The compiled kernel (``geovox/_nearest.pyx``, :func:`run_kernel`) runs the
 same search with these bounds and more (see its notes), in C with threads,
 and gives the same answers bit for bit; this module's NumPy search is the
 reference it is tested against and the fallback where it is not built
-(:func:`kernel_module`, ``GEOVOX_KERNEL=numpy``).
+(:func:`kernel_module`, ``kernel="numpy"``).
 
 All coordinates are taken relative to the whole grid's low corner, voxel
 centres as ``(index + 0.5) * spacing`` with global indices, so a slab of a
@@ -754,20 +754,12 @@ class _Search:
         return 2 * self.m * np.sqrt(d2) + self.m * self.m
 
 
-#: Environment variable choosing the search: ``numpy`` forces the NumPy one
-#: below even where the compiled kernel is built (``compiled`` insists on
-#: it; ``auto``, the default, uses it when it imports).
-KERNEL_ENV = "GEOVOX_KERNEL"
-
-
-def kernel_module(kernel=None):
+def kernel_module():
     """The compiled kernel (``geovox._nearest``), or None for the NumPy search.
 
-    Parameters
-    ----------
-    kernel : {None, "auto", "compiled", "numpy"}
-        None reads :data:`KERNEL_ENV` (default ``auto``: the compiled one
-        where it was built, see setup.py).
+    As the running conversion's kernel choice says (:attr:`Options.kernel
+    <geovox.Options.kernel>`; see :func:`geovox.kernels.compiled`): ``auto``
+    uses the compiled one where it was built (see setup.py).
 
     Raises
     ------
@@ -776,7 +768,7 @@ def kernel_module(kernel=None):
     """
     from ..kernels import compiled
 
-    return compiled("_nearest", "nearest-surface", kernel)
+    return compiled("_nearest", "nearest-surface")
 
 
 #: Whether this process has started the compiled kernel's OpenMP threads, and
@@ -841,8 +833,7 @@ def run_kernel(module, triangles, occupancy, spacing, *, origin, z0=0, jobs=1, o
     kernel.run(np.ascontiguousarray(cells), levels, jobs)
 
 
-def nearest_inside(triangles, occupancy, spacing, *, origin, z0=0, jobs=1, emit, same=None,
-                   kernel=None):
+def nearest_inside(triangles, occupancy, spacing, *, origin, z0=0, jobs=1, emit, same=None):
     """Exact nearest triangle and closest-point barycentrics of every inside voxel.
 
     Parameters
@@ -869,19 +860,20 @@ def nearest_inside(triangles, occupancy, spacing, *, origin, z0=0, jobs=1, emit,
         voxels are reported with the first such triangle and ``uv = 0``
         without finding which one is nearest (NumPy search only; the
         compiled one always finds the nearest). Default: all distinct.
-    kernel : {None, "auto", "compiled", "numpy"}
-        Which search (see :func:`kernel_module`); the answers are the same.
-        The compiled one answers into arrays over the whole block (20 bytes
-        a voxel) before calling ``emit``; the colour step does not use this
-        function with it (it shades in the kernel, see
-        :func:`geovox.colour.exact_colours`).
+
+    The search is the compiled one or the NumPy one as the running
+    conversion's kernel choice says (:func:`kernel_module`); the answers are
+    the same. The compiled one answers into arrays over the whole block (20
+    bytes a voxel) before calling ``emit``; the colour step does not use this
+    function with it (it shades in the kernel, see
+    :func:`geovox.colour.exact_colours`).
     """
     from ..parallel import for_blocks
 
     occupancy = np.asarray(occupancy, bool)
     if not occupancy.any() or len(triangles) == 0:
         return
-    module = kernel_module(kernel)
+    module = kernel_module()
     if module is not None:
         n = occupancy.size
         tri = np.full(n, -1, np.int32)

@@ -72,17 +72,33 @@ TASK_VOXELS = 1 << 23
 DEFAULT_GREY = 0.8
 
 
-def load_textures(mesh, ambient=False) -> None:
+class Shading(NamedTuple):
+    """How a surface point's colour is lit: the ``D`` and ``A`` of the formula above.
+
+    The colour stage's record of the options ``diffuse`` and ``ambient``
+    (:meth:`of`), handed down instead of the two keywords.
+    """
+
+    diffuse: bool = True  #: multiply by the material's Kd
+    ambient: bool = False  #: add the material's Ka
+
+    @classmethod
+    def of(cls, options) -> "Shading":
+        """The shading an :class:`~geovox.Options` asks for."""
+        return cls(bool(options.diffuse), bool(options.ambient))
+
+
+def load_textures(mesh, shading: Shading = Shading()) -> None:
     """Read each material's texture once; warn about what is missing or unreadable.
 
-    With ``ambient``, also say which materials have an ambient texture
-    (``map_Ka``), which is not read: their ``A`` is ``Ka`` alone.
+    With ``shading.ambient``, also say which materials have an ambient
+    texture (``map_Ka``), which is not read: their ``A`` is ``Ka`` alone.
     """
     from PIL import Image
 
     from ..surface import texels
 
-    if ambient:
+    if shading.ambient:
         named = [m.name for m in mesh.materials if getattr(m, "ambient_map", None)]
         if named:
             shown = ", ".join(repr(n) for n in named[:3]) + (", ..." if len(named) > 3 else "")
@@ -172,8 +188,8 @@ def on_texture(uv: np.ndarray, wrap) -> np.ndarray:
     return ok
 
 
-def shade(mesh, tri: np.ndarray, bary: np.ndarray, *, diffuse=True, ambient=False) -> np.ndarray:
-    """Colour of surface points given by triangle and barycentric ``(u, v)``.
+def shade(mesh, tri: np.ndarray, bary: np.ndarray, shading: Shading = Shading()) -> np.ndarray:
+    """Colour of surface points given by triangle and barycentric ``(u, v)``, lit by ``shading``.
 
     Returns
     -------
@@ -193,6 +209,7 @@ def shade(mesh, tri: np.ndarray, bary: np.ndarray, *, diffuse=True, ambient=Fals
     # A `usemtl` name that no material file defines counts as no material.
     undefined = np.array([not m.defined for m in mesh.materials] + [True])
     no_material = undefined[fm]  # fm == -1 picks the final True
+    diffuse, ambient = shading
     if no_material.any() and diffuse and mesh.vertex_colors is None:
         factor[no_material] = DEFAULT_GREY
     for k, m in enumerate(mesh.materials):
@@ -578,8 +595,8 @@ def _nearest(crossings, shape, z0: int, t: int, volumes, vox, x, y, z, inv_scale
     return best, best_d
 
 
-def constant_colours(mesh, *, diffuse=True, ambient=False):
-    """Triangles whose whole face has one colour, keyed by that colour.
+def constant_colours(mesh, shading: Shading = Shading()):
+    """Triangles whose whole face has one colour (lit by ``shading``), keyed by that colour.
 
     Returns
     -------
@@ -603,34 +620,14 @@ def constant_colours(mesh, *, diffuse=True, ambient=False):
     sel = np.flatnonzero(flat)
     if len(sel) == 0:
         return key, np.zeros(0, np.uint32)
-    rgba = _pack(shade(mesh, sel, np.full((len(sel), 2), 1 / 3), diffuse=diffuse,
-                       ambient=ambient))
+    rgba = _pack(shade(mesh, sel, np.full((len(sel), 2), 1 / 3), shading))
     values, inverse = np.unique(rgba, return_inverse=True)
     key[sel] = inverse.reshape(-1)
     return key, values
 
 
-def colour_method(color):
-    """Which colour method ``color`` asks for: None (no colour), ``"exact"`` or ``"fast"``.
-
-    True means the default, ``"exact"`` (every voxel from its exact nearest
-    surface point); ``"fast"`` is the nearest of the six axis crossings
-    around each voxel (:func:`nearest_crossings`).
-
-    Raises
-    ------
-    ParameterError
-        Anything else.
-    """
-    if color is None or isinstance(color, (bool, np.bool_, int)) and not isinstance(color, str):
-        return "exact" if color else None
-    if color in ("exact", "fast"):
-        return color
-    raise ParameterError(f"`color` must be True, False, 'exact' or 'fast', got {color!r}")
-
-
-def exact_colours(mesh, grid, occupancy, *, diffuse=True, ambient=False, jobs=1,
-                  frame=None, kernel=None) -> np.ndarray:
+def exact_colours(mesh, grid, occupancy, *, shading: Shading = Shading(), jobs=1,
+                  frame=None) -> np.ndarray:
     """RGBA colours of the inside voxels from their exact nearest surface points; alpha 0 outside.
 
     Parameters
@@ -644,10 +641,11 @@ def exact_colours(mesh, grid, occupancy, *, diffuse=True, ambient=False, jobs=1,
         layer in it (default: this grid, layer 0). Voxel centres are
         computed from these, so a slab's colours are the whole grid's bit
         for bit.
-    kernel : {None, "auto", "compiled", "numpy"}
-        The compiled search and shading, or the NumPy ones (the same
-        colours); None reads ``GEOVOX_KERNEL`` (see
-        :func:`geovox.nearest.kernel_module`).
+    shading : Shading
+
+    The compiled search and shading run, or the NumPy ones (the same
+    colours), as the conversion's kernel choice says (see
+    :func:`geovox.nearest.kernel_module`).
 
     Returns
     -------
@@ -661,6 +659,7 @@ def exact_colours(mesh, grid, occupancy, *, diffuse=True, ambient=False, jobs=1,
         Lengths outside ``1 / EXACT_RANGE .. EXACT_RANGE`` (see there), for
         a mesh of more than one colour.
     """
+    from ..kernels import chosen
     from .nearest import kernel_module, nearest_inside, run_kernel
 
     nx, ny, nz = grid.shape
@@ -669,7 +668,7 @@ def exact_colours(mesh, grid, occupancy, *, diffuse=True, ambient=False, jobs=1,
     lo, spacing, z0 = frame if frame is not None else (grid.lo, grid.spacing, 0)
     # One uint32 per voxel: RGBA bytes in memory order (index = F-order voxel index).
     flat = base.reshape(-1, 4).view(np.uint32).reshape(-1)
-    key, key_rgba = constant_colours(mesh, diffuse=diffuse, ambient=ambient)
+    key, key_rgba = constant_colours(mesh, shading)
     if len(key) and len(key_rgba) == 1 and (key >= 0).all():
         # One colour over the whole surface (an STL, an uncoloured scan, a
         # single untextured material): every nearest point has it, so no
@@ -688,10 +687,10 @@ def exact_colours(mesh, grid, occupancy, *, diffuse=True, ambient=False, jobs=1,
             f"exact colour needs lengths between {1 / EXACT_RANGE:g} and {EXACT_RANGE:g} "
             f"(this mesh and grid span {span:.3g} in voxels of {hmin:.3g}); scale the mesh, "
             f"or use fast colour (--fast-color, color='fast')")
-    module = kernel_module(kernel)
+    module = kernel_module()
     tables = None
     if module is not None:
-        tables = shading_tables(mesh, diffuse=diffuse, ambient=ambient)
+        tables = shading_tables(mesh, shading)
     if tables is not None:
         # The compiled kernel finds the nearest point and shades it in one go
         # (shading 4.4 M voxels in NumPy alone took 1.6 s, spot 256³).
@@ -706,11 +705,12 @@ def exact_colours(mesh, grid, occupancy, *, diffuse=True, ambient=False, jobs=1,
         rgba[const] = key_rgba[k[const]]
         vary = np.flatnonzero(~const)
         if len(vary):
-            rgba[vary] = _pack(shade(mesh, tri[vary], uv[vary], diffuse=diffuse, ambient=ambient))
+            rgba[vary] = _pack(shade(mesh, tri[vary], uv[vary], shading))
         flat[vox[:, 0] + nx * (vox[:, 1] + ny * vox[:, 2])] = rgba
 
-    nearest_inside(mesh.triangles, occupancy, spacing, origin=lo, z0=z0, jobs=jobs, emit=emit,
-                   same=key, kernel="numpy")
+    with chosen("numpy"):  # shade() colours what the tables cannot
+        nearest_inside(mesh.triangles, occupancy, spacing, origin=lo, z0=z0, jobs=jobs,
+                       emit=emit, same=key)
     return colors
 
 
@@ -722,7 +722,7 @@ EXACT_RANGE = 1e60
 _WRAP_CODE = {"repeat": 0, "mirror": 1, "clamp": 2, "border": 3}
 
 
-def shading_tables(mesh, *, diffuse=True, ambient=False) -> tuple:
+def shading_tables(mesh, shading: Shading = Shading()) -> tuple:
     """What the compiled kernel needs to do :func:`shade`'s arithmetic, as flat arrays.
 
     One row per material plus a last one for faces without a (defined)
@@ -761,6 +761,7 @@ def shading_tables(mesh, *, diffuse=True, ambient=False) -> tuple:
     vc = None
     if mesh.vertex_colors is not None:
         vc = np.ascontiguousarray(mesh.vertex_colors[mesh.faces], dtype=np.float64).reshape(-1)
+    diffuse, ambient = shading
     if diffuse and mesh.vertex_colors is None:
         factor[nm] = DEFAULT_GREY  # no material at all
     for k, m in enumerate(mesh.materials):
@@ -788,8 +789,8 @@ def shading_tables(mesh, *, diffuse=True, ambient=False) -> tuple:
     return rows, vc, cuv, factor, add, mint, moff, tex
 
 
-def colour_volume(mesh, grid, occupancy, cast=None, *, diffuse=True, ambient=False, jobs=1,
-                  exact=False, frame=None, out=None, sink=None, kernel=None):
+def colour_volume(mesh, grid, occupancy, cast=None, *, shading: Shading = Shading(), jobs=1,
+                  exact=False, frame=None, out=None, sink=None):
     """RGBA colours of the inside voxels; alpha 0 outside.
 
     Parameters
@@ -800,14 +801,14 @@ def colour_volume(mesh, grid, occupancy, cast=None, *, diffuse=True, ambient=Fal
     cast : dict axis -> (Hits, Columns)
         Crossings along each axis (see :func:`_prepare`); not needed with
         ``exact``.
+    shading : Shading
+        The options ``diffuse`` and ``ambient`` (:meth:`Shading.of`).
     exact : bool
         Colour every voxel from its exact nearest surface point
         (:func:`exact_colours`) instead of the nearest of its six axis
         crossings.
     frame : (lo, spacing, z0), optional
         With ``exact``: see :func:`exact_colours`.
-    kernel : {None, "auto", "compiled", "numpy"}
-        With ``exact``: the nearest-surface search (see :func:`exact_colours`).
     out : (nz, ny, nx, 4) uint8, C order, optional
         Without ``exact``: the array to write every voxel's colour into
         (reused by a caller making many blocks, so that its memory is not
@@ -827,10 +828,9 @@ def colour_volume(mesh, grid, occupancy, cast=None, *, diffuse=True, ambient=Fal
     """
     for problem in mesh.problems:
         warn(problem, stacklevel=3)
-    load_textures(mesh, ambient=ambient)
+    load_textures(mesh, shading)
     if exact:
-        return exact_colours(mesh, grid, occupancy, diffuse=diffuse, ambient=ambient, jobs=jobs,
-                             frame=frame, kernel=kernel)
+        return exact_colours(mesh, grid, occupancy, shading=shading, jobs=jobs, frame=frame)
     nx, ny, nz = grid.shape
     # Each chunk clears its own layers just before filling them (in cache).
     base = None if sink else np.empty((nz, ny, nx, 4), dtype=np.uint8) if out is None else out
@@ -864,7 +864,7 @@ def colour_volume(mesh, grid, occupancy, cast=None, *, diffuse=True, ambient=Fal
                 return
             try:
                 _colour_chunks(mesh, grid, occupancy, crossings, task, base, space,
-                               diffuse=diffuse, ambient=ambient, sink=sink)
+                               shading=shading, sink=sink)
             except BaseException:
                 failed.set()
                 raise
@@ -887,7 +887,7 @@ def _work_space(crossings, voxels: int) -> dict:
             "pending": np.zeros(m, dtype=bool), "chunk": np.empty(voxels, dtype=np.uint32)}
 
 
-def _colour_chunks(mesh, grid, occupancy, crossings, chunks, base, space, *, diffuse, ambient,
+def _colour_chunks(mesh, grid, occupancy, crossings, chunks, base, space, *, shading,
                    sink=None):
     """Colour the inside voxels of consecutive chunks of z layers, in place.
 
@@ -948,8 +948,7 @@ def _colour_chunks(mesh, grid, occupancy, crossings, chunks, base, space, *, dif
             new = np.flatnonzero(pending[lo:hi]) + lo
             pending[new] = False
             hit_rgba[new] = _pack(shade(mesh, np.take(crossings.triangle, new),
-                                        np.take(crossings.bary, new, axis=0),
-                                        diffuse=diffuse, ambient=ambient))
+                                        np.take(crossings.bary, new, axis=0), shading))
             shaded[new] = True
         rgba = np.take(hit_rgba, best)
         near = np.flatnonzero(dist < REFINE)
@@ -962,7 +961,7 @@ def _colour_chunks(mesh, grid, occupancy, crossings, chunks, base, space, *, dif
                          axis=1)
             tri = np.take(crossings.triangle, np.take(best, near))
             b = closest_on_triangles(p, np.take(mesh.triangles, tri, axis=0))
-            rgba[near] = _pack(shade(mesh, tri, b, diffuse=diffuse, ambient=ambient))
+            rgba[near] = _pack(shade(mesh, tri, b, shading))
         flat[vox] = rgba
         if sink:
             sink(z0, flat.view(np.uint8).reshape(t, ny, nx, 4))

@@ -97,7 +97,7 @@ def boundary_edges(mesh: Mesh) -> np.ndarray:
     return out
 
 
-def _position_faces(mesh: Mesh, kernel) -> np.ndarray:
+def _position_faces(mesh: Mesh, module) -> np.ndarray:
     """(m, 3) int64: faces over vertices merged by exact position, numbered by a hash.
 
     The same merging as :attr:`Mesh.geometric_faces` in linear time, with
@@ -108,7 +108,7 @@ def _position_faces(mesh: Mesh, kernel) -> np.ndarray:
         if "geometric_faces" in mesh._cache:
             mesh._cache["position_faces"] = mesh.geometric_faces
         else:
-            mesh._cache["position_faces"] = kernel.merge_positions(mesh.vertices)[mesh.faces]
+            mesh._cache["position_faces"] = module.merge_positions(mesh.vertices)[mesh.faces]
     return mesh._cache["position_faces"]
 
 
@@ -1107,16 +1107,17 @@ def _correct_caps(occ, w, grid, cap_tris, jobs: int = 1) -> None:
         occ[ii] = (w[ii] - wk.reshape(k, -1).sum(axis=1)) > 0.5
 
 
-def winding_kernel(kernel=None):
+def winding_kernel():
     """The compiled caps' winding number (``geovox._winding``), or None for the NumPy one.
 
-    ``kernel`` as for :func:`geovox.nearest.kernel_module` (None reads
-    ``GEOVOX_KERNEL``): ``numpy`` forces the NumPy traversal, ``compiled``
-    insists on the kernel, ``auto`` (the default) uses it where it was built.
+    As the running conversion's kernel choice says (see
+    :func:`geovox.kernels.compiled`): ``numpy`` forces the NumPy traversal,
+    ``compiled`` insists on the kernel, ``auto`` (the default) uses it where
+    it was built.
     """
     from ..kernels import compiled
 
-    return compiled("_winding", "winding-number", kernel)
+    return compiled("_winding", "winding-number")
 
 
 def _compiled_caps(module, occ, w, grid, cap_tris, jobs) -> None:

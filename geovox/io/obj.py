@@ -1011,7 +1011,7 @@ def _materials(libs, names, folder, path, problems, rule="anywhere") -> list:
     return materials
 
 
-def read_obj(path: str, *, references: str = "anywhere") -> Mesh:
+def read_obj(path: str, *, rule: str = "anywhere") -> Mesh:
     """Read an OBJ file into a :class:`Mesh` with materials, UVs and vertex colours.
 
     Polygons are fan-triangulated; negative indices count back from the
@@ -1021,7 +1021,8 @@ def read_obj(path: str, *, references: str = "anywhere") -> Mesh:
     geometry and lose their UVs, and a vertex colour that is NaN or infinite
     counts as no colour (white, as for vertices without one); both are
     recorded in ``problems``. Material files and textures are found under
-    the rule ``references`` (see :mod:`geovox.references`).
+    ``rule`` (the option ``references``, see :mod:`geovox.references`), as
+    the other loaders find theirs.
 
     Raises
     ------
@@ -1030,9 +1031,9 @@ def read_obj(path: str, *, references: str = "anywhere") -> Mesh:
         read or a face naming a vertex that does not exist (the message gives
         the line), or has no faces.
     ParameterError
-        ``references`` is not ``"anywhere"`` or ``"folder"``.
+        ``rule`` is not ``"anywhere"`` or ``"folder"``.
     """
-    rule = check_rule(references)
+    rule = check_rule(rule)
     try:
         with open(path, "rb") as f:
             data = f.read()
