@@ -6,7 +6,8 @@ bit: ``geovox._nearest`` (the exact nearest-surface search of colour, chosen
 by :func:`geovox.nearest.kernel_module`), ``geovox._lattice`` (the column
 rays' lattice search and the inside test's mesh checks, :func:`lattice`) and
 ``geovox._winding`` (the caps' winding number of open models, chosen by
-:func:`geovox.inside.winding_kernel`), each chosen by :func:`compiled`.
+:func:`geovox.inside.winding_kernel`) and ``geovox._objtext`` (the OBJ
+reader's numbers and corners, :func:`obj_text`), each chosen by :func:`compiled`.
 ``GEOVOX_KERNEL=numpy`` runs the NumPy code everywhere; ``compiled``
 insists on the compiled kernels; ``auto`` (the default) uses them where
 they import.
@@ -75,3 +76,19 @@ def lattice(kernel=None):
         An unknown choice, or ``compiled`` where the module was not built.
     """
     return compiled("_lattice", "lattice-search", kernel)
+
+
+def obj_text(kernel=None):
+    """The compiled OBJ number and corner reading (``geovox._objtext``), or None for NumPy.
+
+    Parameters
+    ----------
+    kernel : {None, "auto", "compiled", "numpy"}
+        None reads :data:`KERNEL_ENV` (default ``auto``).
+
+    Raises
+    ------
+    ParameterError
+        An unknown choice, or ``compiled`` where the module was not built.
+    """
+    return compiled("_objtext", "OBJ reading", kernel)
