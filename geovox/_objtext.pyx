@@ -108,6 +108,20 @@ cdef inline int _float_form(const uint8_t *s, Py_ssize_t a, Py_ssize_t b,
     return 1
 
 
+cdef Py_ssize_t _token_count(const uint8_t *s, const int64_t[::1] starts,
+                             const int64_t[::1] ends, const int64_t[::1] lines) noexcept nogil:
+    """How many blank-separated tokens the lines hold (the outputs' sizes, set once)."""
+    cdef Py_ssize_t i, p, n = 0
+    cdef bint blank, was = True
+    for i in range(lines.shape[0]):
+        was = True
+        for p in range(starts[lines[i]], ends[lines[i]]):
+            blank = s[p] == 32 or s[p] == 9
+            n += was and not blank
+            was = blank
+    return n
+
+
 def number_lines(const uint8_t[::1] buf, const int64_t[::1] starts, const int64_t[::1] ends,
                  const int64_t[::1] lines, int64_t need):
     """The numbers of ``v`` or ``vt`` lines, as :func:`geovox.obj._read_numbers` reads them.
@@ -135,7 +149,7 @@ def number_lines(const uint8_t[::1] buf, const int64_t[::1] starts, const int64_
     slow : (j,) int64
         Indices into ``lines`` of the lines left to the plain reading.
     """
-    cdef Py_ssize_t k = lines.shape[0], i, p, a, b, q, n = 0, cap = 1024
+    cdef Py_ssize_t k = lines.shape[0], i, p, a, b, q, n = 0
     cdef const uint8_t *s = &buf[0] if buf.shape[0] else NULL
     cdef char *end
     cdef bint bad, refused
@@ -144,7 +158,7 @@ def number_lines(const uint8_t[::1] buf, const int64_t[::1] starts, const int64_
     first_a = np.zeros(k, dtype=np.int64)
     count_a = np.zeros(k, dtype=np.int64)
     slow_a = np.zeros(k, dtype=np.uint8)
-    values_a = np.empty(cap, dtype=np.float64)
+    values_a = np.empty(_token_count(s, starts, ends, lines), dtype=np.float64)
     cdef int64_t[::1] first = first_a
     cdef int64_t[::1] count = count_a
     cdef uint8_t[::1] slow = slow_a
@@ -171,10 +185,6 @@ def number_lines(const uint8_t[::1] buf, const int64_t[::1] starts, const int64_
             q = p
             while q < b and s[q] != 32 and s[q] != 9:
                 q += 1
-            if n == cap:
-                cap *= 2
-                values_a = np.resize(values_a, cap)
-                values = values_a
             form = _float_form(s, p, q, &values[n])
             if form == 2:
                 values[n] = PyOS_string_to_double(<const char *>s + p, &end, NULL)
@@ -188,7 +198,7 @@ def number_lines(const uint8_t[::1] buf, const int64_t[::1] starts, const int64_
         if refused or c < need:
             slow[i] = 1
             count[i] = 0
-    return values_a[:n].copy(), first_a, count_a, np.flatnonzero(slow_a).astype(np.int64)
+    return values_a[:n], first_a, count_a, np.flatnonzero(slow_a).astype(np.int64)
 
 
 cdef inline int64_t _index(const uint8_t *s, Py_ssize_t lo, Py_ssize_t hi) noexcept nogil:
@@ -265,13 +275,18 @@ def corner_lines(const uint8_t[::1] buf, const int64_t[::1] starts, const int64_
         unexpected byte, or a corner that is not whole numbers): none of
         their corners is returned.
     """
-    cdef Py_ssize_t k = lines.shape[0], i, p, b, n = 0, n0, cap = 1024
+    cdef Py_ssize_t k = lines.shape[0], i, p, b, n = 0, n0
     cdef const uint8_t *s = &buf[0] if buf.shape[0] else NULL
     cdef int64_t cv, ct
+    cdef Py_ssize_t cap = _token_count(s, starts, ends, lines)
     slow_a = np.zeros(k, dtype=np.uint8)
-    out_a = np.empty((3, cap), dtype=np.int64)
+    line_a = np.empty(cap, dtype=np.int64)
+    v_a = np.empty(cap, dtype=np.int64)
+    t_a = np.empty(cap, dtype=np.int64)
     cdef uint8_t[::1] slow = slow_a
-    cdef int64_t[:, ::1] out = out_a
+    cdef int64_t[::1] line_of = line_a
+    cdef int64_t[::1] v = v_a
+    cdef int64_t[::1] t = t_a
     for i in range(k):
         p, b = starts[lines[i]], ends[lines[i]]
         n0 = n
@@ -285,13 +300,8 @@ def corner_lines(const uint8_t[::1] buf, const int64_t[::1] starts, const int64_
                 slow[i] = 1
                 n = n0
                 break
-            if n == cap:
-                cap *= 2
-                out_a = np.concatenate([out_a, np.empty_like(out_a)], axis=1)
-                out = out_a
-            out[0, n] = i
-            out[1, n] = cv
-            out[2, n] = ct
+            line_of[n] = i
+            v[n] = cv
+            t[n] = ct
             n += 1
-    return (out_a[0, :n].copy(), out_a[1, :n].copy(), out_a[2, :n].copy(),
-            np.flatnonzero(slow_a).astype(np.int64))
+    return line_a[:n], v_a[:n], t_a[:n], np.flatnonzero(slow_a).astype(np.int64)
