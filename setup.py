@@ -3,10 +3,10 @@
 ``geovox/_nearest.pyx`` is the exact nearest-surface search (colour),
 ``geovox/_lattice.pyx`` the column rays' lattice search and the linear mesh
 checks of the inside test, ``geovox/_winding.pyx`` the caps' winding number of
-open models. The extensions are ``optional``: without a C compiler (or without
+open models, ``geovox/_objtext.pyx`` the OBJ reader's numbers and corners. The extensions are ``optional``: without a C compiler (or without
 OpenMP, or without Cython) the install still succeeds and geovox uses its NumPy
 code (:mod:`geovox.nearest`, :func:`geovox.backends.numpy.rasterise`,
-:mod:`geovox.inside`, :func:`geovox.inside.cap_winding`), which gives the same
+:mod:`geovox.inside`, :func:`geovox.inside.cap_winding`, :mod:`geovox.obj`), which gives the same
 answers (the winding number's wherever a bound or the exact sum decides).
 """
 
@@ -35,7 +35,8 @@ else:
 serial = [f for f in flags if "openmp" not in f]
 sources = [("geovox._nearest", "geovox/_nearest.pyx", flags, link),
            ("geovox._lattice", "geovox/_lattice.pyx", serial, []),
-           ("geovox._winding", "geovox/_winding.pyx", flags, link)]
+           ("geovox._winding", "geovox/_winding.pyx", flags, link),
+           ("geovox._objtext", "geovox/_objtext.pyx", serial, [])]
 ext = []
 # A tree without a .pyx (an old source distribution) installs without that kernel.
 if cythonize is not None:

@@ -5,7 +5,10 @@ options, this checkout (A) against another (B, ``--vs PATH``, e.g. a clone
 of main), run in turn A B A B ... so that the ratio A/B is taken pair by pair
 on a loaded machine; prints the median wall time of each side, the median
 of the pairwise ratios, and whether both sides wrote the same bytes (sha256
-of the ``.raw``).
+of the ``.raw``); CPU is the children's user + system time. Each tree
+caches its bytecode in a folder of its own outside both (an installed
+package has its ``.pyc``; with ``PYTHONDONTWRITEBYTECODE`` set, both sides
+would compile their sources in every run).
 
 Models (written into a temporary folder first, with trimesh):
 
@@ -30,6 +33,7 @@ from __future__ import annotations
 import argparse
 import hashlib
 import os
+import resource
 import statistics
 import subprocess
 import sys
@@ -62,12 +66,23 @@ def make_models(folder, bunny) -> dict:
     return {"bunny105k": obj, "bunny1m6": ply}
 
 
-def run(root, model, res, out) -> float:
-    env = dict(os.environ, PYTHONPATH=root)
+def run(root, model, res, out, cache) -> tuple:
+    """``(wall, cpu)`` seconds of one whole-process conversion from the tree ``root``.
+
+    Bytecode is cached in ``cache`` (one folder per tree, outside both), as
+    an installed package's is: with PYTHONDONTWRITEBYTECODE set every run
+    would compile its sources again.
+    """
+    env = dict(os.environ, PYTHONPATH=root, PYTHONPYCACHEPREFIX=cache)
+    env.pop("PYTHONDONTWRITEBYTECODE", None)
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t = time.perf_counter()
     subprocess.run([sys.executable, "-m", "geovox", "convert", model, "-o", out, "-r", str(res)],
                    cwd=root, env=env, check=True, stdout=subprocess.DEVNULL)
-    return time.perf_counter() - t
+    wall = time.perf_counter() - t
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    return wall, cpu
 
 
 def sha(path) -> str:
@@ -86,20 +101,25 @@ def main(argv=None) -> int:
     print(f"load average before: {os.getloadavg()}")
     with tempfile.TemporaryDirectory() as tmp:
         models = make_models(tmp, args.bunny)
-        print("| case | A median (s) | B median (s) | A/B (median of pairs) | same bytes |")
-        print("|---|---|---|---|---|")
+        print("| case | A wall median (min-max) | B wall median (min-max) | A/B wall | A/B CPU "
+              "| same bytes |")
+        print("|---|---|---|---|---|---|")
+        ca, cb = os.path.join(tmp, "pyc-a"), os.path.join(tmp, "pyc-b")
         for case in args.cases.split(","):
             name, res = case.split(":")
             oa, ob = os.path.join(tmp, "a.raw"), os.path.join(tmp, "b.raw")
-            run(ROOT, models[name], res, oa)  # warm-up (file cache, .pyc)
-            run(args.vs, models[name], res, ob)
+            run(ROOT, models[name], res, oa, ca)  # warm-up (file cache, bytecode)
+            run(args.vs, models[name], res, ob, cb)
             a, b = [], []
             for _ in range(args.repeat):
-                a.append(run(ROOT, models[name], res, oa))
-                b.append(run(args.vs, models[name], res, ob))
-            ratio = statistics.median(x / y for x, y in zip(a, b))
-            print(f"| {name} {res}³ | {statistics.median(a):.2f} | {statistics.median(b):.2f} | "
-                  f"{ratio:.2f} | {sha(oa) == sha(ob)} |")
+                a.append(run(ROOT, models[name], res, oa, ca))
+                b.append(run(args.vs, models[name], res, ob, cb))
+            wall = statistics.median(x[0] / y[0] for x, y in zip(a, b))
+            cpu = statistics.median(x[1] / y[1] for x, y in zip(a, b))
+            spread = [f"{statistics.median(w):.2f} ({min(w):.2f}-{max(w):.2f})"
+                      for w in ([x[0] for x in a], [y[0] for y in b])]
+            print(f"| {name} {res}³ | {spread[0]} | {spread[1]} | {wall:.2f} | {cpu:.2f} | "
+                  f"{sha(oa) == sha(ob)} |", flush=True)
     print(f"load average after: {os.getloadavg()}")
     return 0
 

@@ -6,7 +6,8 @@ bit: ``geovox._nearest`` (the exact nearest-surface search of colour,
 :func:`geovox.nearest.kernel_module`), ``geovox._lattice`` (the column rays'
 lattice search and the inside test's mesh checks, :func:`lattice`) and
 ``geovox._winding`` (the caps' winding number of open models,
-:func:`geovox.inside.winding_kernel`), each chosen by :func:`compiled`.
+:func:`geovox.inside.winding_kernel`) and ``geovox._objtext`` (the OBJ
+reader's numbers and corners, :func:`obj_text`), each chosen by :func:`compiled`.
 ``numpy`` runs the NumPy code everywhere; ``compiled`` insists on the
 compiled kernels; ``auto`` (the default) uses them where they import.
 
@@ -117,3 +118,17 @@ def lattice():
         An unknown choice, or ``compiled`` where the module was not built.
     """
     return compiled("_lattice", "lattice-search")
+
+
+def obj_text():
+    """The compiled OBJ number and corner reading (``geovox._objtext``), or None for NumPy.
+
+    Loading comes before the plan, so outside a conversion this follows the
+    default (``$GEOVOX_KERNEL``, else ``auto``), as :func:`compiled` says.
+
+    Raises
+    ------
+    ParameterError
+        An unknown choice, or ``compiled`` where the module was not built.
+    """
+    return compiled("_objtext", "OBJ reading")

@@ -13,7 +13,6 @@ import warnings
 
 import numpy as np
 
-from . import threemf
 from .errors import InputNotFoundError, MeshError
 from .references import Refused, check_rule, locate, resolver, why_not_read
 # Mesh, Material and check_mesh are also public here, where they used to live.
@@ -925,7 +924,11 @@ def _trimesh_load(path: str, rule: str = "anywhere") -> Mesh:
             warnings.simplefilter("ignore")  # NumPy noise from trimesh's parsers
             said: list = []
             gltf = _gltf_file(path, rule, said) if ext in (".gltf", ".glb") else None
-            flat = threemf.flatten(path) if ext == ".3mf" else None
+            flat = None
+            if ext == ".3mf":
+                from . import threemf  # xml and zipfile: not imported for other files
+
+                flat = threemf.flatten(path)
             if flat is not None:
                 import io
 

@@ -16,7 +16,6 @@ through :meth:`Options.from_args`.
 
 from __future__ import annotations
 
-import difflib
 import enum
 import math
 import os
@@ -235,6 +234,8 @@ class Options:
 
 def unknown_option_message(name: str, known) -> str:
     """``"unknown option `colour=`; did you mean `color`?"`` (difflib's closest), or the list."""
+    import difflib  # only for a misspelt name
+
     close = difflib.get_close_matches(name, list(known), n=1, cutoff=0.5)
     hint = f"did you mean `{close[0]}`?" if close else f"known: {', '.join(known)}"
     return f"unknown option `{name}=`; {hint}"

@@ -8,7 +8,6 @@ of the output, so the result never depends on the number of jobs.
 from __future__ import annotations
 
 import os
-from concurrent.futures import ThreadPoolExecutor
 
 from .errors import ParameterError
 
@@ -23,15 +22,49 @@ def resolve_jobs(jobs) -> int:
 
 
 def for_blocks(fn, n: int, block: int, jobs: int = 1) -> None:
-    """Call ``fn(start, stop)`` for consecutive blocks covering ``range(n)``."""
+    """Call ``fn(start, stop)`` for consecutive blocks covering ``range(n)``.
+
+    With ``jobs > 1``, ``jobs`` threads take the blocks in turn; every block
+    runs even where another raised, and the exception of the first block
+    (in order) that raised is raised here once all have finished, as a
+    ThreadPoolExecutor's results would give it. Plain threads: importing
+    concurrent.futures (with logging) cost a short conversion as much as
+    its whole fill.
+    """
+    import threading
+
     bounds = [(s, min(s + block, n)) for s in range(0, n, block)]
     if jobs <= 1 or len(bounds) <= 1:
         for s, e in bounds:
             fn(s, e)
         return
-    with ThreadPoolExecutor(max_workers=jobs) as pool:
-        for f in [pool.submit(fn, s, e) for s, e in bounds]:
-            f.result()
+    errors = [None] * len(bounds)
+    order = iter(range(len(bounds)))
+    lock = threading.Lock()
+
+    def work():
+        while True:
+            with lock:
+                k = next(order, None)
+            if k is None:
+                return
+            try:
+                fn(*bounds[k])
+            except BaseException as exc:  # raised in the calling thread below
+                errors[k] = exc
+
+    threads = [threading.Thread(target=work, daemon=True) for _ in range(min(jobs, len(bounds)))]
+    for t in threads:
+        t.start()
+    try:
+        for t in threads:
+            t.join()
+    finally:  # an interrupt while waiting still lets every block finish, as the pool's exit did
+        for t in threads:
+            t.join()
+    for exc in errors:
+        if exc is not None:
+            raise exc
 
 
 def scan_along(op, array, axis: int, jobs: int = 1) -> None:

@@ -180,8 +180,10 @@ def load(mesh, options: Options):
                                  "labels='file'); convert them one by one otherwise")
         from .labels import scene
 
-        return scene(mesh, options)
-    return loader.load_mesh(mesh, references=options.references)
+        with chosen(options.kernel):  # the OBJ reader's compiled loop follows the option too
+            return scene(mesh, options)
+    with chosen(options.kernel):
+        return loader.load_mesh(mesh, references=options.references)
 
 
 def grid_of(mesh, options: Options, fmt=None) -> Grid:

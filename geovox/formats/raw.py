@@ -9,8 +9,10 @@ import numpy as np
 
 from . import SlabWriter
 
-#: Voxels converted per slab, which bounds the extra memory of writing.
-SLAB_VOXELS = 1 << 24
+#: Voxels converted per slab, which bounds the extra memory of writing: 1 MB
+#: of 0/255 bytes at a time (1 << 24 made a 256³ volume's whole second copy,
+#: the peak of a short conversion; the pieces give the same bytes).
+SLAB_VOXELS = 1 << 20
 
 
 def metadata(volume, data_file: str, dtype: str = "uint8", values: str = "0 outside, 255 inside") -> dict:

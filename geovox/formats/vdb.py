@@ -36,7 +36,6 @@ from __future__ import annotations
 
 import os
 import struct
-import uuid
 import zlib
 
 import numpy as np
@@ -400,6 +399,8 @@ def _grid_metadata(g: _Grid, shape, stats: _Stats) -> bytes:
 
 def write_vdb(volume, path) -> list:
     """Write ``volume`` as an OpenVDB file (see the module docstring)."""
+    import uuid  # (not imported with the format registry)
+
     from .. import __version__
     from . import atomic_output
 

@@ -44,7 +44,6 @@ from __future__ import annotations
 import contextlib
 import os
 import shutil
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -372,6 +371,8 @@ def write_block(root: str, level: Level, block: np.ndarray, origin=(0, 0, 0), *,
             f.writelines(parts)
             f.write(raw)
             f.write(_crc32c(raw))
+
+    from concurrent.futures import ThreadPoolExecutor  # not imported with the format registry
 
     with ThreadPoolExecutor(max_workers=max(1, jobs)) as pool:
         list(pool.map(write_shard, tiles))

@@ -41,6 +41,7 @@ import re
 import numpy as np
 
 from ..errors import MeshError
+from ..kernels import obj_text
 from .references import check_rule, instead, locate, why_not_read
 from ..surface import Material, Mesh, transform_uv
 
@@ -767,9 +768,12 @@ def _pieces(starts, ends, lines, size=1 << 18):
 
 
 def _read_numbers(buf, starts, ends, lines, need):
-    """:func:`_number_lines` over pieces of the section."""
+    """:func:`_number_lines` over pieces of the section (or the compiled twin over all of it)."""
     if len(lines) == 0:
         return np.zeros(0), _EMPTY, _EMPTY, _EMPTY
+    kernel = obj_text()
+    if kernel is not None:  # geovox/_objtext.pyx: the same lines, float()'s numbers
+        return kernel.number_lines(buf, starts, ends, lines, need)
     values, first, count, slow, n_values, n_lines = [], [], [], [], 0, 0
     for piece in _pieces(starts, ends, lines):
         v, f, c, s = _number_lines(buf, starts, ends, piece, need)
@@ -784,9 +788,12 @@ def _read_numbers(buf, starts, ends, lines, need):
 
 
 def _read_corners(buf, starts, ends, lines):
-    """:func:`_corner_lines` over pieces of the section."""
+    """:func:`_corner_lines` over pieces of the section (or the compiled twin over all of it)."""
     if len(lines) == 0:
         return _EMPTY, _EMPTY, _EMPTY, _EMPTY
+    kernel = obj_text()
+    if kernel is not None:  # geovox/_objtext.pyx: the same corners and slow lines
+        return kernel.corner_lines(buf, starts, ends, lines)
     parts, n_lines = [], 0
     for piece in _pieces(starts, ends, lines):
         line_of, v, t, slow = _corner_lines(buf, starts, ends, piece)
