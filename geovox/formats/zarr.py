@@ -240,8 +240,14 @@ def _label_group(root, meta, field, unit=None):
     lg = root.create_group("labels")
     lg.attrs["ome"] = {"version": "0.5", "labels": ["labels"]}
     group = lg.create_group("labels")
+    group.attrs["ome"] = label_attributes(meta, field, unit)
+    return group
+
+
+def label_attributes(meta, field, unit=None) -> dict:
+    """The ``ome`` attributes of ``labels/labels``: its multiscales and ``image-label``."""
     table = [e for e in (meta.label_table or []) if e["value"] != 0]
-    group.attrs["ome"] = {
+    return {
         "version": "0.5", "multiscales": [multiscales(meta, field, unit)],
         "image-label": {
             "version": "0.5",
@@ -251,7 +257,6 @@ def _label_group(root, meta, field, unit=None):
                             "source": str(e.get("source", "")), "voxels": int(e.get("voxels", 0)),
                             "volume": float(e.get("volume", 0.0))} for e in table],
             "source": {"image": "../../"}}}
-    return group
 
 
 # --- writing shards -------------------------------------------------------
@@ -624,6 +629,7 @@ class ZarrWriter:
         import tempfile
 
         self.path, self.jobs, self.client = os.fspath(path), jobs, client
+        self.meta, self.unit = meta, unit
         thick = check_thick(whole_thick(meta.shape) if thick is None else thick)
         folder = os.path.dirname(os.path.abspath(self.path))
         try:
@@ -656,11 +662,24 @@ class ZarrWriter:
     def close(self) -> list:
         """Make the remaining levels (on the client's workers if there is one) and rename into place."""
         try:
+            self._label_table()
             build_levels(self.layout, self.client, self.jobs)
             _replace_folder(self.layout.root, self.path)
         except BaseException as exc:
             self._fail(exc)
         return [self.path]
+
+    def _label_table(self) -> None:
+        """The labels' ``image-label`` again, from ``meta.label_table`` as it is now.
+
+        Streamed, the counts (``voxels``, ``volume``) are known only once
+        every slab is made (:func:`geovox.stream.run_slabs` sets them).
+        """
+        field = next((f for f in self.layout.fields if f.name == "labels"), None)
+        if field is None:
+            return
+        group = _zarr().open_group(self.layout.root, mode="r+", zarr_format=3)
+        group["labels/labels"].attrs["ome"] = label_attributes(self.meta, field, self.unit)
 
     def _fail(self, exc):
         """Drop everything and raise ``exc`` (an OS error as an OutputError)."""
