@@ -794,5 +794,20 @@ def read_zarr(path, max_side=None, level=None):
         colors = base.transpose(2, 1, 0, 3)
     extra = {name: np.asfortranarray(g[name][paths[level]][...].T) for name in ("density", "sdf")
              if name in g}
+    if "labels" in g and "labels" in g["labels"]:
+        extra.update(_read_labels(g["labels/labels"], paths[level]))
     return Volume(occupancy=occ, grid=Grid(lo, hi, occ.shape), backend=str(info.get("backend", "?")),
                   source=str(info.get("source", path)), colors=colors, **extra)
+
+
+def _read_labels(group, path) -> dict:
+    """``labels`` and ``label_table`` from the ``labels/labels`` image (its ``image-label``)."""
+    meta = group.attrs["ome"]["image-label"]
+    colour = {c["label-value"]: list(c["rgba"]) for c in meta.get("colors", [])}
+    table = [{"value": 0, "name": "background", "color": [0, 0, 0, 0]}]
+    for q in meta.get("properties", []):
+        v = int(q["label-value"])
+        table.append({"value": v, "name": q.get("name", str(v)), "source": q.get("source", ""),
+                      "color": colour.get(v, [0, 0, 0, 255]), "voxels": q.get("voxels"),
+                      "volume": q.get("volume")})
+    return {"labels": np.asfortranarray(group[path][...].T), "label_table": table}
