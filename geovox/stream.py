@@ -10,8 +10,14 @@ Colour, density and distance work per slab too: every candidate crossing of
 a slab's voxels lies on a ray through that slab.
 
 Streaming writes HDF5 (plain datasets and the VTK-HDF group), RAW (with
-its headers and sidecar) and OME-Zarr; other formats need the whole volume
-in memory.
+its headers and sidecar), 3D Slicer's ``.seg.nrrd`` and OME-Zarr; other
+formats need the whole volume in memory.
+
+Labels and fractions stream too (:class:`LabelTally` sums the label
+table's counts and the contested voxels over the slabs; the writers put the
+table into their metadata on close). With rays along z each slab takes the
+whole grid's rays, so its labels and fractions are the whole grid's bit for
+bit (see :func:`geovox.labels.classify` and :func:`geovox.density.coverage`).
 
 ``.zarr`` output is always written slab by slab, each slab into its own
 shards (:mod:`geovox.formats.zarr`), so the slabs may also be voxelised on
@@ -603,11 +609,10 @@ def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, c
     labelled = options.get("labels") is not None or options.get("fractions")
     if labelled:
         formats.check_labels(True, f)
-    if labelled and f.slab_writer is None:
-        pass  # made in memory (the plan's memory route) and written whole
-    elif f.slab_writer is None:
-        raise ParameterError(f"slab-by-slab output needs .h5, .vtkhdf/.hdf, .raw or .zarr, "
-                             f"not {f.name}")
+    # Labels into a format written whole (.nrrd, NIfTI, .npz, .vox): made in memory.
+    if f.slab_writer is None and not labelled:
+        raise ParameterError(f"slab-by-slab output needs .h5, .vtkhdf/.hdf, .raw, .seg.nrrd or "
+                             f".zarr, not {f.name}")
     if f.name != "zarr" and (client is not None or slab is not None):
         raise ParameterError(f"`client` and `slab` are for .zarr output, not {f.name}")
     o = Options.from_kwargs(jobs=jobs, **options)

@@ -344,3 +344,16 @@ def test_unlabelled_seg_nrrd_streams_to_the_same_file(tmp_path):
                    budget=30 * 20 * 64 * 2)
     assert report.slabs >= 2
     assert (tmp_path / "s.seg.nrrd").read_bytes() == (tmp_path / "m.seg.nrrd").read_bytes()
+
+
+def test_material_labels_stream(tmp_path):
+    """Material labels: each slab's nearest-surface search, in the whole grid's frame."""
+    kw = dict(shape=(30, 30, 140), labels="material")
+    ref = quiet(geovox.voxelize, CORNELL, **kw)
+    assert len(np.unique(ref.labels)) >= 4
+    report = quiet(geovox.convert_to, CORNELL, tmp_path / "m.h5",
+                   budget=slab_budget(CORNELL, **kw), **kw)
+    assert report.slabs >= 2
+    back = formats.read(tmp_path / "m.h5")
+    np.testing.assert_array_equal(back.labels, ref.labels)
+    assert table_key(back.label_table) == table_key(ref.label_table)
