@@ -273,8 +273,11 @@ def part_mesh(mesh: Mesh, faces: np.ndarray, name: str) -> Mesh:
     return part
 
 
-def working_bytes(lset: LabelSet, fractions: bool = False, density_dtype: str = "uint8") -> float:
+def working_bytes(lset: LabelSet, options=None) -> float:
     """Bytes a voxel of a labelled block takes beside the occupancy, at its peak.
+
+    ``options`` (a :class:`geovox.Options`, or None for labels alone) says
+    whether there are fractions, and their dtype.
 
     The labels (1 or 2 bytes), the voxels seen once and twice, and a part's
     box of toggles and occupancy (at most the block's size): 4 more bytes.
@@ -283,8 +286,8 @@ def working_bytes(lset: LabelSet, fractions: bool = False, density_dtype: str = 
     (see :func:`geovox.pipeline.plan`).
     """
     per = lset.dtype.itemsize + 4.0
-    if fractions:
-        per += len(lset.names) * (4.0 if density_dtype == "float32" else 1.0) + 8.0
+    if options is not None and options.fractions:
+        per += len(lset.names) * (4.0 if options.density_dtype == "float32" else 1.0) + 8.0
     return per
 
 

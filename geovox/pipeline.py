@@ -266,7 +266,7 @@ def plan(mesh, options=None, path=None, *, fmt=None, stream=None, cluster=False,
         from .labels import working_bytes
 
         base["labels"] = lset
-        extra = working_bytes(lset, o.fractions, o.density_dtype)
+        extra = working_bytes(lset, o)
         if f is None or f.slab_writer is None:
             stream = False  # the format is written whole
     if stream is None:
@@ -722,7 +722,7 @@ def voxelize_block(mesh, plan: Plan, block=None, *, buffers=None) -> Volume:
         if plan.labels is not None:
             from .labels import working_bytes
 
-            extra = working_bytes(plan.labels, o.fractions, o.density_dtype)
+            extra = working_bytes(plan.labels, o)
         check_memory(grid, bytes_per_voxel(plan.colour, o.density, o.sdf) + extra)
     step("rays")
     crossings = {}

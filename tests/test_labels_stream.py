@@ -321,7 +321,9 @@ def test_a_grid_too_big_for_memory_streams_its_labels(monkeypatch, tmp_path):
     assert 400 * 400 * p.thick * p.per_voxel <= 0.5 * (1 << 30)  # slab_budget: half
     pf = quiet(geovox.plan, m, dict(big, fractions=True), "big.seg.nrrd")
     assert pf.route == Route.SLABS and len(pf.blocks) > len(p.blocks)
-    assert pf.per_voxel - p.per_voxel == L.working_bytes(lset, True) - L.working_bytes(lset)
+    assert pf.per_voxel - p.per_voxel == \
+        L.working_bytes(lset, pf.options) - L.working_bytes(lset, p.options)
+    assert L.working_bytes(lset, pf.options) == L.working_bytes(lset) + len(lset.names) + 8.0
     assert quiet(geovox.plan, m, big, "big.zarr").route == Route.SLABS
     with pytest.raises(GridTooLargeError):
         quiet(geovox.convert_to, m, tmp_path / "big.npz", **big)
