@@ -359,3 +359,24 @@ def test_material_labels_stream(tmp_path):
     back = formats.read(tmp_path / "m.h5")
     np.testing.assert_array_equal(back.labels, ref.labels)
     assert table_key(back.label_table) == table_key(ref.label_table)
+
+
+@pytest.mark.parametrize("dtype", ["uint8", "float32"])
+def test_streamed_raw_fractions_open_in_pynrrd(dtype, tmp_path):
+    """NAME_fractions.raw: one value per label interleaved per voxel, with .nhdr and .mhd."""
+    nrrd = pytest.importorskip("nrrd")
+    m = inclusion()
+    kw = dict(shape=(31, 27, 140), labels="part", fractions=True, supersample=2,
+              density_dtype=dtype)
+    ref = quiet(geovox.voxelize, m, **kw)
+    report = quiet(geovox.convert_to, m, tmp_path / "s.raw", budget=slab_budget(m, **kw), **kw)
+    assert report.slabs >= 2
+    back = formats.read(tmp_path / "s.raw")
+    assert back.fractions.dtype == np.dtype(dtype)
+    np.testing.assert_array_equal(back.fractions, ref.fractions)
+    data, header = nrrd.read(str(tmp_path / "s_fractions.nhdr"))
+    assert data.shape == (3,) + ref.shape
+    np.testing.assert_array_equal(np.moveaxis(data, 0, 3), ref.fractions)
+    assert "ElementNumberOfChannels = 3" in (tmp_path / "s_fractions.mhd").read_text()
+    formats.write(ref, tmp_path / "m.raw")
+    assert (tmp_path / "m_fractions.raw").read_bytes() == (tmp_path / "s_fractions.raw").read_bytes()
