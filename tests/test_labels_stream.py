@@ -282,7 +282,8 @@ def test_cli_jobs_2_streams_labels(tmp_path, capsys, monkeypatch):
 def test_dask_cluster_slab_tasks_give_the_same_bytes(tmp_path):
     distributed = pytest.importorskip("distributed")
     m = assembly(open_part=True)
-    kw = dict(shape=(37, 26, 300), labels="part", overlap="smallest")
+    kw = dict(shape=(37, 26, 300), labels="part", overlap="smallest", fractions=True,
+              supersample=2)
     ref = quiet(geovox.voxelize, m, **kw)
     local = quiet(geovox.convert_to, m, tmp_path / "local.zarr", slab=64, **kw)
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=False,
@@ -294,7 +295,9 @@ def test_dask_cluster_slab_tasks_give_the_same_bytes(tmp_path):
                         fmt="zarr", shape=(36, 36, 130), labels="part", overlap="smallest")
     assert report.route == "cluster" and report.slabs == 5
     assert tree(tmp_path / "cluster.zarr") == tree(tmp_path / "local.zarr")
-    np.testing.assert_array_equal(formats.read(tmp_path / "cluster.zarr").labels, ref.labels)
+    back = formats.read(tmp_path / "cluster.zarr")
+    np.testing.assert_array_equal(back.labels, ref.labels)
+    np.testing.assert_array_equal(back.fractions, ref.fractions)
     assert report["contested"] == ref.contested == local["contested"]
     assert table_key(report.label_table) == table_key(ref.label_table)
     (result,) = results
@@ -380,3 +383,29 @@ def test_streamed_raw_fractions_open_in_pynrrd(dtype, tmp_path):
     assert "ElementNumberOfChannels = 3" in (tmp_path / "s_fractions.mhd").read_text()
     formats.write(ref, tmp_path / "m.raw")
     assert (tmp_path / "m_fractions.raw").read_bytes() == (tmp_path / "s_fractions.raw").read_bytes()
+
+
+def test_streamed_zarr_fractions_one_channel_a_label(tmp_path):
+    """``fractions/``: an OME-Zarr image with one channel per label; its coarser levels are
+    the mean of the children, label by label (the density rule)."""
+    zarr = pytest.importorskip("zarr")
+    pytest.importorskip("ome_zarr_models.v05")
+    from ome_zarr_models.v05.image import Image
+
+    from geovox.formats.zarr import downsample
+
+    m = inclusion()
+    kw = dict(shape=(31, 27, 300), labels="part", fractions=True, supersample=2)
+    ref = quiet(geovox.voxelize, m, **kw)
+    report = quiet(geovox.convert_to, m, tmp_path / "f.zarr", slab=64, **kw)
+    assert report.slabs == 5
+    back = formats.read(tmp_path / "f.zarr")
+    np.testing.assert_array_equal(back.fractions, ref.fractions)
+    g = zarr.open_group(str(tmp_path / "f.zarr"), mode="r")
+    assert g["fractions/0"].shape == (3, 300, 27, 31)
+    coarse = downsample(ref.fractions.transpose(3, 2, 1, 0), "fractions")
+    np.testing.assert_array_equal(g["fractions/1"][...], coarse)
+    one = downsample(ref.fractions[..., 1].T, "density")
+    np.testing.assert_array_equal(coarse[1], one)
+    Image.from_zarr(g)
+    Image.from_zarr(g["fractions"])

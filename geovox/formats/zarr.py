@@ -7,6 +7,8 @@ Layout of ``NAME.zarr`` (a folder)::
     color/0/ ...         RGBA, uint8, axes (c, z, y, x)         with colour
     density/0/ ...       coverage, uint8 or float32             with density
     sdf/0/ ...           signed distance, float32               with distance
+    labels/labels/0/ ... label values, uint8 or uint16 (OME-Zarr image-label)  with labels
+    fractions/0/ ...     per-label fractions, axes (c, z, y, x), one channel a label  with fractions
 
 Each multiscale level halves the previous one (sides rounded up) until every
 side is at most :data:`TOP`; ``scale`` is the level's voxel size and
@@ -163,6 +165,11 @@ def make_layout(root, meta, thick: int) -> Layout:
     if getattr(meta, "labels", None) is not None:
         # OME-Zarr's labels/ group: one label image, "labels/labels".
         fields.append(Field("labels", str(meta.labels.dtype), 0, levels("labels/labels/", 0)))
+    fr = getattr(meta, "fractions", None)
+    if fr is not None:
+        # One channel per label (index k: label k + 1), as colour has one per component.
+        n = int(fr.shape[3])
+        fields.append(Field("fractions", str(fr.dtype), n, levels("fractions/", n)))
     return Layout(os.fspath(root), tuple(int(n) for n in meta.shape), thick, in_slab, tuple(fields))
 
 
@@ -440,6 +447,9 @@ def downsample(a: np.ndarray, name: str) -> np.ndarray:
         for ax in axes:
             a = _halve(a, ax, np.maximum, 0)
         return a
+    if name == "fractions":
+        # Each label's channel by the density rule (the mean of the children).
+        return np.stack([downsample(c, "density") for c in a])
     if name == "color":
         def pick(p, q):
             return np.where(q[3:4] > p[3:4], q, p)
@@ -469,6 +479,8 @@ def slab_fields(vol) -> dict:
         arr = getattr(vol, name, None)
         if arr is not None:
             out[name] = arr.T
+    if getattr(vol, "fractions", None) is not None:
+        out["fractions"] = vol.fractions.transpose(3, 2, 1, 0)
     return out
 
 
@@ -735,7 +747,8 @@ def _slab_of(volume, z0: int, z1: int):
                   density=None if volume.density is None else volume.density[:, :, cut],
                   sdf=None if volume.sdf is None else volume.sdf[:, :, cut],
                   labels=None if volume.labels is None else volume.labels[:, :, cut],
-                  label_table=volume.label_table)
+                  label_table=volume.label_table,
+                  fractions=None if volume.fractions is None else volume.fractions[:, :, cut])
 
 
 def whole_thick(shape) -> int:
@@ -796,6 +809,8 @@ def read_zarr(path, max_side=None, level=None):
              if name in g}
     if "labels" in g and "labels" in g["labels"]:
         extra.update(_read_labels(g["labels/labels"], paths[level]))
+    if "fractions" in g:
+        extra["fractions"] = g["fractions"][paths[level]][...].transpose(3, 2, 1, 0)
     return Volume(occupancy=occ, grid=Grid(lo, hi, occ.shape), backend=str(info.get("backend", "?")),
                   source=str(info.get("source", path)), colors=colors, **extra)
 
