@@ -46,7 +46,8 @@ def sub_columns(columns: Columns, k: int) -> Columns:
                    nu=columns.nu * k, nv=columns.nv * k, start=columns.start, w0=columns.w0)
 
 
-def coverage(hits, sub: Columns, grid, k: int, jobs: int = 1, sign=None) -> np.ndarray:
+def coverage(hits, sub: Columns, grid, k: int, jobs: int = 1, sign=None,
+             layers=None) -> np.ndarray:
     """Inside fraction of every voxel from the crossings of ``k x k`` rays per column.
 
     Parameters
@@ -59,54 +60,113 @@ def coverage(hits, sub: Columns, grid, k: int, jobs: int = 1, sign=None) -> np.n
         Per crossing, +1 where the surface faces along the ray and -1 where
         it faces against it: inside is then where the winding number (0
         before a ray's first crossing) is not 0. Without it, parity.
+    layers : (z0, z1), optional
+        Rays along z (``sub.axis == 2``) only: make layers ``z0 <= k < z1``
+        of ``grid`` alone, equal bit for bit to those layers of the whole
+        grid's coverage (the running sum is carried in from below in the
+        same float32 order), in ``(nx, ny, z1 - z0)`` voxels.
 
     Returns
     -------
-    (nx, ny, nz) float32 in [0, 1], Fortran order.
+    (nx, ny, nz) float32 in [0, 1], Fortran order (nz: ``z1 - z0`` with ``layers``).
     """
     axis = sub.axis
     n = grid.shape[axis]
-    h = grid.spacing[axis]
-    lo = 0.0  # depths are measured from the grid's low face
-    acc = np.zeros(grid.shape, dtype=np.float32, order="F")
+    z0, z1 = (0, n) if layers is None else layers
+    shape = tuple(z1 - z0 if a == axis else grid.shape[a] for a in range(3))
+    acc = np.zeros(shape, dtype=np.float32, order="F")
     if len(hits):
-        # Rank of each crossing along its ray: one argsort of a combined key
-        # (ray + depth scaled into [0, 1)). Crossings closer than ~1e-10 of the
-        # depth range may swap, which changes a zero-length interval only.
-        span = float(np.ptp(hits.depth)) or 1.0
-        key = hits.ray + (hits.depth - hits.depth.min()) * (0.999 / span)
-        order = np.argsort(key, kind="stable")
-        ray = hits.ray[order]
-        depth = hits.depth[order]
-        first = np.r_[True, ray[1:] != ray[:-1]]
-        start = np.maximum.accumulate(np.where(first, np.arange(len(ray)), 0))
-        if sign is None:
-            s = np.where((np.arange(len(ray)) - start) % 2 == 0, 1.0, -1.0)
-        else:
-            # Passing a crossing that faces along the ray lowers the winding
-            # number by one; s is the change of "inside" (w != 0) there.
-            step = -np.asarray(sign, dtype=np.int64)[order]
-            run = np.cumsum(step)
-            after = run - (run[start] - step[start])
-            s = (after != 0).astype(np.float64) - ((after - step) != 0)
-        kd = np.floor((depth - lo) / h).astype(np.int64)
-        frac = (lo + (kd + 1) * h - depth) / h
-        before = kd < 0
-        kd[before] = -1
-        frac[before] = 0.0
-        keep = kd < n
-        ray, kd, frac, s = ray[keep], kd[keep], frac[keep], s[keep]
-        nx, ny, _ = grid.shape
+        col, kd, frac, s = _steps(hits, sub, grid, k, sign)
+        nx, ny, _ = shape
         strides = [1, nx, nx * ny]
-        col = ((ray % sub.nu) // k) * strides[sub.u_axis] + ((ray // sub.nu) // k) * strides[sub.v_axis]
         flat = acc.reshape(-1, order="F")
-        for kk, w in ((kd, s * frac), (kd + 1, s * (1.0 - frac))):
-            ok = (kk >= 0) & (kk < n)
-            np.add.at(flat, col[ok] + kk[ok] * strides[axis], w[ok].astype(np.float32))
+        steps = ((kd, s * frac), (kd + 1, s * (1.0 - frac)))
+        for kk, w in steps:
+            ok = (kk >= z0) & (kk < z1)
+            np.add.at(flat, col[ok] + (kk[ok] - z0) * strides[axis], w[ok].astype(np.float32))
+        if z0 > 0:
+            cols, carry = _carry_below(steps, col, z0)
+            # The whole grid's running sum at layer z0 - 1, added as its scan would add it.
+            flat[cols] = carry + flat[cols]
     scan_along(np.add, acc, axis, jobs)
     acc *= np.float32(1.0 / (k * k))
     np.clip(acc, 0.0, 1.0, out=acc)
     return acc
+
+
+def _steps(hits, sub: Columns, grid, k: int, sign):
+    """Per crossing that reaches the grid: its column's flat index in ``grid`` (x fastest,
+    the ray axis left out), its layer ``kd`` (-1 before the grid), the part of that layer
+    past it ``frac``, and ``s``, the change of "inside" there (see :func:`coverage`)."""
+    axis = sub.axis
+    n = grid.shape[axis]
+    h = grid.spacing[axis]
+    lo = 0.0  # depths are measured from the grid's low face
+    # Rank of each crossing along its ray: one argsort of a combined key
+    # (ray + depth scaled into [0, 1)). Crossings closer than ~1e-10 of the
+    # depth range may swap, which changes a zero-length interval only.
+    span = float(np.ptp(hits.depth)) or 1.0
+    key = hits.ray + (hits.depth - hits.depth.min()) * (0.999 / span)
+    order = np.argsort(key, kind="stable")
+    ray = hits.ray[order]
+    depth = hits.depth[order]
+    first = np.r_[True, ray[1:] != ray[:-1]]
+    start = np.maximum.accumulate(np.where(first, np.arange(len(ray)), 0))
+    if sign is None:
+        s = np.where((np.arange(len(ray)) - start) % 2 == 0, 1.0, -1.0)
+    else:
+        # Passing a crossing that faces along the ray lowers the winding
+        # number by one; s is the change of "inside" (w != 0) there.
+        step = -np.asarray(sign, dtype=np.int64)[order]
+        run = np.cumsum(step)
+        after = run - (run[start] - step[start])
+        s = (after != 0).astype(np.float64) - ((after - step) != 0)
+    kd = np.floor((depth - lo) / h).astype(np.int64)
+    frac = (lo + (kd + 1) * h - depth) / h
+    before = kd < 0
+    kd[before] = -1
+    frac[before] = 0.0
+    keep = kd < n
+    ray, kd, frac, s = ray[keep], kd[keep], frac[keep], s[keep]
+    nx, ny, _ = grid.shape
+    strides = [1, nx, nx * ny]
+    col = ((ray % sub.nu) // k) * strides[sub.u_axis] + ((ray // sub.nu) // k) * strides[sub.v_axis]
+    return col, kd, frac, s
+
+
+def _carry_below(steps, col, z0: int):
+    """The whole grid's float32 running sum at layer ``z0 - 1`` of each column that has one.
+
+    Each voxel's scattered sum is made as :func:`coverage`'s ``np.add.at``
+    makes it (the same additions in the same order), then each column's are
+    added up layer by layer in float32, as the scan along the whole column
+    adds them (the layers between add zeros, which change nothing).
+
+    Returns
+    -------
+    cols : (c,) int64
+        Flat column indices (x + nx * y).
+    carry : (c,) float32
+    """
+    keys, weights = [], []
+    for kk, w in steps:
+        ok = (kk >= 0) & (kk < z0)
+        keys.append(kk[ok] + z0 * col[ok])  # column-major: a column's layers together, in order
+        weights.append(w[ok].astype(np.float32))
+    keys, weights = np.concatenate(keys), np.concatenate(weights)
+    if not len(keys):
+        return np.zeros(0, np.int64), np.zeros(0, np.float32)
+    uniq, inverse = np.unique(keys, return_inverse=True)
+    voxel = np.zeros(len(uniq), np.float32)
+    np.add.at(voxel, inverse.reshape(-1), weights)  # the order of coverage's two passes
+    cols = uniq // z0
+    first = np.r_[True, cols[1:] != cols[:-1]]
+    starts = np.flatnonzero(first)
+    rank = np.arange(len(uniq)) - np.repeat(starts, np.diff(np.r_[starts, len(uniq)]))
+    table = np.zeros((len(starts), int(rank.max()) + 1), np.float32)
+    table[np.cumsum(first) - 1, rank] = voxel
+    np.add.accumulate(table, axis=1, out=table)  # sequential, in float32
+    return cols[starts], table[:, -1].copy()
 
 
 def signed_distance(mesh, grid, occupancy, band: float = BAND, jobs: int = 1) -> np.ndarray:

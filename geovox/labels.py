@@ -283,6 +283,24 @@ def part_mesh(mesh: Mesh, faces: np.ndarray, name: str) -> Mesh:
     return part
 
 
+def working_bytes(lset: LabelSet, options=None) -> float:
+    """Bytes a voxel of a labelled block takes beside the occupancy, at its peak.
+
+    ``options`` (a :class:`geovox.Options`, or None for labels alone) says
+    whether there are fractions, and their dtype.
+
+    The labels (1 or 2 bytes), the voxels seen once and twice, and a part's
+    box of toggles and occupancy (at most the block's size): 4 more bytes.
+    Fractions add one value per label (1 or 4 bytes) and the union coverage
+    (float32) with its two rounded int16 copies. Slab planning counts these
+    (see :func:`geovox.pipeline.plan`).
+    """
+    per = lset.dtype.itemsize + 4.0
+    if options is not None and options.fractions:
+        per += len(lset.names) * (4.0 if options.density_dtype == "float32" else 1.0) + 8.0
+    return per
+
+
 def enclosed_volume(mesh: Mesh) -> float:
     """|signed volume| of the triangles (the enclosed volume of a closed, wound part)."""
     t = mesh.triangles
@@ -301,7 +319,7 @@ def paint_order(lset: LabelSet, parts: list) -> list:
     return sorted(range(n), key=lambda k: (-vols[k], k))
 
 
-def _box_fill(hits, columns, grid, lo_ray):
+def _box_fill(hits, columns, grid, lo_ray, z0: int = 0):
     """A part's parity occupancy over the box of voxels its crossings reach.
 
     The toggles are those of :func:`geovox.parity.toggle_indices` (the same
@@ -309,6 +327,11 @@ def _box_fill(hits, columns, grid, lo_ray):
     whole grid's fill of these crossings; voxels outside the box are outside
     (no crossing reaches their columns, or their ray has passed an even
     number of crossings beyond the box).
+
+    ``z0``: ``grid`` is a z-block from layer ``z0`` of the whole grid whose
+    rays (along z) and voxel centres ``lo_ray`` these are: a crossing's
+    layer is found in the whole grid, then moved into the block (the layers
+    below it toggle its first layer), an exact integer step.
 
     Returns
     -------
@@ -318,6 +341,8 @@ def _box_fill(hits, columns, grid, lo_ray):
     axis = columns.axis
     n = grid.shape[axis]
     k = np.searchsorted(lo_ray, hits.depth, side="left")
+    if z0:
+        k = np.maximum(k - z0, 0)
     keep = k < n
     k = k[keep].astype(np.int64)
     ray = hits.ray[keep]
@@ -355,8 +380,9 @@ class Classified:
         Voxels inside more than one part.
     methods : list of str
         The inside test each label's part ran (``"parity"``, ``"winding"``).
-    crossings : (Hits, Columns)
-        The whole mesh's crossings along the ray axis (for colour).
+    crossings : (Hits, Columns) or None
+        The whole mesh's crossings along the ray axis on the block (for
+        colour); None where they were the whole grid's (``within``).
     """
 
     labels: np.ndarray
@@ -366,7 +392,7 @@ class Classified:
 
 
 def classify(mesh: Mesh, grid, lset: LabelSet, *, cast_mesh, axis: int, jobs: int = 1,
-             inside: str = "auto") -> Classified:
+             inside: str = "auto", within=None) -> Classified:
     """Each part by its own inside test on ``grid``, overlaps settled by ``lset.overlap``.
 
     Parameters
@@ -378,10 +404,16 @@ def classify(mesh: Mesh, grid, lset: LabelSet, *, cast_mesh, axis: int, jobs: in
     lset : LabelSet
         Its ``face_label`` gives the parts (not ``"material"``).
     cast_mesh : callable
-        ``cast_mesh(mesh, axis) -> (Hits, Columns)`` on ``grid`` (rays from
-        outside the mesh, see :func:`geovox.pipeline.ray_start`).
+        ``cast_mesh(mesh, axis, on=grid) -> (Hits, Columns)`` on grid ``on``
+        (rays from outside the mesh, see :func:`geovox.pipeline.ray_start`).
     axis, jobs, inside
         As for :func:`geovox.voxelize`.
+    within : (Grid, (z0, z1)), optional
+        The whole grid, where ``grid`` is its block ``z0 .. z1``. With rays
+        along z the parity parts take the whole grid's rays and crossings
+        (its depths, its voxel centres) and move them into the block by
+        whole layers (:func:`_box_fill`), so a block's labels are the whole
+        grid's exactly, ties on the surface included.
     """
     import warnings
 
@@ -411,11 +443,14 @@ def classify(mesh: Mesh, grid, lset: LabelSet, *, cast_mesh, axis: int, jobs: in
             # A part's repair is its own business; the whole mesh's is said once.
             warnings.simplefilter("ignore")
             methods.append(inside_tests.choose(part, inside))
-    hits, columns = cast_mesh(mesh, axis)
+    z0, frame = 0, grid
+    if within is not None and axis == 2 and tuple(within[1]) != (0, within[0].shape[2]):
+        frame, z0 = within[0], int(within[1][0])
+    hits, columns = cast_mesh(mesh, axis, frame)
     part_of_hit = lset.face_label[hits.triangle]
     by_part = np.argsort(part_of_hit, kind="stable")
     hcuts = np.searchsorted(part_of_hit[by_part], np.arange(n + 1))
-    lo_ray = (np.arange(grid.shape[axis]) + 0.5) * grid.spacing[axis]
+    lo_ray = (np.arange(frame.shape[axis]) + 0.5) * frame.spacing[axis]
     labels = np.zeros(grid.shape, dtype=lset.dtype, order="F")
     seen = np.zeros(grid.shape, dtype=bool, order="F")
     multi = None  # voxels inside more than one part
@@ -423,7 +458,8 @@ def classify(mesh: Mesh, grid, lset: LabelSet, *, cast_mesh, axis: int, jobs: in
         if parts[k] is None:
             continue
         if methods[k] == "parity":
-            got = _box_fill(hits.take(by_part[hcuts[k]:hcuts[k + 1]]), columns, grid, lo_ray)
+            got = _box_fill(hits.take(by_part[hcuts[k]:hcuts[k + 1]]), columns, grid, lo_ray,
+                            z0)
             if got is None:
                 continue
             box, occ = got
@@ -446,7 +482,7 @@ def classify(mesh: Mesh, grid, lset: LabelSet, *, cast_mesh, axis: int, jobs: in
         np.copyto(labels[box], lset.dtype.type(k + 1), where=occ)  # faster than a mask index
     contested = 0 if multi is None else int(np.count_nonzero(multi))
     return Classified(labels=labels, contested=contested, methods=methods,
-                      crossings=(hits, columns))
+                      crossings=(hits, columns) if frame is grid else None)
 
 
 def table(lset: LabelSet, labels: np.ndarray, spacing, counts=None) -> list:
@@ -517,7 +553,7 @@ def material_labels(mesh: Mesh, grid, occupancy: np.ndarray, lset: LabelSet, *, 
 
 
 def label_fractions(mesh: Mesh, grid, lset: LabelSet, *, engine, axis: int, start: float,
-                    supersample: int = 4, jobs: int = 1, dtype: str = "uint8") -> np.ndarray:
+                    supersample: int = 4, jobs: int = 1, dtype: str = "uint8", within=None) -> np.ndarray:
     """Each label's coverage fraction per voxel, overlaps settled by ``lset.overlap``.
 
     From ``supersample`` x ``supersample`` rays per column, cast once for the
@@ -530,6 +566,13 @@ def label_fractions(mesh: Mesh, grid, lset: LabelSet, *, engine, axis: int, star
     its own coverage. uint8 fractions are differences of the rounded
     ``255 * U_j``, so they too sum to the rounded union. Open parts are
     taken by their crossing signs without capping their holes.
+
+    ``within`` = ``(whole grid, (z0, z1))``: ``grid`` is that z-block of
+    the whole grid. With rays along z the block's rays are the whole grid's
+    (the same crossings, depths from the whole grid's low face) and its
+    coverage is carried in from below (``coverage(layers=...)``), so the
+    block's fractions are the whole grid's, bit for bit; along x or y a
+    block's rays are its own.
 
     Returns
     -------
@@ -549,11 +592,15 @@ def label_fractions(mesh: Mesh, grid, lset: LabelSet, *, engine, axis: int, star
             t = p.triangles
             vol = float(np.einsum("ij,ij->i", t[:, 0], np.cross(t[:, 1], t[:, 2])).sum())
             flip[k] = -1 if vol < 0 else 1
+    layers = None
+    if within is not None and axis == 2 and tuple(within[1]) != (0, within[0].shape[2]):
+        grid, layers = within[0], tuple(within[1])
     sub = sub_columns(grid.columns(axis, start=start), supersample)
     hits = engine.cast(mesh, sub, jobs=jobs)
     part_of = lset.face_label[hits.triangle]
     sign = crossing_signs(mesh, hits, axis) * flip[part_of]
-    out = np.zeros(grid.shape + (n,), dtype=np.float32 if dtype == "float32" else np.uint8,
+    shape = grid.shape if layers is None else grid.shape[:2] + (layers[1] - layers[0],)
+    out = np.zeros(tuple(shape) + (n,), dtype=np.float32 if dtype == "float32" else np.uint8,
                    order="F")
     included = np.zeros(n, dtype=bool)
     prev = None
@@ -562,7 +609,8 @@ def label_fractions(mesh: Mesh, grid, lset: LabelSet, *, engine, axis: int, star
             continue
         included[k] = True
         sel = included[part_of]
-        cov = coverage(hits.take(sel), sub, grid, supersample, jobs, sign=sign[sel])
+        cov = coverage(hits.take(sel), sub, grid, supersample, jobs, sign=sign[sel],
+                       layers=layers)
         if dtype != "float32":
             cov = np.rint(cov * np.float32(255.0)).astype(np.int16)
         out[..., k] = cov if prev is None else np.maximum(cov - prev, 0)
@@ -614,9 +662,11 @@ def parts_report(mesh: Mesh, sources=("part", "component", "material"), most: in
 
 def label_results(mesh: Mesh, grid, occupancy, lset: LabelSet, classified, *, engine, axis,
                   jobs, fractions, density_dtype, supersample, frame, start, timings,
-                  step) -> dict:
+                  step, within=None) -> dict:
     """A block's label fields for its Volume: ``labels``, ``label_table``, ``contested``,
-    ``fractions`` (material labels and fractions are made here, timed into ``timings``)."""
+    ``fractions`` (material labels and fractions are made here, timed into ``timings``).
+
+    ``within``: ``(whole grid, (z0, z1))``, the block (see :func:`label_fractions`)."""
     import time
 
     if classified is not None:
@@ -632,7 +682,7 @@ def label_results(mesh: Mesh, grid, occupancy, lset: LabelSet, classified, *, en
         t = time.perf_counter()
         fracs = label_fractions(mesh, grid, lset, engine=engine, axis=axis, start=start,
                                 supersample=supersample, jobs=jobs,
-                                dtype=density_dtype)
+                                dtype=density_dtype, within=within)
         timings["fractions"] = time.perf_counter() - t
     return {"labels": lab, "label_table": table(lset, lab, grid.spacing),
             "contested": 0 if classified is None else classified.contested, "fractions": fracs}

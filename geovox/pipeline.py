@@ -270,21 +270,27 @@ def _plan(mesh, o: Options, path, fmt, stream, cluster, budget, slab) -> Plan:
     colour = colour_of(o.color)
     base = dict(options=o, grid=grid, backend=engine, colour=colour, jobs=resolve_jobs(o.jobs),
                 format=f, path=None if path is None else str(path), mesh_space=used)
-    lset = _label_set(m, o, f, stream)
+    lset = _label_set(m, o, f)
+    extra = 0.0  # the labels' and fractions' bytes per voxel
     if lset is not None:
-        base["labels"], stream = lset, False  # labels are made in memory
-    elif stream is None:
+        from .labels import working_bytes
+
+        base["labels"] = lset
+        extra = working_bytes(lset, o)
+        if f is None or f.slab_writer is None:
+            stream = False  # the format is written whole
+    if stream is None:
         from .stream import streams
 
-        stream = f is not None and streams(grid, f, o)
+        stream = f is not None and streams(grid, f, o, extra=extra)
     if not stream or f is None:
         # By parts, each part takes its own inside test (geovox.labels.classify).
         method = (Inside(o.inside) if lset is not None and lset.source != "material"
                   else Inside(inside_tests.choose(m, o.inside)))
         p = Plan(inside=method, axis=o.axis, route=Route.MEMORY, blocks=((0, grid.shape[2]),),
-                 per_voxel=bytes_per_voxel(o), **base)
+                 per_voxel=bytes_per_voxel(o) + extra, **base)
     else:
-        p = _streamed_plan(m, base, cluster=cluster, budget=budget, slab=slab)
+        p = _streamed_plan(m, base, cluster=cluster, budget=budget, slab=slab, extra=extra)
     # With `like`, the mesh the blocks run on is the moved one (see Plan.mesh_for).
     object.__setattr__(p, "_mesh", m if used is not None else None)
     return p
@@ -309,14 +315,12 @@ def _mesh_and_grid(m, o: Options, f):
     return m, grid, used
 
 
-def _label_set(m, o: Options, f, stream):
+def _label_set(m, o: Options, f):
     """The labels ``o.labels`` asks for (None without), checked against the format."""
     if o.labels is None:
         return None
     from . import labels as label_mod
 
-    if stream:
-        raise ParameterError("labels are made in memory, not slab by slab (stream=False)")
     if f is not None:
         from . import formats
 
@@ -325,15 +329,27 @@ def _label_set(m, o: Options, f, stream):
     return dataclasses.replace(label_mod.label_set(m, o.labels), overlap=o.overlap)
 
 
-def _streamed_plan(m, base: dict, *, cluster, budget, slab) -> Plan:
-    """The slab routes' part of :func:`plan`: blocks within the budget, the route, the axis."""
+def _streamed_plan(m, base: dict, *, cluster, budget, slab, extra=0.0) -> Plan:
+    """The slab routes' part of :func:`plan`: blocks within the budget, the route, the axis.
+
+    ``extra``: the labels' and fractions' bytes per voxel, counted in the budget.
+    """
     from . import inside as inside_tests
     from .memory import check_memory as fits
     from .stream import LOCAL_ZARR_SLAB, cluster_thick, slab_budget, slab_plan
 
     o, grid, colour, f = base["options"], base["grid"], base["colour"], base["format"]
-    method = Inside(inside_tests.choose(m, o.inside))
-    per = bytes_per_voxel(o) + inside_tests.working_bytes(m, method)
+    lset = base.get("labels")
+    by_parts = lset is not None and lset.source != "material"
+    if by_parts:
+        # Each part takes its own inside test (as in memory); the budget counts
+        # the winding number's arrays wherever a part may need them.
+        method = Inside(o.inside)
+        working = 15.0 if len(inside_tests.boundary_edges(m)) else 2.0
+    else:
+        method = Inside(inside_tests.choose(m, o.inside))
+        working = inside_tests.working_bytes(m, method)
+    per = bytes_per_voxel(o) + working + extra
     budget = slab_budget() if budget is None else budget
     blocks = slab_plan(grid, per, budget)
     nx, ny, nz = grid.shape
@@ -361,7 +377,7 @@ def _streamed_plan(m, base: dict, *, cluster, budget, slab) -> Plan:
     if cluster:
         route = Route.CLUSTER
     elif (f.name != "zarr" and len(blocks) == 1 and method == Inside.PARITY
-          and not (colour or o.density or o.sdf)):
+          and not (colour or o.density or o.sdf or lset is not None)):
         # Occupancy alone, one piece: the rays along z are cast once for the
         # whole grid (as voxelize casts them, so the file is the same) and the
         # fill runs 64 slices at a time in two reused buffers, each piece
@@ -373,9 +389,12 @@ def _streamed_plan(m, base: dict, *, cluster, budget, slab) -> Plan:
     # Several slabs: rays along y, so a slab's columns are its own (x, z)
     # pairs and no ray is cast twice. One piece: voxelize's default axis, so
     # the file equals the in-memory volume.
-    axis = 1 if len(blocks) > 1 else 2
+    # With labels: the axis asked for, so the labels and fractions are the
+    # in-memory ones byte for byte (fractions are sampled across the rays).
+    axis = o.axis if lset is not None else 1 if len(blocks) > 1 else 2
     # Vote casts z itself; exact colour needs no rays.
-    reuse_z = colour == Colour.FAST and len(blocks) > 1 and method != Inside.VOTE
+    reuse_z = (colour == Colour.FAST and len(blocks) > 1 and method != Inside.VOTE
+               and axis != 2)
     return Plan(inside=method, axis=axis, route=route, blocks=tuple(blocks), per_voxel=per,
                 budget=budget, reuse_z=reuse_z, chunk_slab=thick, **base)
 
@@ -403,17 +422,19 @@ def run(mesh, p: Plan, *, progress=None, client=None, write_options=None) -> Rep
         tw = time.perf_counter()
         files = formats.write(vol, p.path, fmt=p.format.name, **(write_options or {}))
         t["write"] = time.perf_counter() - tw
-    lines = []
-    if vol.label_table is not None:
-        table = vol.label_table
-        lines.append(f"labels {p.options.labels}: {len(table) - 1:,} "
-                     f"({', '.join(e['name'] for e in table[1:][:6])}"
-                     f"{', ...' if len(table) > 7 else ''}), "
-                     f"{vol.contested:,} contested voxels (overlap rule {p.options.overlap})")
+    lines = [] if vol.label_table is None else label_lines(p, vol.label_table, vol.contested)
     return Report(source=mesh.source, grid=p.grid, backend=p.backend.name,
                   inside_test=vol.inside, inside=vol.inside_count, route=str(p.route),
                   slabs=1, volume=vol, files=files, timings=t, mesh_space=p.mesh_space,
                   lines=lines)
+
+
+def label_lines(p: Plan, table: list, contested: int) -> list:
+    """The summary's line on the labels made (the table, the contested voxels)."""
+    return [f"labels {p.options.labels}: {len(table) - 1:,} "
+            f"({', '.join(e['name'] for e in table[1:][:6])}"
+            f"{', ...' if len(table) > 7 else ''}), "
+            f"{contested:,} contested voxels (overlap rule {p.options.overlap})"]
 
 
 def voxelize(
@@ -707,7 +728,12 @@ def voxelize_block(mesh, plan: Plan, block=None, *, buffers=None) -> Volume:
 
     grid = block_grid(plan.grid, block)
     if "slices" not in buffers:
-        check_memory(grid, bytes_per_voxel(o))
+        extra = 0.0
+        if plan.labels is not None:
+            from .labels import working_bytes
+
+            extra = working_bytes(plan.labels, o)
+        check_memory(grid, bytes_per_voxel(o) + extra)
     step("rays")
     crossings = {}
     classified = None
@@ -719,9 +745,11 @@ def voxelize_block(mesh, plan: Plan, block=None, *, buffers=None) -> Volume:
 
         # By parts: each part's own inside test, overlaps settled by the rule.
         classified = classify(m, grid, plan.labels, axis=plan.axis, jobs=plan.jobs,
-                              cast_mesh=lambda mesh, ax: _cast(mesh, plan, grid, ax),
-                              inside=o.inside)
-        crossings[plan.axis] = classified.crossings
+                              cast_mesh=lambda mesh, ax, on=grid: _cast(mesh, plan, on, ax),
+                              inside=o.inside,
+                              within=None if block is None else (plan.grid, block))
+        if classified.crossings is not None:
+            crossings[plan.axis] = classified.crossings
         t_rays = time.perf_counter()
         occ = np.asfortranarray(classified.labels != 0)
         method = "+".join(sorted(set(classified.methods)))
@@ -830,7 +858,8 @@ def _labels(m, plan: Plan, grid: Grid, block, occ, classified, step, timings) ->
         jobs=plan.jobs, fractions=o.fractions, density_dtype=o.density_dtype,
         supersample=int(o.supersample),
         frame=(plan.grid.lo, plan.grid.spacing, 0 if block is None else block[0]),
-        start=ray_start(m, grid, plan.axis), timings=timings, step=step)
+        start=ray_start(m, plan.grid if plan.axis == 2 else grid, plan.axis), timings=timings,
+        step=step, within=None if block is None else (plan.grid, block))
 
 
 def _density(m, plan: Plan, grid: Grid, winding: bool):

@@ -10,8 +10,14 @@ Colour, density and distance work per slab too: every candidate crossing of
 a slab's voxels lies on a ray through that slab.
 
 Streaming writes HDF5 (plain datasets and the VTK-HDF group), RAW (with
-its headers and sidecar) and OME-Zarr; other formats need the whole volume
-in memory.
+its headers and sidecar), 3D Slicer's ``.seg.nrrd`` and OME-Zarr; other
+formats need the whole volume in memory.
+
+Labels and fractions stream too (:class:`LabelTally` sums the label
+table's counts and the contested voxels over the slabs; the writers put the
+table into their metadata on close). With rays along z each slab takes the
+whole grid's rays, so its labels and fractions are the whole grid's bit for
+bit (see :func:`geovox.labels.classify` and :func:`geovox.density.coverage`).
 
 ``.zarr`` output is always written slab by slab, each slab into its own
 shards (:mod:`geovox.formats.zarr`), so the slabs may also be voxelised on
@@ -73,7 +79,7 @@ def slab_budget() -> float:
     return SLAB_BUDGET if avail is None else min(SLAB_BUDGET, 0.5 * avail)
 
 
-def streams(grid: Grid, fmt, options: Options) -> bool:
+def streams(grid: Grid, fmt, options: Options, extra=0.0) -> bool:
     """Whether a conversion into format ``fmt`` runs slab by slab (:func:`convert_to`).
 
     The one rule for the command line and batches (:func:`geovox.plan` with
@@ -88,6 +94,10 @@ def streams(grid: Grid, fmt, options: Options) -> bool:
         The format, or its name.
     options : Options
         What the conversion makes (its memory per voxel).
+    extra : float
+        More working bytes per voxel: labels and fractions
+        (:func:`geovox.labels.working_bytes`); with them a one-piece grid is
+        made in memory.
     """
     from .formats import format_for
 
@@ -96,8 +106,8 @@ def streams(grid: Grid, fmt, options: Options) -> bool:
         return False
     if f.name == "zarr":
         return True  # always slab by slab: each slab writes its own shards
-    blocks = slab_plan(grid, bytes_per_voxel(options), slab_budget())
-    return len(blocks) > 1 or streams_whole(grid, options)
+    blocks = slab_plan(grid, bytes_per_voxel(options) + extra, slab_budget())
+    return len(blocks) > 1 or (not extra and streams_whole(grid, options))
 
 
 def streams_whole(grid: Grid, options: Options | None = None) -> bool:
@@ -172,7 +182,7 @@ def _release_slab_buffers() -> None:
 def _zarr_slab(m, p: Plan, block, layout, z_part=None, z_start=None):
     """One cluster task: voxelise slab ``block`` of plan ``p`` and write it into its own shards.
 
-    Returns ``(inside count, timings)``.
+    Returns ``(inside count, timings, label counts)`` (see :meth:`LabelTally.of`).
     """
     from .errors import OutputError
     from .formats.zarr import write_slab
@@ -203,11 +213,12 @@ def _zarr_slab(m, p: Plan, block, layout, z_part=None, z_start=None):
     timings = {k: v for k, v in vol.timings.items() if k != "total"}
     timings["write"] = time.perf_counter() - tb
     timings["task"] = time.perf_counter() - t
-    return vol.inside_count, timings
+    return vol.inside_count, timings, LabelTally.of(vol)
 
 
-def _run_on_cluster(client, m, p: Plan, layout, reuse_z, progress, timings) -> int:
-    """Submit one :func:`_zarr_slab` task per slab; their inside counts summed, timings added up."""
+def _run_on_cluster(client, m, p: Plan, layout, reuse_z, progress, timings, tally) -> int:
+    """Submit one :func:`_zarr_slab` task per slab; their inside counts summed, timings added up,
+    their label counts into ``tally``."""
     from dask.distributed import as_completed
 
     if p.colour:
@@ -230,8 +241,9 @@ def _run_on_cluster(client, m, p: Plan, layout, reuse_z, progress, timings) -> i
     inside = 0
     try:
         for n, future in enumerate(as_completed(futures)):
-            count, t = future.result()
+            count, t, labelled = future.result()
             inside += count
+            tally.add(labelled)
             for key, value in t.items():
                 timings[key] = timings.get(key, 0.0) + value
             if progress:
@@ -320,7 +332,7 @@ def _slab_buffers(p: Plan, two: bool, to_file: bool) -> dict:
     return out
 
 
-def _run_blocks(m, p: Plan, writer, reuse, timings, progress) -> int:
+def _run_blocks(m, p: Plan, writer, reuse, timings, progress, tally) -> int:
     """The slab route here: each block voxelised, then written into its place."""
     # RAW colours go into their file chunk by chunk as they are made (from
     # the colour step's threads): no slab of colours is held or copied.
@@ -366,6 +378,7 @@ def _run_blocks(m, p: Plan, writer, reuse, timings, progress) -> int:
                 timings[key] = timings.get(key, 0.0) + value
             timings["write"] += time.perf_counter() - tb
             inside += vol.inside_count
+            tally.add(LabelTally.of(vol))
             del vol
             if progress:
                 progress(Progress("slab", n + 1, len(p.blocks)))
@@ -405,16 +418,66 @@ def _z_once(m, p: Plan, timings):
     return {2: along_z}, (z_hits, z_start)
 
 
+class LabelTally:
+    """The label table's voxel counts and the contested voxels, summed over the blocks.
+
+    A block equals that part of the whole grid, so the whole grid's counts
+    are the sums of the blocks' (and a voxel is contested in one block only).
+    """
+
+    def __init__(self, p: Plan):
+        self.lset = p.labels
+        self.counts = None if p.labels is None else np.zeros(len(p.labels.names) + 1, np.int64)
+        self.contested = 0
+        self.inside = None  # the inside tests the parts ran (the same in every block)
+
+    @staticmethod
+    def of(vol):
+        """``(counts, contested, inside)`` of a block's Volume, or None without labels."""
+        if vol.label_table is None:
+            return None
+        return (np.array([e["voxels"] for e in vol.label_table], np.int64), int(vol.contested),
+                vol.inside)
+
+    def add(self, labelled) -> None:
+        """Count one block's ``of(vol)``."""
+        if labelled is None:
+            return
+        counts, contested, inside = labelled
+        self.counts += counts
+        self.contested += contested
+        self.inside = self.inside or inside
+
+    def table(self, spacing) -> list:
+        """The whole grid's label table (:func:`geovox.labels.table`)."""
+        from .labels import table
+
+        return table(self.lset, None, spacing, counts=self.counts)
+
+
 def _meta(m, p: Plan) -> Volume:
     """The whole grid's facts for headers and attributes.
 
-    The arrays stand only for presence and dtype (the data comes slab by slab).
+    The arrays stand only for presence and dtype (the data comes slab by
+    slab); with labels, ``label_table`` holds the names and colours, its
+    counts 0 until every block is made (:func:`run_slabs` sets it then).
     """
     o = p.options
+    extra = {}
+    if p.labels is not None:
+        from .labels import table
+
+        n = len(p.labels.names)
+        extra = {"labels": np.zeros((0, 0, 0), p.labels.dtype),
+                 "label_table": table(p.labels, None, p.grid.spacing,
+                                      counts=np.zeros(n + 1, np.int64))}
+        if o.fractions:
+            extra["fractions"] = np.zeros((0, 0, 0, n), np.float32 if o.density_dtype ==
+                                          "float32" else np.uint8)
     return Volume(occupancy=None, grid=p.grid, backend=p.backend.name, source=m.source,
                   colors=np.zeros(0, np.uint8) if p.colour else None,
                   density=np.zeros(0, o.density_dtype) if o.density else None,
-                  sdf=np.zeros(0, np.float32) if o.sdf else None)
+                  sdf=np.zeros(0, np.float32) if o.sdf else None, **extra)
 
 
 @follows_plan
@@ -445,16 +508,23 @@ def run_slabs(m, p: Plan, *, progress=None, client=None) -> Report:
             warn(problem, stacklevel=3)
     if not _overlaps(m.bounds, grid):
         warn("the region misses the mesh; the volume is empty", stacklevel=3)
-    writer = p.writer(_meta(m, p), client=client)
+    meta = _meta(m, p)
+    writer = p.writer(meta, client=client)
     timings = {"load": 0.0, "rays": 0.0, "fill": 0.0, "write": 0.0}
+    tally = LabelTally(p)
     try:
         reuse, reuse_z = _z_once(m, p, timings) if p.reuse_z else (None, None)
         if p.route == Route.CLUSTER:
-            inside = _run_on_cluster(client, m, p, writer.layout, reuse_z, progress, timings)
+            inside = _run_on_cluster(client, m, p, writer.layout, reuse_z, progress, timings,
+                                     tally)
         elif p.route == Route.FILL:
             inside = _run_fill(m, p, writer, timings, progress)
         else:
-            inside = _run_blocks(m, p, writer, reuse, timings, progress)
+            inside = _run_blocks(m, p, writer, reuse, timings, progress, tally)
+        if p.labels is not None:
+            # The writers hold `meta`: its table, with the summed counts, goes
+            # into the files' metadata as they are closed.
+            meta.label_table = tally.table(grid.spacing)
         files = writer.close()
         if inside == 0 and _overlaps(m.bounds, grid):
             warn(empty_reason(m, grid, p.inside), stacklevel=3)
@@ -462,9 +532,16 @@ def run_slabs(m, p: Plan, *, progress=None, client=None) -> Report:
         writer.abort()
         raise
     timings["total"] = time.perf_counter() - t0
-    return Report(source=m.source, grid=grid, backend=p.backend.name, inside_test=str(p.inside),
-                  inside=inside, route=str(p.route), slabs=len(p.blocks), files=files,
-                  timings=timings, mesh_space=p.mesh_space)
+    labelled = {}
+    if p.labels is not None:
+        from .pipeline import label_lines
+
+        labelled = dict(label_table=meta.label_table, contested=tally.contested,
+                        lines=label_lines(p, meta.label_table, tally.contested))
+    return Report(source=m.source, grid=grid, backend=p.backend.name,
+                  inside_test=tally.inside or str(p.inside), inside=inside, route=str(p.route),
+                  slabs=len(p.blocks), files=files, timings=timings, mesh_space=p.mesh_space,
+                  **labelled)
 
 
 def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, client=None,
@@ -510,8 +587,11 @@ def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, c
         ``slabs``, ``files``, ``timings``, ``filled_in_slabs`` (True where a
         one-piece occupancy was filled and written 64 slices at a time, see
         :func:`geovox.parity.fill_slabs`), ``grid``, ``source``, ``mesh_space``;
-        with labels (made in memory: labels do not stream yet) also ``labels``
-        (how many) and ``contested``.
+        with labels also ``labels`` (how many) and ``contested`` (summed over
+        the slabs, as is the table's ``label_table``). Labels and fractions
+        stream slab by slab like the rest, into .h5, .vtkhdf, .raw,
+        .seg.nrrd and .zarr; into the other label formats they are made in
+        memory and written whole.
 
     Raises
     ------
@@ -534,18 +614,18 @@ def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, c
     f = formats.format_for(path, fmt)
     labelled = options.get("labels") is not None or options.get("fractions")
     if labelled:
-        # Labels do not stream yet: made in memory (the plan's memory route) and written.
         formats.check_labels(True, f)
-    elif f.slab_writer is None:
-        raise ParameterError(f"slab-by-slab output needs .h5, .vtkhdf/.hdf, .raw or .zarr, "
-                             f"not {f.name}")
+    # Labels into a format written whole (.nrrd, NIfTI, .npz, .vox): made in memory.
+    if f.slab_writer is None and not labelled:
+        raise ParameterError(f"slab-by-slab output needs .h5, .vtkhdf/.hdf, .raw, .seg.nrrd or "
+                             f".zarr, not {f.name}")
     if f.name != "zarr" and (client is not None or slab is not None):
         raise ParameterError(f"`client` and `slab` are for .zarr output, not {f.name}")
     o = Options.from_kwargs(jobs=jobs, **options)
     formats.check_writable(path)
     m = load(mesh, o)
     t_load = time.perf_counter()
-    p = plan(m, o, path, fmt=fmt, stream=not labelled, cluster=client is not None,
+    p = plan(m, o, path, fmt=fmt, stream=f.slab_writer is not None, cluster=client is not None,
              budget=budget, slab=slab)
     from .pipeline import run
 

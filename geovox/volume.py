@@ -163,6 +163,10 @@ class Report:
     mesh_space: tuple | None = None
     #: More lines for the summary, after the inside count (e.g. the labels made).
     lines: list = field(default_factory=list)
+    #: With labels, where no volume is held (slab by slab): the whole grid's label table.
+    label_table: list | None = None
+    #: With labels: voxels inside more than one part (summed over the slabs).
+    contested: int = 0
 
     @property
     def shape(self) -> tuple:
@@ -190,6 +194,8 @@ class Report:
                 and self.volume.label_table is not None:
             v = self.volume
             return len(v.label_table) - 1 if key == "labels" else v.contested
+        if key in ("labels", "contested") and self.label_table is not None:
+            return len(self.label_table) - 1 if key == "labels" else self.contested
         if key not in self.KEYS:
             raise KeyError(key)
         return getattr(self, key)

@@ -434,7 +434,7 @@ register_format("vtkhdf", (".vtkhdf", ".hdf"), vtkhdf.write_vtkhdf,
                 reader=vtkhdf.read_vtkhdf, slab_writer=_slabs(vtkhdf.VTKHDFWriter))
 register_format("seg_nrrd", (".seg.nrrd",), seg_nrrd.write_seg_nrrd,
                 "3D Slicer segmentation: the labels (--labels) as named, coloured segments",
-                reader=seg_nrrd.read_seg_nrrd)
+                reader=seg_nrrd.read_seg_nrrd, slab_writer=_slabs(seg_nrrd.SegNrrdWriter))
 register_format("nrrd", (".nrrd",), nrrd.write_nrrd,
                 "single-file NRRD (gzip), uint8 0/255; colour in NAME_rgba.nrrd",
                 reader=nrrd.read_nrrd)

@@ -87,6 +87,18 @@ class HDF5Writer(SlabWriter):
                 d.attrs["axis_order"] = "xyz"
                 self.sets[name] = d
                 self.vtk[name] = _dataset(pd, name, (nz, ny, nx), arr.dtype, zyx)
+        fr = getattr(meta, "fractions", None)
+        self.fractions = None
+        if fr is not None:
+            # One 64³ chunk per label and block of voxels, so that a slab fills whole chunks.
+            n = fr.shape[3]
+            d = f.create_dataset("fractions", shape=meta.shape + (n,), dtype=fr.dtype,
+                                 chunks=self.chunks + (1,), compression="gzip",
+                                 compression_opts=1, fillvalue=0)
+            d.attrs["axis_order"] = "xyzl"
+            d.attrs["values"] = ("fraction of the voxel per label (index k: label k + 1), "
+                                 + ("x 255" if fr.dtype == np.uint8 else "0 to 1"))
+            self.fractions = d
 
     def write(self, z0: int, vol) -> None:
         """Write ``vol`` (a Volume covering z0 .. z0 + its depth) into place."""
@@ -99,13 +111,10 @@ class HDF5Writer(SlabWriter):
             # VTK's (z, y, x) order is the arrays' memory order (x fastest).
             src = arr.transpose((2, 1, 0) + tuple(range(3, arr.ndim)))
             write_both(src, self.vtk[name], dset, z0=z0, jobs=self.jobs)
-        if getattr(vol, "fractions", None) is not None:
-            # Labelled volumes are written whole (never slab by slab): one dataset.
-            d = self.f.create_dataset("fractions", data=vol.fractions, compression="gzip",
-                                      compression_opts=1)
-            d.attrs["axis_order"] = "xyzl"
-            d.attrs["values"] = ("fraction of the voxel per label (index k: label k + 1), "
-                                 + ("x 255" if vol.fractions.dtype == np.uint8 else "0 to 1"))
+        if self.fractions is not None:
+            fr = vol.fractions
+            for k in range(fr.shape[3]):  # one label at a time: a slab's copy of one label
+                self.fractions[:, :, z0:z0 + fr.shape[2], k] = fr[..., k]
 
     def _finish(self) -> list:
         meta = self.meta
@@ -166,7 +175,7 @@ def read_hdf5(path):
             base[...] = f["color"][...].transpose(2, 1, 0, 3)
             colors = base.transpose(2, 1, 0, 3)
         extra = {name: np.asfortranarray(f[name][...])
-                 for name in ("density", "sdf", "labels") if name in f}
+                 for name in ("density", "sdf", "labels", "fractions") if name in f}
         if "labels" in f and "label_table" in f["labels"].attrs:
             from . import table_from_json
 

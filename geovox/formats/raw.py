@@ -101,7 +101,7 @@ class RawWriter(SlabWriter):
         self.names = {"occupancy": self.path}
         if meta.colors is not None:
             self.names["color"] = colour_path(self.path)
-        for name in ("density", "sdf", "labels"):
+        for name in ("density", "sdf", "labels", "fractions"):
             if getattr(meta, name, None) is not None:
                 self.names[name] = field_path(self.path, name)
         self.files = {k: open(self.group.add(p), "wb") for k, p in self.names.items()}
@@ -124,6 +124,11 @@ class RawWriter(SlabWriter):
                     arr = getattr(vol, name)[:, :, sl]
                     self.files[name].write(
                         np.ascontiguousarray(arr.T, dtype=arr.dtype.newbyteorder("<")).data)
+            if "fractions" in self.files:
+                # The labels' fractions interleaved per voxel (as RGBA is), x fastest.
+                arr = vol.fractions[:, :, sl]
+                self.files["fractions"].write(np.ascontiguousarray(
+                    arr.transpose(2, 1, 0, 3), dtype=arr.dtype.newbyteorder("<")).data)
 
     def write_colours(self, z: int, rgba: np.ndarray) -> None:
         """Put layers ``z ..`` of the colours in place, from any thread.
@@ -175,6 +180,8 @@ class RawWriter(SlabWriter):
                               "byte_order": "little", "values": FIELD_VALUES[name](dtype),
                               "numpy": (f"np.fromfile({os.path.basename(fpath)!r}, dtype=np.{dtype})"
                                         f".reshape(({nx}, {ny}, {nz}), order='F')")}
+        if "fractions" in self.names:
+            written += self._fractions_info(info)
         if "labels" in info and getattr(meta, "label_table", None):
             info["labels"]["label_table"] = meta.label_table
         sidecar = os.path.splitext(self.path)[0] + ".json"
@@ -183,6 +190,24 @@ class RawWriter(SlabWriter):
             fh.write("\n")
         self._ctx.__exit__(None, None, None)
         return written + [sidecar]
+
+    def _fractions_info(self, info: dict) -> list:
+        """The fractions file's headers and its entry in the sidecar; the files written."""
+        meta = self.meta
+        nx, ny, nz = meta.shape
+        n = meta.fractions.shape[3]
+        dtype = str(meta.fractions.dtype)
+        fpath = self.names["fractions"]
+        info["fractions"] = {
+            "data_file": os.path.basename(fpath), "dtype": dtype, "components": n,
+            "byte_order": "little" if dtype != "uint8" else "n/a",
+            "layout": "one value per label interleaved per voxel (index k: label k + 1), "
+                      "x fastest, then y, then z",
+            "values": "fraction of the voxel per label" + (", x 255" if dtype == "uint8" else
+                                                           ", 0 to 1"),
+            "numpy": (f"np.fromfile({os.path.basename(fpath)!r}, dtype=np.{dtype})"
+                      f".reshape(({nz}, {ny}, {nx}, {n})).transpose(2, 1, 0, 3)")}
+        return [fpath] + _write_headers(self.group, meta, fpath, dtype, components=n)
 
     def _release(self) -> None:
         import contextlib
@@ -232,6 +257,11 @@ def read_raw_volume(path):
             extra[name] = np.fromfile(fpath, dtype=meta[name]["dtype"]).reshape((nx, ny, nz), order="F")
     if "labels" in meta:
         extra["label_table"] = meta["labels"].get("label_table")
+    if "fractions" in meta:
+        f = meta["fractions"]
+        fpath = os.path.join(os.path.dirname(path), f["data_file"])
+        extra["fractions"] = np.fromfile(fpath, dtype=np.dtype(f["dtype"]).newbyteorder("<")) \
+            .reshape(nz, ny, nx, f["components"]).transpose(2, 1, 0, 3)
     return Volume(occupancy=np.asfortranarray(occ), grid=Grid(lo, hi, (nx, ny, nz)),
                   backend=meta.get("backend", "?"), source=meta.get("source", path),
                   colors=colors, **extra)

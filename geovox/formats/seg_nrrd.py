@@ -23,6 +23,7 @@ import zlib
 
 import numpy as np
 
+from . import SlabWriter
 
 def extents(labels: np.ndarray, n: int) -> np.ndarray:
     """(n + 1, 6) int64: each label value's inclusive ``x0 x1 y0 y1 z0 z1``; empty: ``0 -1`` each.
@@ -40,17 +41,22 @@ def extents(labels: np.ndarray, n: int) -> np.ndarray:
     return out
 
 
-def seg_header(volume) -> str:
-    """The ``.seg.nrrd`` header of a labelled volume (pure: for tests)."""
+def seg_header(volume, ext=None) -> str:
+    """The ``.seg.nrrd`` header of a labelled volume (pure: for tests).
+
+    ``ext`` : (L + 1, 6) int64, the extents (:func:`extents`) where the
+    volume's labels are not held whole (written slab by slab).
+    """
     from .headers import frame_of, nhdr_header
 
-    lab, table = _labels_of(volume)
+    dtype, table = _table_of(volume)
     origin, spacing, direction, space = frame_of(volume)
-    base = nhdr_header(volume.shape, spacing, origin, str(lab.dtype), None, encoding="gzip",
+    base = nhdr_header(volume.shape, spacing, origin, str(dtype), None, encoding="gzip",
                        direction=direction, space=space)
     # Slicer's patient space, instead of a bare "space dimension" (off a reference grid).
     base = base.replace("space dimension: 3\n", "space: left-posterior-superior\n")
-    ext = extents(lab, len(table) - 1)
+    if ext is None:
+        ext = extents(_labels_of(volume)[0], len(table) - 1)
     lines = []
     for i, entry in enumerate(table[1:]):
         v = entry["value"]
@@ -73,15 +79,111 @@ def seg_header(volume) -> str:
 SEGMENT_COLOUR = [230, 77, 51, 255]
 
 
-def _labels_of(volume) -> tuple:
-    """``(labels, table)``: the volume's own, or its occupancy as one segment (value 1)."""
+def _table_of(volume) -> tuple:
+    """``(dtype, table)``: the volume's labels' own, or its occupancy's as one segment (value 1)."""
     if getattr(volume, "labels", None) is not None:
-        return volume.labels, volume.label_table
+        return volume.labels.dtype, volume.label_table
     name = os.path.splitext(os.path.basename(str(volume.source)))[0] or "mesh"
     name = "".join(c if c.isprintable() else "_" for c in name)
     table = [{"value": 0, "name": "background", "source": "", "color": [0, 0, 0, 0]},
              {"value": 1, "name": name, "source": str(volume.source), "color": SEGMENT_COLOUR}]
+    return np.dtype(np.uint8), table
+
+
+def _labels_of(volume) -> tuple:
+    """``(labels, table)``: the volume's own, or its occupancy as one segment (value 1)."""
+    dtype, table = _table_of(volume)
+    if getattr(volume, "labels", None) is not None:
+        return volume.labels, table
     return volume.occupancy.view(np.uint8), table
+
+
+def _compress_layers(z, f, lab) -> None:
+    """``lab`` (nx, ny, nz), x fastest, into the gzip stream ``z`` and file ``f``, a bounded
+    number of layers at a time."""
+    from .nrrd import SLAB_VOXELS
+
+    nx, ny, nz = lab.shape
+    per = max(1, SLAB_VOXELS // max(1, nx * ny))
+    for a in range(0, nz, per):
+        zyx = np.ascontiguousarray(lab[:, :, a:a + per].transpose(2, 1, 0),
+                                   dtype=lab.dtype.newbyteorder("<"))
+        f.write(z.compress(zyx.data))
+
+
+class SegNrrdWriter(SlabWriter):
+    """Writes a ``.seg.nrrd`` one z-slab at a time, in order (see :func:`write_seg_nrrd`).
+
+    The header comes first in the file but holds every segment's extent,
+    known only when the last slab is in: the slabs' gzip stream goes to an
+    anonymous temporary file beside the target, the extents are merged slab
+    by slab, and :meth:`close` writes the header and then the stream. The
+    bytes are :func:`write_seg_nrrd`'s (a gzip stream does not depend on how
+    its input was cut). ``meta`` is as for
+    :class:`geovox.formats.hdf5.HDF5Writer`, with ``labels`` (its dtype)
+    and ``label_table`` where there are labels.
+    """
+
+    def __init__(self, path, meta, jobs: int = 1):
+        import tempfile
+
+        from . import atomic_outputs
+
+        self.path, self.meta = os.fspath(path), meta
+        self._ctx = atomic_outputs()
+        self.body = None
+        try:
+            self.target = self._ctx.__enter__().add(self.path)
+            self.body = tempfile.TemporaryFile(dir=os.path.dirname(os.path.abspath(self.path)))
+        except BaseException:
+            self.abort()
+            raise
+        n = len(_table_of(meta)[1]) - 1
+        big = np.iinfo(np.int64).max
+        self.lo = np.full((n + 1, 3), big, np.int64)
+        self.hi = np.full((n + 1, 3), -1, np.int64)
+        self.z = zlib.compressobj(1, zlib.DEFLATED, 31)
+        self.next = 0
+
+    def write(self, z0: int, vol) -> None:
+        """Append ``vol`` (the next slab in z: layers z0 .. z0 + its depth)."""
+        from scipy.ndimage import find_objects
+
+        if z0 != self.next:
+            raise ValueError(f"a .seg.nrrd takes its slabs in order: layer {self.next} next, "
+                             f"got {z0}")
+        lab = vol.labels if getattr(vol, "labels", None) is not None else \
+            vol.occupancy.view(np.uint8)
+        _compress_layers(self.z, self.body, lab)
+        for v, box in enumerate(find_objects(lab, max_label=len(self.lo) - 1), start=1):
+            if box is not None:
+                start = np.array([b.start for b in box], np.int64) + (0, 0, z0)
+                stop = np.array([b.stop - 1 for b in box], np.int64) + (0, 0, z0)
+                np.minimum(self.lo[v], start, out=self.lo[v])
+                np.maximum(self.hi[v], stop, out=self.hi[v])
+        self.next = z0 + lab.shape[2]
+
+    def _finish(self) -> list:
+        import shutil
+
+        self.body.write(self.z.flush())
+        ext = np.tile(np.array([0, -1, 0, -1, 0, -1], dtype=np.int64), (len(self.lo), 1))
+        seen = self.hi[:, 0] >= 0
+        ext[seen, 0::2] = self.lo[seen]
+        ext[seen, 1::2] = self.hi[seen]
+        nx, ny, nz = self.meta.shape
+        ext[0] = [0, nx - 1, 0, ny - 1, 0, nz - 1]
+        self.body.seek(0)
+        with open(self.target, "wb") as f:
+            f.write(seg_header(self.meta, ext).encode("utf-8"))
+            shutil.copyfileobj(self.body, f, 1 << 24)
+        self.body.close()
+        self._ctx.__exit__(None, None, None)
+        return [self.path]
+
+    def _release(self) -> None:
+        if self.body is not None:
+            self.body.close()
 
 
 def write_seg_nrrd(volume, path) -> list:
@@ -102,19 +204,13 @@ def write_seg_nrrd(volume, path) -> list:
         ``[path]``.
     """
     from . import atomic_output
-    from .nrrd import SLAB_VOXELS
 
     path = os.fspath(path)
     lab, _ = _labels_of(volume)
-    nx, ny, nz = volume.shape
-    per = max(1, SLAB_VOXELS // max(1, nx * ny))
     z = zlib.compressobj(1, zlib.DEFLATED, 31)
     with atomic_output(path) as tmp, open(tmp, "wb") as f:
         f.write(seg_header(volume).encode("utf-8"))
-        for a in range(0, nz, per):
-            zyx = np.ascontiguousarray(lab[:, :, a:a + per].transpose(2, 1, 0),
-                                       dtype=lab.dtype.newbyteorder("<"))
-            f.write(z.compress(zyx.data))
+        _compress_layers(z, f, lab)
         f.write(z.flush())
     return [path]
 

@@ -7,6 +7,8 @@ Layout of ``NAME.zarr`` (a folder)::
     color/0/ ...         RGBA, uint8, axes (c, z, y, x)         with colour
     density/0/ ...       coverage, uint8 or float32             with density
     sdf/0/ ...           signed distance, float32               with distance
+    labels/labels/0/ ... label values, uint8 or uint16 (OME-Zarr image-label)  with labels
+    fractions/0/ ...     per-label fractions, axes (c, z, y, x), one channel a label  with fractions
 
 Each multiscale level halves the previous one (sides rounded up) until every
 side is at most :data:`TOP`; ``scale`` is the level's voxel size and
@@ -162,6 +164,11 @@ def make_layout(root, meta, thick: int) -> Layout:
     if getattr(meta, "labels", None) is not None:
         # OME-Zarr's labels/ group: one label image, "labels/labels".
         fields.append(Field("labels", str(meta.labels.dtype), 0, levels("labels/labels/", 0)))
+    fr = getattr(meta, "fractions", None)
+    if fr is not None:
+        # One channel per label (index k: label k + 1), as colour has one per component.
+        n = int(fr.shape[3])
+        fields.append(Field("fractions", str(fr.dtype), n, levels("fractions/", n)))
     return Layout(os.fspath(root), tuple(int(n) for n in meta.shape), thick, in_slab, tuple(fields))
 
 
@@ -239,8 +246,14 @@ def _label_group(root, meta, field, unit=None):
     lg = root.create_group("labels")
     lg.attrs["ome"] = {"version": "0.5", "labels": ["labels"]}
     group = lg.create_group("labels")
+    group.attrs["ome"] = label_attributes(meta, field, unit)
+    return group
+
+
+def label_attributes(meta, field, unit=None) -> dict:
+    """The ``ome`` attributes of ``labels/labels``: its multiscales and ``image-label``."""
     table = [e for e in (meta.label_table or []) if e["value"] != 0]
-    group.attrs["ome"] = {
+    return {
         "version": "0.5", "multiscales": [multiscales(meta, field, unit)],
         "image-label": {
             "version": "0.5",
@@ -250,7 +263,6 @@ def _label_group(root, meta, field, unit=None):
                             "source": str(e.get("source", "")), "voxels": int(e.get("voxels", 0)),
                             "volume": float(e.get("volume", 0.0))} for e in table],
             "source": {"image": "../../"}}}
-    return group
 
 
 # --- writing shards -------------------------------------------------------
@@ -436,6 +448,9 @@ def downsample(a: np.ndarray, name: str) -> np.ndarray:
         for ax in axes:
             a = _halve(a, ax, np.maximum, 0)
         return a
+    if name == "fractions":
+        # Each label's channel by the density rule (the mean of the children).
+        return np.stack([downsample(c, "density") for c in a])
     if name == "color":
         def pick(p, q):
             return np.where(q[3:4] > p[3:4], q, p)
@@ -465,6 +480,8 @@ def slab_fields(vol) -> dict:
         arr = getattr(vol, name, None)
         if arr is not None:
             out[name] = arr.T
+    if getattr(vol, "fractions", None) is not None:
+        out["fractions"] = vol.fractions.transpose(3, 2, 1, 0)
     return out
 
 
@@ -625,6 +642,7 @@ class ZarrWriter:
         import tempfile
 
         self.path, self.jobs, self.client = os.fspath(path), jobs, client
+        self.meta, self.unit = meta, unit
         thick = check_thick(whole_thick(meta.shape) if thick is None else thick)
         folder = os.path.dirname(os.path.abspath(self.path))
         try:
@@ -657,11 +675,24 @@ class ZarrWriter:
     def close(self) -> list:
         """Make the remaining levels (on the client's workers if there is one) and rename into place."""
         try:
+            self._label_table()
             build_levels(self.layout, self.client, self.jobs)
             _replace_folder(self.layout.root, self.path)
         except BaseException as exc:
             self._fail(exc)
         return [self.path]
+
+    def _label_table(self) -> None:
+        """The labels' ``image-label`` again, from ``meta.label_table`` as it is now.
+
+        Streamed, the counts (``voxels``, ``volume``) are known only once
+        every slab is made (:func:`geovox.stream.run_slabs` sets them).
+        """
+        field = next((f for f in self.layout.fields if f.name == "labels"), None)
+        if field is None:
+            return
+        group = _zarr().open_group(self.layout.root, mode="r+", zarr_format=3)
+        group["labels/labels"].attrs["ome"] = label_attributes(self.meta, field, self.unit)
 
     def _fail(self, exc):
         """Drop everything and raise ``exc`` (an OS error as an OutputError)."""
@@ -717,7 +748,8 @@ def _slab_of(volume, z0: int, z1: int):
                   density=None if volume.density is None else volume.density[:, :, cut],
                   sdf=None if volume.sdf is None else volume.sdf[:, :, cut],
                   labels=None if volume.labels is None else volume.labels[:, :, cut],
-                  label_table=volume.label_table)
+                  label_table=volume.label_table,
+                  fractions=None if volume.fractions is None else volume.fractions[:, :, cut])
 
 
 def whole_thick(shape) -> int:
@@ -776,5 +808,22 @@ def read_zarr(path, max_side=None, level=None):
         colors = base.transpose(2, 1, 0, 3)
     extra = {name: np.asfortranarray(g[name][paths[level]][...].T) for name in ("density", "sdf")
              if name in g}
+    if "labels" in g and "labels" in g["labels"]:
+        extra.update(_read_labels(g["labels/labels"], paths[level]))
+    if "fractions" in g:
+        extra["fractions"] = g["fractions"][paths[level]][...].transpose(3, 2, 1, 0)
     return Volume(occupancy=occ, grid=Grid(lo, hi, occ.shape), backend=str(info.get("backend", "?")),
                   source=str(info.get("source", path)), colors=colors, **extra)
+
+
+def _read_labels(group, path) -> dict:
+    """``labels`` and ``label_table`` from the ``labels/labels`` image (its ``image-label``)."""
+    meta = group.attrs["ome"]["image-label"]
+    colour = {c["label-value"]: list(c["rgba"]) for c in meta.get("colors", [])}
+    table = [{"value": 0, "name": "background", "color": [0, 0, 0, 0]}]
+    for q in meta.get("properties", []):
+        v = int(q["label-value"])
+        table.append({"value": v, "name": q.get("name", str(v)), "source": q.get("source", ""),
+                      "color": colour.get(v, [0, 0, 0, 255]), "voxels": q.get("voxels"),
+                      "volume": q.get("volume")})
+    return {"labels": np.asfortranarray(group[path][...].T), "label_table": table}
