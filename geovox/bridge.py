@@ -117,7 +117,7 @@ def min_area_triangles(poly: np.ndarray) -> np.ndarray:
         total = cost[:, i[:, None], k] + cost[:, k, j[:, None]] + 0.5 * np.sqrt(
             cx * cx + cy * cy + cz * cz)
         best = total.argmin(axis=2)  # (m, n - d)
-        cost[:, i, j] = np.take_along_axis(total, best[..., None], axis=2)[..., 0]
+        cost[:, i, j] = total.min(axis=2)  # the entry at ``best``
         arg[:, i, j] = k[i, best]
     # Unfold the choices, every polygon at once: intervals (i, j) to split.
     found = []
@@ -126,8 +126,8 @@ def min_area_triangles(poly: np.ndarray) -> np.ndarray:
         kk = arg[lp, li, lj]
         found.append(np.stack([lp, li, kk, lj], axis=1))
         left, right = kk - li >= 2, lj - kk >= 2
-        lp, li, lj = (np.r_[lp[left], lp[right]], np.r_[li[left], kk[right]],
-                      np.r_[kk[left], lj[right]])
+        lp, li, lj = (np.concatenate([lp[left], lp[right]]), np.concatenate([li[left], kk[right]]),
+                      np.concatenate([kk[left], lj[right]]))
     found = np.concatenate(found)
     found = found[np.argsort(found[:, 0], kind="stable")]  # n - 2 triangles a polygon
     return found[:, 1:].reshape(m, n - 2, 3)
