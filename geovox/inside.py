@@ -12,9 +12,11 @@ A closed target's winding number is an integer that the column rays give
 exactly (signed crossings, by the same exact rules as parity); a voxel is
 inside where it is not 0, so the space two overlapping parts share counts
 and a cavity inside an inward-facing shell does not. An open target M has
-its holes filled with caps K: for each connected piece of the boundary (the
-directed edges whose opposite edge is missing), a fan of triangles from the
-piece's centroid, oriented so that M + K is closed. By additivity
+its holes filled with caps K: for each closed loop of the boundary (the
+directed edges whose opposite edge is missing), a minimum-area triangulation
+of the loop's vertices (:mod:`geovox.bridge`; a fan from the centroid for
+long loops and for pieces that are not loops), oriented so that M + K is
+closed. By additivity
 ``w_M = w_{M+K} - w_K``: the first term is the exact integer from signed
 crossings, the second the caps' solid angle over 4 pi, and a point is inside
 when ``w_M > 1/2``. ``w_K`` is summed hierarchically (:func:`cap_winding`: a
@@ -144,7 +146,8 @@ def caps(mesh: Mesh, edges: np.ndarray, small: bool = False) -> np.ndarray:
     Returns
     -------
     triangles : (k, 3, 3) float64
-        One triangle ``(centroid, b, a)`` per boundary edge ``a -> b``.
+        One triangle ``(centroid, b, a)`` per boundary edge ``a -> b`` (with
+        ``small``, ``n - 2`` per loop of ``n`` edges, oriented the same way).
     piece : (k,) int64
         The boundary piece each belongs to.
     """
