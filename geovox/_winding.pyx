@@ -125,24 +125,36 @@ cdef inline double expansion(const Tree *tr, int64_t node, const double *y, doub
     return f * (ys * i3 + tr_q * i3 - 3 * yqy * i5)
 
 
-cdef inline void tri_gradient(const double *t, double px, double py, double pz,
-                              double *grad) noexcept nogil:
-    """Gradient in p of :func:`tri_angle`: the Biot-Savart sum over the triangle's edges, over 4 pi."""
-    cdef double a[3]
-    cdef double b[3]
-    cdef double la, lb, f
-    cdef int i, q
+cdef inline double tri_angle_gradient(const double *t, double px, double py, double pz,
+                                     double *grad) noexcept nogil:
+    """:func:`tri_angle` at p, and its gradient in p into ``grad``: the Biot-Savart sum over the
+    triangle's edges, over 4 pi.
+
+    Each edge's term uses the lengths of the vectors to its two ends, the
+    same three that the solid angle uses: three square roots, not nine.
+    """
+    cdef double v[9]
+    cdef double l[3]
+    cdef double f
+    cdef int i, q, a, b
+    for i in range(3):
+        v[3 * i] = t[3 * i] - px; v[3 * i + 1] = t[3 * i + 1] - py; v[3 * i + 2] = t[3 * i + 2] - pz
+        l[i] = sqrt(v[3 * i] * v[3 * i] + v[3 * i + 1] * v[3 * i + 1] + v[3 * i + 2] * v[3 * i + 2])
+    cdef double ax = v[0], ay = v[1], az = v[2], bx = v[3], by = v[4], bz = v[5]
+    cdef double cx = v[6], cy = v[7], cz = v[8]
+    cdef double num = ax * (by * cz - bz * cy) + ay * (bz * cx - bx * cz) + az * (bx * cy - by * cx)
+    cdef double den = (l[0] * l[1] * l[2] + (ax * bx + ay * by + az * bz) * l[2]
+                       + (ax * cx + ay * cy + az * cz) * l[1] + (bx * cx + by * cy + bz * cz) * l[0])
     grad[0] = 0; grad[1] = 0; grad[2] = 0
     for i in range(3):
         q = (i + 1) % 3
-        a[0] = t[3 * i] - px; a[1] = t[3 * i + 1] - py; a[2] = t[3 * i + 2] - pz
-        b[0] = t[3 * q] - px; b[1] = t[3 * q + 1] - py; b[2] = t[3 * q + 2] - pz
-        la = sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2])
-        lb = sqrt(b[0] * b[0] + b[1] * b[1] + b[2] * b[2])
-        f = (la + lb) / (la * lb * (la * lb + a[0] * b[0] + a[1] * b[1] + a[2] * b[2]) * 4 * M_PI)
-        grad[0] += (a[1] * b[2] - a[2] * b[1]) * f
-        grad[1] += (a[2] * b[0] - a[0] * b[2]) * f
-        grad[2] += (a[0] * b[1] - a[1] * b[0]) * f
+        a = 3 * i; b = 3 * q
+        f = (l[i] + l[q]) / (l[i] * l[q] * (l[i] * l[q] + v[a] * v[b] + v[a + 1] * v[b + 1]
+                                            + v[a + 2] * v[b + 2]) * 4 * M_PI)
+        grad[0] += (v[a + 1] * v[b + 2] - v[a + 2] * v[b + 1]) * f
+        grad[1] += (v[a + 2] * v[b] - v[a] * v[b + 2]) * f
+        grad[2] += (v[a] * v[b + 1] - v[a + 1] * v[b]) * f
+    return atan2(num, den) / (2.0 * M_PI)
 
 
 cdef inline double single_bound(double area, double rb, double gap) noexcept nogil:
@@ -199,8 +211,7 @@ cdef void brick_pass(const Tree *tr, const Grid *g, const int64_t *tb, double *s
             # fan is taken per brick, not per voxel).
             bound = single_bound(tr.A[node], rb, gap)
             if rb <= g.theta * gap or bound <= g.eps:
-                sums[slot] += tri_angle(tr.T + 9 * j, px, py, pz)
-                tri_gradient(tr.T + 9 * j, px, py, pz, grad)
+                sums[slot] += tri_angle_gradient(tr.T + 9 * j, px, py, pz, grad)
                 sums[slot + 1] += grad[0]; sums[slot + 2] += grad[1]
                 sums[slot + 3] += grad[2]; sums[slot + 4] += bound
                 continue

@@ -12,9 +12,11 @@ A closed target's winding number is an integer that the column rays give
 exactly (signed crossings, by the same exact rules as parity); a voxel is
 inside where it is not 0, so the space two overlapping parts share counts
 and a cavity inside an inward-facing shell does not. An open target M has
-its holes filled with caps K: for each connected piece of the boundary (the
-directed edges whose opposite edge is missing), a fan of triangles from the
-piece's centroid, oriented so that M + K is closed. By additivity
+its holes filled with caps K: for each closed loop of the boundary (the
+directed edges whose opposite edge is missing), a minimum-area triangulation
+of the loop's vertices (:mod:`geovox.bridge`; a fan from the centroid for
+long loops and for pieces that are not loops), oriented so that M + K is
+closed. By additivity
 ``w_M = w_{M+K} - w_K``: the first term is the exact integer from signed
 crossings, the second the caps' solid angle over 4 pi, and a point is inside
 when ``w_M > 1/2``. ``w_K`` is summed hierarchically (:func:`cap_winding`: a
@@ -135,13 +137,17 @@ def edge_counts(mesh: Mesh):
     return int(np.count_nonzero(counts == 1)), int(np.count_nonzero(counts > 2))
 
 
-def caps(mesh: Mesh, edges: np.ndarray) -> np.ndarray:
+def caps(mesh: Mesh, edges: np.ndarray, small: bool = False) -> np.ndarray:
     """Cap triangles closing the boundary: a fan per connected boundary piece.
+
+    ``small``: a minimum-area triangulation over each closed loop instead
+    (:func:`geovox.bridge.loop_caps`; the winding number's caps, see :func:`bridged`).
 
     Returns
     -------
     triangles : (k, 3, 3) float64
-        One triangle ``(centroid, b, a)`` per boundary edge ``a -> b``.
+        One triangle ``(centroid, b, a)`` per boundary edge ``a -> b`` (with
+        ``small``, ``n - 2`` per loop of ``n`` edges, oriented the same way).
     piece : (k,) int64
         The boundary piece each belongs to.
     """
@@ -156,6 +162,10 @@ def caps(mesh: Mesh, edges: np.ndarray) -> np.ndarray:
     nv = int(vid.max()) + 1
     _, label, _ = components(nv, vid[:, 0], vid[:, 1])
     piece = _loops(vid, label[vid[:, 0]])
+    if small:
+        from .bridge import loop_caps
+
+        return loop_caps(pos, edges, vid, piece)
     npieces = int(piece.max()) + 1
     mid = (pos[edges[:, 0]] + pos[edges[:, 1]]) / 2
     centroid = np.stack([np.bincount(piece, weights=mid[:, k], minlength=npieces)
@@ -274,8 +284,8 @@ def crossing_signs(mesh: Mesh, hits: Hits, axis: int) -> np.ndarray:
     return np.sign(n_axis).astype(np.int64)
 
 
-def capped(mesh: Mesh):
-    """The mesh with every hole closed by a cap (see :func:`caps`).
+def capped(mesh: Mesh, small: bool = False):
+    """The mesh with every hole closed by a cap (see :func:`caps`; ``small`` as there).
 
     Returns
     -------
@@ -285,16 +295,28 @@ def capped(mesh: Mesh):
     cap_tris : (k, 3, 3) float64
     piece : (k,) int64
     """
-    if "capped" in mesh._cache:
-        return mesh._cache["capped"]
-    cap_tris, piece = caps(mesh, boundary_edges(mesh))
+    key = "bridged" if small else "capped"
+    if key in mesh._cache:
+        return mesh._cache[key]
+    cap_tris, piece = caps(mesh, boundary_edges(mesh), small)
     closed = mesh
     if len(cap_tris):
         verts = np.concatenate([mesh.vertices, cap_tris.reshape(-1, 3)])
         cap_faces = len(mesh.vertices) + np.arange(3 * len(cap_tris)).reshape(-1, 3)
         closed = Mesh(verts, np.concatenate([mesh.faces, cap_faces]), source=mesh.source)
-    mesh._cache["capped"] = (closed, cap_tris, piece)
-    return mesh._cache["capped"]
+    mesh._cache[key] = (closed, cap_tris, piece)
+    return mesh._cache[key]
+
+
+def bridged(mesh: Mesh):
+    """The mesh closed by the winding number's caps: :func:`capped` with ``small`` caps.
+
+    Any caps give the same winding number of the mesh; small ones make it
+    cheaper to sum (see :mod:`geovox.bridge`). The coverage density keeps
+    the fans of :func:`capped` (its solid is the capped mesh's, so its
+    fractions are those of the fans).
+    """
+    return capped(mesh, small=True)
 
 
 def winding_occupancy(mesh: Mesh, grid, cast, axis: int, jobs: int = 1):
@@ -318,7 +340,7 @@ def winding_occupancy(mesh: Mesh, grid, cast, axis: int, jobs: int = 1):
     if len(tmesh.faces) == 0:  # every face degenerate: no crossings, nothing inside
         hits, columns = cast(mesh, axis)
         return np.zeros(grid.shape, dtype=bool, order="F"), hits, columns
-    closed, cap_tris, _ = capped(tmesh)
+    closed, cap_tris, _ = bridged(tmesh)
     nf = len(tmesh.faces)
     from ..memory import check_memory
 
@@ -346,7 +368,7 @@ def working_bytes(mesh: Mesh, method: str) -> float:
     """
     if method == "winding":
         tmesh = target(mesh)[0]
-        return 15.0 if len(tmesh.faces) and len(capped(tmesh)[1]) else 2.0
+        return 15.0 if len(tmesh.faces) and len(bridged(tmesh)[1]) else 2.0
     return 1.0 if method == "vote" else 0.0
 
 
@@ -530,7 +552,10 @@ PAIR_BUDGET = 10_000_000
 STATS: dict = {}
 #: The compiled kernel's passes (second order, see geovox/_winding.pyx): the
 #: first over bricks, the others over single voxels the one before left undecided.
-COMPILED_PASSES = ((0.2, 1e-4), (0.1, 1e-7))
+COMPILED_PASSES = ((0.2, 1e-4), (0.25, 1e-6), (0.1, 1e-7))
+#: The compiled kernel's top bricks are about the grid's largest side over
+#: this, voxels a side (a power of two; each top brick starts from the root of the caps' tree).
+TOP_VOXELS = 8
 #: Processor seconds per thread the compiled kernel may spend (from its
 #: start) before it leaves the voxels its first pass left undecided to their
 #: estimates, with a warning (about what PAIR_BUDGET allows the NumPy traversal).
@@ -1134,7 +1159,7 @@ def _compiled_caps(module, occ, w, grid, cap_tris, jobs) -> None:
 
     tris, nodes, offset, size = _cap_tree(cap_tris)
     shape = np.asarray(grid.shape)
-    top = max(0, int(np.ceil(np.log2(max(1, int(shape.max()) / 16)))))
+    top = max(0, int(np.ceil(np.log2(max(1, int(shape.max()) / TOP_VOXELS)))))
     if nearest._forked_after_threads:  # GNU OpenMP is not fork-safe (see nearest._after_fork)
         jobs = 1
     elif jobs > 1:
