@@ -506,54 +506,83 @@ def material_labels(mesh: Mesh, grid, occupancy: np.ndarray, lset: LabelSet, *, 
     return labels
 
 
+def _signed_volume(mesh: Mesh) -> float:
+    t = mesh.triangles
+    return float(np.einsum("ij,ij->i", t[:, 0], np.cross(t[:, 1], t[:, 2])).sum())
+
+
+def _open_crossings(part: Mesh, engine, sub, axis: int, jobs: int):
+    """``(hits, sign)`` of an open (or inconsistently wound) part's own inside test: the
+    crossings of its repaired, capped copy (what its labels' winding number and its own
+    ``density="coverage"`` are taken from), each signed +1 where it enters the copy."""
+    from .inside import capped, crossing_signs, target
+
+    closed = capped(target(part)[0])[0]
+    hits = engine.cast(closed, sub, jobs=jobs)
+    flip = -1 if _signed_volume(closed) < 0 else 1
+    return hits, crossing_signs(closed, hits, axis) * flip
+
+
 def label_fractions(mesh: Mesh, grid, lset: LabelSet, *, engine, axis: int, start: float,
                     supersample: int = 4, jobs: int = 1, overlap: str = "last",
                     dtype: str = "uint8") -> np.ndarray:
     """Each label's coverage fraction per voxel, overlaps settled by ``overlap``.
 
-    From ``supersample`` x ``supersample`` rays per column, cast once for the
-    whole mesh (as ``density="coverage"``). The parts are taken winners
-    first: ``U_j`` is the coverage of the union of the ``j`` strongest parts
-    (inside where their summed winding number, each part's crossings signed
-    so that it counts +1 inside itself, is not 0), and the ``j``-th part's
-    fraction is ``U_j - U_{j-1}``. So a voxel's fractions sum to its union
-    coverage (at most 1), and where only one part is near, its fraction is
-    its own coverage. uint8 fractions are differences of the rounded
-    ``255 * U_j``, so they too sum to the rounded union. Open parts are
-    taken by their crossing signs without capping their holes.
+    From ``supersample`` x ``supersample`` rays per column (as
+    ``density="coverage"``), cast once for the whole mesh. The parts are
+    taken winners first: ``U_j`` is the coverage of the union of the ``j``
+    strongest parts (inside where their summed winding number, each part's
+    crossings signed so that it counts +1 inside itself, is not 0), and the
+    ``j``-th part's fraction is ``U_j - U_{j-1}``. So a voxel's fractions sum
+    to its union coverage (at most 1), and where only one part is near, its
+    fraction is its own ``density="coverage"``. uint8 fractions are
+    differences of the rounded ``255 * U_j``, so they too sum to the rounded
+    union.
+
+    Each part counts by the inside test its label uses: a closed,
+    consistently wound part by its crossings in the whole mesh's cast; an
+    open one by those of its repaired, capped copy (cast once more, for that
+    part alone), so its fraction is the coverage of the voxels its label
+    calls inside.
 
     Returns
     -------
     (nx, ny, nz, L) uint8 (0-255) or float32 (0-1); index ``k`` is label ``k + 1``.
     """
+    from .backends.base import Hits
     from .density import coverage, sub_columns
-    from .inside import crossing_signs
+    from .inside import consistent, crossing_signs
 
     n = len(lset.names)
     by_face = np.argsort(lset.face_label, kind="stable")
     cuts = np.searchsorted(lset.face_label[by_face], np.arange(n + 1))
     parts = [part_mesh(mesh, by_face[cuts[k]:cuts[k + 1]], lset.names[k])
              if cuts[k + 1] > cuts[k] else None for k in range(n)]
-    flip = np.ones(n, dtype=np.int64)
-    for k, p in enumerate(parts):
-        if p is not None:
-            t = p.triangles
-            vol = float(np.einsum("ij,ij->i", t[:, 0], np.cross(t[:, 1], t[:, 2])).sum())
-            flip[k] = -1 if vol < 0 else 1
+    flip = np.array([-1 if p is not None and _signed_volume(p) < 0 else 1 for p in parts],
+                    dtype=np.int64)
     sub = sub_columns(grid.columns(axis, start=start), supersample)
+    own = {k: _open_crossings(p, engine, sub, axis, jobs) for k, p in enumerate(parts)
+           if p is not None and not consistent(p)}
     hits = engine.cast(mesh, sub, jobs=jobs)
     part_of = lset.face_label[hits.triangle]
     sign = crossing_signs(mesh, hits, axis) * flip[part_of]
     out = np.zeros(grid.shape + (n,), dtype=np.float32 if dtype == "float32" else np.uint8,
                    order="F")
     included = np.zeros(n, dtype=bool)
+    from_whole = np.array([k not in own for k in range(n)], dtype=bool)
     prev = None
     for k in reversed(paint_order(lset, parts, overlap)):
         if parts[k] is None:
             continue
         included[k] = True
-        sel = included[part_of]
-        cov = coverage(hits.take(sel), sub, grid, supersample, jobs, sign=sign[sel])
+        sel = (included & from_whole)[part_of]
+        mine = [own[j] for j in sorted(own) if included[j]]
+        if mine:
+            union = Hits.concatenate([hits.take(sel)] + [h for h, _ in mine])
+            signs = np.concatenate([sign[sel]] + [g for _, g in mine])
+        else:
+            union, signs = hits.take(sel), sign[sel]
+        cov = coverage(union, sub, grid, supersample, jobs, sign=signs)
         if dtype != "float32":
             cov = np.rint(cov * np.float32(255.0)).astype(np.int16)
         out[..., k] = cov if prev is None else np.maximum(cov - prev, 0)
