@@ -15,6 +15,7 @@ import warnings
 import numpy as np
 import pytest
 import trimesh
+from test_labels import assembly
 
 import geovox
 from geovox import formats
@@ -22,7 +23,6 @@ from geovox import labels as L
 from geovox.cli import main
 from geovox.grid import make_grid
 from geovox.pipeline import voxelize_block
-from test_labels import assembly
 
 
 @pytest.mark.parametrize("overlap", L.OVERLAPS)

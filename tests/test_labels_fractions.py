@@ -15,11 +15,11 @@ import warnings
 
 import numpy as np
 import pytest
+from test_labels import assembly, rule_order
 
 import geovox
 from geovox import labels as L
 from geovox.grid import make_grid
-from test_labels import assembly, rule_order
 
 K, M = 3, 24
 

@@ -11,11 +11,11 @@ import warnings
 
 import numpy as np
 import pytest
+from test_labels import assembly
+from test_view_html import browser, decode_page, open_page, share, snapshot  # noqa: F401
 
 import geovox
 from geovox.cli import main
-from test_labels import assembly
-from test_view_html import browser, decode_page, open_page, share, snapshot  # noqa: F401
 
 
 def write_obj(mesh, path):
@@ -69,7 +69,8 @@ def test_html_page_of_a_labelled_conversion_carries_its_labels_and_table(labelle
         assert [e["name"] for e in meta["label_table"]] == ["box", "cut", "inner", "apart", "cup"]
 
 
-def test_html_page_draws_the_labels_in_their_colours_with_a_legend(labelled, browser, tmp_path):
+def test_html_page_draws_the_labels_in_their_colours_with_a_legend(labelled, browser,  # noqa: F811
+                                                                  tmp_path):
     obj, vol = labelled
     page = tmp_path / "asm.html"
     assert main(["view", obj, "-r", "40", "--labels", "part", "--html", str(page)]) == 0

@@ -24,15 +24,15 @@ import warnings
 
 import numpy as np
 import pytest
+from conftest import corpus
+from test_labels import assembly
+from test_labels_view import write_obj
 
 import geovox
 from geovox import formats
 from geovox.cli import main
 from geovox.density import signed_distance
 from geovox.mesh import load_mesh
-from conftest import corpus
-from test_labels_view import write_obj
-from test_labels import assembly
 
 KW = dict(resolution=24, density="coverage", sdf=True, supersample=2)
 
