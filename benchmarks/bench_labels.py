@@ -4,12 +4,16 @@ The model: 20 overlapping spheres (icosphere(4), 5,120 triangles each,
 102,400 in all) in a 5 x 4 array, each an OBJ object with its own material
 (Kd), written to a temporary folder. Every figure is the whole process (a
 fresh interpreter running ``python -m geovox convert``, start-up and
-loading included), the median of ``RUNS`` runs after one warm-up:
+loading included), ``RUNS`` pairs after one warm-up pair:
 
 * occupancy only vs ``--labels part`` at 256³ (to ``.h5``);
 * exact colour (``--color``) vs ``--labels material`` at 256³ (to ``.h5``).
 
-Usage: python benchmarks/bench_labels.py [RUNS]
+Each pair runs in turn (A B A B ...), and the ratio is the median of the pairs' ratios, wall
+and CPU, so that a change of the machine's load during the run moves both sides alike.
+
+Usage: python benchmarks/bench_labels.py [RUNS] [--json]   (--json: write
+benchmarks/results/labels.json, then run benchmarks/tables.py)
 """
 
 from __future__ import annotations
@@ -24,7 +28,7 @@ import time
 
 import numpy as np
 
-RUNS = int(sys.argv[1]) if len(sys.argv) > 1 else 5
+RUNS = next((int(a) for a in sys.argv[1:] if a.isdigit()), 5)
 
 
 def assembly(folder: str) -> str:
@@ -51,37 +55,90 @@ def assembly(folder: str) -> str:
     return path
 
 
-def whole_process(args) -> float:
-    """Median wall seconds of ``python -m geovox convert ARGS`` over RUNS runs (one warm-up)."""
+def _one_run(cmd, root) -> tuple:
+    """(wall s, CPU s) of one fresh ``cmd`` process (CPU: user + system of the child)."""
+    import resource
+
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t0 = time.perf_counter()
+    subprocess.run(cmd, check=True, cwd=root, stdout=subprocess.DEVNULL)
+    wall = time.perf_counter() - t0
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+
+
+def paired(args_a, args_b) -> dict:
+    """``python -m geovox convert`` with ``args_a`` (A) and ``args_b`` (B) in turn, A B A B...,
+    RUNS pairs after one warm-up pair: the median wall and CPU seconds of each, and the
+    median of the pair-by-pair ratios A/B (pairing keeps a ratio when the load drifts)."""
     root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-    cmd = [sys.executable, "-m", "geovox", "convert", *args, "-q"]
-    times = []
+    base = [sys.executable, "-m", "geovox", "convert"]
+    runs = []
     for n in range(RUNS + 1):
-        t0 = time.perf_counter()
-        subprocess.run(cmd, check=True, cwd=root, stdout=subprocess.DEVNULL)
+        a = _one_run(base + args_a + ["-q"], root)
+        b = _one_run(base + args_b + ["-q"], root)
         if n:
-            times.append(time.perf_counter() - t0)
-    return statistics.median(times)
+            runs.append((a, b))
+    med = statistics.median
+    return {"a_wall": med(a[0] for a, _ in runs), "a_cpu": med(a[1] for a, _ in runs),
+            "b_wall": med(b[0] for _, b in runs), "b_cpu": med(b[1] for _, b in runs),
+            "wall_ratio": med(a[0] / b[0] for a, b in runs),
+            "cpu_ratio": med(a[1] / b[1] for a, b in runs)}
 
 
 def main():
-    print(f"# bench_labels {datetime.date.today()}, median of {RUNS} whole-process runs")
-    print("| what | grid | time (s) | vs |")
-    print("|---|---|---|---|")
+    write = "--json" in sys.argv
+    load0 = os.getloadavg()[0]
+    start = datetime.datetime.now(datetime.timezone.utc)
+    print(f"# bench_labels {start:%Y-%m-%d %H:%M} UTC, {RUNS} pairs of whole-process runs, "
+          f"load average {load0:.1f}")
     with tempfile.TemporaryDirectory() as d:
         model = assembly(d)
         out = os.path.join(d, "out.h5")
         base = ["-r", "256", "-o", out, model]
-        occ = whole_process(base)
-        part = whole_process(base + ["--labels", "part"])
-        print(f"| occupancy only | 256³ | {occ:.2f} | |")
-        print(f"| --labels part (20 parts) | 256³ | {part:.2f} | {part / occ:.2f}x occupancy |",
-              flush=True)
-        colour = whole_process(base + ["--color"])
-        material = whole_process(base + ["--labels", "material"])
-        print(f"| exact colour (--color) | 256³ | {colour:.2f} | |")
-        print(f"| --labels material (20 materials) | 256³ | {material:.2f} | "
-              f"{material / colour:.2f}x exact colour |", flush=True)
+        part = paired(base + ["--labels", "part"], base)
+        material = paired(base + ["--labels", "material"], base + ["--color"])
+    load1 = os.getloadavg()[0]
+    rows = [
+        ["--labels part (20 parts) vs occupancy only", "256³", f"{part['a_wall']:.2f}",
+         f"{part['b_wall']:.2f}", f"{part['wall_ratio']:.2f}x", f"{part['a_cpu']:.2f}",
+         f"{part['b_cpu']:.2f}", f"{part['cpu_ratio']:.2f}x", "<= 1.5x"],
+        ["--labels material (20 materials) vs exact colour (--color)", "256³",
+         f"{material['a_wall']:.2f}", f"{material['b_wall']:.2f}",
+         f"{material['wall_ratio']:.2f}x", f"{material['a_cpu']:.2f}", f"{material['b_cpu']:.2f}",
+         f"{material['cpu_ratio']:.2f}x", "<= 1x"],
+    ]
+    columns = ["A vs B", "grid", "A wall (s)", "B wall (s)", "wall A/B", "A CPU (s)",
+               "B CPU (s)", "CPU A/B", "target"]
+    print("| " + " | ".join(columns) + " |")
+    print("|" + "---|" * len(columns))
+    for r in rows:
+        print("| " + " | ".join(r) + " |")
+    if write:
+        import json
+
+        result = {
+            "benchmark": "labels",
+            "title": "Labels: what a labelled conversion costs",
+            "script": "benchmarks/bench_labels.py",
+            "command": f"python benchmarks/bench_labels.py {RUNS} --json",
+            "date": f"{start:%Y-%m-%d, %H:%M} UTC",
+            "machine": ("the project machine: 2 cores, 24 GiB, Python 3.11, no GPU; load average "
+                        f"{load0:.1f} before, {load1:.1f} after (shared with other work: the "
+                        "pair-by-pair ratios hold better than the absolute times)"),
+            "models": ["20 overlapping spheres (icosphere(4), 5,120 triangles each, 102,400 in "
+                       "all) in a 5 x 4 array, each an OBJ object with its own material (Kd)"],
+            "notes": ("Whole process: a fresh `python -m geovox convert ... -o out.h5` each run "
+                      "(start-up, loading and writing included), A and B in turn, one warm-up "
+                      f"pair, then {RUNS} pairs; medians, and the median of the pairs' ratios."),
+            "tables": [{"caption": "Whole-process cost of labels at 256³", "columns": columns,
+                        "rows": rows}],
+        }
+        path = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results", "labels.json")
+        with open(path, "w", encoding="utf-8") as f:
+            json.dump(result, f, indent=1, ensure_ascii=False)
+            f.write("\n")
+        print(f"wrote {path}")
 
 
 if __name__ == "__main__":

@@ -969,6 +969,10 @@ def _trimesh_load(path: str, rule: str = "anywhere") -> Mesh:
             mesh = _read_off(path, mesh)
         elif ext == ".ply":
             mesh = _ply_colours(loaded, mesh, path)
+        elif ext == ".dae":
+            from .dae import regroup
+
+            regroup(mesh, path)  # COLLADA nodes as parts (trimesh names its geometries)
     except MeshError:
         raise
     except Exception as exc:  # odd visuals or arrays trimesh accepted

@@ -766,7 +766,8 @@ def voxelize_block(mesh, plan: Plan, block=None, *, buffers=None) -> Volume:
     if o.density == "coverage":
         step("density")
         t = time.perf_counter()
-        dens = _density(m, plan, grid, winding=method == "winding")
+        dens = _density(m, plan, grid, winding=_density_method(m, o, method, classified)
+                        == "winding")
         timings["density"] = time.perf_counter() - t
     if o.sdf:
         from .density import signed_distance
@@ -860,6 +861,19 @@ def _labels(m, plan: Plan, grid: Grid, block, occ, classified, step, timings) ->
         frame=(plan.grid.lo, plan.grid.spacing, 0 if block is None else block[0]),
         start=ray_start(m, plan.grid if plan.axis == 2 else grid, plan.axis), timings=timings,
         step=step, within=None if block is None else (plan.grid, block))
+
+
+def _density_method(m, o: Options, method: str, classified) -> str:
+    """The inside test density's coverage follows: the occupancy's, or with labels by part
+    the whole mesh's own (what it is without labels), so density is the same bytes with
+    and without labels; the per-part shares are ``fractions``."""
+    if classified is None:
+        return method
+    from . import inside as inside_tests
+    from .errors import collect_warnings
+
+    with collect_warnings(drop=True):  # the parts' inside tests said what they repaired
+        return inside_tests.choose(m, o.inside)
 
 
 def _density(m, plan: Plan, grid: Grid, winding: bool):

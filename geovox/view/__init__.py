@@ -60,8 +60,40 @@ def voxel_cells(volume):
     return grid.threshold(0.5, scalars="inside")
 
 
+#: The legend lists at most this many labels (then one "... N more" line).
+LEGEND_MOST = 20
+
+
+def _labelled(volume):
+    """``(volume, legend)``: a labelled volume in its table's colours, and its legend.
+
+    As in the preview, labels are drawn over any ``colors`` and in place of
+    density and distance; ``legend`` is ``[[name, (r, g, b)]]`` (0-1 floats), one
+    entry per label value of the table (at most :data:`LEGEND_MOST`), empty for a
+    volume without labels.
+    """
+    table = getattr(volume, "label_table", None)
+    if getattr(volume, "labels", None) is None or not table:
+        return volume, []
+    import dataclasses
+
+    from ..labels import label_colours
+
+    volume = dataclasses.replace(volume, colors=label_colours(volume.labels, table),
+                                 density=None, sdf=None)
+    entries = [e for e in table if int(e["value"]) > 0]
+    legend = [[f"{int(e['value'])} {e['name']}"[:32], tuple(int(c) / 255 for c in e["color"][:3])]
+              for e in entries[:LEGEND_MOST]]
+    if len(entries) > LEGEND_MOST:
+        legend.append([f"... {len(entries) - LEGEND_MOST:,} more", (0.5, 0.5, 0.5)])
+    return volume, legend
+
+
 def show(volume, mesh=None, screenshot=None, window_size=(1200, 600)):
     """Show the volume, and the mesh beside it when given.
+
+    A volume with ``labels`` and a ``label_table`` is drawn in the table's
+    colours, with a legend of the labels' values, names and colours.
 
     Parameters
     ----------
@@ -71,6 +103,7 @@ def show(volume, mesh=None, screenshot=None, window_size=(1200, 600)):
         Render off-screen into this PNG instead of opening a window.
     """
     pv = _pyvista()
+    volume, legend = _labelled(volume)
     if screenshot is None and os.name == "posix" and not os.environ.get("DISPLAY") \
             and not os.environ.get("WAYLAND_DISPLAY") and os.uname().sysname == "Linux":
         raise OutputError("no display to open a window on: use --screenshot PNG to render off-screen")
@@ -101,6 +134,9 @@ def show(volume, mesh=None, screenshot=None, window_size=(1200, 600)):
             plotter.add_mesh(cells, scalars="rgba", rgb=True, show_edges=False)
         else:
             plotter.add_mesh(cells, color="lightgrey", show_edges=False)
+    if legend:
+        plotter.add_legend(legend, bcolor=(0.1, 0.1, 0.12), face="rectangle",
+                           size=(0.3, min(0.05 * len(legend), 0.6)), loc="lower right")
     if mesh is not None:
         plotter.subplot(0, 1)
         plotter.add_text("mesh", font_size=10)

@@ -126,8 +126,10 @@ def _labels(volume):
                                  f"got {entry!r}") from exc
         if len(color) == 3:
             color.append(255)
-        if len(color) != 4 or not all(0 <= c <= 255 for c in color) or value <= 0:
-            raise ParameterError(f"`label_table[{i}]` needs a value > 0 and an RGBA colour of "
+        if value == 0:
+            continue  # the background entry geovox's own tables start with: never drawn
+        if len(color) != 4 or not all(0 <= c <= 255 for c in color) or value < 0:
+            raise ParameterError(f"`label_table[{i}]` needs a value >= 0 and an RGBA colour of "
                                  f"0-255 integers, got {entry!r}")
         table.append({"value": value, "name": str(entry.get("name", f"label {value}")),
                       "color": color})
