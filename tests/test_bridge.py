@@ -1,4 +1,4 @@
-"""The winding number's small caps (geovox.bridge), and the winding path on adversarial open meshes.
+"""The winding number's small caps (geovox.inside.bridge), and the winding path on adversarial open meshes.
 
 The caps change what the winding path sums, never what it decides: every
 voxel must be the brute-force winding number's of the repaired mesh (every
@@ -17,7 +17,8 @@ import pytest
 import trimesh
 
 import geovox
-from geovox import bridge, inside
+from geovox.inside import bridge
+from geovox.inside import winding as inside
 from geovox.errors import GeovoxWarning
 
 from test_cap_winding import MESH, brute_winding_number

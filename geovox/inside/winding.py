@@ -14,7 +14,7 @@ inside where it is not 0, so the space two overlapping parts share counts
 and a cavity inside an inward-facing shell does not. An open target M has
 its holes filled with caps K: for each closed loop of the boundary (the
 directed edges whose opposite edge is missing), a minimum-area triangulation
-of the loop's vertices (:mod:`geovox.bridge`; a fan from the centroid for
+of the loop's vertices (:mod:`geovox.inside.bridge`; a fan from the centroid for
 long loops and for pieces that are not loops), oriented so that M + K is
 closed. By additivity
 ``w_M = w_{M+K} - w_K``: the first term is the exact integer from signed
@@ -141,7 +141,7 @@ def caps(mesh: Mesh, edges: np.ndarray, small: bool = False) -> np.ndarray:
     """Cap triangles closing the boundary: a fan per connected boundary piece.
 
     ``small``: a minimum-area triangulation over each closed loop instead
-    (:func:`geovox.bridge.loop_caps`; the winding number's caps, see :func:`bridged`).
+    (:func:`geovox.inside.bridge.loop_caps`; the winding number's caps, see :func:`bridged`).
 
     Returns
     -------
@@ -312,7 +312,7 @@ def bridged(mesh: Mesh):
     """The mesh closed by the winding number's caps: :func:`capped` with ``small`` caps.
 
     Any caps give the same winding number of the mesh; small ones make it
-    cheaper to sum (see :mod:`geovox.bridge`). The coverage density keeps
+    cheaper to sum (see :mod:`geovox.inside.bridge`). The coverage density keeps
     the fans of :func:`capped` (its solid is the capped mesh's, so its
     fractions are those of the fans).
     """
