@@ -698,6 +698,11 @@ def voxelize_block(mesh, plan: Plan, block=None, *, buffers=None) -> Volume:
     grid = block_grid(plan.grid, block)
     if "slices" not in buffers:
         check_memory(grid, bytes_per_voxel(plan.colour, o.density, o.sdf))
+    textures = None
+    if plan.colour:
+        from .colour import prefetch_textures
+
+        textures = prefetch_textures(m)  # decoded while the rays and the fill run
     step("rays")
     crossings = {}
     classified = None
@@ -723,6 +728,8 @@ def voxelize_block(mesh, plan: Plan, block=None, *, buffers=None) -> Volume:
     colors = dens = dist = None
     if plan.colour:
         step("colour")
+        if textures is not None:
+            textures()
         colors = _colour(m, plan, grid, block, occ, crossings, buffers)
         timings["colour"] = time.perf_counter() - t_fill
     if o.density == "coverage":
