@@ -932,13 +932,21 @@ def top_cells(const uint8_t[::1] occ, shape, int level, int jobs):
     import numpy as np
     out = np.zeros((cx, cy, cz), np.uint8)
     cdef uint8_t[:, :, ::1] o = out
-    cdef int64_t a, i, j, k, row
+    cdef int64_t a, i, j, k, row, cj
     with nogil:
         for a in prange(cz, num_threads=max(1, jobs), schedule="dynamic"):
             for k in range(a * s, min(a * s + s, nz)):
                 for j in range(ny):
                     row = nx * (j + ny * k)
-                    for i in range(nx):
+                    cj = j >> level
+                    i = 0
+                    while i < nx:
                         if occ[row + i]:
-                            o[i // s, j // s, a] = 1
+                            # Shifts, not divisions (an integer division per
+                            # inside voxel was most of this scan), and the
+                            # rest of this cell's run skipped once it is marked.
+                            o[i >> level, cj, a] = 1
+                            i = ((i >> level) + 1) << level
+                        else:
+                            i = i + 1
     return out

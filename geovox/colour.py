@@ -21,9 +21,9 @@ voxel. The compiled kernel (``geovox/_nearest.pyx``, built by ``pip
 install``) finds it and shades it; without it, :func:`geovox.nearest.nearest_inside`'s
 NumPy search and :func:`shade` give the same colours, slower (a branch and
 bound over voxel cells that drops a triangle only where a valid bound proves
-it farther; where every triangle still in the running for a block of voxels
-has the same constant colour, that colour is used without finding which of
-them is nearest). It needs no rays.
+it farther). Both search less where every triangle still in the running for
+a block of voxels has the same constant colour: that colour is used without
+finding which of them is nearest. It needs no rays.
 
 With ``color="fast"`` (``--fast-color``) the nearest surface point is found
 in columns, from the ray hits themselves (every hit already carries its
@@ -695,7 +695,7 @@ def colour_method(color):
 
 
 def exact_colours(mesh, grid, occupancy, *, diffuse=True, ambient=False, jobs=1,
-                  frame=None, kernel=None) -> np.ndarray:
+                  frame=None, kernel=None, out=None) -> np.ndarray:
     """RGBA colours of the inside voxels from their exact nearest surface points; alpha 0 outside.
 
     Parameters
@@ -713,6 +713,9 @@ def exact_colours(mesh, grid, occupancy, *, diffuse=True, ambient=False, jobs=1,
         The compiled search and shading, or the NumPy ones (the same
         colours); None reads ``GEOVOX_KERNEL`` (see
         :func:`geovox.nearest.kernel_module`).
+    out : (nz, ny, nx, 4) uint8, C order, optional
+        The array to write the colours into (cleared first; see
+        :func:`colour_volume`).
 
     Returns
     -------
@@ -729,7 +732,11 @@ def exact_colours(mesh, grid, occupancy, *, diffuse=True, ambient=False, jobs=1,
     from .nearest import kernel_module, nearest_inside, run_kernel
 
     nx, ny, nz = grid.shape
-    base = np.zeros((nz, ny, nx, 4), dtype=np.uint8)
+    if out is None:
+        base = np.zeros((nz, ny, nx, 4), dtype=np.uint8)
+    else:
+        base = out
+        base.fill(0)  # only the inside voxels are written below
     colors = base.transpose(2, 1, 0, 3)
     lo, spacing, z0 = frame if frame is not None else (grid.lo, grid.spacing, 0)
     # One uint32 per voxel: RGBA bytes in memory order (index = F-order voxel index).
@@ -761,7 +768,8 @@ def exact_colours(mesh, grid, occupancy, *, diffuse=True, ambient=False, jobs=1,
         # The compiled kernel finds the nearest point and shades it in one go
         # (shading 4.4 M voxels in NumPy alone took 1.6 s, spot 256³).
         run_kernel(module, mesh.triangles, occupancy, spacing, origin=lo, z0=z0, jobs=jobs,
-                   output=lambda k: _kernel_output(k, flat, tables, key, key_rgba))
+                   output=lambda k: _kernel_output(k, flat, tables, key, key_rgba),
+                   cache=getattr(mesh, "_cache", None))
         return colors
 
     def emit(vox, tri, uv):
@@ -887,9 +895,9 @@ def colour_volume(mesh, grid, occupancy, cast=None, *, diffuse=True, ambient=Fal
     kernel : {None, "auto", "compiled", "numpy"}
         With ``exact``: the nearest-surface search (see :func:`exact_colours`).
     out : (nz, ny, nx, 4) uint8, C order, optional
-        Without ``exact``: the array to write every voxel's colour into
-        (reused by a caller making many blocks, so that its memory is not
-        faulted in afresh each time); ``colors`` is its transpose.
+        The array to write every voxel's colour into (reused by a caller
+        making many blocks, so that its memory is not faulted in afresh each
+        time); ``colors`` is its transpose.
     sink : callable, optional
         Without ``exact``: instead of making the array, hand over each chunk
         of layers as soon as it is coloured, ``sink(z0, rgba)`` with
@@ -908,7 +916,7 @@ def colour_volume(mesh, grid, occupancy, cast=None, *, diffuse=True, ambient=Fal
     load_textures(mesh, ambient=ambient)
     if exact:
         return exact_colours(mesh, grid, occupancy, diffuse=diffuse, ambient=ambient, jobs=jobs,
-                             frame=frame, kernel=kernel)
+                             frame=frame, kernel=kernel, out=out)
     nx, ny, nz = grid.shape
     # Each chunk clears its own layers just before filling them (in cache).
     base = None if sink else np.empty((nz, ny, nx, 4), dtype=np.uint8) if out is None else out

@@ -812,7 +812,7 @@ def _colour(m, plan: Plan, grid: Grid, block, occ, crossings: dict, buffers: dic
     return colour_volume(m, grid, occ, crossings, diffuse=o.diffuse, ambient=o.ambient,
                          jobs=plan.jobs, exact=exact, kernel=o.kernel,
                          frame=(plan.grid.lo, plan.grid.spacing, 0 if block is None else block[0]),
-                         out=None if exact else buffers.get("colour_out"),
+                         out=buffers.get("colour_out"),
                          sink=None if exact else buffers.get("colour_sink"))
 
 
