@@ -522,8 +522,10 @@ def test_cells_of_one_constant_colour_skip_the_search(kernel, tmp_path, name, re
     true = got[occ].copy().view(np.uint32).reshape(-1)
     np.testing.assert_array_equal(marked[skipped], marks[key[tri[skipped]]])
     np.testing.assert_array_equal(marked[~skipped], true[~skipped])
-    # It does happen: most of the box's volume, some of the others'.
-    assert skipped.mean() > (0.5 if name == "cornell_box" else 0.05), skipped.mean()
+    # It does happen: in most of the box's volume, in some of the cube's (the
+    # sphere's faces take materials at random: neighbours seldom share one).
+    least = {"cornell_box": 0.5, "two_material": 0.05, "sphere": 0.0}[name]
+    assert skipped.mean() >= least, skipped.mean()
     # Outside, nothing is written.
     assert not _kernel_colours(kernel, mesh, vol, key, marks)[~occ].any()
 
@@ -542,3 +544,17 @@ def test_the_kernel_checks_its_constant_colours(kernel):
     with pytest.raises(ValueError, match="beyond"):
         k.same_colours(np.ones(1, np.int64), np.zeros(1, np.uint32))
     k.same_colours(np.zeros(1, np.int64), np.zeros(1, np.uint32))
+
+
+@pytest.mark.parametrize("shape,p", [((37, 5, 70), 0.01), ((16, 16, 16), 0.5), ((1, 1, 1), 1.0),
+                                     ((100, 3, 33), 0.001), ((65, 64, 63), 0.2)])
+def test_top_cells_are_the_cells_holding_an_inside_voxel(kernel, shape, p):
+    # The kernel's scan skips the rest of a cell's run once it is marked.
+    occ = np.random.default_rng(len(shape) + int(1000 * p)).random(shape) < p
+    flat = np.ascontiguousarray(occ.reshape(-1, order="F")).view(np.uint8)
+    for level in (0, 1, 3, 5):
+        s = 1 << level
+        pad = [(0, -n % s) for n in shape]
+        cells = np.pad(occ, pad).reshape(
+            [n for k in shape for n in (-(-k // s), s)]).any(axis=(1, 3, 5))
+        np.testing.assert_array_equal(kernel.top_cells(flat, shape, level, 2).astype(bool), cells)
