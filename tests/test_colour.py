@@ -410,10 +410,11 @@ def test_textures_read_ahead_are_the_ones_load_textures_reads(tmp_path, monkeypa
     assert prefetch_textures(mesh) is None  # nothing left to read
 
 
-@pytest.mark.parametrize("kind", ["not_an_image", "palette", "missing"])
+@pytest.mark.parametrize("kind", ["not_an_image", "palette", "truncated"])
 def test_textures_not_read_ahead_are_reported_as_before(tmp_path, kind):
-    # A file that is not a plain PNG or JPEG (or not there) is left to
-    # load_textures: the same warning, or the same colours, as without.
+    # A file that is not a plain PNG or JPEG is left to load_textures, and so
+    # is one whose decoding fails on the thread: the same warning, or the
+    # same colours, as without reading ahead.
     from geovox.colour import load_textures, prefetch_textures
 
     obj = tmp_path / "m.obj"
@@ -425,10 +426,18 @@ def test_textures_not_read_ahead_are_reported_as_before(tmp_path, kind):
         (tmp_path / "t.png").write_bytes(b"not a png at all")
     elif kind == "palette":
         Image.new("P", (4, 4), 3).save(tmp_path / "t.png")
+    else:
+        noise = np.random.default_rng(0).integers(0, 256, (64, 64, 3), dtype=np.uint8)
+        Image.fromarray(noise).save(tmp_path / "t.png")
+        data = (tmp_path / "t.png").read_bytes()
+        (tmp_path / "t.png").write_bytes(data[:len(data) // 2])  # the header is whole
     mesh = geovox.load_mesh(obj)
-    if kind == "missing" and mesh.materials[0].texture_file is None:
-        pytest.skip("a missing texture file is not kept as a texture_file")
-    assert prefetch_textures(mesh) is None
+    finish = prefetch_textures(mesh)
+    if kind == "truncated":
+        finish()  # the thread's failure is not raised, and nothing is put in place
+        assert mesh.materials[0].image is None
+    else:
+        assert finish is None
     if kind == "palette":
         load_textures(mesh)
         assert mesh.materials[0].image.shape == (4, 4, 3)
