@@ -21,8 +21,17 @@ CPU time the child's user + system seconds. ``--kernel numpy`` times exact
 colour without the compiled kernel (``GEOVOX_KERNEL=numpy``, what an install
 without a C compiler runs).
 
+Paired (``--vs DIR [DIR ...]``): the same conversions by this checkout (A)
+and by each other checkout's CLI (B, run from that folder), in turn A B A B
+... ``--repeat`` times (at every size, 1024³ included); printed are each
+side's median wall clock and the median of the pair-by-pair ratios A/B,
+which stays meaningful on a machine whose speed drifts (a loaded one). The
+runs write the same files; ``--keep DIR`` leaves the last run's outputs of
+each side there (``a_*``, ``b<i>_*``), to compare them byte for byte.
+
 Usage: python benchmarks/bench_colour.py [--accuracy] [--times] [--res 128 256]
        [--h5 1024] [--methods color fast-color] [--repeat 3] [--kernel auto|numpy]
+       [--vs ../base ../prev] [--keep DIR]
 """
 
 from __future__ import annotations
@@ -90,14 +99,15 @@ def accuracy(path, res=64):
     return out
 
 
-def run(res, flag, out_dir, ext="raw", kernel="auto"):
-    out = os.path.join(out_dir, f"spot_{res}.{ext}")
-    args = ["convert", SPOT, "-o", out, "-r", str(res), f"--{flag}", "-q"]
+def run(res, flag, out_dir, ext="raw", kernel="auto", cwd=None, prefix=""):
+    """One fresh interpreter converting spot (from ``cwd``: that checkout's geovox)."""
+    out = os.path.join(out_dir, f"{prefix}spot_{res}.{ext}")
+    args = ["convert", SPOT, "-o", out, "-r", str(res), f"--{flag}", "-q", "--overwrite"]
     env = dict(os.environ, GEOVOX_KERNEL=kernel)
     t0 = time.perf_counter()
     before = os.times()
     p = subprocess.run([sys.executable, "-c", CHILD, *args], capture_output=True, text=True,
-                       env=env)
+                       env=env, cwd=cwd)
     wall = time.perf_counter() - t0
     after = os.times()
     cpu = (after.children_user - before.children_user
@@ -105,9 +115,47 @@ def run(res, flag, out_dir, ext="raw", kernel="auto"):
     if p.returncode != 0:
         return {"error": p.stderr.strip().splitlines()[-1]}
     info = json.loads(p.stdout.strip().splitlines()[-1])
-    for f in os.listdir(out_dir):
-        os.remove(os.path.join(out_dir, f))
+    if not prefix:
+        for f in os.listdir(out_dir):
+            os.remove(os.path.join(out_dir, f))
     return {"wall": wall, "cpu": cpu, "peak": info["peak_kib"] * 1024}
+
+
+def paired(args, jobs):
+    """A (this checkout) against each ``--vs`` checkout, in turn: medians and pair ratios."""
+    import statistics
+
+    here = os.path.dirname(HERE)
+    print(f"# bench_colour --vs {date_and_load()}")
+    print("| grid | output | option | checkout | median wall (s) | median CPU (s) "
+          "| median of the pair ratios A/B | pairs |")
+    print("|---|---|---|---|---|---|---|---|")
+    keep = args.keep or tempfile.mkdtemp()
+    os.makedirs(keep, exist_ok=True)
+    for res, ext in jobs:
+        for flag in args.methods:
+            for i, other in enumerate(args.vs):
+                a, b = [], []
+                for _ in range(args.repeat):
+                    a.append(run(res, flag, keep, ext, args.kernel, here, "a_"))
+                    b.append(run(res, flag, keep, ext, args.kernel, os.path.abspath(other),
+                                 f"b{i}_"))
+                bad = [r["error"] for r in a + b if "error" in r]
+                if bad:
+                    print(f"| {res}³ | .{ext} | --{flag} | {other} | error: {bad[0]} | | | |")
+                    continue
+                ratio = statistics.median(x["wall"] / y["wall"] for x, y in zip(a, b))
+                for name, rs in (("A (this)", a), (other, b)):
+                    print(f"| {res}³ | .{ext} | --{flag} | {name} "
+                          f"| {statistics.median(r['wall'] for r in rs):.2f} "
+                          f"| {statistics.median(r['cpu'] for r in rs):.2f} "
+                          f"| {ratio:.3f} | {len(a)} |", flush=True)
+    print(f"# end: {date_and_load()}")
+
+
+def date_and_load():
+    return (f"{datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC, load average "
+            f"{os.getloadavg()[0]:.1f}")
 
 
 def main():
@@ -116,12 +164,18 @@ def main():
     p.add_argument("--times", action="store_true")
     p.add_argument("--models", nargs="+", default=list(MODELS))
     p.add_argument("--grid", type=int, default=64, help="accuracy grid (default 64)")
-    p.add_argument("--res", type=int, nargs="+", default=[128, 256])
+    p.add_argument("--res", type=int, nargs="*", default=[128, 256])
     p.add_argument("--h5", type=int, nargs="*", default=[], help="sizes written to .h5")
     p.add_argument("--methods", nargs="+", default=["color", "fast-color"])
     p.add_argument("--kernel", default="auto", choices=["auto", "numpy"])
     p.add_argument("--repeat", type=int, default=3)
+    p.add_argument("--vs", nargs="+", default=[], metavar="DIR",
+                   help="paired runs against these checkouts' CLIs")
+    p.add_argument("--keep", help="with --vs: folder keeping the last outputs of each side")
     args = p.parse_args()
+    if args.vs:
+        paired(args, [(r, "raw") for r in args.res] + [(r, "h5") for r in args.h5])
+        return
     if not (args.accuracy or args.times):
         args.times = True
     today = datetime.date.today()

@@ -58,6 +58,10 @@ cdef struct Ctx:
                            # 1 mirror, 2 clamp, 3 border), unused
     const int64_t *moff    # (k,) offset of each texture in tex
     const uint8_t *tex     # all textures, (h, w, 3) each
+    # Constant colours (see Kernel.same_colours): NULL, or each face's key
+    # (-1: its colour varies over it) and each key's packed colour.
+    const int64_t *same
+    const uint32_t *same_rgba
     # The top cells' first lists (see top_list).
     const double *tlo      # (t, 3) triangle boxes
     const double *thi
@@ -268,6 +272,32 @@ cdef inline void emit(const Ctx *c, int64_t i, int64_t j, int64_t k, int64_t t, 
         c.uv_out[2 * idx + 1] = v
 
 
+cdef inline int64_t common_key(const Ctx *c, const int32_t *cand, int64_t n) noexcept nogil:
+    """The constant-colour key every candidate shares, or -1 (none, or not all the same)."""
+    cdef int64_t q, key
+    if c.same == NULL or n == 0:
+        return -1
+    key = c.same[cand[0]]
+    if key < 0:
+        return -1
+    for q in range(1, n):
+        if c.same[cand[q]] != key:
+            return -1
+    return key
+
+
+cdef void fill_cell(const Ctx *c, int64_t i0, int64_t i1, int64_t j0, int64_t j1, int64_t k0,
+                    int64_t k1, uint32_t rgba) noexcept nogil:
+    """Every inside voxel of the box takes the colour ``rgba``."""
+    cdef int64_t i, j, k, row
+    for k in range(k0, k1):
+        for j in range(j0, j1):
+            row = c.nx * (j + c.ny * k)
+            for i in range(i0, i1):
+                if c.occ[row + i]:
+                    c.rgba[row + i] = rgba
+
+
 cdef inline bint any_inside(const Ctx *c, int64_t i0, int64_t i1, int64_t j0, int64_t j1,
                             int64_t k0, int64_t k1) noexcept nogil:
     cdef int64_t i, j, k, row
@@ -412,6 +442,9 @@ cdef void leaf4(const Ctx *c, int64_t i0, int64_t i1, int64_t j0, int64_t j1, in
                     cnt += 1
                     if d < low:
                         low = d
+                if cnt == 1:  # pick() of one: it (NaN or not), without the square roots
+                    emit(c, i, j, k, <int64_t>E[3], E[1], E[2])
+                    continue
                 # pick(), as in leaf().
                 low = sqrt(low) + c.tieh
                 far = low * low * (1.0 + 1e-9) + c.tieh * c.tieh
@@ -457,6 +490,12 @@ cdef void solve(const Ctx *c, int level, int64_t ci, int64_t cj, int64_t ck,
     cdef int k, j
     cdef bint drop
     if n == 0:
+        return
+    # Every triangle still in the running has the same constant colour: so
+    # has every voxel's nearest point, whichever triangle it is on.
+    q = common_key(c, cand, n)
+    if q >= 0:
+        fill_cell(c, i0, i1, j0, j1, k0, k1, c.same_rgba[q])
         return
     if level <= 1 or n == 1:
         leaf(c, i0, i1, j0, j1, k0, k1, cand, n, dbuf)
@@ -566,6 +605,10 @@ cdef void solve(const Ctx *c, int level, int64_t ci, int64_t cj, int64_t ck,
             for k in range(8):
                 dbuf[8 * nn + k] = D[k]
             nn += 1
+    q = common_key(c, buf, nn)
+    if q >= 0:
+        fill_cell(c, i0, i1, j0, j1, k0, k1, c.same_rgba[q])
+        return
     if level == 2 and nn <= c.leaf_max and nn > 1:
         leaf4(c, i0, i1, j0, j1, k0, k1, buf, nn, dbuf, wbuf)
         return
@@ -627,6 +670,8 @@ cdef class Kernel:
         self.c.uv_out = NULL
         self.c.vc = NULL
         self.c.cuv = NULL
+        self.c.same = NULL
+        self.c.same_rgba = NULL
         self.c.ncl = 0
         self.c.nrep = 0
         self.c.leaf_max = LEAF_MAX
@@ -644,6 +689,7 @@ cdef class Kernel:
         self.c.tri_out = &tri[0]
         self.c.uv_out = &uv[0, 0]
         self.c.rgba = NULL
+        self.c.same = NULL  # the raw answers are the nearest triangles themselves
 
     def colour_output(self, uint32_t[::1] rgba, const int32_t[::1] fmat, vc, cuv,
                       const double[:, ::1] factor, const double[:, ::1] add,
@@ -676,6 +722,23 @@ cdef class Kernel:
             if cuvv.shape[0] != 6 * fmat.shape[0]:
                 raise ValueError("corner UVs must be (t, 3, 2)")
             self.c.cuv = &cuvv[0]
+
+    def same_colours(self, const int64_t[::1] key, const uint32_t[::1] rgba):
+        """With colour output: faces of the same key >= 0 have the same constant
+        colour ``rgba[key]`` (see geovox.colour.constant_colours). Where every
+        candidate left in a cell shares a key, its voxels take that colour
+        without the search going on (the NumPy search's ``same``)."""
+        cdef int64_t t = self.keep[1].shape[0], q
+        if self.c.rgba == NULL:
+            raise ValueError("constant colours need the colour output")
+        if key.shape[0] != t:
+            raise ValueError("key must have one entry per face")
+        for q in range(t):
+            if key[q] >= rgba.shape[0]:
+                raise ValueError("a key beyond the colours")
+        self.keep += [key, rgba]
+        self.c.same = &key[0]
+        self.c.same_rgba = &rgba[0] if rgba.shape[0] else NULL
 
     def limit_leaf4(self, int64_t n):
         """Let cells of 4 voxels finish by interpolated bounds only with at most
@@ -869,13 +932,21 @@ def top_cells(const uint8_t[::1] occ, shape, int level, int jobs):
     import numpy as np
     out = np.zeros((cx, cy, cz), np.uint8)
     cdef uint8_t[:, :, ::1] o = out
-    cdef int64_t a, i, j, k, row
+    cdef int64_t a, i, j, k, row, cj
     with nogil:
         for a in prange(cz, num_threads=max(1, jobs), schedule="dynamic"):
             for k in range(a * s, min(a * s + s, nz)):
                 for j in range(ny):
                     row = nx * (j + ny * k)
-                    for i in range(nx):
+                    cj = j >> level
+                    i = 0
+                    while i < nx:
                         if occ[row + i]:
-                            o[i // s, j // s, a] = 1
+                            # Shifts, not divisions (an integer division per
+                            # inside voxel was most of this scan), and the
+                            # rest of this cell's run skipped once it is marked.
+                            o[i >> level, cj, a] = 1
+                            i = ((i >> level) + 1) << level
+                        else:
+                            i = i + 1
     return out

@@ -734,6 +734,11 @@ def voxelize_block(mesh, plan: Plan, block=None, *, buffers=None) -> Volume:
 
             extra = working_bytes(plan.labels, o)
         check_memory(grid, bytes_per_voxel(o) + extra)
+    textures = None
+    if plan.colour:
+        from .colour import prefetch_textures
+
+        textures = prefetch_textures(m)  # decoded while the rays and the fill run
     step("rays")
     crossings = {}
     classified = None
@@ -761,6 +766,8 @@ def voxelize_block(mesh, plan: Plan, block=None, *, buffers=None) -> Volume:
     colors = dens = dist = None
     if plan.colour:
         step("colour")
+        if textures is not None:
+            textures()
         colors = _colour(m, plan, grid, block, occ, crossings, buffers)
         timings["colour"] = time.perf_counter() - t_fill
     if o.density == "coverage":
@@ -845,7 +852,7 @@ def _colour(m, plan: Plan, grid: Grid, block, occ, crossings: dict, buffers: dic
     return colour_volume(m, grid, occ, crossings, shading=Shading.of(o), jobs=plan.jobs,
                          exact=exact,
                          frame=(plan.grid.lo, plan.grid.spacing, 0 if block is None else block[0]),
-                         out=None if exact else buffers.get("colour_out"),
+                         out=buffers.get("colour_out"),
                          sink=None if exact else buffers.get("colour_sink"))
 
 

@@ -316,10 +316,12 @@ def _run_fill(m, p: Plan, writer, timings, progress) -> int:
 
 
 def _slab_buffers(p: Plan, two: bool, to_file: bool) -> dict:
-    """One occupancy (two where writes overlap) and one colour array, reused by every slab.
+    """One occupancy (two where writes overlap) and one colour array (two), reused by every slab.
 
     Faulting a slab's worth of fresh memory in for each one cost more system
-    time than filling it (the writers are done with a slab when write returns).
+    time than filling it (the writers are done with a slab when write returns;
+    where writes overlap, the buffers take turns, see _run_blocks). Exact
+    colour's arrays are 4 bytes a voxel: spot at 1024³ faulted 4 GiB in.
     """
     if len(p.blocks) < 2 or p.format.name == "zarr":
         return {}
@@ -329,6 +331,9 @@ def _slab_buffers(p: Plan, two: bool, to_file: bool) -> dict:
         out["out2"] = np.empty((nx, ny, p.thick), dtype=bool, order="F")
     if p.colour == Colour.FAST and not to_file:
         out["colour_out"] = np.empty((p.thick, ny, nx, 4), dtype=np.uint8)
+    elif p.colour == Colour.EXACT:
+        for name in ("colour_out", "colour_out2") if two else ("colour_out",):
+            out[name] = np.empty((p.thick, ny, nx, 4), dtype=np.uint8)
     return out
 
 
@@ -353,7 +358,8 @@ def _run_blocks(m, p: Plan, writer, reuse, timings, progress, tally) -> int:
             turn = "out2" if overlap and n % 2 else "out"
             buffers = {"out": arrays[turn][:, :, :z1 - z0]} if arrays else {}
             if "colour_out" in arrays:
-                buffers["colour_out"] = arrays["colour_out"][:z1 - z0]
+                colour_turn = "colour_out2" if "colour_out2" in arrays and n % 2 else "colour_out"
+                buffers["colour_out"] = arrays[colour_turn][:z1 - z0]
             if to_file:
                 buffers["colour_sink"] = lambda z, rgba, z0=z0: writer.write_colours(z0 + z, rgba)
             if reuse:

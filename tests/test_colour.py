@@ -386,3 +386,62 @@ def test_streamed_raw_colours_without_positional_writes(tmp_path, monkeypatch):
     back = F.read(tmp_path / "s.raw")
     np.testing.assert_array_equal(back.occupancy, ref.occupancy)
     np.testing.assert_array_equal(back.colors, ref.colors)
+
+
+def test_textures_read_ahead_are_the_ones_load_textures_reads(tmp_path, monkeypatch):
+    # The pipeline starts decoding textures while the rays run
+    # (colour.prefetch_textures); what it puts in place is what
+    # load_textures would have read, and load_textures then reads nothing.
+    from geovox.colour import load_textures, prefetch_textures
+
+    ref = geovox.load_mesh(SPOT)
+    load_textures(ref)
+    mesh = geovox.load_mesh(SPOT)
+    finish = prefetch_textures(mesh)
+    assert finish is not None
+    finish()
+    np.testing.assert_array_equal(mesh.materials[0].image, ref.materials[0].image)
+
+    def refuse(*a, **k):
+        raise AssertionError("read again")
+
+    monkeypatch.setattr(Image, "open", refuse)
+    load_textures(mesh)
+    assert prefetch_textures(mesh) is None  # nothing left to read
+
+
+@pytest.mark.parametrize("kind", ["not_an_image", "palette", "truncated"])
+def test_textures_not_read_ahead_are_reported_as_before(tmp_path, kind):
+    # A file that is not a plain PNG or JPEG is left to load_textures, and so
+    # is one whose decoding fails on the thread: the same warning, or the
+    # same colours, as without reading ahead.
+    from geovox.colour import load_textures, prefetch_textures
+
+    obj = tmp_path / "m.obj"
+    obj.write_text("mtllib m.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\n"
+                   "vt 0 0\nvt 1 0\nvt 0 1\nusemtl a\n"
+                   "f 1/1 3/3 2/2\nf 1/1 2/2 4/3\nf 1/1 4/3 3/3\nf 2/2 3/3 4/1\n")
+    (tmp_path / "m.mtl").write_text("newmtl a\nmap_Kd t.png\n")
+    if kind == "not_an_image":
+        (tmp_path / "t.png").write_bytes(b"not a png at all")
+    elif kind == "palette":
+        Image.new("P", (4, 4), 3).save(tmp_path / "t.png")
+    else:
+        noise = np.random.default_rng(0).integers(0, 256, (64, 64, 3), dtype=np.uint8)
+        Image.fromarray(noise).save(tmp_path / "t.png")
+        data = (tmp_path / "t.png").read_bytes()
+        (tmp_path / "t.png").write_bytes(data[:len(data) // 2])  # the header is whole
+    mesh = geovox.load_mesh(obj)
+    finish = prefetch_textures(mesh)
+    if kind == "truncated":
+        finish()  # the thread's failure is not raised, and nothing is put in place
+        assert mesh.materials[0].image is None
+    else:
+        assert finish is None
+    if kind == "palette":
+        load_textures(mesh)
+        assert mesh.materials[0].image.shape == (4, 4, 3)
+        return
+    with pytest.warns(GeovoxWarning, match="cannot read texture"):
+        load_textures(mesh)
+    assert mesh.materials[0].image is None

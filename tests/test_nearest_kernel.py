@@ -479,3 +479,90 @@ def test_the_source_distribution_carries_the_kernel_source(tmp_path):
         names = tar.getnames()
     assert any(n.endswith("/geovox/_nearest.pyx") for n in names)
     assert any(n.endswith("/MANIFEST.in") for n in names)
+
+
+def _kernel_colours(kernel, mesh, vol, key, key_rgba):
+    """The compiled colour search by hand, with ``key_rgba`` as the constant colours."""
+    from geovox.colour import shading_tables
+
+    g = vol.grid
+    flat = np.zeros(vol.occupancy.size, np.uint32)
+
+    def output(k):
+        k.colour_output(flat, *shading_tables(mesh))
+        k.same_colours(key, key_rgba)
+
+    run_kernel(kernel, mesh.triangles, vol.occupancy, g.spacing, origin=g.lo, output=output)
+    return flat.reshape(vol.occupancy.shape, order="F")
+
+
+@pytest.mark.parametrize("name,res", [("cornell_box", 40), ("two_material", 24), ("sphere", 24)])
+def test_cells_of_one_constant_colour_skip_the_search(kernel, tmp_path, name, res):
+    # Where every triangle left in a cell has the same constant colour, the
+    # kernel gives the cell that colour without finding the nearest one.
+    # Marked constant colours (alpha 0: no shaded colour has it) show where
+    # it did: there, the nearest triangle's own key; elsewhere, the shaded
+    # colour of the nearest point. And with the true constant colours, the
+    # answer is the shaded nearest point everywhere (the NumPy search's).
+    from geovox.colour import constant_colours
+
+    if name == "cornell_box":
+        mesh = geovox.load_mesh(corpus("cornell_box", "cornell_box.obj"))
+    else:
+        mesh = _coloured_meshes(tmp_path)[name]
+    load_textures(mesh)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", GeovoxWarning)  # cornell_box is open: winding number
+        vol = geovox.voxelize(mesh, resolution=res)
+    key, key_rgba = constant_colours(mesh)
+    assert (key >= 0).any()
+    occ = vol.occupancy
+    tri, uv = _kernel_answers(mesh.triangles, occ, vol.grid.spacing, vol.grid.lo)
+    shaded = np.rint(shade(mesh, tri, uv) * 255).astype(np.uint8)
+    with chosen("compiled"):
+        got = exact_colours(mesh, vol.grid, occ)
+    np.testing.assert_array_equal(got[occ][:, :3], shaded)
+    with chosen("numpy"):
+        np.testing.assert_array_equal(got, exact_colours(mesh, vol.grid, occ))
+    marks = np.arange(1, len(key_rgba) + 1, dtype=np.uint32)  # alpha byte 0
+    marked = _kernel_colours(kernel, mesh, vol, key, marks)[occ]
+    skipped = (marked >> 24) == 0
+    true = got[occ].copy().view(np.uint32).reshape(-1)
+    np.testing.assert_array_equal(marked[skipped], marks[key[tri[skipped]]])
+    np.testing.assert_array_equal(marked[~skipped], true[~skipped])
+    # It does happen: in most of the box's volume, in some of the cube's (the
+    # sphere's faces take materials at random: neighbours seldom share one).
+    least = {"cornell_box": 0.5, "two_material": 0.05, "sphere": 0.0}[name]
+    assert skipped.mean() >= least, skipped.mean()
+    # Outside, nothing is written.
+    assert not _kernel_colours(kernel, mesh, vol, key, marks)[~occ].any()
+
+
+def test_the_kernel_checks_its_constant_colours(kernel):
+    occ = np.ones(8, np.uint8)
+    k = kernel.Kernel(np.zeros((1, 21)), np.zeros(1, np.uint8), occ, (2, 2, 2), 0,
+                      (1.0, 1.0, 1.0), 1e-6, 1e-9)
+    with pytest.raises(ValueError, match="colour output"):
+        k.same_colours(np.zeros(1, np.int64), np.zeros(1, np.uint32))
+    k.colour_output(np.zeros(8, np.uint32), np.zeros(1, np.int32), None, None, np.ones((1, 3)),
+                    np.zeros((1, 3)), np.zeros((1, 7), np.int32), np.zeros(1, np.int64),
+                    np.zeros(1, np.uint8))
+    with pytest.raises(ValueError, match="one entry per face"):
+        k.same_colours(np.zeros(2, np.int64), np.zeros(1, np.uint32))
+    with pytest.raises(ValueError, match="beyond"):
+        k.same_colours(np.ones(1, np.int64), np.zeros(1, np.uint32))
+    k.same_colours(np.zeros(1, np.int64), np.zeros(1, np.uint32))
+
+
+@pytest.mark.parametrize("shape,p", [((37, 5, 70), 0.01), ((16, 16, 16), 0.5), ((1, 1, 1), 1.0),
+                                     ((100, 3, 33), 0.001), ((65, 64, 63), 0.2)])
+def test_top_cells_are_the_cells_holding_an_inside_voxel(kernel, shape, p):
+    # The kernel's scan skips the rest of a cell's run once it is marked.
+    occ = np.random.default_rng(len(shape) + int(1000 * p)).random(shape) < p
+    flat = np.ascontiguousarray(occ.reshape(-1, order="F")).view(np.uint8)
+    for level in (0, 1, 3, 5):
+        s = 1 << level
+        pad = [(0, -n % s) for n in shape]
+        cells = np.pad(occ, pad).reshape(
+            [n for k in shape for n in (-(-k // s), s)]).any(axis=(1, 3, 5))
+        np.testing.assert_array_equal(kernel.top_cells(flat, shape, level, 2).astype(bool), cells)

@@ -791,7 +791,20 @@ if hasattr(os, "register_at_fork"):
     os.register_at_fork(after_in_child=_after_fork)
 
 
-def run_kernel(module, triangles, occupancy, spacing, *, origin, z0=0, jobs=1, output):
+def _kernel_tables(triangles, origin) -> tuple:
+    """The compiled kernel's triangle rows, zero-area flags and cluster arrays (see run_kernel)."""
+    tris = prepare(np.asarray(triangles, float), origin)
+    search = _Search(tris, None, np.ones(3), 0, 3, None, pyramid=False)
+    search._clusters()  # depends on the triangles alone
+    clo, chi, members, cstart = search._cl
+    c3 = np.ascontiguousarray
+    return (c3(tris["crow"].T), tris["flat"].view(np.uint8),
+            (c3(tris["lo"]), c3(tris["hi"]), c3(clo), c3(chi), c3(members, np.int64),
+             c3(cstart, np.int64), c3(search._rep)))
+
+
+def run_kernel(module, triangles, occupancy, spacing, *, origin, z0=0, jobs=1, output,
+               cache=None):
     """The compiled search over one block (same answers as :func:`nearest_inside`'s NumPy one).
 
     Parameters
@@ -802,6 +815,10 @@ def run_kernel(module, triangles, occupancy, spacing, *, origin, z0=0, jobs=1, o
     output : callable
         ``output(kernel)`` sets where the answers go: ``kernel.raw_output``
         or ``kernel.colour_output`` (see ``geovox/_nearest.pyx``).
+    cache : dict, optional
+        Where the per-triangle tables are kept for the next block of the same
+        triangles and frame (a mesh's own cache: the slabs of a grid share
+        them; spot at 1024³, 16 slabs, computed them 16 times).
     """
     occupancy = np.asarray(occupancy, bool)
     if not occupancy.any() or len(triangles) == 0:
@@ -810,20 +827,20 @@ def run_kernel(module, triangles, occupancy, spacing, *, origin, z0=0, jobs=1, o
     occ = occupancy.reshape(-1, order="F")  # a view when F-contiguous, as the pipeline's are
     occ = np.ascontiguousarray(occ).view(np.uint8)
     origin = np.asarray(origin, float)
-    tris = prepare(np.asarray(triangles, float), origin)
+    key = ("nearest-kernel", origin.tobytes())
+    tables = cache.get(key) if cache is not None else None
+    if tables is None:
+        tables = _kernel_tables(triangles, origin)
+        if cache is not None:
+            cache[key] = tables
+    rows, flat, clusters = tables
     spacing = np.asarray(spacing, float)
     hmin = float(spacing.min())
     levels = max(3, int(np.ceil(np.log2(max(shape) / 16.0))))
-    kernel = module.Kernel(np.ascontiguousarray(tris["crow"].T), tris["flat"].view(np.uint8),
-                           occ, shape, int(z0), tuple(float(h) for h in spacing),
+    kernel = module.Kernel(rows, flat, occ, shape, int(z0), tuple(float(h) for h in spacing),
                            MARGIN * hmin, TIE * hmin)
     output(kernel)
-    search = _Search(tris, None, spacing, z0, levels, None, pyramid=False)
-    search._clusters()
-    clo, chi, members, cstart = search._cl
-    c3 = np.ascontiguousarray
-    kernel.clusters(c3(tris["lo"]), c3(tris["hi"]), c3(clo), c3(chi), c3(members, np.int64),
-                    c3(cstart, np.int64), c3(search._rep))
+    kernel.clusters(*clusters)
     global _threads_started
     if _forked_after_threads:
         jobs = 1
@@ -858,8 +875,10 @@ def nearest_inside(triangles, occupancy, spacing, *, origin, z0=0, jobs=1, emit,
         Triangles with the same key >= 0 are interchangeable (the same
         constant colour): where every candidate of a cell shares a key, its
         voxels are reported with the first such triangle and ``uv = 0``
-        without finding which one is nearest (NumPy search only; the
-        compiled one always finds the nearest). Default: all distinct.
+        without finding which one is nearest (NumPy search only: the
+        compiled one answers here with the nearest triangles, and skips
+        such cells only when it shades, see ``Kernel.same_colours``).
+        Default: all distinct.
 
     The search is the compiled one or the NumPy one as the running
     conversion's kernel choice says (:func:`kernel_module`); the answers are

@@ -21,9 +21,9 @@ voxel. The compiled kernel (``geovox/_nearest.pyx``, built by ``pip
 install``) finds it and shades it; without it, :func:`geovox.nearest.nearest_inside`'s
 NumPy search and :func:`shade` give the same colours, slower (a branch and
 bound over voxel cells that drops a triangle only where a valid bound proves
-it farther; where every triangle still in the running for a block of voxels
-has the same constant colour, that colour is used without finding which of
-them is nearest). It needs no rays.
+it farther). Both search less where every triangle still in the running for
+a block of voxels has the same constant colour: that colour is used without
+finding which of them is nearest. It needs no rays.
 
 With ``color="fast"`` (``--fast-color``) the nearest surface point is found
 in columns, from the ray hits themselves (every hit already carries its
@@ -115,6 +115,71 @@ def load_textures(mesh, shading: Shading = Shading()) -> None:
         except Exception as exc:  # Pillow raises several types for bad files
             warn(f"cannot read texture {m.texture_file} (material {m.name!r}): "
                  f"{exc}; using its Kd colour", stacklevel=3)
+
+
+def prefetch_textures(mesh):
+    """Start decoding the textures :func:`load_textures` will read, on a thread.
+
+    The colour step needs them only after the rays and the fill, and
+    decoding one takes a while (spot's 1024² PNG: about 0.05 s, a tenth of
+    its 256³ run), so the pipeline starts it as soon as the mesh is loaded.
+    Only plain PNG and JPEG files whose header opens without a warning are
+    read ahead (their decoding warns about nothing, so no warning is raised
+    on the thread); any other file, and any failure, is left to
+    :func:`load_textures`, which reads and reports it as before.
+
+    Returns
+    -------
+    callable or None
+        ``finish()`` waits for the thread and puts the textures it decoded in
+        place (``Material.image``); None where there is nothing to read ahead.
+    """
+    import threading
+    import warnings
+
+    todo = []
+    for m in mesh.materials:
+        if m.image is not None or not m.texture_file or getattr(m, "_tried", False):
+            continue
+        from PIL import Image
+
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("error")
+                with Image.open(m.texture_file) as im:
+                    plain = (im.format in ("PNG", "JPEG") and im.mode in ("RGB", "RGBA", "L", "LA")
+                             and getattr(im, "n_frames", 1) == 1)
+        except Exception:  # Pillow raises several types for bad files; load_textures says which
+            plain = False
+        if plain:
+            todo.append(m)
+    if not todo:
+        return None
+    images = {}
+
+    def read():
+        from PIL import Image
+
+        from ..surface import texels
+
+        for m in todo:
+            try:
+                with Image.open(m.texture_file) as im:
+                    images[id(m)] = texels(im)
+            except Exception:  # left to load_textures, which warns
+                pass
+
+    thread = threading.Thread(target=read, name="geovox-textures", daemon=True)
+    thread.start()
+
+    def finish():
+        thread.join()
+        for m in todo:
+            if m.image is None and id(m) in images:
+                m.image = images[id(m)]
+                m._tried = True
+
+    return finish
 
 
 def _texel_axis(t: np.ndarray, n: int, mode: str) -> tuple:
@@ -627,7 +692,7 @@ def constant_colours(mesh, shading: Shading = Shading()):
 
 
 def exact_colours(mesh, grid, occupancy, *, shading: Shading = Shading(), jobs=1,
-                  frame=None) -> np.ndarray:
+                  frame=None, out=None) -> np.ndarray:
     """RGBA colours of the inside voxels from their exact nearest surface points; alpha 0 outside.
 
     Parameters
@@ -642,6 +707,9 @@ def exact_colours(mesh, grid, occupancy, *, shading: Shading = Shading(), jobs=1
         computed from these, so a slab's colours are the whole grid's bit
         for bit.
     shading : Shading
+    out : (nz, ny, nx, 4) uint8, C order, optional
+        The array to write the colours into (cleared first; see
+        :func:`colour_volume`).
 
     The compiled search and shading run, or the NumPy ones (the same
     colours), as the conversion's kernel choice says (see
@@ -663,7 +731,11 @@ def exact_colours(mesh, grid, occupancy, *, shading: Shading = Shading(), jobs=1
     from .nearest import kernel_module, nearest_inside, run_kernel
 
     nx, ny, nz = grid.shape
-    base = np.zeros((nz, ny, nx, 4), dtype=np.uint8)
+    if out is None:
+        base = np.zeros((nz, ny, nx, 4), dtype=np.uint8)
+    else:
+        base = out
+        base.fill(0)  # only the inside voxels are written below
     colors = base.transpose(2, 1, 0, 3)
     lo, spacing, z0 = frame if frame is not None else (grid.lo, grid.spacing, 0)
     # One uint32 per voxel: RGBA bytes in memory order (index = F-order voxel index).
@@ -695,7 +767,8 @@ def exact_colours(mesh, grid, occupancy, *, shading: Shading = Shading(), jobs=1
         # The compiled kernel finds the nearest point and shades it in one go
         # (shading 4.4 M voxels in NumPy alone took 1.6 s, spot 256³).
         run_kernel(module, mesh.triangles, occupancy, spacing, origin=lo, z0=z0, jobs=jobs,
-                   output=lambda k: k.colour_output(flat, *tables))
+                   output=lambda k: _kernel_output(k, flat, tables, key, key_rgba),
+                   cache=getattr(mesh, "_cache", None))
         return colors
 
     def emit(vox, tri, uv):
@@ -712,6 +785,19 @@ def exact_colours(mesh, grid, occupancy, *, shading: Shading = Shading(), jobs=1
         nearest_inside(mesh.triangles, occupancy, spacing, origin=lo, z0=z0, jobs=jobs,
                        emit=emit, same=key)
     return colors
+
+
+def _kernel_output(search, flat, tables, key, key_rgba) -> None:
+    """Let the compiled kernel shade into ``flat``, and skip the search where colours are constant.
+
+    Where every triangle still in the running for a cell of voxels has the
+    same constant colour (``key``, see :func:`constant_colours`), the kernel
+    gives the cell that colour without finding which of them is nearest, as
+    the NumPy search does (cornell_box at 256³: most of the volume).
+    """
+    search.colour_output(flat, *tables)
+    if (key >= 0).any():
+        search.same_colours(key, key_rgba)
 
 
 #: Exact colour works with lengths (the mesh's extent and the voxel size,
@@ -810,9 +896,9 @@ def colour_volume(mesh, grid, occupancy, cast=None, *, shading: Shading = Shadin
     frame : (lo, spacing, z0), optional
         With ``exact``: see :func:`exact_colours`.
     out : (nz, ny, nx, 4) uint8, C order, optional
-        Without ``exact``: the array to write every voxel's colour into
-        (reused by a caller making many blocks, so that its memory is not
-        faulted in afresh each time); ``colors`` is its transpose.
+        The array to write every voxel's colour into (reused by a caller
+        making many blocks, so that its memory is not faulted in afresh each
+        time); ``colors`` is its transpose.
     sink : callable, optional
         Without ``exact``: instead of making the array, hand over each chunk
         of layers as soon as it is coloured, ``sink(z0, rgba)`` with
@@ -830,7 +916,8 @@ def colour_volume(mesh, grid, occupancy, cast=None, *, shading: Shading = Shadin
         warn(problem, stacklevel=3)
     load_textures(mesh, shading)
     if exact:
-        return exact_colours(mesh, grid, occupancy, shading=shading, jobs=jobs, frame=frame)
+        return exact_colours(mesh, grid, occupancy, shading=shading, jobs=jobs, frame=frame,
+                             out=out)
     nx, ny, nz = grid.shape
     # Each chunk clears its own layers just before filling them (in cache).
     base = None if sink else np.empty((nz, ny, nx, 4), dtype=np.uint8) if out is None else out
