@@ -222,7 +222,13 @@ def worker(mode, items_file):
     print(MARK + json.dumps({"ready": time.perf_counter() - t0}), flush=True)
     with open(items_file, encoding="utf-8") as f:
         items = json.load(f)
+    # A file STOP-MODE beside the items ends a long peer run early (the run's own time limit is
+    # --timeout per model only): the models left are recorded "not run".
+    stop = os.path.join(os.path.dirname(items_file), f"STOP-{mode}")
     for i, item in enumerate(items):
+        if os.path.exists(stop):
+            print(MARK + json.dumps({"i": i, "status": "not run"}), flush=True)
+            continue
         r0 = resource.getrusage(resource.RUSAGE_SELF)
         rec = WORK[mode](*item)
         r1 = resource.getrusage(resource.RUSAGE_SELF)
@@ -474,10 +480,13 @@ def peer_table(peers, n_models) -> dict:
     for p in peers:
         recs = p["records"]
         count = {s: sum(r["status"] == s for r in recs)
-                 for s in ("ok", "cannot load", "failed", "timeout", "crashed")}
+                 for s in ("ok", "cannot load", "failed", "timeout", "crashed", "not run")}
         timed = p["startup"] + sum(r["seconds"] for r in recs if r["status"] == "ok")
         cpu = sum(r.get("cpu", 0.0) for r in recs if r["status"] == "ok")
-        rows.append([p["label"], f"{p['res']}³", str(n_models), str(count["ok"]),
+        tried = n_models - count["not run"]
+        rows.append([p["label"], f"{p['res']}³",
+                     str(tried) + (f" (first {tried}; stopped)" if count["not run"] else ""),
+                     str(count["ok"]),
                      str(count["cannot load"]), str(count["failed"] + count["crashed"]),
                      str(count["timeout"]), f"{p['startup']:.1f}", f"{timed:.1f}",
                      f"{cpu:.1f}", f"{count['ok'] / timed:.2f}", f"{p['load']:.1f}"])
@@ -498,7 +507,8 @@ def skipped_table(probe, files) -> dict:
     rows = [[status, why, str(len(names)), ", ".join(f"`{n}`" for n in names[:3])
              + (", ..." if len(names) > 3 else "")]
             for (status, why), names in sorted(groups.items(), key=lambda kv: -len(kv[1]))]
-    return {"caption": "Files that are not meshes, by geovox's one-line error (not in the data set)",
+    return {"caption": "Files that are not meshes, by geovox's one-line error (not in the "
+                       "data set)",
             "columns": ["status", "geovox says", "files", "for example"], "rows": rows}
 
 
@@ -514,7 +524,7 @@ def failure_table(runs, peers, roots) -> dict:
                          "(the command)", f"exit {r['rc']}: " + " / ".join(r["stderr_tail"])])
     for p in peers:
         for path, x in zip(p["files"], p["records"]):
-            if x["status"] not in ("ok", "cannot load"):
+            if x["status"] not in ("ok", "cannot load", "not run"):
                 rows.append([f"{p['label']} {p['res']}³ ({x['status']})",
                              f"`{short(path, roots)}`", str(x.get("error", ""))[:160]])
     return {"caption": "Failures, time-outs and models a tool cannot load",
@@ -615,8 +625,10 @@ def inputs(a, tmp) -> tuple:
                           os.path.abspath(folder)))
             words.append(f"`{folder}`")
     if a.corpus:
+        if not os.path.isdir(a.corpus):
+            sys.exit(f"bench_dataset: no folder {a.corpus} (--corpus; '' for none)")
         roots.append(("corpus", os.path.abspath(a.corpus)))
-        words.append("the shared corpus (`../shared/corpus`)")
+        words.append(f"the shared corpus (`{a.corpus}`)")
     return gather([r for _, r in roots]), roots, words
 
 
@@ -678,7 +690,8 @@ def warm_times(a, tmp, runs, top=10) -> dict:
     key = max(firsts)
     ranked = sorted(firsts[key]["records"], key=lambda x: -x["seconds"])[:top + 6]
     out = os.path.join(tmp, "warm")
-    items = [[x["input"], res, firsts[res]["format"], out] for x in ranked for res in sorted(firsts)]
+    items = [[x["input"], res, firsts[res]["format"], out]
+             for x in ranked for res in sorted(firsts)]
     recs, _, _ = run_items("warm", items, tmp, max(a.timeout, 300.0))
     shutil.rmtree(out, ignore_errors=True)
     print(f"warm re-timing of {len(ranked)} models done, load {os.getloadavg()[0]:.1f}", flush=True)
@@ -747,7 +760,7 @@ def result_file(a, raw) -> dict:
              "the bounding box / N, the voxel size the peers were given (their own loaded "
              "mesh's longest side / N); `.npz`'s is N voxels along each side of the box. "
              "The peers run one process per tool and grid, on one core; their time excludes "
-             f"the models they cannot load and those over the {raw['timeout']:g} s time-out. "
+             f"the models they cannot load and those over the {raw.get('timeout', a.timeout):g} s time-out. "
              "Open3D makes surface voxels only (no inside); trimesh's fill fills the inside "
              "of each voxelised surface with SciPy's hole filling.")
     if raw["bugs"]:
