@@ -113,7 +113,7 @@ def reason(error, path) -> str:
     """A loader error without its file name and counts: the table's reason."""
     text = error.replace(path, "FILE")
     text = text.split("FILE: ", 1)[-1].split("; ", 1)[0]
-    return re.sub(r"\d[\d,.]*", "N", text)
+    return re.sub(r"\b\d[\d,.]*\b(?!-D)", "N", text)  # counts, not "2-D"
 
 
 # --------------------------------------------------------------------------- workers
@@ -475,7 +475,8 @@ def inside_table(runs) -> dict:
             "rows": rows}
 
 
-def peer_table(peers, n_models) -> dict:
+def peer_table(peers, n_models, runs=()) -> dict:
+    """The peers' rows, with geovox's own per-model seconds over the models each converted."""
     rows = []
     for p in peers:
         recs = p["records"]
@@ -483,18 +484,23 @@ def peer_table(peers, n_models) -> dict:
                  for s in ("ok", "cannot load", "failed", "timeout", "crashed", "not run")}
         timed = p["startup"] + sum(r["seconds"] for r in recs if r["status"] == "ok")
         cpu = sum(r.get("cpu", 0.0) for r in recs if r["status"] == "ok")
+        done = {f for f, r in zip(p["files"], recs) if r["status"] == "ok"}
+        same = [r for r in runs if r["res"] == p["res"]][:1]  # that grid's first run
+        ours = (f"{sum(x['seconds'] for x in same[0]['records'] if x['input'] in done):.1f}"
+                if same else "-")
         tried = n_models - count["not run"]
         rows.append([p["label"], f"{p['res']}³",
                      str(tried) + (f" (first {tried}; stopped)" if count["not run"] else ""),
                      str(count["ok"]),
                      str(count["cannot load"]), str(count["failed"] + count["crashed"]),
                      str(count["timeout"]), f"{p['startup']:.1f}", f"{timed:.1f}",
-                     f"{cpu:.1f}", f"{count['ok'] / timed:.2f}", f"{p['load']:.1f}"])
+                     f"{cpu:.1f}", f"{count['ok'] / timed:.2f}", ours, f"{p['load']:.1f}"])
     return {"caption": "The peers, the same models at the same voxel size (one process per row, "
                        "each model under a time-out)",
             "columns": ["tool", "grid", "models", "converted", "cannot load", "failed",
                         "time-outs", "start + imports s", "s (start + converted models)",
-                        "CPU s (converted models)", "models/s", "load at start"],
+                        "CPU s (converted models)", "models/s",
+                        "geovox on those models: sum of manifest s", "load at start"],
             "rows": rows}
 
 
@@ -740,8 +746,9 @@ def all_tables(raw) -> list:
         tables += [config_table(runs, n), slowest_table(runs, warm, raw["triangles"], roots),
                    inside_table(runs)]
     if peers:
-        tables += [peer_table(peers, n), unloadable_table(peers)]
-    return tables + [skipped_table(raw["probe"], raw["files"]), failure_table(runs, peers, roots)]
+        tables += [peer_table(peers, n, runs), unloadable_table(peers)]
+    tables += [skipped_table(raw["probe"], raw["files"]), failure_table(runs, peers, roots)]
+    return [t for t in tables if t["rows"]]  # no failures: no table (the notes say so)
 
 
 def result_file(a, raw) -> dict:
@@ -760,11 +767,20 @@ def result_file(a, raw) -> dict:
              "the bounding box / N, the voxel size the peers were given (their own loaded "
              "mesh's longest side / N); `.npz`'s is N voxels along each side of the box. "
              "The peers run one process per tool and grid, on one core; their time excludes "
-             f"the models they cannot load and those over the {raw.get('timeout', a.timeout):g} s time-out. "
+             "the models they cannot load and those over the "
+             f"{raw.get('timeout', a.timeout):g} s time-out. "
              "Open3D makes surface voxels only (no inside); trimesh's fill fills the inside "
              "of each voxelised surface with SciPy's hole filling.")
-    if raw["bugs"]:
-        notes += f" Loader bugs (tracebacks): {len(raw['bugs'])}."
+    failed = sum(x["status"] == "failed" for r in runs for x in r["records"])
+    odd = sum(r["rc"] not in (0, 2) or r["traceback"] for r in runs)
+    for p in raw["peers"]:
+        left = sum(x["status"] == "not run" for x in p["records"])
+        if left:
+            notes += (f" {p['tool']} at {p['res']}³ was stopped (a STOP-{p['tool']} file) after "
+                      f"{len(p['records']) - left} of the {len(p['records'])} models, for time: "
+                      "its row is those models only, in file order.")
+    notes += (f" geovox: {failed} failed models, {odd} commands with a traceback or an exit "
+              f"status other than 0 and 2, {len(raw['bugs'])} loader tracebacks.")
     return {"benchmark": "dataset",
             "title": "A data set: every mesh of trimesh's models/ and the corpus",
             "script": "benchmarks/bench_dataset.py",
