@@ -37,7 +37,8 @@ class Result:
     paths, or URLs where the output folder is one). ``seconds`` is the time
     the model took where it ran; ``note`` the inside count and, in a few
     words, any warning (the summary table's cell); ``warnings`` every
-    warning in full.
+    warning in full; ``inside_test`` the inside test that ran (``parity``,
+    ``winding``, ...; empty unless converted).
 
     Attributes
     ----------
@@ -54,6 +55,8 @@ class Result:
         Inside count and warnings, in a few words.
     warnings : list of str
         Every warning in full.
+    inside_test : str
+        The inside test that ran (``Report.inside_test``); empty unless ``"ok"``.
     """
 
     input: str
@@ -63,6 +66,7 @@ class Result:
     seconds: float = 0.0
     note: str = ""
     warnings: list = field(default_factory=list)
+    inside_test: str = ""
 
     @property
     def output(self):
@@ -241,7 +245,8 @@ def _convert_one(task) -> Result:
                 outputs = _upload(written, local, out_dir) if remote else written
         note = f"{report.inside:,} inside" + (f"; warning: {warning_cell(said, path)}" if said
                                                else "")
-        return Result(path, "ok", outputs, "", time.perf_counter() - t0, note, list(said))
+        return Result(path, "ok", outputs, "", time.perf_counter() - t0, note, list(said),
+                      report.inside_test)
     except (GeovoxError, MemoryError) as exc:
         return Result(path, "failed", [], _line(str(exc)), time.perf_counter() - t0)
     except Exception as exc:  # a model must not stop the batch; say what happened
@@ -560,7 +565,7 @@ def convert_many(inputs, out, *, client=None, fmt=None, overwrite=False, workers
             log.write(json.dumps(dict(
                 input=tasks[i]["input"], out=out_key, options=recorded, status=r.status,
                 outputs=[o if is_url(o) else os.path.abspath(o) for o in r.outputs],
-                error=r.error, seconds=round(r.seconds, 4),
+                error=r.error, seconds=round(r.seconds, 4), inside_test=r.inside_test,
                 time=datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")))
                 + "\n")
             log.flush()  # the record survives the run being killed

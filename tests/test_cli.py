@@ -435,6 +435,24 @@ def test_manifest_with_a_cut_last_line_still_resumes(tmp_path, capsys):
     assert json.loads(lines[0])["status"] == "ok"
 
 
+def test_manifest_and_results_record_the_inside_test(tmp_path):
+    # A data set's slow models are mostly the open ones: the manifest says which test ran.
+    opened = tmp_path / "open_box.obj"
+    opened.write_text("v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 0 0 1\nv 1 0 1\nv 1 1 1\nv 0 1 1\n"
+                      "f 1 3 2\nf 1 4 3\nf 1 2 6\nf 1 6 5\nf 2 3 7\nf 2 7 6\nf 3 4 8\n"
+                      "f 3 8 7\nf 4 1 5\nf 4 5 8\n")  # a box without its top
+    missing = tmp_path / "empty.obj"
+    missing.write_text("# nothing\n")
+    manifest = tmp_path / "m.jsonl"
+    results = geovox.convert_many([SPOT, str(opened), str(missing)], tmp_path / "out",
+                                  manifest=manifest, resolution=8)
+    assert [(r.status, r.inside_test) for r in results] == [("ok", "parity"), ("ok", "winding"),
+                                                            ("failed", "")]
+    records = [json.loads(line) for line in manifest.read_text().splitlines()]
+    assert {os.path.basename(r["input"]): r["inside_test"] for r in records} == {
+        "spot.obj": "parity", "open_box.obj": "winding", "empty.obj": ""}
+
+
 def test_review_regressions_give_one_line(tmp_path, capsys):
     # A batch whose -o is an existing file.
     target = tmp_path / "plainfile"

@@ -109,7 +109,9 @@ def test_manifest_resumes_with_only_what_is_missing(client, models, tmp_path):
     rec = json.loads(lines[1])
     assert rec["status"] == "ok" and rec["options"]["options"] == {"resolution": RES}
     assert rec["input"] == str(models / "spot.obj") and rec["outputs"][0].endswith(".raw")
-    assert {"input", "options", "status", "outputs", "error", "seconds", "time"} <= rec.keys()
+    assert {"input", "options", "status", "outputs", "error", "seconds", "inside_test",
+            "time"} <= rec.keys()
+    assert rec["inside_test"] == "parity"  # spot is closed
     with open(log, "a") as f:
         f.write('{"input": "cut sho')
     whole = convert_many([models], out, client=client, manifest=log, resolution=RES)
