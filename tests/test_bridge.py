@@ -20,12 +20,15 @@ import geovox
 from geovox.inside import bridge
 from geovox.inside import winding as inside
 from geovox.errors import GeovoxWarning
+from geovox.kernels import chosen
 
 from test_cap_winding import MESH, brute_winding_number
 
 DATA = Path(__file__).parent / "data"
+with chosen("auto"):
+    _BUILT = inside.winding_kernel() is not None
 KERNELS = ["numpy", pytest.param("compiled", marks=pytest.mark.skipif(
-    inside.winding_kernel("auto") is None, reason="the compiled winding kernel is not built"))]
+    not _BUILT, reason="the compiled winding kernel is not built"))]
 
 
 def all_triangulations(i, j):
