@@ -65,6 +65,10 @@ class LabelSet:
     overlap : str
         Which part a voxel inside several takes (:data:`OVERLAPS`; the
         option ``overlap``, which the plan sets here).
+    methods : tuple of str
+        Each part's inside test (``"parity"``, ``"vote"``, ``"winding"``),
+        chosen once by the plan (:func:`geovox.plan`) on the part alone;
+        empty for ``"material"``.
     """
 
     source: str
@@ -72,6 +76,7 @@ class LabelSet:
     face_label: np.ndarray
     colors: np.ndarray
     overlap: str = "last"
+    methods: tuple = ()
 
     @property
     def dtype(self):
@@ -392,9 +397,36 @@ class Classified:
     crossings: tuple
 
 
+def part_meshes(mesh: Mesh, lset: LabelSet) -> list:
+    """Each label's part of ``mesh`` (a Mesh of its faces), None for a label without faces.
+
+    By components, each part is one whole connected component: a single
+    piece, whose boxes cannot overlap, which its cache says (known without a
+    search). Other parts' pieces are found by ``inside.choose`` on the part
+    alone (linear in the part), cheaper than searching the whole mesh's
+    components first.
+    """
+    from .inside import winding
+
+    n = len(lset.names)
+    by_face = np.argsort(lset.face_label, kind="stable")
+    cuts = np.searchsorted(lset.face_label[by_face], np.arange(n + 1))
+    comp = lset.face_label if lset.source == "component" else None
+    comp_size = None if comp is None else np.bincount(comp)
+    parts = []
+    for k in range(n):
+        faces = by_face[cuts[k]:cuts[k + 1]]
+        part = part_mesh(mesh, faces, lset.names[k]) if len(faces) else None
+        if part is not None and comp is not None and comp_size[comp[faces[0]]] == len(faces) \
+                and not winding._non_manifold(part):
+            part._cache["overlap"] = False
+        parts.append(part)
+    return parts
+
+
 def classify(mesh: Mesh, grid, lset: LabelSet, *, cast_mesh, axis: int, jobs: int = 1,
-             inside: str = "auto", within=None) -> Classified:
-    """Each part by its own inside test on ``grid``, overlaps settled by ``lset.overlap``.
+             within=None) -> Classified:
+    """Each part by its own inside test (``lset.methods``, the plan's), overlaps by ``lset.overlap``.
 
     Parameters
     ----------
@@ -407,7 +439,7 @@ def classify(mesh: Mesh, grid, lset: LabelSet, *, cast_mesh, axis: int, jobs: in
     cast_mesh : callable
         ``cast_mesh(mesh, axis, on=grid) -> (Hits, Columns)`` on grid ``on``
         (rays from outside the mesh, see :func:`geovox.pipeline.ray_start`).
-    axis, jobs, inside
+    axis, jobs
         As for :func:`geovox.voxelize`.
     within : (Grid, (z0, z1)), optional
         The whole grid, where ``grid`` is its block ``z0 .. z1``. With rays
@@ -421,29 +453,10 @@ def classify(mesh: Mesh, grid, lset: LabelSet, *, cast_mesh, axis: int, jobs: in
     from . import inside as inside_tests
 
     n = len(lset.names)
-    by_face = np.argsort(lset.face_label, kind="stable")
-    cuts = np.searchsorted(lset.face_label[by_face], np.arange(n + 1))
-    parts, methods = [], []
-    # By components, each part is one whole connected component: a single piece, whose
-    # boxes cannot overlap (known without a search). Other parts' pieces are found by
-    # inside.choose on the part alone (linear in the part), cheaper than searching the
-    # whole mesh's components first.
-    comp = lset.face_label if lset.source == "component" else None
-    comp_size = None if comp is None else np.bincount(comp)
-    for k in range(n):
-        faces = by_face[cuts[k]:cuts[k + 1]]
-        part = part_mesh(mesh, faces, lset.names[k]) if len(faces) else None
-        parts.append(part)
-        if part is None:
-            methods.append("parity")
-            continue
-        if comp is not None and comp_size[comp[faces[0]]] == len(faces) and \
-                not inside_tests._non_manifold(part):
-            part._cache["overlap"] = False
-        with warnings.catch_warnings():
-            # A part's repair is its own business; the whole mesh's is said once.
-            warnings.simplefilter("ignore")
-            methods.append(inside_tests.choose(part, inside))
+    parts, methods = part_meshes(mesh, lset), list(lset.methods)
+    if len(methods) != n:
+        raise ValueError("classify needs the parts' inside tests the plan chooses "
+                         "(LabelSet.methods)")
     z0, frame = 0, grid
     if within is not None and axis == 2 and tuple(within[1]) != (0, within[0].shape[2]):
         frame, z0 = within[0], int(within[1][0])
@@ -540,7 +553,7 @@ def material_labels(mesh: Mesh, grid, occupancy: np.ndarray, lset: LabelSet, *, 
         return labels
 
     lo, spacing, z0 = frame
-    module = kernel_module(None)
+    module = kernel_module()
     if module is not None:
         # The compiled search answers into one triangle per voxel; the labels are read
         # from it in one step (nearest_inside would hand them back as voxel coordinates

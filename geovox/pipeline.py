@@ -326,7 +326,20 @@ def _label_set(m, o: Options, f):
 
         formats.check_labels(True, f)
     # The overlap rule travels with the labels (geovox.labels.paint_order reads it).
-    return dataclasses.replace(label_mod.label_set(m, o.labels), overlap=o.overlap)
+    lset = dataclasses.replace(label_mod.label_set(m, o.labels), overlap=o.overlap)
+    if lset.source == "material":
+        return lset
+    import warnings
+
+    from . import inside as inside_tests
+
+    methods = []
+    for part in label_mod.part_meshes(m, lset):
+        with warnings.catch_warnings():
+            # A part's repair is its own business; the whole mesh's is said once.
+            warnings.simplefilter("ignore")
+            methods.append("parity" if part is None else inside_tests.choose(part, o.inside))
+    return dataclasses.replace(lset, methods=tuple(methods))
 
 
 def _streamed_plan(m, base: dict, *, cluster, budget, slab, extra=0.0) -> Plan:
@@ -751,7 +764,6 @@ def voxelize_block(mesh, plan: Plan, block=None, *, buffers=None) -> Volume:
         # By parts: each part's own inside test, overlaps settled by the rule.
         classified = classify(m, grid, plan.labels, axis=plan.axis, jobs=plan.jobs,
                               cast_mesh=lambda mesh, ax, on=grid: _cast(mesh, plan, on, ax),
-                              inside=o.inside,
                               within=None if block is None else (plan.grid, block))
         if classified.crossings is not None:
             crossings[plan.axis] = classified.crossings

@@ -140,10 +140,7 @@ def test_code_lines_counts_after_the_docstring(source, lines):
 
 
 #: ``(function called, module) -> why`` a module other than the plan's calls it.
-DECIDED_ELSEWHERE = {
-    ("choose", "labels.py"): "by parts, each part's own inside test, chosen as the block "
-                             "classifies it (geovox.labels.classify)",
-}
+DECIDED_ELSEWHERE: dict = {}
 
 
 def test_the_grid_the_streaming_and_the_inside_test_are_decided_in_the_plan():
