@@ -29,7 +29,7 @@ import numpy as np
 
 from . import parity
 from .errors import MeshError, ParameterError, warn
-from .surface import Mesh
+from .mesh import Mesh
 
 #: Label sources, in the order the CLI lists them.
 SOURCES = ("part", "component", "material", "file")
@@ -205,7 +205,7 @@ def scene(sources, *, references: str = "anywhere") -> Mesh:
     InputNotFoundError
         A file does not exist.
     """
-    from .mesh import load_mesh
+    from .io.load import load_mesh
 
     meshes = []
     for s in sources:

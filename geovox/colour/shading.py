@@ -80,7 +80,7 @@ def load_textures(mesh, ambient=False) -> None:
     """
     from PIL import Image
 
-    from ..surface import texels
+    from ..mesh import texels
 
     if ambient:
         named = [m.name for m in mesh.materials if getattr(m, "ambient_map", None)]
@@ -135,7 +135,7 @@ def sample_bilinear(image: np.ndarray, uv: np.ndarray, wrap=("repeat", "repeat")
     wrap : (str, str)
         Wrap mode along u and along v: ``"repeat"``, ``"mirror"``,
         ``"clamp"`` or ``"border"`` (sampled as ``"clamp"``; see
-        :func:`on_texture` and :attr:`geovox.surface.Material.wrap`).
+        :func:`on_texture` and :attr:`geovox.mesh.Material.wrap`).
 
     Returns
     -------
