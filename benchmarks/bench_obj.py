@@ -59,7 +59,7 @@ def worker(reader, path):
         sys.path.insert(0, os.path.join(ROOT, "tests"))
         from test_obj import reference_read_obj as read
     elif reader == "load":
-        from geovox.mesh import load_mesh as read
+        from geovox.io.load import load_mesh as read
     else:
         from geovox.io.obj import read_obj as read
     wall, cpu = time.perf_counter(), time.process_time()

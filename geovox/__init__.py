@@ -38,7 +38,7 @@ _LAZY = {
     "convert_many": "batch",
     "Grid": "grid",
     "Mesh": "mesh",
-    "load_mesh": "mesh",
+    "load_mesh": "io.load",
     "available_backends": "backends",
     "usable_backends": "backends",
 }
@@ -72,7 +72,8 @@ __all__ = [
 #: old module path -> the module's path since the sub-packages (issue 21): both names
 #: are one module object, so `geovox.obj is geovox.io.obj` and a patch on either is seen by
 #: both. (`geovox.inside`, `geovox.colour` and `geovox.cli` are now the packages themselves,
-#: which show their modules' names, live: geovox/_forward.py.)
+#: which show their modules' names, live: geovox/_forward.py; `geovox.mesh`, once the loader
+#: and now the data model, shows the loader's names the same way.)
 _MOVED = {
     "geovox.obj": "geovox.io.obj",
     "geovox.gltf": "geovox.io.gltf",
@@ -81,6 +82,7 @@ _MOVED = {
     "geovox.references": "geovox.io.references",
     "geovox.repair": "geovox.inside.repair",
     "geovox.nearest": "geovox.colour.nearest",
+    "geovox.surface": "geovox.mesh",
 }
 
 

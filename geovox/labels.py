@@ -29,7 +29,7 @@ import numpy as np
 
 from . import parity
 from .errors import MeshError, ParameterError, warn
-from .surface import Mesh
+from .mesh import Mesh
 
 #: Label sources, in the order the CLI lists them.
 SOURCES = ("part", "component", "material", "file")
@@ -217,7 +217,7 @@ def scene(sources, options=None) -> Mesh:
     InputNotFoundError
         A file does not exist.
     """
-    from .mesh import load_mesh
+    from .io.load import load_mesh
 
     rule = "anywhere" if options is None else options.references
     meshes = []

@@ -377,7 +377,7 @@ def test_one_colour_over_the_whole_surface_needs_no_search(monkeypatch, kd):
     # An uncoloured mesh (the default grey) or one untextured material: every
     # inside voxel takes that colour at once, the same as the search gives.
     import geovox.colour.shading as C
-    from geovox.surface import Material
+    from geovox.mesh import Material
 
     box = trimesh.creation.icosphere(subdivisions=2)
     mesh = Mesh(vertices=np.asarray(box.vertices), faces=np.asarray(box.faces))

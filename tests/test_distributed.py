@@ -222,16 +222,16 @@ def test_a_worker_killed_mid_model_fails_that_model_after_retries(models, tmp_pa
     class DieOn(distributed.WorkerPlugin):
         # Defined here so that cloudpickle sends it by value to the workers.
         def setup(self, worker):
-            import geovox.mesh
+            import geovox.io.load
 
-            real = geovox.mesh.load_mesh
+            real = geovox.io.load.load_mesh
 
             def load(path, *args, **kwargs):
                 if os.path.basename(str(path)) == "die.obj":
                     os._exit(3)
                 return real(path, *args, **kwargs)
 
-            geovox.mesh.load_mesh = load
+            geovox.io.load.load_mesh = load
 
     with cluster_mod.client_from_options(local_cluster=2) as client:
         client.register_plugin(DieOn(), name="geovox-test-die")

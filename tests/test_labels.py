@@ -258,7 +258,7 @@ def test_uint16_above_255_labels():
 
 def die() -> Mesh:
     """A cube whose six faces each have their own material."""
-    from geovox.surface import Material
+    from geovox.mesh import Material
 
     box = trimesh.creation.box(extents=(2.0, 2.0, 2.0))
     normals = np.asarray(box.face_normals)

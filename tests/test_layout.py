@@ -2,8 +2,10 @@
 
 ``geovox.obj`` and the other moved modules are one module object under two names; the
 packages ``geovox.inside``, ``geovox.colour`` and ``geovox.cli`` show their main module's
-names live, and refuse a patch that their module's code would not see. Nothing is left at
-an old path, so git follows each move as a whole-file rename.
+names live, and refuse a patch that their module's code would not see. ``geovox.mesh``, the
+loader before it was the data model (the old ``geovox.surface``), shows the loader's names
+(``geovox.io.load``) the same way, importing the loader only when one is asked for. Nothing
+is left at an old path, so git follows each move as a whole-file rename.
 """
 
 import importlib
@@ -27,6 +29,7 @@ MOVED = {
     "geovox.references": "geovox.io.references",
     "geovox.repair": "geovox.inside.repair",
     "geovox.nearest": "geovox.colour.nearest",
+    "geovox.surface": "geovox.mesh",
 }
 #: module that became a package -> the module whose names the package shows
 PACKAGES = {
@@ -34,6 +37,8 @@ PACKAGES = {
     "geovox.colour": "geovox.colour.shading",
     "geovox.cli": "geovox.cli.commands",
 }
+#: the loader's names that code, tests, benchmarks and docs reached as geovox.mesh.X
+LOADER_NAMES = ["load_mesh", "readable_extensions", "from_trimesh", "_trimesh_load"]
 
 
 def test_the_alias_table_is_the_layout():
@@ -190,3 +195,98 @@ def test_relative_imports_in_the_sub_packages_name_real_modules(package):
             else:
                 assert importlib.util.find_spec(f"{parent}.{node.module}"), (
                     f"{where}: {'.' * node.level}{node.module} is not a module")
+
+
+def test_the_data_model_is_geovox_mesh_and_geovox_surface_is_it():
+    import geovox.io.load
+    import geovox.mesh
+    from geovox.surface import Material, Mesh, build_mesh, check_mesh, texels
+
+    assert geovox.mesh.__file__ == os.path.join(ROOT, "geovox", "mesh.py")
+    assert geovox.io.load.__file__ == os.path.join(ROOT, "geovox", "io", "load.py")
+    assert (Material, Mesh, build_mesh, check_mesh, texels) == (
+        geovox.mesh.Material, geovox.mesh.Mesh, geovox.mesh.build_mesh, geovox.mesh.check_mesh,
+        geovox.mesh.texels)
+    assert Mesh.__module__ == "geovox.mesh" and geovox.Mesh is Mesh
+    assert geovox.io.load.Mesh is Mesh  # the loader builds the data model's Mesh, not a copy
+
+
+@pytest.mark.parametrize("name", LOADER_NAMES)
+def test_geovox_mesh_still_gives_the_loaders_names(name):
+    import geovox.io
+    import geovox.io.load
+    import geovox.mesh
+
+    assert getattr(geovox.mesh, name) is getattr(geovox.io.load, name)
+    assert name in dir(geovox.mesh) and name not in vars(geovox.mesh)  # forwarded, not a copy
+    if not name.startswith("_"):
+        assert getattr(geovox.io, name) is getattr(geovox.io.load, name)
+
+
+def test_every_loader_name_is_reached_through_geovox_mesh():
+    import geovox.io.load
+    import geovox.mesh
+
+    for name in vars(geovox.io.load):
+        if not name.startswith("__"):
+            assert getattr(geovox.mesh, name) is getattr(geovox.io.load, name), name
+    from geovox.mesh import from_trimesh, load_mesh, readable_extensions
+
+    assert (load_mesh, from_trimesh, readable_extensions) == (
+        geovox.io.load.load_mesh, geovox.io.load.from_trimesh, geovox.io.load.readable_extensions)
+    assert geovox.load_mesh is load_mesh
+    with pytest.raises(AttributeError, match="'geovox.mesh' has no attribute 'not_a_name'"):
+        geovox.mesh.not_a_name  # noqa: B018
+
+
+def test_a_patch_of_the_loader_is_seen_through_geovox_mesh_and_by_the_pipeline(monkeypatch):
+    import geovox.io.load
+    import geovox.mesh
+
+    seen = []
+    real = geovox.io.load.load_mesh
+
+    def counting(*a, **k):
+        seen.append(a[0])
+        return real(*a, **k)
+
+    monkeypatch.setattr(geovox.io.load, "load_mesh", counting)
+    assert geovox.mesh.load_mesh is counting
+    path = os.path.join(ROOT, "data", "spot", "spot.obj")
+    geovox.voxelize(path, resolution=8)
+    # The pipeline reads the loader where the patch was set (a loaded Mesh handed on to a
+    # later stage's load_mesh passes through: only the path is a load).
+    assert [s for s in seen if not isinstance(s, geovox.Mesh)] == [path]
+    monkeypatch.undo()
+    assert geovox.mesh.load_mesh is real
+
+
+def test_a_patch_of_a_loader_name_on_geovox_mesh_is_refused(monkeypatch):
+    import geovox.mesh
+
+    before = geovox.mesh.load_mesh
+    with pytest.raises(AttributeError, match="set it there") as caught:
+        monkeypatch.setattr(geovox.mesh, "load_mesh", object())
+    assert "geovox.io.load.load_mesh" in str(caught.value)
+    monkeypatch.undo()
+    assert geovox.mesh.load_mesh is before and "load_mesh" not in vars(geovox.mesh)
+    monkeypatch.setattr(geovox.mesh, "WRAP_MODES", {})  # the data model's own: a plain patch
+    assert geovox.mesh.WRAP_MODES == {}
+
+
+def test_the_data_model_imports_without_the_loader():
+    # The loader imports the data model; the data model names the loader and imports it only
+    # when a loader name is asked for, so `from geovox.mesh import Mesh` (report, inside)
+    # stays light and there is no import cycle, in either order.
+    code = ("import sys\nimport geovox.mesh\n"
+            "assert 'geovox.io.load' not in sys.modules and 'geovox.io' not in sys.modules\n"
+            "from geovox.surface import Mesh\nassert Mesh is geovox.mesh.Mesh\n"
+            "assert 'geovox.io.load' not in sys.modules\n"
+            "f = geovox.mesh.load_mesh\nassert f is sys.modules['geovox.io.load'].load_mesh\n"
+            "print('ok')\n")
+    first_the_loader = "import geovox.io.load\nimport geovox.mesh\nprint('ok')\n"
+    env = dict(os.environ, PYTHONPATH=ROOT + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    for c in (code, first_the_loader):
+        out = subprocess.run([sys.executable, "-W", "error", "-c", c], capture_output=True,
+                             text=True, env=env, cwd=ROOT)
+        assert out.returncode == 0 and out.stdout.strip() == "ok", out.stderr

@@ -691,7 +691,7 @@ def test_map_kd_statements_written_any_way_find_their_file_and_values(tmp_path_f
         clamp = last.get("-clamp", ["off"])[0] == "on"
         assert m.wrap == (("border",) * 2 if clamp else ("repeat",) * 2)
 
-    from geovox.surface import Material
+    from geovox.mesh import Material
 
     check()
 
@@ -868,7 +868,7 @@ def test_ktx2_texture_is_not_read_and_says_so(tmp_path):
 
 
 def test_texels_of_other_pillow_modes():
-    from geovox.surface import texels
+    from geovox.mesh import texels
 
     rgba = Image.fromarray(np.array([[[200, 100, 50, 128]]], np.uint8), "RGBA")
     assert texels(rgba.convert("RGBa")).reshape(-1).tolist() in ([200, 100, 50], [199, 99, 49])

@@ -26,9 +26,8 @@ import geovox
 from geovox.colour import Shading, exact_colours, load_textures, shade
 from geovox.kernels import chosen
 from geovox.errors import GeovoxWarning, ParameterError
-from geovox.mesh import Mesh
+from geovox.mesh import Material, Mesh
 from geovox.nearest import brute_force, kernel_module, nearest_inside, prepare, run_kernel
-from geovox.surface import Material
 from geovox.stream import convert_to
 import geovox.formats as F
 

@@ -371,7 +371,7 @@ def test_no_hand_copied_signature_of_voxelize():
 
 def test_convert_to_loads_plans_and_chooses_once(tmp_path, monkeypatch):
     import geovox.inside.winding
-    import geovox.mesh
+    import geovox.io.load
     import geovox.pipeline
 
     calls = {"load": 0, "plan": 0, "choose": 0, "grid": 0}
@@ -385,7 +385,7 @@ def test_convert_to_loads_plans_and_chooses_once(tmp_path, monkeypatch):
 
     import geovox.stream
 
-    monkeypatch.setattr(geovox.mesh, "load_mesh", counting("load", geovox.mesh.load_mesh))
+    monkeypatch.setattr(geovox.io.load, "load_mesh", counting("load", geovox.io.load.load_mesh))
     monkeypatch.setattr(geovox.stream, "plan", counting("plan", geovox.stream.plan))
     monkeypatch.setattr(geovox.inside.winding, "choose", counting("choose", geovox.inside.winding.choose))
     monkeypatch.setattr(geovox.pipeline, "make_grid", counting("grid", geovox.pipeline.make_grid))

@@ -8,7 +8,7 @@ import trimesh
 
 import geovox
 from geovox.errors import MeshError
-from geovox.mesh import _trimesh_load
+from geovox.io.load import _trimesh_load
 from geovox.ply import read_plain_ply
 
 from conftest import corpus

@@ -663,7 +663,7 @@ def run_view(args) -> int:
         from ..errors import ParameterError
 
         raise ParameterError("--max-side is for --html")
-    from ..mesh import load_mesh
+    from ..io.load import load_mesh
     from ..view import LARGEST, show
 
     vol = _volume_or_mesh(args, args.input, LARGEST)

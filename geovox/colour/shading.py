@@ -96,7 +96,7 @@ def load_textures(mesh, shading: Shading = Shading()) -> None:
     """
     from PIL import Image
 
-    from ..surface import texels
+    from ..mesh import texels
 
     if shading.ambient:
         named = [m.name for m in mesh.materials if getattr(m, "ambient_map", None)]
@@ -160,7 +160,7 @@ def prefetch_textures(mesh):
     def read():
         from PIL import Image
 
-        from ..surface import texels
+        from ..mesh import texels
 
         for m in todo:
             try:
@@ -216,7 +216,7 @@ def sample_bilinear(image: np.ndarray, uv: np.ndarray, wrap=("repeat", "repeat")
     wrap : (str, str)
         Wrap mode along u and along v: ``"repeat"``, ``"mirror"``,
         ``"clamp"`` or ``"border"`` (sampled as ``"clamp"``; see
-        :func:`on_texture` and :attr:`geovox.surface.Material.wrap`).
+        :func:`on_texture` and :attr:`geovox.mesh.Material.wrap`).
 
     Returns
     -------

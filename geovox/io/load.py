@@ -13,11 +13,11 @@ import warnings
 
 import numpy as np
 
-from .errors import InputNotFoundError, MeshError
+from ..errors import InputNotFoundError, MeshError
 from .references import Refused, check_rule, locate, resolver, why_not_read
-# Mesh, Material and check_mesh are also public here, where they used to live.
-from .surface import (WRAP_MODES, Material, Mesh, build_mesh, check_mesh, texels,  # noqa: F401
-                      transform_uv)
+# Mesh, Material and check_mesh are also public here, as in the loader's old geovox/mesh.py.
+from ..mesh import (WRAP_MODES, Material, Mesh, build_mesh, check_mesh, texels,  # noqa: F401
+                    transform_uv)
 
 
 #: The diffuse colour trimesh gives a material the file does not colour.

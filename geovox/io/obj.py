@@ -43,7 +43,7 @@ import numpy as np
 from ..errors import MeshError
 from ..kernels import obj_text
 from .references import check_rule, instead, locate, why_not_read
-from ..surface import Material, Mesh, transform_uv
+from ..mesh import Material, Mesh, transform_uv
 
 # Texture map options of the MTL specification ("Options for texture map
 # statements") and the most arguments each takes.

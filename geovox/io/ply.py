@@ -5,7 +5,7 @@ such a file, importing trimesh costs more than reading it. :func:`read_plain_ply
 reads the common plain case itself -- a ``vertex`` element of ``x``, ``y``,
 ``z`` only and a ``face`` element of one vertex-index list, every face a
 triangle -- into the very :class:`~geovox.mesh.Mesh` the trimesh path
-(``trimesh.load(path, process=False)`` then :func:`geovox.mesh.from_trimesh`)
+(``trimesh.load(path, process=False)`` then :func:`geovox.io.load.from_trimesh`)
 makes: float64 vertices, int64 faces, no material (face_material -1), no UVs,
 no colours, no problems. Anything else (ASCII, colours, normals, UVs, other
 elements, polygons, indices out of range, a size that does not match the
