@@ -523,6 +523,25 @@ def label_counts(labels: np.ndarray, n: int) -> np.ndarray:
     return counts
 
 
+def _label_output(search, rgba: np.ndarray, lset: LabelSet) -> None:
+    """Let the compiled search write each voxel's label (its nearest face's) into ``rgba``.
+
+    Label value ``v`` is the constant colour with red byte ``v & 255`` and
+    green byte ``v >> 8`` (``add`` rows of exactly ``byte / 255``, no factor,
+    no texture: the kernel's rounding gives the bytes back), and the faces of
+    one label share one key, so the kernel's constant-colour cells apply.
+    """
+    n = len(lset.names)
+    values = np.arange(1, n + 1, dtype=np.int64)
+    add = np.zeros((n, 3))
+    add[:, 0], add[:, 1] = (values & 255) / 255.0, (values >> 8) / 255.0
+    search.colour_output(rgba, lset.face_label.astype(np.int32), None, None, np.zeros((n, 3)),
+                         add, np.zeros((n, 7), np.int32), np.zeros(n, np.int64),
+                         np.zeros(1, np.uint8))
+    search.same_colours(np.ascontiguousarray(lset.face_label, dtype=np.int64),
+                        values.astype(np.uint32) | np.uint32(255 << 24))
+
+
 def material_labels(mesh: Mesh, grid, occupancy: np.ndarray, lset: LabelSet, *, frame,
                     jobs: int = 1) -> np.ndarray:
     """Each inside voxel's label: the material of its exact nearest surface point.
@@ -555,16 +574,16 @@ def material_labels(mesh: Mesh, grid, occupancy: np.ndarray, lset: LabelSet, *, 
     lo, spacing, z0 = frame
     module = kernel_module()
     if module is not None:
-        # The compiled search answers into one triangle per voxel; the labels are read
-        # from it in one step (nearest_inside would hand them back as voxel coordinates
-        # in chunks, to be made linear indices again: 5-10 % of the labelled run).
-        tri = np.full(occupancy.size, -1, np.int32)
-        uv = np.zeros((occupancy.size, 2))
+        # The compiled search "shades" each voxel with its nearest face's label: every
+        # material is a constant colour whose red and green bytes are the label value,
+        # so cells whose candidates are all of one material take it without finishing
+        # the search (Kernel.same_colours, as exact colour does for constant colours),
+        # and the answer is 4 bytes a voxel, not the raw output's 20.
+        rgba = np.zeros(occupancy.size, np.uint32)
         run_kernel(module, mesh.triangles, occupancy, spacing, origin=lo, z0=z0, jobs=jobs,
-                   output=lambda k: k.raw_output(tri, uv))
-        del uv
+                   output=lambda k: _label_output(k, rgba, lset))
         inside = np.asarray(occupancy, bool).reshape(-1, order="F")
-        flat[inside] = value[tri[inside]]
+        flat[inside] = (rgba[inside] & np.uint32(0xFFFF)).astype(lset.dtype)
         return labels
 
     def emit(vox, tri, uv):

@@ -160,8 +160,8 @@ def test_kernel_default_reads_the_environment(monkeypatch):
 
 
 #: Every compiled kernel: the nearest-surface search, the lattice search and
-#: mesh checks, the caps' winding number.
-COMPILED = {"_nearest", "_lattice", "_winding"}
+#: mesh checks, the caps' winding number, the OBJ reader's numbers.
+COMPILED = {"_nearest", "_lattice", "_winding", "_objtext"}
 
 
 def _built():
@@ -216,9 +216,9 @@ def test_kernel_option_chooses_every_compiled_kernel(case, monkeypatch):
         assert (x is None) == (y is None) == (field == "colors" and "color" not in kw)
         if x is not None:
             assert x.dtype == y.dtype and x.shape == y.shape and x.tobytes() == y.tobytes()
-    # The lattice search always runs; the nearest search only for exact
-    # colour, the winding kernel only for the leaky model.
-    want = {"_lattice"} | ({"_nearest"} if kw.get("color") is True else set()) \
+    # The OBJ reading and the lattice search always run; the nearest search
+    # only for exact colour, the winding kernel only for the leaky model.
+    want = {"_objtext", "_lattice"} | ({"_nearest"} if kw.get("color") is True else set()) \
         | ({"_winding"} if case == "winding" else set())
     assert set(loaded) == want, loaded
     assert kernels._CHOICE.get() is None  # the choice ends with the conversion
