@@ -11,6 +11,7 @@ import trimesh
 import geovox
 from geovox import backends
 from geovox.errors import BackendUnavailableError, ParameterError
+from geovox.pipeline import ray_start
 
 from conftest import SPOT, corpus, from_tm
 
@@ -296,7 +297,7 @@ def test_fans_flagged_where_they_overlap(monkeypatch):
     assert sum(g.any() for g in got) > 20
     for m, g in zip(meshes, got):
         grid = geovox.grid.make_grid(m.bounds, resolution=int(rng.integers(3, 30)))
-        columns = grid.columns(2, start=m.bounds[0, 2] - 1)
+        columns = grid.columns(2, start=ray_start(m, grid, 2))
         lattice = E.coplanar_overlaps(m, columns)
         assert not (_seen_hiding(m, columns) & ~lattice).any()
         assert not (lattice & ~g).any()

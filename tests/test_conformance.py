@@ -23,6 +23,7 @@ from geovox.backends import REGISTRY, backend_report, get_backend
 from geovox.errors import GeovoxWarning
 from geovox.grid import make_grid
 from geovox.pipeline import voxelize_block
+from geovox.pipeline import ray_start
 
 from conftest import SPOT, box_mesh, from_tm, reference_occupancy
 from test_backends import t_junction_box
@@ -44,7 +45,7 @@ def engine(request):
 
 
 def _cast(mesh, grid, engine, axis):
-    columns = grid.columns(axis, start=mesh.bounds[0, axis] - 1.0)
+    columns = grid.columns(axis, start=ray_start(mesh, grid, axis))
     return columns, get_backend(engine).cast(mesh, columns)
 
 

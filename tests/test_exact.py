@@ -17,12 +17,13 @@ import geovox
 from geovox.backends import get_backend
 from geovox.exact import Projection
 from geovox.grid import make_grid
+from geovox.pipeline import ray_start
 
 from conftest import box_mesh, from_tm, reference_occupancy
 
 
 def _crossings_per_column(mesh, grid, backend, axis):
-    columns = grid.columns(axis, start=mesh.bounds[0, axis] - 1.0)
+    columns = grid.columns(axis, start=ray_start(mesh, grid, axis))
     hits = get_backend(backend).cast(mesh, columns)
     return np.bincount(hits.ray, minlength=columns.count), hits
 
@@ -242,7 +243,7 @@ def _lattices(mesh, rng, count):
             grid = make_grid(mesh.bounds, bounds=np.r_[lo, lo + shape], shape=tuple(shape))
         else:
             grid = make_grid(mesh.bounds, resolution=int(rng.integers(1, 25)))
-        yield grid.columns(axis, start=mesh.bounds[0, axis] - 1)
+        yield grid.columns(axis, start=ray_start(mesh, grid, axis))
 
 
 def _seen_hiding(mesh, columns):
@@ -339,7 +340,7 @@ def test_column_entries_hold_every_crossing(res, axis):
 
     mesh = geovox.load_mesh(SPOT)
     grid = make_grid(mesh.bounds, resolution=res)
-    columns = grid.columns(axis, start=mesh.bounds[0, axis] - 1)
+    columns = grid.columns(axis, start=ray_start(mesh, grid, axis))
     proj = Projection(mesh.triangles, columns)
     i0, i1, j0, j1 = E.reach(mesh, columns)
     assert np.all((i0[proj.tri] <= proj.imin) & (proj.imax <= i1[proj.tri]))
@@ -404,7 +405,7 @@ def test_coarse_lattice_scene_holds_only_the_triangles_near_its_rays():
     mesh = geovox.load_mesh(SPOT)
     for res, whole in ((9, False), (200, True)):
         grid = make_grid(mesh.bounds, resolution=res)
-        _, faces, _ = embree.setup(mesh, grid.columns(2, start=mesh.bounds[0, 2] - 1))
+        _, faces, _ = embree.setup(mesh, grid.columns(2, start=ray_start(mesh, grid, 2)))
         assert (faces is None) == whole
         if not whole:
             assert 0 < len(faces) < len(mesh.faces) / 2

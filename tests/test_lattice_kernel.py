@@ -90,7 +90,7 @@ def _assert_same(a, b):
 def test_compiled_scan_is_the_numpy_scan_on_edges_and_vertices(name, mesh, bounds, n, axis, kernel,
                                                                monkeypatch):
     grid = make_grid(mesh.bounds, bounds=bounds, resolution=n)
-    proj = Projection(mesh.triangles, grid.columns(axis, start=mesh.bounds[0, axis] - 1.0))
+    proj = Projection(mesh.triangles, grid.columns(axis, start=ray_start(mesh, grid, axis)))
     a, b = _both(proj, monkeypatch)
     assert len(a) > 0
     _assert_same(a, b)
@@ -132,7 +132,7 @@ def test_triangles_that_enclose_no_column_centre_are_not_active():
     s = trimesh.creation.icosphere(subdivisions=5, radius=3.0)
     mesh = from_tm(s, "ico5")
     grid = make_grid(mesh.bounds, resolution=8)
-    columns = grid.columns(2, start=mesh.bounds[0, 2] - 1.0)
+    columns = grid.columns(2, start=ray_start(mesh, grid, 2))
     proj = Projection(mesh.triangles, columns)
     assert 0 < len(proj) < len(mesh.faces) // 10
     # Every triangle left out has no column centre in its closed box (in
@@ -265,7 +265,7 @@ PROJECTION = ("tri", "imin", "imax", "jmin", "jmax", "coef", "tie", "area", "edg
 def test_projection_is_the_same_with_either_kernel(name, mesh, bounds, n, kernel, monkeypatch):
     grid = make_grid(mesh.bounds, bounds=bounds, resolution=n)
     for axis in range(3):
-        columns = grid.columns(axis, start=mesh.bounds[0, axis] - 1.0)
+        columns = grid.columns(axis, start=ray_start(mesh, grid, axis))
         got = {}
         for k in ("numpy", "compiled"):
             monkeypatch.setenv("GEOVOX_KERNEL", k)

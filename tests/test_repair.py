@@ -14,6 +14,7 @@ import geovox
 from geovox.inside import winding as inside
 from geovox.errors import GeovoxWarning, GridTooLargeError
 from geovox.repair import repair
+from geovox.pipeline import ray_start
 
 from conftest import box_mesh, from_tm
 
@@ -194,7 +195,7 @@ def test_crossings_of_the_copy_are_crossings_of_the_original_triangles():
     bad, _ = flipped(sphere(2), seed=3)
     rep = repair(bad)
     grid = geovox.grid.make_grid(bad.bounds, resolution=12)
-    cols = grid.columns(2, start=float(bad.bounds[0, 2]) - 1)
+    cols = grid.columns(2, start=ray_start(bad, grid, 2))
     hits = NumpyBackend().cast(rep.mesh, cols)
     mapped = rep.original_hits(hits)
 

@@ -20,6 +20,7 @@ from geovox.errors import BackendUnavailableError, GeovoxWarning
 from geovox.exact import Projection
 from geovox.grid import Grid, make_grid
 from geovox.mesh import Mesh
+from geovox.pipeline import ray_start
 
 from conftest import SPOT, box_mesh, corpus, from_tm
 from test_backends import CLOSED_CORPUS, SYNTHETIC, t_junction_box
@@ -163,7 +164,7 @@ def test_small_chunks_give_the_same_crossings(gpu, monkeypatch):
     # across calls of different sizes.
     mesh = geovox.load_mesh(SPOT)
     grid = make_grid(mesh.bounds, resolution=70)
-    cols = grid.columns(0, start=mesh.bounds[0, 0] - 1)
+    cols = grid.columns(0, start=ray_start(mesh, grid, 0))
     proj = Projection(mesh.triangles, cols)
     many = W.search(proj, max_hits=1000)
     np.testing.assert_array_equal(W.search(proj), many)
@@ -174,7 +175,7 @@ def test_small_chunks_give_the_same_crossings(gpu, monkeypatch):
 def test_hits_equal_the_numpy_backend_bit_for_bit(gpu, axis):
     mesh = geovox.load_mesh(SPOT)
     grid = make_grid(mesh.bounds, resolution=57)
-    cols = grid.columns(axis, start=mesh.bounds[0, axis] - 1)
+    cols = grid.columns(axis, start=ray_start(mesh, grid, axis))
     _same_hits(gpu.cast(mesh, cols, jobs=2), get_backend("numpy").cast(mesh, cols))
 
 
@@ -185,7 +186,7 @@ def test_casts_from_several_threads(gpu):
 
     mesh = geovox.load_mesh(SPOT)
     grid = make_grid(mesh.bounds, resolution=45)
-    cols = [grid.columns(a, start=mesh.bounds[0, a] - 1) for a in (0, 1, 2, 0, 1, 2)]
+    cols = [grid.columns(a, start=ray_start(mesh, grid, a)) for a in (0, 1, 2, 0, 1, 2)]
     with ThreadPoolExecutor(max_workers=3) as pool:
         got = list(pool.map(lambda c: gpu.cast(mesh, c, jobs=2), cols))
     for c, hits in zip(cols, got):
@@ -195,7 +196,7 @@ def test_casts_from_several_threads(gpu):
 def test_crossings_come_in_the_same_order_every_run(gpu):
     mesh = geovox.load_mesh(SPOT)
     grid = make_grid(mesh.bounds, resolution=64)
-    cols = grid.columns(2, start=mesh.bounds[0, 2] - 1)
+    cols = grid.columns(2, start=ray_start(mesh, grid, 2))
     proj = Projection(mesh.triangles, cols)
     first = W.search(proj)
     np.testing.assert_array_equal(first, W.search(proj))
