@@ -239,7 +239,8 @@ def _convert_one(task) -> Result:
                 else:
                     os.makedirs(out_dir, exist_ok=True)  # a worker of a shared file system
                     local = target
-                report = run(mesh, plan(mesh, options, local),
+                # The grid that named the file, not a second one made by the plan.
+                report = run(mesh, plan(mesh, options, local, grid=grid),
                              write_options=task["write_options"])
                 written = [local] + [f for f in report.files if f != local]
                 outputs = _upload(written, local, out_dir) if remote else written
