@@ -361,12 +361,10 @@ def _read_manifest(path) -> dict:
 
 def _submit_local(tasks, workers, on_result):
     if workers > 1 and len(tasks) > 1:
-        from concurrent.futures import ProcessPoolExecutor, as_completed
+        from . import pool
 
-        with ProcessPoolExecutor(max_workers=min(workers, len(tasks))) as pool:
-            futures = {pool.submit(_convert_one, t): i for i, t in enumerate(tasks)}
-            for f in as_completed(futures):
-                on_result(futures[f], f.result())
+        # Workers that import before their first model.
+        pool.run(tasks, workers, on_result)
     else:
         for i, t in enumerate(tasks):
             on_result(i, _convert_one(t))
