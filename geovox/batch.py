@@ -363,7 +363,7 @@ def _submit_local(tasks, workers, on_result):
     if workers > 1 and len(tasks) > 1:
         from . import pool
 
-        # Workers that import before their first model.
+        # Workers that import before their first model and end with the batch.
         pool.run(tasks, workers, on_result)
     else:
         for i, t in enumerate(tasks):
@@ -576,11 +576,28 @@ def convert_many(inputs, out, *, client=None, fmt=None, overwrite=False, workers
         if client is not None:
             _submit_dask(client, sub, retries, on_result)
         else:
-            _submit_local(sub, workers, on_result)
+            from .pool import sigterm_raises
+
+            with sigterm_raises():  # the models in this process unwind too
+                _submit_local(sub, workers, on_result)
+    except KeyboardInterrupt as exc:  # SIGINT, or SIGTERM (geovox.pool.Stopped)
+        raise _stopped(exc, results) from None
     finally:
         if log is not None:
             log.close()
     return results
+
+
+def _stopped(exc, results):
+    """The :class:`geovox.pool.Stopped` that says how far a stopped batch got."""
+    import signal
+
+    from .pool import Stopped, signal_name
+
+    signum = getattr(exc, "signum", signal.SIGINT)
+    done = sum(r is not None for r in results)
+    return Stopped(signum, f"stopped by {signal_name(signum)}: {done} of {len(results)} models "
+                           f"done, no partial file left (the same command converts the rest)")
 
 
 def _workers(workers, jobs) -> int:
