@@ -581,15 +581,19 @@ def convert_many(inputs, out, *, client=None, fmt=None, overwrite=False, workers
             with sigterm_raises():  # the models in this process unwind too
                 _submit_local(sub, workers, on_result)
     except KeyboardInterrupt as exc:  # SIGINT, or SIGTERM (geovox.pool.Stopped)
-        raise _stopped(exc, results) from None
+        raise _stopped(exc, results, local=client is None) from None
     finally:
         if log is not None:
             log.close()
     return results
 
 
-def _stopped(exc, results):
-    """The :class:`geovox.pool.Stopped` that says how far a stopped batch got."""
+def _stopped(exc, results, local=True):
+    """The :class:`geovox.pool.Stopped` that says how far a stopped batch got.
+
+    Only local models are known to leave no partial file: a Dask worker is
+    ended by its nanny, not unwound.
+    """
     import signal
 
     from .pool import Stopped, signal_name
@@ -597,7 +601,8 @@ def _stopped(exc, results):
     signum = getattr(exc, "signum", signal.SIGINT)
     done = sum(r is not None for r in results)
     return Stopped(signum, f"stopped by {signal_name(signum)}: {done} of {len(results)} models "
-                           f"done, no partial file left (the same command converts the rest)")
+                           f"done{', no partial file left' if local else ''} (the same command "
+                           f"converts the rest)")
 
 
 def _workers(workers, jobs) -> int:

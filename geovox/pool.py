@@ -214,6 +214,26 @@ def run(tasks, workers: int, on_result) -> None:
 
 def _stop(pool) -> None:
     """End every worker: SIGTERM (each unwinds its model), SIGKILL after :data:`GRACE` s."""
+    # A second Ctrl-C or SIGTERM must not cut the clean-up short.
+    with _ignoring(signal.SIGINT, signal.SIGTERM):
+        _end(pool)
+
+
+@contextlib.contextmanager
+def _ignoring(*signums):
+    """The signals ignored within the block (in the main thread; elsewhere nothing changes)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    old = {s: signal.signal(s, signal.SIG_IGN) for s in signums}
+    try:
+        yield
+    finally:
+        for s, handler in old.items():
+            signal.signal(s, handler)
+
+
+def _end(pool) -> None:
     # The executor keeps its processes in a private dict; nothing public lists them.
     processes = list((getattr(pool, "_processes", None) or {}).values())
     pool.shutdown(wait=False, cancel_futures=True)
