@@ -239,7 +239,8 @@ def _convert_one(task) -> Result:
                 else:
                     os.makedirs(out_dir, exist_ok=True)  # a worker of a shared file system
                     local = target
-                report = run(mesh, plan(mesh, options, local),
+                # The grid that named the file, not a second one made by the plan.
+                report = run(mesh, plan(mesh, options, local, grid=grid),
                              write_options=task["write_options"])
                 written = [local] + [f for f in report.files if f != local]
                 outputs = _upload(written, local, out_dir) if remote else written
@@ -360,12 +361,10 @@ def _read_manifest(path) -> dict:
 
 def _submit_local(tasks, workers, on_result):
     if workers > 1 and len(tasks) > 1:
-        from concurrent.futures import ProcessPoolExecutor, as_completed
+        from . import pool
 
-        with ProcessPoolExecutor(max_workers=min(workers, len(tasks))) as pool:
-            futures = {pool.submit(_convert_one, t): i for i, t in enumerate(tasks)}
-            for f in as_completed(futures):
-                on_result(futures[f], f.result())
+        # Workers that import before their first model and end with the batch.
+        pool.run(tasks, workers, on_result)
     else:
         for i, t in enumerate(tasks):
             on_result(i, _convert_one(t))
@@ -577,11 +576,33 @@ def convert_many(inputs, out, *, client=None, fmt=None, overwrite=False, workers
         if client is not None:
             _submit_dask(client, sub, retries, on_result)
         else:
-            _submit_local(sub, workers, on_result)
+            from .pool import sigterm_raises
+
+            with sigterm_raises():  # the models in this process unwind too
+                _submit_local(sub, workers, on_result)
+    except KeyboardInterrupt as exc:  # SIGINT, or SIGTERM (geovox.pool.Stopped)
+        raise _stopped(exc, results, local=client is None) from None
     finally:
         if log is not None:
             log.close()
     return results
+
+
+def _stopped(exc, results, local=True):
+    """The :class:`geovox.pool.Stopped` that says how far a stopped batch got.
+
+    Only local models are known to leave no partial file: a Dask worker is
+    ended by its nanny, not unwound.
+    """
+    import signal
+
+    from .pool import Stopped, signal_name
+
+    signum = getattr(exc, "signum", signal.SIGINT)
+    done = sum(r is not None for r in results)
+    return Stopped(signum, f"stopped by {signal_name(signum)}: {done} of {len(results)} models "
+                           f"done{', no partial file left' if local else ''} (the same command "
+                           f"converts the rest)")
 
 
 def _workers(workers, jobs) -> int:

@@ -38,11 +38,15 @@ EXTRA_HINT = "pip install 'geovox[distributed]'"
 #: workers start without Dask's ``MALLOC_TRIM_THRESHOLD_=65536``, which
 #: returns freed memory to the system so eagerly that the corpus's slow
 #: models took twice the wall time (5.7 s of system time instead of 1.2 s,
-#: measured; see benchmarks/results/history.md).
+#: measured; see benchmarks/results/history.md). A model that has waited
+#: 120 s with no worker alive fails (then geovox's ``retries`` decide): a
+#: local worker whose restart failed (its nanny gives up) never comes back,
+#: and the batch would otherwise wait for it for ever.
 LOCAL_CLUSTER_CONFIG = {
     "distributed.scheduler.allowed-failures": 0,
     "distributed.scheduler.worker-saturation": 1.0,
     "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None,
+    "distributed.scheduler.no-workers-timeout": "120s",
 }
 
 

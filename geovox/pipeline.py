@@ -210,7 +210,7 @@ def as_options(options=None, **kw) -> Options:
 
 
 def plan(mesh, options=None, path=None, *, fmt=None, stream=None, cluster=False, budget=None,
-         slab=None) -> Plan:
+         slab=None, grid=None) -> Plan:
     """Take every decision of one conversion once.
 
     Parameters
@@ -234,6 +234,10 @@ def plan(mesh, options=None, path=None, *, fmt=None, stream=None, cluster=False,
         Bytes one slab's arrays may take (default: :func:`geovox.stream.slab_budget`).
     slab : int, optional
         ``.zarr`` only: slab thickness, a multiple of 64.
+    grid : Grid, optional
+        The grid :func:`grid_of` already made for this mesh, options and
+        format (a batch names its file after the grid's shape before it
+        plans); without it, or with ``like``, the plan makes its own.
 
     Returns
     -------
@@ -250,10 +254,10 @@ def plan(mesh, options=None, path=None, *, fmt=None, stream=None, cluster=False,
     """
     o = as_options(options)
     with chosen(o.kernel):  # the inside test's mesh checks run compiled or not, as asked
-        return _plan(mesh, o, path, fmt, stream, cluster, budget, slab)
+        return _plan(mesh, o, path, fmt, stream, cluster, budget, slab, grid)
 
 
-def _plan(mesh, o: Options, path, fmt, stream, cluster, budget, slab) -> Plan:
+def _plan(mesh, o: Options, path, fmt, stream, cluster, budget, slab, grid=None) -> Plan:
     """:func:`plan`, with ``o`` validated."""
     from . import inside as inside_tests
     from .backends import get_backend
@@ -266,7 +270,7 @@ def _plan(mesh, o: Options, path, fmt, stream, cluster, budget, slab) -> Plan:
         from . import formats
 
         f = formats.format_for(path, fmt)
-    m, grid, used = _mesh_and_grid(m, o, f)
+    m, grid, used = _mesh_and_grid(m, o, f, grid)
     colour = colour_of(o.color)
     base = dict(options=o, grid=grid, backend=engine, colour=colour, jobs=resolve_jobs(o.jobs),
                 format=f, path=None if path is None else str(path), mesh_space=used)
@@ -296,8 +300,12 @@ def _plan(mesh, o: Options, path, fmt, stream, cluster, budget, slab) -> Plan:
     return p
 
 
-def _mesh_and_grid(m, o: Options, f):
-    """``(mesh, grid, mesh space)``: with ``like`` the mesh moved into the reference's frame."""
+def _mesh_and_grid(m, o: Options, f, made=None):
+    """``(mesh, grid, mesh space)``: with ``like`` the mesh moved into the reference's frame.
+
+    ``made``: the grid :func:`grid_of` gave already (not used with ``like``,
+    whose grid comes with the moved mesh).
+    """
     used = None
     if o.like is not None:
         from .reference import prepare
@@ -305,7 +313,7 @@ def _mesh_and_grid(m, o: Options, f):
         # The mesh moved into the reference's local frame, where its grid is axis-aligned.
         m, grid, used = prepare(m, o)
     else:
-        grid = grid_of(m, o, f)
+        grid = made if made is not None else grid_of(m, o, f)
     if f is not None:
         from . import formats
 

@@ -7,11 +7,13 @@ its worker. Outputs are compared byte for byte with the local path.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import shutil
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -214,37 +216,116 @@ def test_unknown_option_and_bad_retries_are_refused(models, tmp_path):
         convert_many([models], tmp_path, retries=-1)
 
 
-def test_a_worker_killed_mid_model_fails_that_model_after_retries(models, tmp_path):
-    """Worker processes; a task calls os._exit in the middle of one model."""
-    (models / "broken.obj").unlink()
-    shutil.copy(SPOT, models / "die.obj")
+#: The run of :func:`test_a_worker_killed_mid_model_fails_that_model_after_retries`, in a
+#: process of its own: a hung cluster there is killed, not left to hang the suite.
+KILLED_WORKER_RUN = """
+import faulthandler, json, os, sys
 
-    class DieOn(distributed.WorkerPlugin):
-        # Defined here so that cloudpickle sends it by value to the workers.
-        def setup(self, worker):
-            import geovox.io.load
+import distributed
 
-            real = geovox.io.load.load_mesh
+from geovox import cluster as cluster_mod
+from geovox.batch import convert_many
 
-            def load(path, *args, **kwargs):
-                if os.path.basename(str(path)) == "die.obj":
-                    os._exit(3)
-                return real(path, *args, **kwargs)
 
-            geovox.io.load.load_mesh = load
+class DieOn(distributed.WorkerPlugin):
+    # Defined in __main__ so that cloudpickle sends it by value to the workers.
+    def setup(self, worker):
+        import geovox.io.load
 
+        real = geovox.io.load.load_mesh
+
+        def load(path, *args, **kwargs):
+            if os.path.basename(str(path)) == "die.obj":
+                os._exit(3)
+            return real(path, *args, **kwargs)
+
+        geovox.io.load.load_mesh = load
+
+
+if __name__ == "__main__":
+    models, out, manifest, limit = sys.argv[1:5]
+    # Past the limit: every thread's stack on stderr (where it waits), then exit 1.
+    faulthandler.dump_traceback_later(float(limit), exit=True)
     with cluster_mod.client_from_options(local_cluster=2) as client:
         client.register_plugin(DieOn(), name="geovox-test-die")
-        results = convert_many([models], tmp_path / "out", client=client, retries=1,
-                               resolution=RES, manifest=tmp_path / "run.jsonl")
-    got = {os.path.basename(r.input): r for r in results}
-    assert [os.path.basename(r.input) for r in results] == ["die.obj", "fuze.obj", "spot.obj",
-                                                           "spot.obj"]
-    assert got["die.obj"].status == "failed"
-    assert "worker died" in got["die.obj"].error and "tried 2 times" in got["die.obj"].error
-    assert [r.status for r in results[1:]] == ["ok"] * 3, [r.error for r in results]
+        results = convert_many([models], out, client=client, retries=1, resolution=%d,
+                               manifest=manifest)
+    faulthandler.cancel_dump_traceback_later()
+    print(json.dumps([[os.path.basename(r.input), r.status, r.error] for r in results]))
+"""
+
+#: Seconds the killed-worker run may take (it takes 10-30 s; two restarts of a
+#: worker process under heavy load take longer, never this long).
+KILLED_WORKER_LIMIT = 240
+
+
+def test_a_worker_killed_mid_model_fails_that_model_after_retries(models, tmp_path):
+    """Worker processes; a task calls os._exit in the middle of one model.
+
+    The run is a process of its own with a bounded wait: a cluster that
+    stops answering fails this test with every thread's stack, instead of
+    hanging the suite.
+    """
+    import signal
+
+    (models / "broken.obj").unlink()
+    shutil.copy(SPOT, models / "die.obj")
+    script = tmp_path / "killed_worker.py"
+    script.write_text(KILLED_WORKER_RUN % RES)
+    env = dict(os.environ, PYTHONPATH=ROOT + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    env.pop("DASK_SCHEDULER_ADDRESS", None)
+    p = subprocess.Popen([sys.executable, str(script), str(models), str(tmp_path / "out"),
+                          str(tmp_path / "run.jsonl"), str(KILLED_WORKER_LIMIT)], cwd=ROOT,
+                         env=env, text=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                         start_new_session=True)
+    try:
+        out, err = p.communicate(timeout=KILLED_WORKER_LIMIT + 60)
+    except subprocess.TimeoutExpired:
+        out, err = "", "(no answer, even to faulthandler)"
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(p.pid, signal.SIGKILL)  # the cluster's nannies and workers with it
+        p.wait()
+    assert p.returncode == 0 and out.strip(), (
+        f"the run did not finish within {KILLED_WORKER_LIMIT} s (status {p.returncode}); "
+        f"where it waited:\n{err[-6000:]}")
+    results = json.loads(out.strip().splitlines()[-1])
+    got = {name: (status, error) for name, status, error in results}
+    assert [name for name, _, _ in results] == ["die.obj", "fuze.obj", "spot.obj", "spot.obj"]
+    assert got["die.obj"][0] == "failed"
+    assert "worker died" in got["die.obj"][1] and "tried 2 times" in got["die.obj"][1]
+    assert [status for _, status, _ in results[1:]] == ["ok"] * 3, results
     recs = [json.loads(x) for x in (tmp_path / "run.jsonl").read_text().splitlines()]
     assert sorted(r["status"] for r in recs) == ["failed", "ok", "ok", "ok"]
+
+
+def test_a_local_cluster_with_no_worker_left_fails_its_models_in_bounded_time(tmp_path,
+                                                                             monkeypatch):
+    """A local worker that never comes back (its nanny gave up) must not hang the batch."""
+    import threading
+
+    key = "distributed.scheduler.no-workers-timeout"
+    assert cluster_mod.LOCAL_CLUSTER_CONFIG.get(key) is not None  # a local cluster's own bound
+    monkeypatch.setitem(cluster_mod.LOCAL_CLUSTER_CONFIG, key, "2s")  # shortened for the test
+    done = {}
+    with cluster_mod.client_from_options(local_cluster=1) as client:
+        client.retire_workers(list(client.scheduler_info()["workers"]))  # closes its nanny too
+        deadline = time.monotonic() + 60
+        while client.nthreads() and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert not client.nthreads(), "the worker was not retired"
+
+        def batch():
+            done["results"] = convert_many([SPOT], tmp_path / "out", client=client, retries=1,
+                                           resolution=RES)
+
+        t = threading.Thread(target=batch, daemon=True)
+        t.start()
+        t.join(120)
+        assert not t.is_alive(), "the batch still waits for a worker after 120 s"
+    [r] = done["results"]
+    assert r.status == "failed" and "lost" in r.error and "tried 2 times" in r.error, r.error
+    assert not (tmp_path / "out").exists() or not os.listdir(tmp_path / "out")
 
 
 # --- bad set-ups: one line, exit status 2 -----------------------------------

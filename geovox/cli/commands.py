@@ -735,18 +735,27 @@ def main(argv=None) -> int:
     if args.command is None:
         parser.print_help()
         return EXIT_USAGE
+    from ..pool import sigterm_raises
+
     try:
-        return COMMANDS[args.command][1](args)
+        with sigterm_raises():  # SIGTERM unwinds as Ctrl-C does: no partial file, one line
+            return COMMANDS[args.command][1](args)
     except GeovoxError as exc:
         if args.debug:
             raise
         print(f"geovox: error: {exc}", file=sys.stderr)
         return EXIT_ERROR
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM (geovox.pool.Stopped)
         if args.debug:
             raise
-        print("geovox: interrupted; no output was written", file=sys.stderr)
-        return 130
+        import signal
+
+        signum = getattr(exc, "signum", signal.SIGINT)
+        said = getattr(exc, "message", "") or (
+            f"{'interrupted' if signum == signal.SIGINT else 'stopped by SIGTERM'}; no output "
+            f"was written")
+        print(f"geovox: {said}", file=sys.stderr)
+        return 128 + signum
     except MemoryError:
         if args.debug:
             raise

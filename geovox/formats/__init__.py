@@ -12,16 +12,24 @@ from __future__ import annotations
 import contextlib
 import errno
 import os
-from dataclasses import dataclass
-
 import numpy as np
 
 from ..errors import OutputError, ParameterError
 
 
-@dataclass(frozen=True)
+#: The parts of a format a :class:`Format` looks up in its module on first use.
+_PARTS = ("writer", "reader", "check", "slab_writer")
+
+
 class Format:
     """One output format of the registry (what ``geovox formats`` lists).
+
+    The writer's module is imported on first use of ``writer``, ``reader``,
+    ``check`` or ``slab_writer``, not with the registry: a ``.npy``
+    conversion imports none of the other writers (nor h5py, zarr, ...).
+    Each part is given as a callable or as ``"module:attribute"``, the module
+    relative to :mod:`geovox.formats`; a name is looked up at every use, so a
+    stand-in patched onto the module is the one called.
 
     Attributes
     ----------
@@ -36,30 +44,77 @@ class Format:
     reader : callable or None
         ``reader(path, **options) -> Volume``, where the format can be read back.
     check : callable or None
-        ``check(grid)``: raises ParameterError for a grid the format cannot hold.
+        ``check(grid)``: raises ParameterError for a grid the format cannot hold, before any work.
+    slab_writer : callable or None
+        ``slab_writer(path, meta, jobs, *, thick=None, client=None)``: a
+        :class:`SlabWriter` that takes the volume one z-slab at a time (None:
+        the format is written whole).
+    libraries : tuple of str
+        The packages the writer imports when it runs (``h5py``, ``zarr``, ...):
+        what :meth:`load` imports ahead of a first model.
     """
 
-    name: str
-    extensions: tuple
-    writer: object
-    description: str
-    reader: object = None
-    #: ``check(grid)``: raises ParameterError for a grid the format cannot hold, before any work.
-    check: object = None
-    #: ``slab_writer(path, meta, jobs, *, thick=None, client=None)``: a :class:`SlabWriter`
-    #: that takes the volume one z-slab at a time (None: the format is written whole).
-    slab_writer: object = None
+    __slots__ = ("name", "extensions", "description", "libraries", "_parts")
+
+    def __init__(self, name, extensions, writer, description="", reader=None, check=None,
+                 slab_writer=None, libraries=()):
+        self.name = name
+        self.extensions = tuple(e.lower() for e in extensions)
+        self.description = description
+        self.libraries = tuple(libraries)
+        self._parts = dict(writer=writer, reader=reader, check=check, slab_writer=slab_writer)
+
+    def _part(self, key):
+        ref = self._parts[key]
+        if not isinstance(ref, str):
+            return ref
+        import importlib
+
+        module, attr = ref.split(":")
+        return getattr(importlib.import_module("." + module, __name__), attr)
+
+    writer = property(lambda self: self._part("writer"))
+    reader = property(lambda self: self._part("reader"))
+    check = property(lambda self: self._part("check"))
+    slab_writer = property(lambda self: self._part("slab_writer"))
+
+    def load(self) -> None:
+        """Import the writer's module and the packages it uses (those installed).
+
+        A batch's pool workers call it before their first model, so that the
+        model's time is its own work, not the imports.
+        """
+        import importlib
+
+        for key in _PARTS:
+            self._part(key)
+        for lib in self.libraries:
+            try:
+                importlib.import_module(lib)
+            except ImportError:  # the writer says what to install when it runs
+                pass
+
+    def __eq__(self, other):
+        return isinstance(other, Format) and (self.name, self.extensions) == (other.name,
+                                                                              other.extensions)
+
+    def __hash__(self):
+        return hash((self.name, self.extensions))
+
+    def __repr__(self):
+        return f"Format(name={self.name!r}, extensions={self.extensions!r})"
 
 
 _FORMATS: dict = {}
 
 
 def register_format(name, extensions, writer, description="", reader=None, check=None,
-                    slab_writer=None):
+                    slab_writer=None, libraries=()):
     """Register ``writer`` for the given extensions (with dot), with an optional ``reader``,
-    grid ``check`` and ``slab_writer`` (for slab-by-slab conversions)."""
-    _FORMATS[name] = Format(name, tuple(e.lower() for e in extensions), writer, description, reader,
-                            check, slab_writer)
+    grid ``check``, ``slab_writer`` (for slab-by-slab conversions) and the ``libraries``
+    it imports; each part a callable or ``"module:attribute"`` (imported on first use)."""
+    _FORMATS[name] = Format(name, extensions, writer, description, reader, check, slab_writer,
+                            libraries)
 
 
 def formats() -> list:
@@ -408,59 +463,76 @@ def check_labels(volume, f) -> None:
             f".nii.gz, .h5, .vtkhdf, .npz, .raw, .vox or .zarr")
 
 
-from . import binvox, hdf5, nifti, nrrd, numpy_files, raw, seg_nrrd, vdb, vox, vtkhdf  # noqa: E402
-# (imported for registration)
-from . import zarr as zarr_format  # noqa: E402  (registration)
+def _slabs(ref: str):
+    """The slab writer of a format whose writer class (``"module:Class"``) takes
+    ``(path, meta, jobs)``; the class is looked up when a slab writer is made."""
+    module, cls = ref.split(":")
 
-
-def _slabs(cls):
-    """The slab writer of a format whose writer class takes ``(path, meta, jobs)``."""
     def make(path, meta, jobs, *, thick=None, client=None):
-        return cls(path, meta, jobs)
+        import importlib
 
-    make.__name__ = make.__qualname__ = f"slab_writer_{cls.__name__}"
+        return getattr(importlib.import_module("." + module, __name__), cls)(path, meta, jobs)
+
+    make.__name__ = make.__qualname__ = f"slab_writer_{cls}"
     return make
 
 
+def __getattr__(name):
+    """The writer modules as attributes (``formats.raw``), imported on first use."""
+    import importlib
 
-register_format("raw", (".raw",), raw.write_raw,
+    if name == "zarr_format":
+        return importlib.import_module(".zarr", __name__)
+    if name in _MODULES:
+        return importlib.import_module("." + name, __name__)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+#: The writers' modules, imported only when their format is used.
+_MODULES = ("binvox", "hdf5", "nifti", "nrrd", "numpy_files", "raw", "seg_nrrd", "vdb", "vox",
+            "vtkhdf", "zarr")
+
+register_format("raw", (".raw",), "raw:write_raw",
                 "headerless uint8 (0/255), x fastest; .json sidecar, .mhd and .nhdr headers",
-                reader=raw.read_raw_volume, slab_writer=_slabs(raw.RawWriter))
-register_format("hdf5", (".h5", ".hdf5"), hdf5.write_hdf5,
+                reader="raw:read_raw_volume", slab_writer=_slabs("raw:RawWriter"))
+register_format("hdf5", (".h5", ".hdf5"), "hdf5:write_hdf5",
                 "HDF5: `occupancy`/`color` [x, y, z] datasets plus a VTK-HDF ImageData group",
-                reader=hdf5.read_hdf5, slab_writer=_slabs(hdf5.HDF5Writer))
-register_format("vtkhdf", (".vtkhdf", ".hdf"), vtkhdf.write_vtkhdf,
+                reader="hdf5:read_hdf5", slab_writer=_slabs("hdf5:HDF5Writer"),
+                libraries=("h5py",))
+register_format("vtkhdf", (".vtkhdf", ".hdf"), "vtkhdf:write_vtkhdf",
                 "VTK-HDF 1.0 ImageData for ParaView (opens by name): occupancy, color, density, sdf",
-                reader=vtkhdf.read_vtkhdf, slab_writer=_slabs(vtkhdf.VTKHDFWriter))
-register_format("seg_nrrd", (".seg.nrrd",), seg_nrrd.write_seg_nrrd,
+                reader="vtkhdf:read_vtkhdf", slab_writer=_slabs("vtkhdf:VTKHDFWriter"),
+                libraries=("h5py",))
+register_format("seg_nrrd", (".seg.nrrd",), "seg_nrrd:write_seg_nrrd",
                 "3D Slicer segmentation: the labels (--labels) as named, coloured segments",
-                reader=seg_nrrd.read_seg_nrrd, slab_writer=_slabs(seg_nrrd.SegNrrdWriter))
-register_format("nrrd", (".nrrd",), nrrd.write_nrrd,
+                reader="seg_nrrd:read_seg_nrrd", slab_writer=_slabs("seg_nrrd:SegNrrdWriter"),
+                libraries=("scipy.ndimage",))
+register_format("nrrd", (".nrrd",), "nrrd:write_nrrd",
                 "single-file NRRD (gzip), uint8 0/255; colour in NAME_rgba.nrrd",
-                reader=nrrd.read_nrrd)
-register_format("npy", (".npy",), numpy_files.write_npy, "NumPy array [x, y, z], uint8 0/1",
-                reader=numpy_files.read_npy)
-register_format("npz", (".npz",), numpy_files.write_npz,
+                reader="nrrd:read_nrrd")
+register_format("npy", (".npy",), "numpy_files:write_npy", "NumPy array [x, y, z], uint8 0/1",
+                reader="numpy_files:read_npy")
+register_format("npz", (".npz",), "numpy_files:write_npz",
                 "NumPy archive: occupancy (bits with --pack-bits), colors, spacing, bounds, origin",
-                reader=numpy_files.read_npz)
-register_format("binvox", (".binvox",), binvox.write_binvox,
+                reader="numpy_files:read_npz")
+register_format("binvox", (".binvox",), "binvox:write_binvox",
                 "binvox (ShapeNet, 3D-R2N2, ONet): -r N is binvox -d N (N³ cube over the longest "
                 "side; --cube-center: -cb); --voxel-size grids padded to a cube",
-                reader=binvox.read_binvox, check=binvox.check_grid)
-register_format("vdb", (".vdb",), vdb.write_vdb,
+                reader="binvox:read_binvox", check="binvox:check_grid")
+register_format("vdb", (".vdb",), "vdb:write_vdb",
                 "OpenVDB for Blender/Houdini: density (fog), color (vec3s), sdf (level set) grids",
-                reader=vdb.read_vdb)
-register_format("vox", (".vox",), vox.write_vox,
+                reader="vdb:read_vdb")
+register_format("vox", (".vox",), "vox:write_vox",
                 "MagicaVoxel: 256³ models in a scene graph, 255 quantised colours",
-                reader=vox.read_vox)
-register_format("zarr", (".zarr",), zarr_format.write_zarr,
+                reader="vox:read_vox", libraries=("PIL.Image",))
+register_format("zarr", (".zarr",), "zarr:write_zarr",
                 "OME-Zarr 0.5 (Zarr v3) multiscale image for napari, neuroglancer, Fiji, WEBKNOSSOS: "
                 "occupancy, color, density, sdf; written slab by slab, or on a Dask cluster",
-                reader=zarr_format.read_zarr, slab_writer=zarr_format.ZarrWriter)
-register_format("nifti", (".nii.gz", ".nii"), nifti.write_nifti,
+                reader="zarr:read_zarr", slab_writer="zarr:ZarrWriter", libraries=("zarr",))
+register_format("nifti", (".nii.gz", ".nii"), "nifti:write_nifti",
                 "NIfTI-1 for 3D Slicer, ITK-SNAP, FSL, nibabel: uint8 mask, sform = qform = the "
                 "grid's RAS affine (needs nibabel: the nifti extra)",
-                reader=nifti.read_nifti)
+                reader="nifti:read_nifti", libraries=("nibabel",))
 
 __all__ = ["register_format", "formats", "format_for", "write", "read", "read_volume",
            "is_volume_file", "atomic_output", "check_frame",
