@@ -29,8 +29,8 @@ from conftest import corpus
 
 MODELS = sorted(glob.glob(os.path.join(os.path.dirname(corpus("trimesh_stl", "README.md")), "*")))
 MODELS = [p for p in MODELS if p.lower().endswith(".stl")]
-#: trimesh's models that are left to trimesh: two solids each (a scene), one solid of no facets.
-LEFT = {"multibody.stl", "two_objects_mixed_case_names.stl", "empty.stl"}
+#: trimesh's model that is left to trimesh: one solid of no facets.
+LEFT = {"empty.stl"}
 
 
 def _same(a, b):
@@ -110,17 +110,21 @@ def _binary(path, triangles, header=b"", count=None, tail=b"", attribute=0):
     return path
 
 
-def _ascii(path, triangles, name="sphere", fmt="{:.9e}", newline="\n", indent="  ", sep=" ",
-           upper=False, normal="0 0 1"):
+def _ascii(path, triangles, upper=False, **layout):
+    text = _ascii_text(triangles, **layout)
+    path.write_bytes((text.upper() if upper else text).encode())
+    return path
+
+
+def _ascii_text(triangles, name="sphere", fmt="{:.9e}", newline="\n", indent="  ", sep=" ",
+                normal="0 0 1"):
     lines = [f"solid {name}".rstrip()]
     for t in triangles:
         lines += [f"{indent}facet normal {normal}", f"{indent * 2}outer loop"]
         lines += [f"{indent * 3}vertex" + "".join(sep + fmt.format(float(c)) for c in p) for p in t]
         lines += [f"{indent * 2}endloop", f"{indent}endfacet"]
     lines.append(f"endsolid {name}".rstrip())
-    text = newline.join(lines) + newline
-    path.write_bytes((text.upper() if upper else text).encode())
-    return path
+    return newline.join(lines) + newline
 
 
 def test_binary_export_reads_as_trimesh_reads_it(tmp_path, sphere):
@@ -196,15 +200,52 @@ def test_ascii_export_and_surroundings(tmp_path, sphere):
         _as_trimesh_reads_it(path)
 
 
-def test_several_solids_are_left_to_trimesh(tmp_path, sphere):
+def _solid(name, triangles, fmt="{!r}"):
+    return _ascii_text(triangles, name=name, fmt=fmt)
+
+
+def test_several_solids_read_as_trimesh_reads_them(tmp_path, sphere):
     v, f = sphere
-    a = _ascii(tmp_path / "a.stl", v[f][:40], name="first").read_text()
-    b = _ascii(tmp_path / "b.stl", v[f][40:], name="second").read_text()
-    for name, body in {"two": a + b, "same_name": a + a, "upper": (a + b).upper()}.items():
+    t = v[f]
+    a, b, c = _solid("first", t[:40]), _solid("second", t[40:]), _solid("Third Body", t[:3])
+    bare = _solid("", t[:2])
+    cases = {
+        "two": a + b,
+        "three": a + b + c,
+        "same_name": a + a + a,
+        "upper": (a + b).upper(),
+        "no_names": bare + bare + bare,
+        "numbered_names": _solid("x_3", t[:2]) + _solid("x_3", t[2:4]) + _solid("x", t[4:6]),
+        "taken_number": _solid("geometry_1", t[:2]) + bare,
+        "empty_solid_between": a + "solid nothing\nendsolid nothing\n" + b,
+        "crlf": (a + b).replace("\n", "\r\n"),
+    }
+    for name, body in cases.items():
         path = tmp_path / f"{name}.stl"
         path.write_text(body)
-        mesh = _as_trimesh_reads_it(path, accepted=False)
-        assert len(mesh.parts) == 2  # trimesh's scene: one part each
+        mesh = _as_trimesh_reads_it(path)
+        assert len(mesh.parts) == body.lower().count("endsolid") - ("nothing" in body), name
+    # a sphere's shared corners are merged within each solid, not across solids
+    assert len(_as_trimesh_reads_it(tmp_path / "two.stl").vertices) < len(t) * 3
+
+
+def test_several_solids_merge_vertices_as_trimesh_does(tmp_path):
+    # corners equal to 8 decimals merge (the first one's coordinates kept), -0.0 and 0.0 too
+    tri = np.array([[[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]],
+                    [[-0.0, 0.0, 1e-9], [1.0 + 4e-9, 0.0, 0.0], [0.0, 0.0, 1.0]],
+                    [[0.0, 0.0, 6e-9], [1.0 + 6e-9, 0.0, 0.0], [0.0, 1.0 - 1e-12, 0.0]],
+                    [[0.5, 0.5, 0.5]] * 3])
+    path = tmp_path / "m.stl"
+    path.write_text(_solid("a", tri) + _solid("b", tri[::-1]))
+    mesh = _as_trimesh_reads_it(path)
+    assert len(mesh.vertices) < 2 * 12
+
+
+def test_solids_named_world_are_left_to_trimesh(tmp_path, sphere):
+    v, f = sphere
+    path = tmp_path / "w.stl"
+    path.write_text(_solid("world_1", v[f][:3]) + _solid("world", v[f][3:6]))
+    assert _as_trimesh_reads_it(path, accepted=False).parts == ["world_1", "world_2 (world)"]
 
 
 def test_damaged_and_odd_files_are_left_to_trimesh(tmp_path, sphere):
@@ -284,3 +325,24 @@ def test_property_any_triangles_read_as_trimesh_reads_them(tmp_path, triangles, 
     mesh = _as_trimesh_reads_it(path)
     if binary:
         assert np.array_equal(mesh.vertices, t.astype(np.float32).reshape(-1, 3))
+
+
+# Coordinates on a coarse grid, some nudged by less than the 8 decimals trimesh merges at,
+# so that corners of a solid often merge, and names that collide.
+_near = st.builds(lambda k, nudge: k * 0.25 + nudge, st.integers(-4, 4),
+                  st.sampled_from([0.0, -0.0, 3e-9, -4e-9, 6e-9, 1e-7]))
+_solid_strategy = st.tuples(st.sampled_from(["", "a", "a", "a_1", "b_2", "Body 1", "geometry_1"]),
+                            st.lists(st.lists(_near, min_size=9, max_size=9), min_size=1,
+                                     max_size=6))
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(solids=st.lists(_solid_strategy, min_size=1, max_size=4),
+       fmt=st.sampled_from(["{!r}", "{:.9e}", "{:.17g}"]), upper=st.booleans())
+def test_property_several_solids_read_as_trimesh_reads_them(tmp_path, solids, fmt, upper):
+    text = "".join(_solid(name, np.asarray(t, np.float64).reshape(-1, 3, 3), fmt)
+                   for name, t in solids)
+    path = tmp_path / "p.stl"
+    path.write_bytes((text.upper() if upper else text).encode())
+    mesh = _as_trimesh_reads_it(path)
+    assert len(mesh.parts) == (len(solids) if len(solids) > 1 else 0)

@@ -993,9 +993,9 @@ def load_mesh(source, *, references: str = "anywhere") -> Mesh:
     """Load a mesh from a path, a trimesh object, or pass a :class:`Mesh` through.
 
     OBJ files are read by :mod:`geovox.obj`, plain binary triangle PLY
-    files by :mod:`geovox.ply`, binary and one-solid ASCII STL files by
+    files by :mod:`geovox.ply`, STL files (binary and ASCII) by
     :mod:`geovox.io.stl`; everything else by trimesh
-    (other STL and PLY, OFF, glTF/GLB with Draco compression, 3MF, COLLADA, 3DXML,
+    (the other STL and PLY files, OFF, glTF/GLB with Draco compression, 3MF, COLLADA, 3DXML,
     zip and tar archives of these, ...).
 
     Parameters
@@ -1049,7 +1049,7 @@ def load_mesh(source, *, references: str = "anywhere") -> Mesh:
         if path.lower().endswith(".stl"):
             from .stl import read_stl
 
-            # A binary or one-solid ASCII STL without importing trimesh (the same Mesh).
+            # An STL without importing trimesh (the same Mesh).
             mesh = read_stl(path)
             if mesh is not None:
                 return mesh

@@ -7,7 +7,7 @@ exports; for such a file, importing trimesh costs more than reading it.
 process=False)`` then :func:`geovox.io.load.from_trimesh`) makes: float64
 vertices, three for each facet in file order (no vertex is merged), int64
 faces ``0, 1, 2, 3, ...``, no material (face_material -1), no UVs, no
-colours, no parts, no problems.
+colours, no problems, and no parts but for several ASCII solids (below).
 
 It follows trimesh's (5.2) ``trimesh/exchange/stl.py`` rule for telling the
 two kinds apart: a file is binary when its size is exactly 84 bytes plus 50
@@ -21,12 +21,16 @@ in order, three to a vertex and three vertices to a facet (the ``facet``,
 ``normal``, ``outer loop`` lines play no part). The reader takes the file
 only when each of those lines holds nothing but plain decimal numbers (any
 spacing, tabs, CRLF, upper-case keywords), so that trimesh could not read
-anything else out of it. Everything else returns None and trimesh reads it
-as before, with its messages: several solids holding facets (trimesh makes a
-scene of them, one part each, and merges each one's vertices), a binary file
-of no facets, a file of no solids, NaN or infinite coordinates, ``nan``,
-``inf`` or any other word in a vertex line, a number count that makes no
-whole triangles, text that is not UTF-8.
+anything else out of it. Several solids with facets are trimesh's scene of
+them: one part each, named as trimesh names them (the rest of the ``solid``
+line; ``name_1``, ``geometry_1``, ... where that is taken or empty), and each
+one's vertices merged as trimesh's processing merges them.
+
+Everything else returns None and trimesh reads it as before, with its
+messages: a binary file of no facets, a file of no solids with facets, NaN or
+infinite coordinates, ``nan``, ``inf`` or any other word in a vertex line, a
+number count that makes no whole triangles, text that is not UTF-8, solids
+named ``world...`` (trimesh's scene may rename their nodes).
 """
 
 from __future__ import annotations
@@ -61,7 +65,7 @@ def _binary(data: bytes):
 
 
 def _solids(text: str):
-    """The lower-cased text of each solid, as trimesh's ``load_stl_ascii`` cuts it, or None."""
+    """``[(start, lower-cased text)]`` of each solid, as trimesh's ``load_stl_ascii`` cuts it, or None."""
     lower = text.lower()
     solids, position = [], 0
     while True:
@@ -72,11 +76,30 @@ def _solids(text: str):
             return solids
         if start > end:
             return None  # trimesh: "`endsolid` precedes `solid`!"
-        solids.append(lower[start:end])
+        solids.append((start, lower[start:end]))
+
+
+def _unique_name(start: str, taken) -> str:
+    """trimesh's ``util.unique_name(start, taken)`` (5.2): ``name``, ``name_1``, ``geometry_1``, ..."""
+    if start and start not in taken:
+        return start
+    increment, formatter = 0, "geometry_{}"
+    if start:
+        formatter = start + "_{}"
+        split = start.rsplit("_", 1)
+        if len(split) == 2:
+            try:
+                increment, formatter = int(split[1]), split[0] + "_{}"
+            except ValueError:
+                pass
+    for i in range(increment + 1, 2 + increment + len(taken)):
+        if formatter.format(i) not in taken:
+            return formatter.format(i)
+    raise AssertionError("unreachable: more candidates than names taken")
 
 
 def _ascii(data: bytes):
-    """(n, 3) float64 vertices of a one-solid ASCII STL, or False when trimesh must read it."""
+    """``{name: (n, 3) float64 vertices}`` of each solid with facets, or False (trimesh reads it)."""
     try:
         text = data.decode("utf-8").strip()
     except UnicodeDecodeError:
@@ -84,8 +107,8 @@ def _ascii(data: bytes):
     solids = _solids(text)
     if solids is None:
         return False
-    found = []
-    for solid in solids:
+    found = {}
+    for start, solid in solids:
         lines = _VERTEX.findall(solid)
         if len(lines) != solid.count("vertex"):
             # a ``vertex`` whose line trimesh would read otherwise: a word on
@@ -100,16 +123,56 @@ def _ascii(data: bytes):
             return False
         if len(vertices) < 3:
             continue  # trimesh skips a solid of fewer than three numbers
-        if len(vertices) % 9:
+        if len(vertices) % 9 or "\n" not in solid:
             return False  # trimesh: "incorrect number of vertices", or no whole triangle
-        found.append(vertices.reshape(-1, 3))
-    if len(found) != 1:
-        return False  # no facets (trimesh's message), or several solids: a trimesh scene
-    return found[0]
+        # trimesh's name: the rest of the ``solid`` line, in the file's case
+        name = text[start:start + solid.find("\n")][6:].strip()
+        found[_unique_name(name, found)] = vertices.reshape(-1, 3)
+    return found or False  # no facets: trimesh's message
+
+
+def _merged(vertices):
+    """``(vertices, faces)`` of one solid of a scene, its vertices merged as trimesh merges them.
+
+    trimesh makes a scene of an ASCII file's solids and processes each one
+    (``Trimesh(process=True)``): vertices equal to 8 decimals become one, kept
+    where they first occur, in the order they first occur
+    (``grouping.merge_vertices``). None where the scaled coordinates would
+    not fit the int64 trimesh casts them to.
+    """
+    scaled = vertices * (10 ** 8)
+    if not np.abs(scaled).max() < 2.0 ** 62:
+        return None
+    _, first, inverse = np.unique(scaled.round().astype(np.int64), axis=0, return_index=True,
+                                  return_inverse=True)
+    order = first.argsort()
+    rank = order.argsort()
+    return vertices[first[order]], rank[inverse.reshape(-1)].reshape(-1, 3)
+
+
+def _scene(solids: dict, path: str):
+    """The Mesh ``from_trimesh`` makes of trimesh's scene of several solids (one part each), or None."""
+    from ..mesh import build_mesh
+
+    if any(name.lower().startswith("world") for name in solids):
+        return None  # trimesh's scene names its base frame "world": nodes may be renamed
+    verts, faces, offset = [], [], 0
+    for vertices in solids.values():
+        merged = _merged(vertices)
+        if merged is None:
+            return None
+        verts.append(merged[0])
+        faces.append(merged[1] + offset)
+        offset += len(merged[0])
+    sizes = [len(f) for f in faces]
+    return build_mesh(np.concatenate(verts), np.concatenate(faces), path,
+                      face_material=np.full(sum(sizes), -1, np.int64), materials=[],
+                      corner_uv=None, vertex_colors=None, parts=list(solids),
+                      face_part=np.repeat(np.arange(len(sizes), dtype=np.int64), sizes))
 
 
 def read_stl(path: str):
-    """The :class:`~geovox.mesh.Mesh` of a binary or one-solid ASCII STL, or None.
+    """The :class:`~geovox.mesh.Mesh` of a binary or ASCII STL, or None.
 
     Parameters
     ----------
@@ -119,7 +182,9 @@ def read_stl(path: str):
     -------
     Mesh or None
         ``vertices`` (3m, 3) float64, three per facet in file order, and
-        ``faces`` (m, 3) int64 ``[[0, 1, 2], [3, 4, 5], ...]``; None where
+        ``faces`` (m, 3) int64 ``[[0, 1, 2], [3, 4, 5], ...]``; for several
+        ASCII solids, each solid's merged vertices, ``parts`` (their names)
+        and ``face_part`` (m,) int64. None where
         the file is not a case this reader takes (see the module's
         docstring): the caller reads it with trimesh.
     """
@@ -129,7 +194,12 @@ def read_stl(path: str):
         data = f.read()
     vertices = _binary(data)
     if vertices is None:
-        vertices = _ascii(data)
+        solids = _ascii(data)
+        if solids is False or not all(np.isfinite(v).all() for v in solids.values()):
+            return None
+        if len(solids) > 1:
+            return _scene(solids, path)
+        vertices = next(iter(solids.values()))
     if vertices is False or not np.isfinite(vertices).all():
         return None
     nf = len(vertices) // 3
