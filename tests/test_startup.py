@@ -68,9 +68,31 @@ def _plain_ply(path):
     return str(path)
 
 
-@pytest.mark.parametrize("model", ["bunny_oded.obj", "fuze.obj", "plain.ply"])
+def _stl(path, binary):
+    """The bunny as a binary or an ASCII STL: what geovox/io/stl.py reads itself."""
+    from geovox.obj import read_obj
+
+    mesh = read_obj(corpus("bunny_watertight", "bunny_oded.obj"))
+    corners = mesh.vertices[mesh.faces].astype("<f4")
+    if binary:
+        rec = np.zeros(len(corners), [("n", "<f4", 3), ("v", "<f4", (3, 3)), ("a", "<u2")])
+        rec["v"] = corners
+        data = b"solid bunny".ljust(80) + np.uint32(len(rec)).tobytes() + rec.tobytes()
+    else:
+        facets = ("facet normal 0 0 0\nouter loop\n" + "vertex {} {} {}\n" * 3
+                  + "endloop\nendfacet\n") * len(corners)
+        data = ("solid bunny\n" + facets.format(*corners.reshape(-1).tolist())
+                + "endsolid bunny\n").encode()
+    with open(path, "wb") as f:
+        f.write(data)
+    return str(path)
+
+
+@pytest.mark.parametrize("model", ["bunny_oded.obj", "fuze.obj", "plain.ply", "binary.stl",
+                                   "ascii.stl"])
 def test_a_default_conversion_imports_only_what_it_uses(tmp_path, model):
     path = (_plain_ply(tmp_path / model) if model.endswith(".ply") else
+            _stl(tmp_path / model, model == "binary.stl") if model.endswith(".stl") else
             corpus("bunny_watertight" if "bunny" in model else "fuze", model))
     mods = _modules(path, str(tmp_path / "out.raw"))
     assert "numpy" in mods and "geovox.pipeline" in mods  # the probe ran the conversion

@@ -10,6 +10,7 @@ and a program that reads no file should not pay for the loader.
 | :mod:`geovox.io.load` | ``load_mesh``: every format, by the readers below or trimesh; OFF, PLY colours, the trimesh adaptor ``from_trimesh``, glTF materials |
 | :mod:`geovox.io.obj` | Wavefront OBJ and MTL, without trimesh |
 | :mod:`geovox.io.ply` | plain binary triangle PLY, without trimesh |
+| :mod:`geovox.io.stl` | binary and ASCII STL, without trimesh |
 | :mod:`geovox.io.gltf` | glTF primitive modes (strips and fans) |
 | :mod:`geovox.io.threemf` | 3MF build items and components |
 | :mod:`geovox.io.references` | the rule for files a model names (textures, MTL) |

@@ -993,8 +993,9 @@ def load_mesh(source, *, references: str = "anywhere") -> Mesh:
     """Load a mesh from a path, a trimesh object, or pass a :class:`Mesh` through.
 
     OBJ files are read by :mod:`geovox.obj`, plain binary triangle PLY
-    files by :mod:`geovox.ply`; everything else by trimesh
-    (STL, PLY, OFF, glTF/GLB with Draco compression, 3MF, COLLADA, 3DXML,
+    files by :mod:`geovox.ply`, STL files (binary and ASCII) by
+    :mod:`geovox.io.stl`; everything else by trimesh
+    (the other STL and PLY files, OFF, glTF/GLB with Draco compression, 3MF, COLLADA, 3DXML,
     zip and tar archives of these, ...).
 
     Parameters
@@ -1043,6 +1044,13 @@ def load_mesh(source, *, references: str = "anywhere") -> Mesh:
 
             # A plain binary triangle PLY without importing trimesh (the same Mesh).
             mesh = read_plain_ply(path)
+            if mesh is not None:
+                return mesh
+        if path.lower().endswith(".stl"):
+            from .stl import read_stl
+
+            # An STL without importing trimesh (the same Mesh).
+            mesh = read_stl(path)
             if mesh is not None:
                 return mesh
         return _trimesh_load(path, rule)
