@@ -590,8 +590,10 @@ def voxelize(
         (Fortran order); ``colors`` ``(nx, ny, nz, 4)`` uint8 RGBA (alpha 255
         inside, 0 outside), ``density`` ``(nx, ny, nz)`` uint8 or float32 and
         ``sdf`` ``(nx, ny, nz)`` float32 where asked for, else None; the
-        ``grid``, the ``backend`` and ``inside`` test that ran, and
-        ``timings`` in seconds per stage.
+        ``grid``, the ``backend`` and ``inside`` test that ran,
+        ``timings`` in seconds per stage, and ``approximate``, the voxels
+        left to an estimate of the winding number (its work budget ran
+        out; 0 nearly always).
 
     Raises
     ------
@@ -720,7 +722,8 @@ def voxelize_block(mesh, plan: Plan, block=None, *, buffers=None) -> Volume:
         Over the block's sub-grid: ``occupancy`` (nx, ny, nz_block) bool,
         Fortran order, and ``colors`` / ``density`` / ``sdf`` as asked for.
         ``timings`` holds "rays", "fill", then "colour", "density", "sdf" as
-        run (seconds); no "total".
+        run (seconds); no "total". ``approximate``: the block's voxels left to
+        an estimate of the winding number.
 
     Raises
     ------

@@ -601,7 +601,9 @@ def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, c
         ``bounds``, ``inside`` (count), ``inside_test``, ``backend``,
         ``slabs``, ``files``, ``timings``, ``filled_in_slabs`` (True where a
         one-piece occupancy was filled and written 64 slices at a time, see
-        :func:`geovox.parity.fill_slabs`), ``grid``, ``source``, ``mesh_space``;
+        :func:`geovox.parity.fill_slabs`), ``grid``, ``source``, ``mesh_space``,
+        ``approximate`` (voxels left to an estimate of the winding number,
+        summed over the slabs: see :class:`geovox.volume.Report`);
         with labels also ``labels`` (how many) and ``contested`` (summed over
         the slabs, as is the table's ``label_table``). Labels and fractions
         stream slab by slab like the rest, into .h5, .vtkhdf, .raw,
