@@ -1214,46 +1214,61 @@ def settle_ties(occ, w, grid, cap_tris, cap_hits, hits, columns, left=None):
     left : (nx, ny, nz) bool or None
         The voxels left to their estimates: the settled ones are no longer.
 
+    The exact sums stop at the work budget (``WORK_SECONDS`` from here); the
+    ties not summed by then keep their decisions and join ``left``.
+
     Returns
     -------
     (nx, ny, nz) bool or None
-        ``left`` without the settled voxels.
+        ``left`` without the settled voxels (with those the budget left).
     """
     axis, h, n = columns.axis, float(grid.spacing[columns.axis]), grid.shape[columns.axis]
     centres = (np.arange(n) + 0.5) * h  # as signed_counts compares them
-    k = np.clip(np.rint(cap_hits.depth / h - 0.5).astype(np.int64), 0, n - 1)
-    near = np.abs(cap_hits.depth - centres[k]) <= TIE * h
+    reach = 4 * TIE * h
+
+    def nearest(depth):  # each depth's nearest centre, and how far from it
+        k = np.clip(np.rint(depth / h - 0.5).astype(np.int64), 0, n - 1)
+        return k, np.abs(depth - centres[k])
+
+    k, off = nearest(cap_hits.depth)
+    near = off <= TIE * h
     if not near.any():
         return left
-    # One entry per (column, centre); then every crossing of its column.
+    # One entry per (column, centre); then every crossing within ``reach`` of it.
     key = np.unique(cap_hits.ray[near] * n + k[near])
     ray, k = key // n, key % n
     c = centres[k]
-    on = np.flatnonzero(np.isin(hits.ray, ray))
-    on = on[np.argsort(hits.ray[on], kind="stable")]
-    first = np.searchsorted(hits.ray[on], ray, "left")
-    count = np.searchsorted(hits.ray[on], ray, "right") - first
-    tie = np.repeat(np.arange(len(ray)), count)
-    d = hits.depth[on[np.repeat(first - np.cumsum(count) + count, count) + np.arange(count.sum())]]
-    reach = 4 * TIE * h
+    kh, off = nearest(hits.depth)
+    close = np.flatnonzero(off <= reach)  # few: no search over every crossing
+    hkey = hits.ray[close] * n + kh[close]
+    close = close[np.isin(hkey, key)]
+    tie = np.searchsorted(key, hits.ray[close] * n + kh[close])
+    d = hits.depth[close]
     lo, hi = c - reach, c + reach
-    before = (d <= c[tie]) & (d >= c[tie] - reach)
-    after = (d > c[tie]) & (d <= c[tie] + reach)
+    before = d <= c[tie]
     np.maximum.at(lo, tie[before], d[before])
-    np.minimum.at(hi, tie[after], d[after])
+    np.minimum.at(hi, tie[~before], d[~before])
     idx = [None, None, None]
     idx[columns.u_axis], idx[columns.v_axis], idx[axis] = ray % columns.nu, ray // columns.nu, k
     p = np.stack([grid.centres(a)[idx[a]] for a in range(3)], axis=1)
     p[:, axis] = grid.lo[axis] + (lo + hi) / 2
     ii = tuple(idx)
+    if left is not None:
+        left[ii] = False
+    # A planar cap along a layer of centres makes a whole layer of ties: the
+    # work budget holds here too, and what it leaves is counted.
+    deadline = time.process_time() + WORK_SECONDS
     block = max(1, (1 << 16) // len(cap_tris))
     for s in range(0, len(p), block):
         sub = tuple(x[s:s + block] for x in ii)
+        if time.process_time() >= deadline:
+            if left is None:
+                left = np.zeros(grid.shape, dtype=bool)
+            left[tuple(x[s:] for x in ii)] = True
+            break
         occ[sub] = (w[sub] - _exact_sums(cap_tris, p[s:s + block])) > 0.5
-    if left is not None:
-        left[ii] = False
-        if not left.any():
-            left = None
+    if left is not None and not left.any():
+        left = None
     return left
 
 
