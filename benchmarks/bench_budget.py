@@ -16,6 +16,7 @@ integers from the rays, so those are listed with their test and not run.
 
 Usage: python benchmarks/bench_budget.py [--res 64,128,256] [--timeout 900]
        [--only SUBSTRING] [--write benchmarks/results/budget.json]
+       [--from-log RUN.log --date ... --machine ...]   # the tables again from a run's output
 """
 
 from __future__ import annotations
@@ -132,23 +133,36 @@ def main(argv=None):
     ap.add_argument("--timeout", type=float, default=900)
     ap.add_argument("--only", default="")
     ap.add_argument("--write", default=None)
+    ap.add_argument("--from-log", default=None, help="remake the tables from a run's printed lines")
+    ap.add_argument("--date", default=None, help="with --from-log: the run's date")
+    ap.add_argument("--machine", default=None, help="with --from-log: the run's machine line")
     args = ap.parse_args(argv)
     res = [int(r) for r in args.res.split(",")]
     load0 = os.getloadavg()[0]
     started = datetime.datetime.now(datetime.timezone.utc)
-    with tempfile.TemporaryDirectory() as tmp:
-        todo = [m for m in models(args.corpus, trimesh_folder(args.trimesh, tmp))
-                if args.only in m[0]]
+    if args.from_log:  # the tables again from a run's printed lines
         results = []
-        for label, path in todo:
-            t = time.perf_counter()
-            got = measure(path, res, args.timeout)
-            results.append((label, got))
-            print(f"{label}: {json.dumps(got)} ({time.perf_counter() - t:.1f} s)", flush=True)
+        with open(args.from_log, encoding="utf-8") as f:
+            for line in f:
+                label, sep, rest = line.partition(": {")
+                if sep and not line.startswith(" "):
+                    results.append((label, json.loads("{" + rest.rsplit(" (", 1)[0])))
+        todo = results
+    else:
+        with tempfile.TemporaryDirectory() as tmp:
+            todo = [m for m in models(args.corpus, trimesh_folder(args.trimesh, tmp))
+                    if args.only in m[0]]
+            results = []
+            for label, path in todo:
+                t = time.perf_counter()
+                got = measure(path, res, args.timeout)
+                results.append((label, got))
+                print(f"{label}: {json.dumps(got)} ({time.perf_counter() - t:.1f} s)", flush=True)
     capped_rows, others = [], {}
     for label, got in results:
         if "error" in got:
-            others.setdefault("not read: " + got["error"][:60], []).append(label)
+            why = got["error"].split(": ", 1)[-1].split(" (")[0].split(";")[0]
+            others.setdefault("not read: " + why[:50], []).append(label)
             continue
         rows = got["rows"]
         if any(r.get("caps") for r in rows):
@@ -160,7 +174,8 @@ def main(argv=None):
                                   " / ".join(f"{by[n].get('refined') or 0:,}/{by[n].get('exact') or 0:,}"
                                              if "cpu" in by[n] else "–" for n in res)])
         else:
-            tests = sorted({r.get("inside", "error") for r in rows})
+            tests = sorted({"winding (of a closed copy: exact)" if r.get("inside") == "winding"
+                            else r.get("inside", "error") for r in rows})
             others.setdefault("+".join(tests), []).append(label)
     total = sum(1 for _, g in results if "error" not in g)
     approx = sum(1 for r in capped_rows if any(c not in ("0", "–") for c in r[2:2 + len(res)]))
@@ -169,9 +184,10 @@ def main(argv=None):
         "title": "The winding number's work budget on every model (issue 27)",
         "script": "benchmarks/bench_budget.py",
         "command": "python benchmarks/bench_budget.py" + (f" --res {args.res}" if args.res != "64,128,256" else ""),
-        "date": started.strftime("%Y-%m-%d %H:%M UTC"),
-        "machine": f"{os.cpu_count()} cores, {platform.machine()}, Python {platform.python_version()}; "
-                   f"shared: load average {load0:.1f} at the start, {os.getloadavg()[0]:.1f} at the end",
+        "date": args.date or started.strftime("%Y-%m-%d %H:%M UTC"),
+        "machine": args.machine or (
+            f"{os.cpu_count()} cores, {platform.machine()}, Python {platform.python_version()}; "
+            f"shared: load average {load0:.1f} at the start, {os.getloadavg()[0]:.1f} at the end"),
         "notes": (f"{len(todo)} mesh files (the corpus, tests/data/wild, trimesh's models/), "
                   f"{total} read; default options (compiled kernels), at "
                   f"{', '.join(f'{n}³' for n in res)}. Only the winding number of an open, "
