@@ -27,7 +27,7 @@ IMAGES = ROOT / "docs" / "img"
 
 #: the order of the page; result files not named here follow in name order
 ORDER = ["users_path", "imports", "occupancy", "agreement", "colour", "density", "big_grids",
-         "formats", "inside", "messy", "obj", "webgpu", "distributed", "dataset", "zarr"]
+         "formats", "inside", "messy", "budget", "obj", "webgpu", "distributed", "dataset", "zarr"]
 
 HEADER = """\
 # Benchmarks

@@ -57,6 +57,9 @@ class Result:
         Every warning in full.
     inside_test : str
         The inside test that ran (``Report.inside_test``); empty unless ``"ok"``.
+    approximate : int
+        Voxels left to an estimate of the winding number (``Report.approximate``:
+        its work budget ran out); 0 where every voxel is exact or proven.
     """
 
     input: str
@@ -67,6 +70,7 @@ class Result:
     note: str = ""
     warnings: list = field(default_factory=list)
     inside_test: str = ""
+    approximate: int = 0
 
     @property
     def output(self):
@@ -247,7 +251,7 @@ def _convert_one(task) -> Result:
         note = f"{report.inside:,} inside" + (f"; warning: {warning_cell(said, path)}" if said
                                                else "")
         return Result(path, "ok", outputs, "", time.perf_counter() - t0, note, list(said),
-                      report.inside_test)
+                      report.inside_test, report.approximate)
     except (GeovoxError, MemoryError) as exc:
         return Result(path, "failed", [], _line(str(exc)), time.perf_counter() - t0)
     except Exception as exc:  # a model must not stop the batch; say what happened
@@ -565,6 +569,7 @@ def convert_many(inputs, out, *, client=None, fmt=None, overwrite=False, workers
                 input=tasks[i]["input"], out=out_key, options=recorded, status=r.status,
                 outputs=[o if is_url(o) else os.path.abspath(o) for o in r.outputs],
                 error=r.error, seconds=round(r.seconds, 4), inside_test=r.inside_test,
+                approximate=r.approximate,
                 time=datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")))
                 + "\n")
             log.flush()  # the record survives the run being killed

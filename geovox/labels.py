@@ -389,12 +389,16 @@ class Classified:
     crossings : (Hits, Columns) or None
         The whole mesh's crossings along the ray axis on the block (for
         colour); None where they were the whole grid's (``within``).
+    approximate : int
+        Voxels the parts' winding numbers left to an estimate (the work
+        budget ran out), summed over the parts.
     """
 
     labels: np.ndarray
     contested: int
     methods: list
     crossings: tuple
+    approximate: int = 0
 
 
 def part_meshes(mesh: Mesh, lset: LabelSet) -> list:
@@ -468,6 +472,7 @@ def classify(mesh: Mesh, grid, lset: LabelSet, *, cast_mesh, axis: int, jobs: in
     labels = np.zeros(grid.shape, dtype=lset.dtype, order="F")
     # Parts inside each voxel (it cannot wrap: a uint8 count for at most 255 parts).
     inside_count = np.zeros(grid.shape, dtype=lset.dtype, order="F")
+    approximate = 0
     for k in paint_order(lset, parts):
         if parts[k] is None:
             continue
@@ -484,14 +489,21 @@ def classify(mesh: Mesh, grid, lset: LabelSet, *, cast_mesh, axis: int, jobs: in
         else:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
-                occ = inside_tests.winding_occupancy(parts[k], grid, cast_mesh, axis, jobs)[0]
+                occ, _, _, n = inside_tests.winding_occupancy(parts[k], grid, cast_mesh, axis,
+                                                              jobs)
+            approximate += n
             box = (slice(None),) * 3
         # One add and one masked copy per part (a mask index is slower).
         np.add(inside_count[box], occ, out=inside_count[box])
         np.copyto(labels[box], lset.dtype.type(k + 1), where=occ)
     contested = int(np.count_nonzero(inside_count >= 2))
+    if approximate:  # the parts' own warnings were silenced: this one is said
+        from .inside.winding import approximate_warning
+
+        warn(approximate_warning(approximate, grid.size), stacklevel=3)
     return Classified(labels=labels, contested=contested, methods=methods,
-                      crossings=(hits, columns) if frame is grid else None)
+                      crossings=(hits, columns) if frame is grid else None,
+                      approximate=approximate)
 
 
 def table(lset: LabelSet, labels: np.ndarray, spacing, counts=None) -> list:

@@ -447,7 +447,7 @@ def run(mesh, p: Plan, *, progress=None, client=None, write_options=None) -> Rep
     return Report(source=mesh.source, grid=p.grid, backend=p.backend.name,
                   inside_test=vol.inside, inside=vol.inside_count, route=str(p.route),
                   slabs=1, volume=vol, files=files, timings=t, mesh_space=p.mesh_space,
-                  lines=lines)
+                  lines=lines, approximate=vol.approximate)
 
 
 def label_lines(p: Plan, table: list, contested: int) -> list:
@@ -598,8 +598,10 @@ def voxelize(
         (Fortran order); ``colors`` ``(nx, ny, nz, 4)`` uint8 RGBA (alpha 255
         inside, 0 outside), ``density`` ``(nx, ny, nz)`` uint8 or float32 and
         ``sdf`` ``(nx, ny, nz)`` float32 where asked for, else None; the
-        ``grid``, the ``backend`` and ``inside`` test that ran, and
-        ``timings`` in seconds per stage.
+        ``grid``, the ``backend`` and ``inside`` test that ran,
+        ``timings`` in seconds per stage, and ``approximate``, the voxels
+        left to an estimate of the winding number (its work budget ran
+        out; 0 nearly always).
 
     Raises
     ------
@@ -728,7 +730,8 @@ def voxelize_block(mesh, plan: Plan, block=None, *, buffers=None) -> Volume:
         Over the block's sub-grid: ``occupancy`` (nx, ny, nz_block) bool,
         Fortran order, and ``colors`` / ``density`` / ``sdf`` as asked for.
         ``timings`` holds "rays", "fill", then "colour", "density", "sdf" as
-        run (seconds); no "total".
+        run (seconds); no "total". ``approximate``: the block's voxels left to
+        an estimate of the winding number.
 
     Raises
     ------
@@ -764,6 +767,7 @@ def voxelize_block(mesh, plan: Plan, block=None, *, buffers=None) -> Volume:
     crossings = {}
     classified = None
     method = plan.inside.value
+    approximate = 0
     if "slices" in buffers:
         occ, t_rays = _fill_in_slices(m, plan, grid, buffers["slices"])
     elif plan.labels is not None and plan.labels.source != "material":
@@ -778,8 +782,9 @@ def voxelize_block(mesh, plan: Plan, block=None, *, buffers=None) -> Volume:
         t_rays = time.perf_counter()
         occ = np.asfortranarray(classified.labels != 0)
         method = "+".join(sorted(set(classified.methods)))
+        approximate = classified.approximate
     else:
-        occ, t_rays = _fill(m, plan, grid, crossings, buffers.get("out"))
+        occ, t_rays, approximate = _fill(m, plan, grid, crossings, buffers.get("out"))
     t_fill = time.perf_counter()
     # The checks and the inside test's choice count with the rays.
     timings = {"rays": t_rays - t0, "fill": t_fill - t_rays}
@@ -806,7 +811,8 @@ def voxelize_block(mesh, plan: Plan, block=None, *, buffers=None) -> Volume:
     extra = {} if plan.labels is None else _labels(m, plan, grid, block, occ, classified, step,
                                                    timings)
     return Volume(occupancy=occ, grid=grid, backend=plan.backend.name, source=m.source,
-                  colors=colors, timings=timings, inside=method, density=dens, sdf=dist, **extra)
+                  colors=colors, timings=timings, inside=method, density=dens, sdf=dist,
+                  approximate=approximate, **extra)
 
 
 @follows_plan  # also on the colour step's threads
@@ -817,12 +823,12 @@ def _cast(mesh, plan: Plan, grid: Grid, ax: int):
 
 
 def _fill(m, plan: Plan, grid: Grid, crossings: dict, out=None):
-    """``(occupancy, time the rays ended)`` by the plan's inside test; fills ``crossings``."""
+    """``(occupancy, time the rays ended, approximate voxels)`` by the plan's inside test; fills ``crossings``."""
     axis, jobs = plan.axis, plan.jobs
     if plan.inside == Inside.PARITY:
         crossings[axis] = _cast(m, plan, grid, axis)
         t_rays = time.perf_counter()
-        return parity.fill(*crossings[axis], grid, out=out, jobs=jobs), t_rays
+        return parity.fill(*crossings[axis], grid, out=out, jobs=jobs), t_rays, 0
     if plan.inside == Inside.VOTE:
         votes = None
         for ax in (axis,) + tuple(a for a in range(3) if a != axis):
@@ -830,14 +836,14 @@ def _fill(m, plan: Plan, grid: Grid, crossings: dict, out=None):
             one = parity.fill(*crossings[ax], grid, jobs=jobs).view(np.uint8)
             votes = one if votes is None else np.add(votes, one, out=votes)
         t_rays = time.perf_counter()  # the three fills are counted with the rays
-        return np.asfortranarray(votes >= 2), t_rays
+        return np.asfortranarray(votes >= 2), t_rays, 0
     from . import inside as inside_tests
 
     # The winding fill is counted with the rays.
-    occ, hits, columns = inside_tests.winding_occupancy(
+    occ, hits, columns, approximate = inside_tests.winding_occupancy(
         m, grid, lambda mesh, ax: _cast(mesh, plan, grid, ax), axis, jobs)
     crossings[axis] = (hits, columns)
-    return occ, time.perf_counter()
+    return occ, time.perf_counter(), approximate
 
 
 def _fill_in_slices(m, plan: Plan, grid: Grid, sink):

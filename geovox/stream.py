@@ -182,7 +182,8 @@ def _release_slab_buffers() -> None:
 def _zarr_slab(m, p: Plan, block, layout, z_part=None, z_start=None):
     """One cluster task: voxelise slab ``block`` of plan ``p`` and write it into its own shards.
 
-    Returns ``(inside count, timings, label counts)`` (see :meth:`LabelTally.of`).
+    Returns ``(inside count, timings, label counts, approximate voxels)`` (see
+    :meth:`LabelTally.of`).
     """
     from .errors import OutputError
     from .formats.zarr import write_slab
@@ -213,7 +214,7 @@ def _zarr_slab(m, p: Plan, block, layout, z_part=None, z_start=None):
     timings = {k: v for k, v in vol.timings.items() if k != "total"}
     timings["write"] = time.perf_counter() - tb
     timings["task"] = time.perf_counter() - t
-    return vol.inside_count, timings, LabelTally.of(vol)
+    return vol.inside_count, timings, LabelTally.of(vol), vol.approximate
 
 
 def _run_on_cluster(client, m, p: Plan, layout, reuse_z, progress, timings, tally) -> int:
@@ -241,9 +242,10 @@ def _run_on_cluster(client, m, p: Plan, layout, reuse_z, progress, timings, tall
     inside = 0
     try:
         for n, future in enumerate(as_completed(futures)):
-            count, t, labelled = future.result()
+            count, t, labelled, approximate = future.result()
             inside += count
             tally.add(labelled)
+            tally.approximate += approximate
             for key, value in t.items():
                 timings[key] = timings.get(key, 0.0) + value
             if progress:
@@ -385,6 +387,7 @@ def _run_blocks(m, p: Plan, writer, reuse, timings, progress, tally) -> int:
             timings["write"] += time.perf_counter() - tb
             inside += vol.inside_count
             tally.add(LabelTally.of(vol))
+            tally.approximate += vol.approximate
             del vol
             if progress:
                 progress(Progress("slab", n + 1, len(p.blocks)))
@@ -429,12 +432,14 @@ class LabelTally:
 
     A block equals that part of the whole grid, so the whole grid's counts
     are the sums of the blocks' (and a voxel is contested in one block only).
+    ``approximate`` sums the blocks' approximate voxels (with or without labels).
     """
 
     def __init__(self, p: Plan):
         self.lset = p.labels
         self.counts = None if p.labels is None else np.zeros(len(p.labels.names) + 1, np.int64)
         self.contested = 0
+        self.approximate = 0
         self.inside = None  # the inside tests the parts ran (the same in every block)
 
     @staticmethod
@@ -534,6 +539,10 @@ def run_slabs(m, p: Plan, *, progress=None, client=None) -> Report:
         files = writer.close()
         if inside == 0 and _overlaps(m.bounds, grid):
             warn(empty_reason(m, grid, p.inside), stacklevel=3)
+        if tally.approximate:  # the slabs were silenced: said once, for the whole grid
+            from .inside.winding import approximate_warning
+
+            warn(approximate_warning(tally.approximate, grid.size), stacklevel=3)
     except BaseException:
         writer.abort()
         raise
@@ -547,7 +556,7 @@ def run_slabs(m, p: Plan, *, progress=None, client=None) -> Report:
     return Report(source=m.source, grid=grid, backend=p.backend.name,
                   inside_test=tally.inside or str(p.inside), inside=inside, route=str(p.route),
                   slabs=len(p.blocks), files=files, timings=timings, mesh_space=p.mesh_space,
-                  **labelled)
+                  approximate=tally.approximate, **labelled)
 
 
 def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, client=None,
@@ -592,7 +601,9 @@ def convert_to(mesh, path, fmt=None, *, budget=None, jobs=None, progress=None, c
         ``bounds``, ``inside`` (count), ``inside_test``, ``backend``,
         ``slabs``, ``files``, ``timings``, ``filled_in_slabs`` (True where a
         one-piece occupancy was filled and written 64 slices at a time, see
-        :func:`geovox.parity.fill_slabs`), ``grid``, ``source``, ``mesh_space``;
+        :func:`geovox.parity.fill_slabs`), ``grid``, ``source``, ``mesh_space``,
+        ``approximate`` (voxels left to an estimate of the winding number,
+        summed over the slabs: see :class:`geovox.volume.Report`);
         with labels also ``labels`` (how many) and ``contested`` (summed over
         the slabs, as is the table's ``label_table``). Labels and fractions
         stream slab by slab like the rest, into .h5, .vtkhdf, .raw,

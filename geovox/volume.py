@@ -56,6 +56,10 @@ class Volume:
     fractions : (nx, ny, nz, L) uint8 or float32, or None
         Each label's coverage fraction per voxel (index ``k`` for label
         value ``k + 1``), when asked for.
+    approximate : int
+        Voxels whose inside was left to an estimate of the winding number
+        (its work budget ran out: ``Report.approximate``); 0 where every
+        voxel is exact or proven.
     """
 
     occupancy: np.ndarray
@@ -72,6 +76,7 @@ class Volume:
     label_table: list | None = None
     contested: int = 0
     fractions: np.ndarray | None = None
+    approximate: int = 0
 
     @property
     def bounds(self) -> tuple:
@@ -147,6 +152,12 @@ class Report:
         "sdf", "write", "total" as run).
     warnings : list of str
         What was said (where the caller collected it).
+    approximate : int
+        Voxels whose inside was left to an estimate of the winding number
+        because its work budget (``geovox.inside.winding.WORK_SECONDS`` of
+        processor time) ran out, summed over the slabs (and over the parts,
+        with labels by part); 0 where every voxel is exact or proven by its
+        error bound. Only the winding number of an open model can leave any.
     """
 
     source: str
@@ -167,6 +178,7 @@ class Report:
     label_table: list | None = None
     #: With labels: voxels inside more than one part (summed over the slabs).
     contested: int = 0
+    approximate: int = 0
 
     @property
     def shape(self) -> tuple:
@@ -185,9 +197,9 @@ class Report:
         """Whether a one-piece occupancy was filled and written 64 slices at a time."""
         return self.route == "64-slice fill"
 
-    #: The keys of the dict convert_to returned before it returned a Report.
+    #: The keys of the dict convert_to returned before it returned a Report, and ``approximate``.
     KEYS = ("shape", "spacing", "bounds", "inside", "inside_test", "backend", "slabs", "files",
-            "timings", "filled_in_slabs", "grid", "source", "mesh_space")
+            "timings", "filled_in_slabs", "grid", "source", "mesh_space", "approximate")
 
     def __getitem__(self, key):
         if key in ("labels", "contested") and self.volume is not None \
@@ -233,9 +245,18 @@ class Report:
                 f"voxel size {dx:.6g} x {dy:.6g} x {dz:.6g}, backend {self.backend}, "
                 f"inside test {self.inside_test}", *onto,
                 f"inside {self.inside:,} of {n:,} voxels ({100.0 * self.inside / n:.2f}%)",
+                *([approximate_line(self.approximate, n)] if self.approximate else []),
                 *self.lines,
                 f"time {wall:.2f} s ({stages})",
                 "wrote " + ", ".join(self.files)]
+
+
+def approximate_line(n: int, total: int) -> str:
+    """The summary's line on the voxels an estimate of the winding number decided (``n`` of ``total``)."""
+    share = 100.0 * n / total
+    share = f"{share:.1f}" if share >= 1 else f"{share:.2g}"  # never "1e+02"
+    return (f"approximate {n:,} voxels ({share}%): decided by an estimate of the winding number "
+            f"(its work budget ran out)")
 
 
 def reference_line(ref, decided) -> str:

@@ -260,19 +260,72 @@ def test_the_truck_at_16_is_the_brute_force(monkeypatch):
         np.testing.assert_array_equal(vol.occupancy, w > 0.5)
 
 
-@pytest.mark.xfail(strict=True, reason="a voxel centre exactly on a cap triangle: the crossings "
-                   "count the cap on one side, its solid angle (+-1/2 there) may take the other")
-def test_a_voxel_centre_on_a_cap(monkeypatch):
+def rim_box(heights, floor=1.9375):
+    """An open box hanging down from a rim whose four corners are at ``heights`` (z), its floor below.
+
+    The unit square's corners (0, 0), (1, 0), (1, 1), (0, 1): a rim that is
+    not planar, so its caps fold and a voxel centre on them is no tie of
+    the winding number (a flat cap's points all have w = 1/2 exactly).
+    """
+    corners = [(0, 0), (1, 0), (1, 1), (0, 1)]
+    V = [(x, y, floor) for x, y in corners] + [(x, y, h) for (x, y), h in zip(corners, heights)]
+    F = [[0, 1, 2], [0, 2, 3]]
+    for i in range(4):
+        j = (i + 1) % 4
+        F += [[i, 4 + j, j], [i, 4 + i, 4 + j]]
+    return geovox.Mesh(np.array(V, float), np.array(F), source="rim")
+
+
+#: Voxel centres exactly on a cap (dyadic coordinates: exact in float64, on
+#: no face of the model itself): (mesh, shape, bounds, fans instead of small caps).
+ON_A_CAP = {
     # The wavy tube on its own box: the centre of voxel (7, 7, 16) lies
-    # exactly on a spoke of the top rim's fan (z = 3 - 1/24 both), and the
-    # fans decide 3 voxels against the brute force (0.4934 there), with
-    # either kernel. The small caps happen to miss every centre here; they
-    # are not immune (a tie needs a rule shared by the rays and the sums).
-    mesh = wavy_tube()
+    # exactly on a spoke of the top rim's fan (z = 3 - 1/24 both); the
+    # crossings counted the cap on one side, its solid angle (atan2(0, 0)
+    # there) took neither, and 3 voxels went against the brute force
+    # (0.4934 there), with either kernel.
+    "a fan's spoke": (wavy_tube, (18, 18, 18), None, True),
+    # The minimum-area caps' diagonal of a saddle-shaped rim (z = 1 at two
+    # corners, 0.75 at the others) through the centres (t, t, 1).
+    "a diagonal of small caps": (lambda: rim_box((1.0, 0.75, 1.0, 0.75)), (6, 6, 12),
+                                 (-0.25, -0.25, 0.5625, 1.25, 1.25, 2.0625), False),
+    # A fan's own vertex, the centroid (0.5, 0.5, 0.75) of an uneven rim, is
+    # a voxel centre; (0.875, 0.125, 0.75) lies on a spoke.
+    "a fan's vertex": (lambda: rim_box((0.875, 0.75, 1.0, 0.375)), (4, 4, 6),
+                       (-0.4375, -0.4375, -0.1875, 1.0625, 1.0625, 2.0625), True),
+}
+
+
+@pytest.mark.parametrize("kernel", KERNELS)
+@pytest.mark.parametrize("name", list(ON_A_CAP))
+def test_a_voxel_centre_on_a_cap(monkeypatch, name, kernel):
+    # Each term of w_M = w_{M+K} - w_K must see the centre on the same side
+    # of the cap: the rays' side (inside.settle_ties). Before, these cases
+    # decided 3, 2 and 2 voxels against the brute force.
+    make, shape, bounds, fans = ON_A_CAP[name]
+    mesh = make()
+    monkeypatch.setenv("GEOVOX_KERNEL", kernel)
+    if fans:
+        monkeypatch.setattr(inside, "bridged", inside.capped)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", GeovoxWarning)
-        grid = geovox.voxelize(mesh, resolution=18, inside="parity").grid
-        monkeypatch.setattr(inside, "bridged", inside.capped)
-        occ = geovox.voxelize(mesh, resolution=18, inside="winding").occupancy
+        vol = geovox.voxelize(mesh, shape=shape, bounds=bounds, inside="winding")
+    grid = vol.grid
+    tris = inside.bridged(inside.target(mesh)[0])[1]
+    # Some centre lies exactly on a cap triangle: in its plane, within it.
+    c = np.stack(np.meshgrid(*[grid.centres(a) for a in range(3)], indexing="ij"), -1)
+    a, b, t = tris[:, 0], tris[:, 1], tris[:, 2]
+    n = np.cross(b - a, t - a)
+    on = np.zeros(grid.shape, bool)
+    for k in range(len(tris)):
+        d = c - a[k]
+        plane = np.einsum("...i,i->...", d, n[k]) == 0
+        w0 = np.einsum("...i,i->...", np.cross(b[k] - a[k], d), n[k])
+        w1 = np.einsum("...i,i->...", np.cross(t[k] - b[k], c - b[k]), n[k])
+        w2 = np.einsum("...i,i->...", np.cross(a[k] - t[k], c - t[k]), n[k])
+        on |= plane & (w0 >= 0) & (w1 >= 0) & (w2 >= 0)
+    assert on.any()
     w = brute_winding_number(inside.target(mesh)[0], grid)
-    np.testing.assert_array_equal(occ, w > 0.5)
+    assert np.abs(w - 0.5).min() > 1e-6  # no tie for the brute force
+    np.testing.assert_array_equal(vol.occupancy, w > 0.5)
+    assert vol.approximate == 0

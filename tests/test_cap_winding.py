@@ -93,7 +93,9 @@ def run_winding(monkeypatch):
         warnings.simplefilter("ignore", GeovoxWarning)
         vol = geovox.voxelize(MESH, resolution=RES, inside="winding")
     assert len(seen) <= 1
-    return vol, seen[0] if seen else np.zeros(vol.grid.shape, bool)
+    estimated = seen[0] if seen else np.zeros(vol.grid.shape, bool)
+    assert vol.approximate == np.count_nonzero(estimated)
+    return vol, estimated
 
 
 def test_the_model_is_cap_heavy():
@@ -120,15 +122,16 @@ def test_within_the_budget_every_voxel_is_the_brute_force(reference, monkeypatch
 
 @pytest.mark.parametrize("direct", [True, False], ids=["direct", "passes"])
 def test_past_a_small_budget_proven_voxels_are_the_brute_force(reference, monkeypatch, direct):
-    # The budget a 64³ truck meets, scaled down to this model: the refining
-    # passes give up and leave voxels to the first pass's estimate. Every
-    # voxel the bounds decided must still be the brute force's, and how
-    # many were left is pinned (loosening PASSES to ((3.0, 1e-1),) * 3
-    # leaves 7,993 instead of 4,502; with the fans of inside.capped instead
-    # of the small caps of inside.bridged, 5,340). The NumPy traversal's budget, in pairs.
+    # No time for the refining passes: they give up and leave voxels to the
+    # first pass's estimate. Every voxel the bounds decided must still be
+    # the brute force's, and how many were left is pinned (loosening PASSES
+    # to ((3.0, 1e-1),) * 3 leaves 7,993 instead of 4,502; with the fans of
+    # inside.capped instead of the small caps of inside.bridged, 5,340). The
+    # NumPy traversal's budget, of processor time: at 0 its first pass alone
+    # decides, whatever the machine's speed.
     grid, w = reference
     monkeypatch.setenv("GEOVOX_KERNEL", "numpy")
-    monkeypatch.setattr(inside, "PAIR_BUDGET", 100_000)
+    monkeypatch.setattr(inside, "WORK_SECONDS", 0.0)
     if not direct:
         monkeypatch.setattr(inside, "DIRECT", 0)
     vol, estimated = run_winding(monkeypatch)
@@ -196,3 +199,119 @@ def test_caps_over_loops_close_the_same_boundary():
     closed, cap_tris, piece = inside.capped(tm)
     assert len(inside.boundary_edges(closed)) == 0
     assert len(cap_tris) == len(inside.boundary_edges(tm))
+
+
+class _Clock:
+    """A processor clock for geovox.inside.winding that moves on one second each time it is read."""
+
+    def __init__(self):
+        self.now = 0.0
+
+    def process_time(self):
+        self.now += 1.0
+        return self.now
+
+
+@pytest.mark.parametrize("seconds", [0.0, 2.0, 5.0, 9.0, 1e9])
+def test_the_numpy_budget_is_time_and_only_its_end_depends_on_it(reference, monkeypatch, seconds):
+    # The NumPy traversal's budget is processor time (WORK_SECONDS), read
+    # between chunks of pairs, before a pass and between the exact sums: a
+    # clock that jumps a second at every reading runs it out at every such
+    # point in turn. Wherever it runs out, the voxels it leaves are counted
+    # (the Report's approximate, the warning's mask) and every other voxel
+    # is the brute force's; with time to spare nothing depends on the clock.
+    grid, w = reference
+    monkeypatch.setenv("GEOVOX_KERNEL", "numpy")
+    monkeypatch.setattr(inside, "time", _Clock())
+    monkeypatch.setattr(inside, "WORK_SECONDS", seconds)
+    vol, estimated = run_winding(monkeypatch)
+    proven = ~estimated
+    np.testing.assert_array_equal(vol.occupancy[proven], (w > 0.5)[proven])
+    if seconds == 1e9:
+        assert vol.approximate == 0
+        np.testing.assert_array_equal(vol.occupancy, w > 0.5)
+    else:
+        assert vol.approximate > 0
+    if seconds == 0.0:
+        assert vol.approximate == 4502  # the first pass alone (as the test above)
+
+
+@pytest.mark.parametrize("kernel", KERNELS)
+def test_the_report_counts_the_approximate_voxels(reference, monkeypatch, kernel):
+    # Report.approximate is the warning's count and the count of the voxels
+    # the traversal left to their estimates, and every voxel that is not
+    # the brute force's is one of them; the summary says it.
+    import re
+
+    from geovox.pipeline import as_options, plan, run
+
+    grid, w = reference
+    monkeypatch.setenv("GEOVOX_KERNEL", kernel)
+    monkeypatch.setattr(inside, "WORK_SECONDS", 0.0)
+    seen = []
+    real = inside._estimated
+    monkeypatch.setattr(inside, "_estimated", lambda unsure, grid: seen.append(unsure.copy())
+                        or real(unsure, grid))
+    with pytest.warns(GeovoxWarning) as record:
+        report = run(MESH, plan(MESH, as_options(resolution=RES, inside="winding")))
+    (mask,) = seen
+    said = [re.match(r"([0-9,]+) of 8,000 voxels .* are approximate", str(r.message))
+            for r in record]
+    (n,) = [int(m.group(1).replace(",", "")) for m in said if m]
+    assert report.approximate == report.volume.approximate == n == np.count_nonzero(mask) > 0
+    assert report["approximate"] == n
+    wrong = report.volume.occupancy != (w > 0.5)
+    assert np.all(mask[wrong])
+    if kernel == "compiled":
+        assert n == inside.STATS["estimated"] == ESTIMATED_AT_ZERO
+    (line,) = [x for x in report.summary(1.0) if x.startswith("approximate ")]
+    share = 100 * n / 8000
+    assert line == (f"approximate {n:,} voxels ({share:.1f}%): " if share >= 1 else
+                    f"approximate {n:,} voxels ({share:.2g}%): ") + (
+        "decided by an estimate of the winding number (its work budget ran out)")
+    # With time: none, and the summary has no such line.
+    monkeypatch.setattr(inside, "WORK_SECONDS", 10.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", GeovoxWarning)
+        report = run(MESH, plan(MESH, as_options(resolution=RES, inside="winding")))
+    assert report.approximate == 0
+    assert not [x for x in report.summary(1.0) if x.startswith("approximate")]
+
+
+def test_slabs_sum_their_approximate_voxels_and_say_it_once(tmp_path, monkeypatch):
+    # Streamed slab by slab (their warnings silenced), the Report sums the
+    # slabs' approximate voxels and one warning says the sum.
+    import re
+
+    monkeypatch.setenv("GEOVOX_KERNEL", "numpy")
+    monkeypatch.setattr(inside, "WORK_SECONDS", 0.0)
+    seen = []
+    real = inside._estimated
+    monkeypatch.setattr(inside, "_estimated", lambda unsure, grid: seen.append(
+        int(np.count_nonzero(unsure))) or real(unsure, grid))
+    with pytest.warns(GeovoxWarning) as record:
+        report = geovox.convert_to(MESH, tmp_path / "m.h5", shape=(16, 16, 150), inside="winding",
+                                   budget=16 * 16 * 64 * 17)
+    assert report.slabs > 1 and len(seen) == report.slabs
+    said = [re.match(r"([0-9,]+) of 38,400 voxels .* are approximate", str(r.message))
+            for r in record]
+    (n,) = [int(m.group(1).replace(",", "")) for m in said if m]
+    assert report.approximate == n == sum(seen) > 0
+
+
+def test_a_batch_records_the_approximate_voxels(tmp_path, monkeypatch):
+    import json
+
+    monkeypatch.setattr(inside, "WORK_SECONDS", 0.0)
+    path = tmp_path / "cap_heavy.off"
+    v, f = MESH.vertices, MESH.faces
+    path.write_text("OFF\n%d %d 0\n" % (len(v), len(f))
+                    + "".join("%r %r %r\n" % tuple(map(float, x)) for x in v)
+                    + "".join("3 %d %d %d\n" % tuple(x) for x in f))
+    manifest = tmp_path / "done.jsonl"
+    (r,) = geovox.convert_many([path], tmp_path / "out", resolution=RES, inside="winding",
+                               manifest=manifest)
+    assert r.status == "ok" and r.approximate > 0
+    assert "are approximate" in r.note
+    (rec,) = [json.loads(x) for x in manifest.read_text().splitlines()]
+    assert rec["approximate"] == r.approximate

@@ -118,7 +118,7 @@ def test_a_patch_of_the_module_is_what_the_package_shows(monkeypatch):
     assert geovox.inside.choose is geovox.inside.winding.choose is not fake
 
 
-@pytest.mark.parametrize("package, name", [("geovox.inside", "PAIR_BUDGET"),
+@pytest.mark.parametrize("package, name", [("geovox.inside", "WORK_SECONDS"),
                                            ("geovox.colour", "CHUNK_VOXELS"),
                                            ("geovox.cli", "main")])
 def test_a_patch_of_the_package_is_refused_with_where_to_set_it(monkeypatch, package, name):

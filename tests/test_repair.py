@@ -253,15 +253,18 @@ def test_streamed_winding_of_a_repaired_copy_equals_the_volume_in_one_piece(tmp_
 
 
 def test_past_the_work_budget_the_estimate_decides_with_a_warning(monkeypatch):
-    monkeypatch.setenv("GEOVOX_KERNEL", "numpy")  # the NumPy traversal's budget, in pairs
+    monkeypatch.setenv("GEOVOX_KERNEL", "numpy")  # the NumPy traversal's budget, of time
     mesh = open_boxes(40)
     with pytest.warns(GeovoxWarning):
         exact = geovox.voxelize(mesh, resolution=22)
-    monkeypatch.setattr(inside, "PAIR_BUDGET", 1)
+    assert exact.approximate == 0
+    monkeypatch.setattr(inside, "WORK_SECONDS", 0.0)
     with pytest.warns(GeovoxWarning) as record:
         rough = geovox.voxelize(mesh, resolution=22)
-    assert any(re.search("[0-9,]+ of 10,648 voxels .* are approximate; the holes' caps passed the "
-                         "work budget", str(r.message)) for r in record)
+    said = [re.search("([0-9,]+) of 10,648 voxels .* are approximate; the holes' caps passed the "
+                      "work budget", str(r.message)) for r in record]
+    (n,) = [int(m.group(1).replace(",", "")) for m in said if m]
+    assert rough.approximate == n > 0
     # The first pass's estimate (error bound up to its opening ratio) still
     # decides nearly every voxel as the exact sum does.
     assert np.mean(rough.occupancy == exact.occupancy) >= 0.99
@@ -310,7 +313,7 @@ def test_a_refining_pass_sure_to_pass_the_budget_is_not_started(monkeypatch):
     calls = []
     real = inside.cap_winding
     monkeypatch.setattr(inside, "cap_winding", lambda *a, **k: calls.append(k) or real(*a, **k))
-    monkeypatch.setattr(inside, "PAIR_BUDGET", 1)
+    monkeypatch.setattr(inside, "WORK_SECONDS", 0.0)
     with pytest.warns(GeovoxWarning) as record:
         geovox.voxelize(mesh, resolution=22)
     assert len(calls) == 1

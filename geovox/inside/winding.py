@@ -32,6 +32,7 @@ what was repaired, unless the mesh only had overlapping closed pieces).
 from __future__ import annotations
 
 import os
+import time
 from types import SimpleNamespace
 
 import numpy as np
@@ -335,11 +336,15 @@ def winding_occupancy(mesh: Mesh, grid, cast, axis: int, jobs: int = 1):
     -------
     occupancy : (nx, ny, nz) bool, Fortran order
     hits, columns : the crossings of the original mesh's triangles
+    approximate : int
+        Voxels left to an estimate of the caps' winding number (the work
+        budget ran out, see ``WORK_SECONDS``; said in a warning too); 0 where
+        every voxel is proven or summed exactly.
     """
     tmesh, rep = target(mesh)
     if len(tmesh.faces) == 0:  # every face degenerate: no crossings, nothing inside
         hits, columns = cast(mesh, axis)
-        return np.zeros(grid.shape, dtype=bool, order="F"), hits, columns
+        return np.zeros(grid.shape, dtype=bool, order="F"), hits, columns, 0
     closed, cap_tris, _ = bridged(tmesh)
     nf = len(tmesh.faces)
     from ..memory import check_memory
@@ -347,15 +352,20 @@ def winding_occupancy(mesh: Mesh, grid, cast, axis: int, jobs: int = 1):
     check_memory(grid, 1.0 + working_bytes(mesh, "winding"))
     hits, columns = cast(closed, axis)
     w = signed_counts(closed, hits, columns, grid, jobs)
+    approximate = 0
     if len(cap_tris):
         occ = np.zeros(grid.shape, dtype=bool, order="F")
-        _correct_caps(occ, w, grid, cap_tris, jobs)
+        left = _correct_caps(occ, w, grid, cap_tris, jobs)
+        left = settle_ties(occ, w, grid, cap_tris, hits.take(hits.triangle >= nf), hits, columns,
+                           left)
+        if left is not None:
+            approximate = _estimated(left, grid)
         hits = hits.take(hits.triangle < nf)
     else:
         occ = np.asfortranarray(w != 0)
     if rep is not None:
         hits = rep.original_hits(hits)
-    return occ, hits, columns
+    return occ, hits, columns, approximate
 
 
 def working_bytes(mesh: Mesh, method: str) -> float:
@@ -544,9 +554,6 @@ EPS = 1e-4
 #: The traversal's passes: (THETA, EPS) of each, tighter each time, over the
 #: voxels the one before left undecided; then the exact sum.
 PASSES = ((1.0, 1e-3), (0.3, 1e-5), (0.1, 1e-6))
-#: (brick, cap group) pairs a refining pass may handle (about 10 s here) before
-#: the voxels it would refine are decided by the estimate they have, with a warning.
-PAIR_BUDGET = 10_000_000
 #: The last compiled run's counts: voxels refined alone, of them summed
 #: exactly, left to the estimate; and the cap triangles.
 STATS: dict = {}
@@ -556,10 +563,20 @@ COMPILED_PASSES = ((0.2, 1e-4), (0.25, 1e-6), (0.1, 1e-7))
 #: The compiled kernel's top bricks are about the grid's largest side over
 #: this, voxels a side (a power of two; each top brick starts from the root of the caps' tree).
 TOP_VOXELS = 8
-#: Processor seconds per thread the compiled kernel may spend (from its
-#: start) before it leaves the voxels its first pass left undecided to their
-#: estimates, with a warning (about what PAIR_BUDGET allows the NumPy traversal).
+#: The work budget of the caps' winding number, in processor seconds per
+#: thread (the process's processor time, so a loaded machine's waiting does
+#: not spend it), counted from the start of a block's caps. Past it, the
+#: voxels the first pass left undecided keep their estimates: they are
+#: counted (``Report.approximate``) and said in a warning. The first pass
+#: always runs to its end; until the budget runs out nothing depends on time.
+#: The compiled kernel checks it before refining each voxel; the NumPy
+#: traversal (one thread) between chunks of pairs, before a pass it cannot
+#: finish in time (its sure work, see :func:`_sure_work`, at the rate of the
+#: pass before), and between blocks of the exact sums.
 WORK_SECONDS = 10.0
+#: A voxel centre within this share of a voxel of a cap crossing along its
+#: column is a tie (see :func:`settle_ties`).
+TIE = 1e-4
 #: (brick, cap group) pairs handled at once: bounds the traversal's memory.
 PAIR_CHUNK = 1 << 17
 #: Undecided voxels times cap triangles up to which they are summed exactly
@@ -632,7 +649,7 @@ def _triangle_angles(tris: np.ndarray, points: np.ndarray) -> np.ndarray:
     return np.arctan2(num, den) / (2.0 * np.pi)
 
 
-def cap_winding(grid, tris, active, theta=THETA, eps=EPS, budget=None, then=None):
+def cap_winding(grid, tris, active, theta=THETA, eps=EPS, budget=None, then=None, deadline=None):
     """The caps' winding number ``w_K`` over bricks of voxels, hierarchically, with a bound.
 
     A dual-tree traversal in whole arrays. Voxels are grouped in cubic
@@ -658,10 +675,16 @@ def cap_winding(grid, tris, active, theta=THETA, eps=EPS, budget=None, then=None
         traversal starts at the top level and never enters an inactive brick.
 
     budget : int, optional
-        Give up (return None) once this many pairs have been handled.
+        Give up (return None) once more than this many pairs have been
+        handled (a count that does not depend on time: for tests of
+        :func:`_sure_work`).
     then : (theta, eps), optional
         The next pass's opening ratio and tolerance: count, per brick, the
         pairs the next pass is sure to visit (see ``work``).
+    deadline : float, optional
+        Give up (return None) once :func:`time.process_time` reaches it,
+        checked before each chunk of ``PAIR_CHUNK`` pairs (the work budget,
+        see ``WORK_SECONDS``).
 
     Returns
     -------
@@ -686,6 +709,8 @@ def cap_winding(grid, tris, active, theta=THETA, eps=EPS, budget=None, then=None
         enters (what was not far here is not far there), and the children of
         each such split, so these give a lower bound on its work (see
         :func:`_sure_work`). None without ``then``.
+    pairs : int
+        The pairs handled.
     """
     tris, nodes, offset, size = _cap_tree(tris)
     top = len(size) - 1
@@ -714,7 +739,8 @@ def cap_winding(grid, tris, active, theta=THETA, eps=EPS, budget=None, then=None
     while stack:
         kb, b, ln, nj = stack.pop()
         handled += min(len(kb), PAIR_CHUNK)
-        if budget is not None and handled > budget:
+        if (budget is not None and handled > budget) or (
+                deadline is not None and time.process_time() >= deadline):
             return None
         if len(kb) > PAIR_CHUNK:
             stack.append((kb[PAIR_CHUNK:], b[PAIR_CHUNK:], ln[PAIR_CHUNK:], nj[PAIR_CHUNK:]))
@@ -749,7 +775,7 @@ def cap_winding(grid, tris, active, theta=THETA, eps=EPS, budget=None, then=None
     if budget is not None and handled > budget:
         return None
     est[0] = _merge(est[0])
-    return est, err, work
+    return est, err, work, handled
 
 
 def _pairs(lo, d, nodes, offset, kb, b, ln, nj, theta, eps):
@@ -1020,7 +1046,7 @@ def _merge(parts):
     return lin[starts], val, below, above, np.add.reduceat(count[order], starts)
 
 
-def _correct_caps(occ, w, grid, cap_tris, jobs: int = 1) -> None:
+def _correct_caps(occ, w, grid, cap_tris, jobs: int = 1):
     """Decide ``w_M = w_{M+K} - w_K > 1/2`` with the caps' winding number from :func:`cap_winding`.
 
     A first pass gives every voxel an estimate of ``w_K`` and a proven bound
@@ -1030,22 +1056,35 @@ def _correct_caps(occ, w, grid, cap_tris, jobs: int = 1) -> None:
     every cap triangle (straight away, once they are few: see ``DIRECT``).
     The compiled kernel, where it is built, does the same per voxel (see
     :func:`_compiled_caps`).
+
+    The passes after the first and the exact sums stop at the work budget
+    (``WORK_SECONDS`` of processor time from here; the NumPy traversal runs
+    in one thread): a pass is given up when it reaches it, or not started
+    when its sure work (:func:`_sure_work`) at the rate of the pass before
+    would pass it. Until then nothing depends on time.
+
+    Returns
+    -------
+    (nx, ny, nz) bool or None
+        The voxels left to their estimates (the budget ran out), or None.
     """
     module = winding_kernel()
     if module is not None:
         return _compiled_caps(module, occ, w, grid, cap_tris, jobs)
+    deadline = time.process_time() + WORK_SECONDS
     shape = np.asarray(grid.shape)
     top = max(0, int(np.ceil(np.log2(max(1, int(shape.max()) / 16)))))
     active = _pyramid(grid.shape, top)
     first = True
     for i, (theta, eps) in enumerate(PASSES):
+        started = time.process_time()
         got = cap_winding(grid, cap_tris, active, theta=theta, eps=eps,
-                          budget=None if first else PAIR_BUDGET,
+                          deadline=None if first else deadline,
                           then=PASSES[i + 1] if i + 1 < len(PASSES) else None)
         if got is None:
-            _estimated(active[0], grid)
-            return
-        est, err, work = got
+            return active[0]
+        est, err, work, pairs = got
+        rate = (time.process_time() - started) / max(pairs, 1)  # seconds a pair
         level0 = est[0]
         lin0, val0, below0, above0, _ = level0
         # Every coarse level's sums, pushed down to bricks of 2³ voxels.
@@ -1099,7 +1138,7 @@ def _correct_caps(occ, w, grid, cap_tris, jobs: int = 1) -> None:
         first = False
         n_unsure = int(np.count_nonzero(unsure))
         if n_unsure == 0:
-            return
+            return None
         if n_unsure * len(cap_tris) <= DIRECT:
             # So few left that summing every cap triangle at each costs less
             # than a pass's set-up over the whole grid.
@@ -1109,27 +1148,135 @@ def _correct_caps(occ, w, grid, cap_tris, jobs: int = 1) -> None:
         # hold unsure voxels, visits every pair this pass visited on such a
         # brick (a pair that was split here is split there too), and at least
         # one child of each pair that was far here but not there: a lower
-        # bound on its work (see cap_winding's ``work``). Past the budget
-        # that pass would give up anyway: give up now, with the same result,
-        # without spending the budget first.
+        # bound on its work (see cap_winding's ``work``). Where that work,
+        # at this pass's rate, would pass the budget, that pass would give
+        # up anyway: give up now, without spending the budget first.
         active = _pyramid(unsure, top)
-        if i + 1 < len(PASSES) and _sure_work(unsure, level0, work, active) > PAIR_BUDGET:
-            _estimated(unsure, grid)
-            return
+        if i + 1 < len(PASSES) and (_sure_work(unsure, level0, work, active) * rate
+                                    > deadline - time.process_time()):
+            return unsure
         del work, level0, lin0, val0, below0, above0
     # The last few: the exact sum over every cap triangle.
-    idx = _argwhere(active[0])
-    if len(idx) * len(cap_tris) > 4 * PAIR_BUDGET:
-        _estimated(active[0], grid)
-        return
+    return _exact_caps(occ, w, grid, cap_tris, _argwhere(active[0]), deadline)
+
+
+def _exact_caps(occ, w, grid, cap_tris, idx, deadline=None):
+    """Decide voxels ``idx`` ((n, 3) int64) on the exact sum of ``w_K`` over every cap triangle.
+
+    In blocks of about 65,536 (voxel, triangle) pairs; once
+    :func:`time.process_time` reaches ``deadline``, the voxels not yet summed
+    keep the decisions they have.
+
+    Returns
+    -------
+    (nx, ny, nz) bool or None
+        Those voxels, or None where every one was summed.
+    """
     centres = [grid.centres(a) for a in range(3)]
     block = max(1, (1 << 16) // len(cap_tris))
     for s in range(0, len(idx), block):
+        if deadline is not None and time.process_time() >= deadline:
+            left = np.zeros(grid.shape, dtype=bool)
+            left[tuple(idx[s:].T)] = True
+            return left
         ii = tuple(idx[s:s + block].T)
         p = np.stack([centres[a][ii[a]] for a in range(3)], axis=1)
-        k = len(p)
-        wk = _triangle_angles(np.tile(cap_tris, (k, 1, 1)), np.repeat(p, len(cap_tris), axis=0))
-        occ[ii] = (w[ii] - wk.reshape(k, -1).sum(axis=1)) > 0.5
+        occ[ii] = (w[ii] - _exact_sums(cap_tris, p)) > 0.5
+    return None
+
+
+def settle_ties(occ, w, grid, cap_tris, cap_hits, hits, columns, left=None):
+    """Decide again the voxels whose centre lies on a cap, on the side the rays counted it.
+
+    ``w_{M+K}`` counts a crossing at a voxel centre as passed (see
+    :mod:`geovox.exact`), with the exact decisions of a mesh snapped to a
+    lattice; the caps' solid angle at a point on a cap triangle jumps by 1
+    there (and is ``atan2(0, 0)`` on its edges), so the two terms of
+    ``w_M = w_{M+K} - w_K`` could take the point on different sides of the
+    cap, and ``w_M`` be off by 1/2 or 1. ``w_M`` itself is continuous there
+    (the caps are not part of M): where a cap crossing on a voxel's column
+    lies within ``TIE`` of a voxel of its centre, ``w_K`` is summed exactly
+    at a point moved along the column to the middle of the gap between the
+    crossings the rays counted before the centre and after it (no further
+    than ``4 TIE`` voxels), so both terms see the same side of every
+    crossing. The same for either kernel; the moved point shifts ``w_M`` by
+    about ``TIE`` voxels times its gradient.
+
+    Parameters
+    ----------
+    occ : (nx, ny, nz) bool, Fortran order, written
+    w : (nx, ny, nz) int16
+        ``w_{M+K}`` per voxel (:func:`signed_counts`).
+    cap_tris : (k, 3, 3) float64
+    cap_hits, hits : Hits
+        The crossings of cap triangles, and every crossing of the capped
+        mesh, along ``columns``.
+    left : (nx, ny, nz) bool or None
+        The voxels left to their estimates: the settled ones are no longer.
+
+    The exact sums stop at the work budget (``WORK_SECONDS`` from here); the
+    ties not summed by then keep their decisions and join ``left``.
+
+    Returns
+    -------
+    (nx, ny, nz) bool or None
+        ``left`` without the settled voxels (with those the budget left).
+    """
+    axis, h, n = columns.axis, float(grid.spacing[columns.axis]), grid.shape[columns.axis]
+    centres = (np.arange(n) + 0.5) * h  # as signed_counts compares them
+    reach = 4 * TIE * h
+
+    def nearest(depth):  # each depth's nearest centre, and how far from it
+        k = np.clip(np.rint(depth / h - 0.5).astype(np.int64), 0, n - 1)
+        return k, np.abs(depth - centres[k])
+
+    k, off = nearest(cap_hits.depth)
+    near = off <= TIE * h
+    if not near.any():
+        return left
+    # One entry per (column, centre); then every crossing within ``reach`` of it.
+    key = np.unique(cap_hits.ray[near] * n + k[near])
+    ray, k = key // n, key % n
+    c = centres[k]
+    kh, off = nearest(hits.depth)
+    close = np.flatnonzero(off <= reach)  # few: no search over every crossing
+    hkey = hits.ray[close] * n + kh[close]
+    close = close[np.isin(hkey, key)]
+    tie = np.searchsorted(key, hits.ray[close] * n + kh[close])
+    d = hits.depth[close]
+    lo, hi = c - reach, c + reach
+    before = d <= c[tie]
+    np.maximum.at(lo, tie[before], d[before])
+    np.minimum.at(hi, tie[~before], d[~before])
+    idx = [None, None, None]
+    idx[columns.u_axis], idx[columns.v_axis], idx[axis] = ray % columns.nu, ray // columns.nu, k
+    p = np.stack([grid.centres(a)[idx[a]] for a in range(3)], axis=1)
+    p[:, axis] = grid.lo[axis] + (lo + hi) / 2
+    ii = tuple(idx)
+    if left is not None:
+        left[ii] = False
+    # A planar cap along a layer of centres makes a whole layer of ties: the
+    # work budget holds here too, and what it leaves is counted.
+    deadline = time.process_time() + WORK_SECONDS
+    block = max(1, (1 << 16) // len(cap_tris))
+    for s in range(0, len(p), block):
+        sub = tuple(x[s:s + block] for x in ii)
+        if time.process_time() >= deadline:
+            if left is None:
+                left = np.zeros(grid.shape, dtype=bool)
+            left[tuple(x[s:] for x in ii)] = True
+            break
+        occ[sub] = (w[sub] - _exact_sums(cap_tris, p[s:s + block])) > 0.5
+    if left is not None and not left.any():
+        left = None
+    return left
+
+
+def _exact_sums(tris, points):
+    """(n,) float64: the solid angle over 4 pi of every triangle of ``tris`` (k, 3, 3) summed at each point (n, 3)."""
+    k = len(points)
+    wk = _triangle_angles(np.tile(tris, (k, 1, 1)), np.repeat(points, len(tris), axis=0))
+    return wk.reshape(k, -1).sum(axis=1)
 
 
 def winding_kernel():
@@ -1152,8 +1299,12 @@ def _compiled_caps(module, occ, w, grid, cap_tris, jobs) -> None:
     (``COMPILED_PASSES[0]``); each voxel it leaves undecided is refined
     alone at once by the tighter passes, then summed exactly over every cap
     triangle. Only past ``WORK_SECONDS`` of processor time per thread is an
-    undecided voxel left to its estimate (with the
-    warning of :func:`_estimated`).
+    undecided voxel left to its estimate.
+
+    Returns
+    -------
+    (nx, ny, nz) bool or None
+        The voxels left to their estimates, or None.
     """
     from ..colour import nearest
 
@@ -1175,7 +1326,8 @@ def _compiled_caps(module, occ, w, grid, cap_tris, jobs) -> None:
         c3(np.asarray(COMPILED_PASSES[1:], float).reshape(-1, 2)), WORK_SECONDS, max(1, int(jobs)))
     STATS.update(zip(("refined", "exact", "estimated"), counts), caps=len(tris))
     if estimated.any():
-        _estimated(estimated.view(bool).reshape(grid.shape, order="F"), grid)
+        return estimated.view(bool).reshape(grid.shape, order="F")
+    return None
 
 
 def _first_moments(tris, nodes, size):
@@ -1194,15 +1346,25 @@ def _first_moments(tris, nodes, size):
     return np.ascontiguousarray(m - (nodes["S"][:, :, None] * nodes["c"][:, None, :]).reshape(-1, 9))
 
 
-def _estimated(unsure, grid) -> None:
+def _estimated(unsure, grid) -> int:
+    """Say how many voxels of ``grid`` (the True ones of ``unsure``) are approximate; return that count."""
     n = int(np.count_nonzero(unsure))
-    share = 100.0 * n / grid.size
+    if n:
+        warn(approximate_warning(n, grid.size), stacklevel=3)
+    return n
+
+
+def approximate_warning(n: int, total: int) -> str:
+    """The second of the two short lines a messy model gets (see :func:`repair_warning`).
+
+    How many of the ``total`` voxels the estimate of the winding number
+    decided (``n``, the Report's ``approximate``).
+    """
+    share = 100.0 * n / total
     # "99.6 %" or "0.0031 %", never "1e+02 %"
     share = f"{share:.1f}" if share >= 1 else f"{share:.2g}"
-    # The second of the two short lines a messy model gets (see repair_warning):
-    # how many voxels the estimate of the winding number decided.
-    warn(f"{n:,} of {grid.size:,} voxels ({share} %) are approximate; the holes' caps passed "
-         f"the work budget (--inside vote is faster)", stacklevel=4)
+    return (f"{n:,} of {total:,} voxels ({share} %) are approximate; the holes' caps passed "
+            f"the work budget (--inside vote is faster)")
 
 
 def choose(mesh: Mesh, method: str) -> str:
