@@ -36,6 +36,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..kernels import lattice
 from ..mesh import Mesh
 
 
@@ -155,22 +156,53 @@ def edge_table(faces: np.ndarray, nv: int):
     forward : (3k,) bool
         The face runs the edge from its lower to its higher vertex id.
     """
+    return sorted_edges(faces, nv)[:3]
+
+
+def sorted_edges(faces: np.ndarray, nv: int):
+    """:func:`edge_table`, and the slots sorted by edge (then slot).
+
+    Edges are numbered in order of their ``(lower, higher)`` vertex ids
+    either way: by ``np.unique`` of the keys, or by the compiled kernel's
+    counting sort (:func:`geovox._lattice.edge_sort`, linear), which gives
+    the same arrays.
+
+    Returns
+    -------
+    edge, count, forward
+        As :func:`edge_table`.
+    order : (3k,) int64
+        ``np.argsort(edge, kind="stable")``.
+    """
     a = faces.reshape(-1)
     b = faces[:, [1, 2, 0]].reshape(-1)
+    kernel = lattice()
+    if kernel is not None:
+        order, edge, _, _, count, _ = kernel.edge_sort(faces)
+        return edge, count, a < b, order
     key = np.minimum(a, b) * np.int64(nv) + np.maximum(a, b)
     _, edge, count = np.unique(key, return_inverse=True, return_counts=True)
-    return edge.reshape(-1), count, a < b
+    edge = edge.reshape(-1)
+    return edge, count, a < b, np.argsort(edge, kind="stable")
 
 
-def manifold_pairs(edge: np.ndarray, count: np.ndarray):
+def manifold_pairs(edge: np.ndarray, count: np.ndarray, order: np.ndarray | None = None):
     """The two face-edge slots of every edge used by exactly two faces.
+
+    Parameters
+    ----------
+    edge, count
+        As :func:`edge_table` gives them.
+    order : (3k,) int64, optional
+        The slots sorted by edge (:func:`sorted_edges`); sorted here when absent.
 
     Returns
     -------
     (p, 2) int64
         Slots ``3 f + j`` (see :func:`edge_table`), one row per manifold edge.
     """
-    order = np.argsort(edge, kind="stable")
+    if order is None:
+        order = np.argsort(edge, kind="stable")
     e = edge[order]
     two = count[e] == 2
     slots = order[two]
@@ -220,7 +252,15 @@ def components(n: int, a: np.ndarray, b: np.ndarray, odd: np.ndarray | None = No
     parity : (n,) bool
         Each node's parity relative to the smallest node of its component
         (all False without ``odd``).
+
+    Notes
+    -----
+    The compiled kernel (:func:`geovox._lattice.components`) runs the same
+    rounds in loops, so it gives the same arrays, parities included.
     """
+    kernel = lattice()
+    if kernel is not None:
+        return kernel.components(int(n), a, b, odd)
     root = np.arange(n, dtype=np.int64)
     x = np.zeros(n, dtype=bool)
     a, b = np.asarray(a, np.int64), np.asarray(b, np.int64)
@@ -270,7 +310,9 @@ def close_pairs(pos: np.ndarray, tol: float) -> np.ndarray:
     Returns
     -------
     (p, 2) int64
-        ``i < j`` in each row.
+        ``i < j`` in each row; the rows in no particular order (the compiled
+        kernel's hash table of cells, :func:`geovox._lattice.near_pairs`,
+        finds the same pairs in another order).
     """
     n = len(pos)
     if n < 2 or not tol > 0:
@@ -281,6 +323,15 @@ def close_pairs(pos: np.ndarray, tol: float) -> np.ndarray:
         from scipy.spatial import cKDTree
 
         return np.sort(cKDTree(pos).query_pairs(tol, output_type="ndarray").astype(np.int64), axis=1)
+    kernel = lattice()
+    if kernel is not None:
+        # Candidates through a hash table of coarser cells (no sort): a
+        # superset of the pairs that pass the tests below.
+        low = pos.min(axis=0)
+        pairs = kernel.near_pairs(np.ascontiguousarray(pos, dtype=np.float64), low, tol, 16 * tol)
+        # Of those, the pairs in neighbouring cells of this grid, as here.
+        pairs = pairs[np.all(np.abs(q[pairs[:, 0]] - q[pairs[:, 1]]) <= 1, axis=1)]
+        return _within(pos, pairs, tol)
     key = (q[:, 0] * dims[1] + q[:, 1]) * dims[2] + q[:, 2]
     order = np.argsort(key, kind="stable")
     sk = key[order]
@@ -302,7 +353,11 @@ def close_pairs(pos: np.ndarray, tol: float) -> np.ndarray:
         out.append(np.stack([ii[keep], jj[keep]], axis=1))
     if not out:
         return np.zeros((0, 2), np.int64)
-    pairs = np.concatenate(out)
+    return _within(pos, np.concatenate(out), tol)
+
+
+def _within(pos, pairs, tol):
+    """The pairs of points at most ``tol`` apart, lower index first: (p, 2) int64."""
     d = pos[pairs[:, 0]] - pos[pairs[:, 1]]
     pairs = pairs[np.einsum("ij,ij->i", d, d) <= tol * tol]
     return np.sort(pairs, axis=1)
@@ -357,14 +412,14 @@ def _inner_walls(faces: np.ndarray, both: np.ndarray, nv: int) -> np.ndarray:
     drop = np.zeros(len(faces), dtype=bool)
     if not both.any():
         return drop
-    edge, count, _ = edge_table(faces, nv)
+    edge, count, _, slots = sorted_edges(faces, nv)
     slot_face = np.repeat(np.arange(len(faces)), 3)
     two = both[slot_face]
     # Per edge: the faces outside any wall that use it.
     outside = np.bincount(edge[~two], minlength=len(count))
-    # Walls: two-sided faces joined through shared edges.
+    # Walls: two-sided faces joined through shared edges (their slots, by edge).
     w_slots = np.flatnonzero(two)
-    order = w_slots[np.argsort(edge[w_slots], kind="stable")]
+    order = slots[two[slots]]
     e = edge[order]
     link = np.flatnonzero(e[1:] == e[:-1])
     idx = np.flatnonzero(both)
@@ -379,6 +434,73 @@ def _inner_walls(faces: np.ndarray, both: np.ndarray, nv: int) -> np.ndarray:
     return drop
 
 
+def merged_faces(mesh: Mesh):
+    """The faces over the vertices they use, merged by position, in lexicographic order.
+
+    ``np.unique(mesh.geometric_faces, return_inverse=True)``, cached on the
+    mesh: with the compiled kernel, the positions are merged by a hash
+    (:func:`geovox._lattice.merge_positions`) and only the distinct ones a
+    face uses are sorted; without it, :attr:`Mesh.geometric_faces` is
+    renumbered by a count (no second sort).
+
+    Returns
+    -------
+    n : int
+        Distinct positions the faces use.
+    faces : (m, 3) int64
+        Each corner's position, numbered ``0 .. n - 1`` in lexicographic
+        order of ``(x, y, z)``.
+    """
+    if "merged_faces" not in mesh._cache:
+        kernel = lattice()
+        if kernel is None or "geometric_faces" in mesh._cache:
+            ids, nid = mesh.geometric_faces, len(mesh.vertices)
+        else:
+            ids = kernel.merge_positions(mesh.vertices)[mesh.faces]
+            nid = int(ids.max()) + 1
+        used = np.zeros(nid, dtype=bool)
+        used[ids.reshape(-1)] = True
+        if kernel is None or "geometric_faces" in mesh._cache:  # already lexicographic
+            rank = np.cumsum(used) - 1
+        else:
+            where = np.flatnonzero(used)
+            one = np.empty(nid, dtype=np.int64)  # a vertex at each position
+            one[ids.reshape(-1)] = mesh.faces.reshape(-1)
+            v = mesh.vertices[one[where]]
+            rank = np.empty(nid, dtype=np.int64)
+            rank[where[np.lexsort((v[:, 2], v[:, 1], v[:, 0]))]] = np.arange(len(where))
+        mesh._cache["merged_faces"] = (int(np.count_nonzero(used)), rank[ids].astype(np.int64))
+    return mesh._cache["merged_faces"]
+
+
+def _face_groups(s: np.ndarray, nv: int):
+    """Faces with the same vertex set, groups numbered in order of their first face.
+
+    Parameters
+    ----------
+    s : (k, 3) int64
+        Each face's vertices, sorted.
+
+    Returns
+    -------
+    first : (g,) int64
+        Each group's first face (increasing).
+    group : (k,) int64
+    """
+    kernel = lattice()
+    if kernel is not None:
+        return kernel.face_groups(s)  # a hash of the rows: linear, the same groups
+    if nv < (1 << 21):  # three ids in one int64 key: a flat unique, far faster than by rows
+        key = (s[:, 0] * np.int64(nv) + s[:, 1]) * np.int64(nv) + s[:, 2]
+        _, first, inverse = np.unique(key, return_index=True, return_inverse=True)
+    else:
+        _, first, inverse = np.unique(s, axis=0, return_index=True, return_inverse=True)
+    order = np.argsort(first)
+    renumber = np.empty(len(first), dtype=np.int64)
+    renumber[order] = np.arange(len(first))
+    return first[order], renumber[inverse.reshape(-1)]
+
+
 def repair(mesh: Mesh) -> Repair:
     """A consistently oriented, outward-facing copy of ``mesh`` (see the module notes).
 
@@ -390,9 +512,8 @@ def repair(mesh: Mesh) -> Repair:
     -------
     Repair
     """
-    used, g = np.unique(mesh.geometric_faces, return_inverse=True)
-    g = g.reshape(-1, 3)
-    pos = np.zeros((len(used), 3))
+    nused, g = merged_faces(mesh)
+    pos = np.zeros((nused, 3))
     pos[g.reshape(-1)] = mesh.vertices[mesh.faces.reshape(-1)]
     g, pos, welded = _weld(g, pos, WELD * mesh.scale)
     nv = len(pos)
@@ -413,12 +534,7 @@ def repair(mesh: Mesh) -> Repair:
 
     # Duplicates: the same vertex set; the first face of each set stays.
     s = np.sort(g[keep], axis=1)
-    if nv < (1 << 21):  # three ids in one int64 key: a flat unique, far faster than by rows
-        key = (s[:, 0] * np.int64(nv) + s[:, 1]) * np.int64(nv) + s[:, 2]
-        _, first, inverse = np.unique(key, return_index=True, return_inverse=True)
-    else:
-        _, first, inverse = np.unique(s, axis=0, return_index=True, return_inverse=True)
-    inverse = inverse.reshape(-1)
+    first, inverse = _face_groups(s, nv)
     # Winding of each face relative to its sorted vertex order (even or odd permutation).
     w = g[keep]
     rot = np.argmin(w, axis=1)
@@ -434,8 +550,6 @@ def repair(mesh: Mesh) -> Repair:
     # an inner wall (see _inner_walls), which goes on both sides.
     both = np.zeros(len(first), dtype=bool)
     both[inverse[~same]] = True
-    order = np.argsort(first)
-    first, both = first[order], both[order]
     wall = _inner_walls(g[keep[first]], both, nv)
     inner = int(np.count_nonzero(wall))
     first = first[~wall]
@@ -443,8 +557,8 @@ def repair(mesh: Mesh) -> Repair:
     f = g[face]
     nf = len(f)
 
-    edge, count, forward = edge_table(f, nv)
-    pairs = manifold_pairs(edge, count)
+    edge, count, forward, slots = sorted_edges(f, nv)
+    pairs = manifold_pairs(edge, count, slots)
     # Two faces agree across an edge when they run it in opposite directions.
     fp = pairs // 3
     npieces, label, flip = components(nf, fp[:, 0], fp[:, 1],
@@ -476,6 +590,10 @@ def repair(mesh: Mesh) -> Repair:
     f = np.where(turn[label][:, None], f[:, [0, 2, 1]], f)
     swapped = flip ^ turn[label]
     out = Mesh(pos, f, source=mesh.source)
+    # Its vertices are distinct and in lexicographic order (the first of
+    # each merged group, in order): merging them by position numbers them
+    # as they are, so the lexicographic sort of that is not needed.
+    out._cache["geometric_faces"] = f
     return Repair(mesh=out, face=face, swapped=swapped, piece=label, merged_vertices=int(merged), welded=int(welded),
                   degenerate=int(degenerate), duplicates=duplicates, opposite=opposite, inner=inner,
                   flipped=int(np.count_nonzero(swapped)), pieces=npieces,
