@@ -579,7 +579,10 @@ def merge_positions(vertices):
 
 cdef void _sort_bucket(int64_t[::1] hi, int64_t[::1] slot, int64_t[::1] tmp_h,
                        int64_t[::1] tmp_s, Py_ssize_t a, Py_ssize_t b) noexcept nogil:
-    """Stable sort of ``hi[a:b]`` (carrying ``slot``): insertion for a few, else merging."""
+    """Stable sort of ``hi[a:b]`` (carrying ``slot``): insertion for a few, else merging.
+
+    ``tmp_h`` and ``tmp_s`` hold at least ``b - a`` entries (indexed from 0).
+    """
     cdef Py_ssize_t i, j, w, lo, mid, hi_end, p, q
     cdef int64_t h, s
     if b - a <= SMALL:
@@ -598,7 +601,7 @@ cdef void _sort_bucket(int64_t[::1] hi, int64_t[::1] slot, int64_t[::1] tmp_h,
         while lo < b:
             mid = lo + w if lo + w < b else b
             hi_end = lo + 2 * w if lo + 2 * w < b else b
-            p, q, i = lo, mid, lo
+            p, q, i = lo, mid, lo - a
             while p < mid and q < hi_end:
                 if hi[q] < hi[p]:
                     tmp_h[i], tmp_s[i] = hi[q], slot[q]
@@ -617,7 +620,7 @@ cdef void _sort_bucket(int64_t[::1] hi, int64_t[::1] slot, int64_t[::1] tmp_h,
                 i += 1
             lo = hi_end
         for i in range(a, b):
-            hi[i], slot[i] = tmp_h[i], tmp_s[i]
+            hi[i], slot[i] = tmp_h[i - a], tmp_s[i - a]
         w *= 2
 
 
@@ -650,54 +653,63 @@ def edge_sort(faces):
         Slots running it from low to high, less those running it back.
     """
     cdef const int64_t[:, ::1] fv = np.ascontiguousarray(faces, dtype=np.int64)
-    cdef Py_ssize_t m = fv.shape[0], s, i, v
+    cdef Py_ssize_t m = fv.shape[0], f, i, v, big = 0
+    cdef int k
     cdef int64_t n = int(np.max(faces)) + 1 if m else 1
-    cdef int64_t a, b, lo, e
+    cdef int64_t a, b, lo, e, s
     start_a = np.zeros(n + 1, np.int64)
     cdef int64_t[::1] start = start_a
-    for s in range(3 * m):
-        a, b = fv[s // 3, s % 3], fv[s // 3, (s % 3 + 1) % 3]
-        if a != b:
-            start[(a if a < b else b) + 1] += 1
+    for f in range(m):
+        for k in range(3):
+            a, b = fv[f, k], fv[f, (k + 1) % 3]
+            if a != b:
+                start[(a if a < b else b) + 1] += 1
     for v in range(n):
+        if start[v + 1] > big:
+            big = start[v + 1]
         start[v + 1] += start[v]
     cdef Py_ssize_t q = start[n]
-    order_a = np.empty(q, np.int64)
+    # Each bucket entry: the higher vertex, and the slot times 2 plus
+    # whether the face runs the edge from low to high.
+    packed_a = np.empty(q, np.int64)
     bh_a = np.empty(q, np.int64)
     pos_a = start_a[:n].copy()
-    cdef int64_t[::1] order = order_a, bh = bh_a, pos = pos_a
-    for s in range(3 * m):  # in slot order: each bucket starts sorted by slot
-        a, b = fv[s // 3, s % 3], fv[s // 3, (s % 3 + 1) % 3]
-        if a != b:
-            lo = a if a < b else b
-            order[pos[lo]] = s
-            bh[pos[lo]] = b if a < b else a
-            pos[lo] += 1
-    th_a = np.empty(q, np.int64)
-    ts_a = np.empty(q, np.int64)
+    cdef int64_t[::1] packed = packed_a, bh = bh_a, pos = pos_a
+    for f in range(m):  # in slot order: each bucket starts sorted by slot
+        for k in range(3):
+            a, b = fv[f, k], fv[f, (k + 1) % 3]
+            if a != b:
+                lo = a if a < b else b
+                packed[pos[lo]] = 2 * (3 * f + k) + (a < b)
+                bh[pos[lo]] = b if a < b else a
+                pos[lo] += 1
+    th_a = np.empty(big if big > SMALL else 0, np.int64)
+    ts_a = np.empty(big if big > SMALL else 0, np.int64)
     cdef int64_t[::1] th = th_a, ts = ts_a
     for v in range(n):
         if start[v + 1] - start[v] > 1:
-            _sort_bucket(bh, order, th, ts, start[v], start[v + 1])
+            _sort_bucket(bh, packed, th, ts, start[v], start[v + 1])
+    order_a = np.empty(q, np.int64)
     edge_a = np.full(3 * m, -1, np.int64)
     low_a = np.empty(q, np.int64)
     high_a = np.empty(q, np.int64)
     count_a = np.zeros(q, np.int64)
     net_a = np.zeros(q, np.int64)
-    cdef int64_t[::1] edge = edge_a, low = low_a, high = high_a, count = count_a, net = net_a
+    cdef int64_t[::1] order = order_a, edge = edge_a, low = low_a, high = high_a
+    cdef int64_t[::1] count = count_a, net = net_a
     e = -1
     for v in range(n):
         for i in range(start[v], start[v + 1]):
             if i == start[v] or bh[i] != bh[i - 1]:
                 e += 1
                 low[e], high[e] = v, bh[i]
-            s = order[i]
+            s = packed[i] >> 1
+            order[i] = s
             edge[s] = e
             count[e] += 1
-            net[e] += 1 if fv[s // 3, s % 3] == v else -1
+            net[e] += 1 if packed[i] & 1 else -1
     e += 1
-    return order_a, edge_a, low_a[:e].copy(), high_a[:e].copy(), count_a[:e].copy(), \
-        net_a[:e].copy()
+    return order_a, edge_a, low_a[:e], high_a[:e], count_a[:e], net_a[:e]
 
 
 def components(int64_t n, a_in, b_in, odd_in=None):
