@@ -805,13 +805,13 @@ cdef inline uint64_t _mix3(uint64_t x, uint64_t y, uint64_t z) noexcept nogil:
     return h ^ (h >> 31)
 
 
-def face_groups(sorted_faces):
-    """Faces grouped by their three vertices, groups numbered by first appearance.
+def face_groups(faces):
+    """Faces grouped by their three vertices (in any order), groups numbered by first appearance.
 
     Parameters
     ----------
-    sorted_faces : (k, 3) int64
-        Each row sorted ascending.
+    faces : (k, 3) int64
+        No vertex repeated within a face.
 
     Returns
     -------
@@ -819,21 +819,39 @@ def face_groups(sorted_faces):
         The first face of each group, increasing.
     group : (k,) int64
         The group of each face.
+    parity : (k,) bool
+        After its lowest vertex, the face's next vertex is lower than its
+        last (its winding relative to the sorted order).
     """
-    cdef const int64_t[:, ::1] s = np.ascontiguousarray(sorted_faces, dtype=np.int64)
-    cdef Py_ssize_t k = s.shape[0], f
+    cdef const int64_t[:, ::1] fv = np.ascontiguousarray(faces, dtype=np.int64)
+    cdef Py_ssize_t k = fv.shape[0], f
     cdef uint64_t size = 16
     while size < 2 * <uint64_t>k:
         size *= 2
+    s_a = np.empty((k, 3), np.int64)
     table_a = np.full(size, -1, np.int64)
     first_a = np.empty(k, np.int64)
     group_a = np.empty(k, np.int64)
+    parity_a = np.empty(k, np.uint8)
+    cdef int64_t[:, ::1] s = s_a
     cdef int64_t[::1] table = table_a, first = first_a, group = group_a
+    cdef uint8_t[::1] parity = parity_a
     cdef uint64_t h, mask = size - 1
-    cdef int64_t g, c = 0, r
+    cdef int64_t g, c = 0, r, p0, p1, p2
+    cdef int rot
     with nogil:
         for f in range(k):
-            h = _mix3(<uint64_t>s[f, 0], <uint64_t>s[f, 1], <uint64_t>s[f, 2]) & mask
+            p0, p1, p2 = fv[f, 0], fv[f, 1], fv[f, 2]
+            rot = 0 if p0 <= p1 and p0 <= p2 else (1 if p1 <= p2 else 2)
+            parity[f] = fv[f, (rot + 1) % 3] < fv[f, (rot + 2) % 3]
+            if p0 > p1:
+                p0, p1 = p1, p0
+            if p1 > p2:
+                p1, p2 = p2, p1
+            if p0 > p1:
+                p0, p1 = p1, p0
+            s[f, 0], s[f, 1], s[f, 2] = p0, p1, p2
+            h = _mix3(<uint64_t>p0, <uint64_t>p1, <uint64_t>p2) & mask
             while True:
                 g = table[h]
                 if g < 0:
@@ -843,11 +861,43 @@ def face_groups(sorted_faces):
                     c += 1
                     break
                 r = first[g]
-                if s[r, 0] == s[f, 0] and s[r, 1] == s[f, 1] and s[r, 2] == s[f, 2]:
+                if s[r, 0] == p0 and s[r, 1] == p1 and s[r, 2] == p2:
                     group[f] = g
                     break
                 h = (h + 1) & mask
-    return first_a[:c].copy(), group_a
+    return first_a[:c].copy(), group_a, parity_a.astype(bool)
+
+
+def proper_faces(const double[:, ::1] pos, const int64_t[:, ::1] faces):
+    """Faces with three distinct vertices and a cross product not exactly 0.
+
+    ``np.cross`` of the edges from vertex 0, operation for operation (each
+    component a product less a product, no fused multiply-add).
+
+    Parameters
+    ----------
+    pos : (n, 3) float64
+    faces : (k, 3) int64
+
+    Returns
+    -------
+    (k,) bool
+    """
+    cdef Py_ssize_t k = faces.shape[0], f
+    out_a = np.empty(k, np.uint8)
+    cdef uint8_t[::1] out = out_a
+    cdef int64_t i0, i1, i2
+    cdef double a0, a1, a2, b0, b1, b2
+    with nogil:
+        for f in range(k):
+            i0, i1, i2 = faces[f, 0], faces[f, 1], faces[f, 2]
+            if i0 == i1 or i1 == i2 or i2 == i0:
+                out[f] = 0
+                continue
+            a0, a1, a2 = pos[i1, 0] - pos[i0, 0], pos[i1, 1] - pos[i0, 1], pos[i1, 2] - pos[i0, 2]
+            b0, b1, b2 = pos[i2, 0] - pos[i0, 0], pos[i2, 1] - pos[i0, 1], pos[i2, 2] - pos[i0, 2]
+            out[f] = (a1 * b2 - a2 * b1 != 0) or (a2 * b0 - a0 * b2 != 0) or (a0 * b1 - a1 * b0 != 0)
+    return out_a.astype(bool)
 
 
 cdef inline int64_t _probe(int64_t[::1] table, const int64_t[:, ::1] cell, uint64_t mask,

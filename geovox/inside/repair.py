@@ -450,6 +450,9 @@ def merged_faces(mesh: Mesh):
     faces : (m, 3) int64
         Each corner's position, numbered ``0 .. n - 1`` in lexicographic
         order of ``(x, y, z)``.
+    positions : (n, 3) float64
+        The positions, each the coordinates of the last corner there (which
+        only -0.0 and 0.0 tell apart).
     """
     if "merged_faces" not in mesh._cache:
         kernel = lattice()
@@ -469,27 +472,48 @@ def merged_faces(mesh: Mesh):
             v = mesh.vertices[one[where]]
             rank = np.empty(nid, dtype=np.int64)
             rank[where[np.lexsort((v[:, 2], v[:, 1], v[:, 0]))]] = np.arange(len(where))
-        mesh._cache["merged_faces"] = (int(np.count_nonzero(used)), rank[ids].astype(np.int64))
+        g = rank[ids].astype(np.int64)
+        pos = np.zeros((int(np.count_nonzero(used)), 3))
+        if kernel is None or "geometric_faces" in mesh._cache:
+            pos[g.reshape(-1)] = mesh.vertices[mesh.faces.reshape(-1)]
+        else:  # the same vertex at each position: the last corner there
+            pos[rank[where]] = mesh.vertices[one[where]]
+        mesh._cache["merged_faces"] = (len(pos), g, pos)
     return mesh._cache["merged_faces"]
 
 
-def _face_groups(s: np.ndarray, nv: int):
+def _proper(pos: np.ndarray, g: np.ndarray) -> np.ndarray:
+    """(k,) bool: the faces that are not degenerate (a repeated vertex, or a cross product exactly 0)."""
+    kernel = lattice()
+    if kernel is not None:
+        return kernel.proper_faces(np.ascontiguousarray(pos), np.ascontiguousarray(g))
+    t = pos[g]
+    cross = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
+    repeated = (g[:, 0] == g[:, 1]) | (g[:, 1] == g[:, 2]) | (g[:, 2] == g[:, 0])
+    return ~repeated & np.any(cross != 0, axis=1)
+
+
+def _face_groups(w: np.ndarray, nv: int):
     """Faces with the same vertex set, groups numbered in order of their first face.
 
     Parameters
     ----------
-    s : (k, 3) int64
-        Each face's vertices, sorted.
+    w : (k, 3) int64
+        Faces without a repeated vertex, over vertex ids ``< nv``.
 
     Returns
     -------
     first : (g,) int64
         Each group's first face (increasing).
     group : (k,) int64
+    parity : (k,) bool
+        Each face's winding relative to its sorted vertex order (even or
+        odd permutation).
     """
     kernel = lattice()
     if kernel is not None:
-        return kernel.face_groups(s)  # a hash of the rows: linear, the same groups
+        return kernel.face_groups(w)  # a hash of the sorted rows: linear, the same groups
+    s = np.sort(w, axis=1)
     if nv < (1 << 21):  # three ids in one int64 key: a flat unique, far faster than by rows
         key = (s[:, 0] * np.int64(nv) + s[:, 1]) * np.int64(nv) + s[:, 2]
         _, first, inverse = np.unique(key, return_index=True, return_inverse=True)
@@ -498,7 +522,10 @@ def _face_groups(s: np.ndarray, nv: int):
     order = np.argsort(first)
     renumber = np.empty(len(first), dtype=np.int64)
     renumber[order] = np.arange(len(first))
-    return first[order], renumber[inverse.reshape(-1)]
+    rot = np.argmin(w, axis=1)
+    nxt = w[np.arange(len(w)), (rot + 1) % 3]
+    prv = w[np.arange(len(w)), (rot + 2) % 3]
+    return first[order], renumber[inverse.reshape(-1)], nxt < prv
 
 
 def repair(mesh: Mesh) -> Repair:
@@ -512,20 +539,13 @@ def repair(mesh: Mesh) -> Repair:
     -------
     Repair
     """
-    nused, g = merged_faces(mesh)
-    pos = np.zeros((nused, 3))
-    pos[g.reshape(-1)] = mesh.vertices[mesh.faces.reshape(-1)]
+    nused, g, pos = merged_faces(mesh)
     g, pos, welded = _weld(g, pos, WELD * mesh.scale)
     nv = len(pos)
     # Every merged vertex is used (pos holds only those): a count, not a sort.
     merged = int(np.count_nonzero(np.bincount(mesh.faces.reshape(-1)))) - nv
 
-    # Degenerate: a repeated vertex, or zero area (the cross product is exactly 0).
-    t = pos[g]
-    cross = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
-    repeated = (g[:, 0] == g[:, 1]) | (g[:, 1] == g[:, 2]) | (g[:, 2] == g[:, 0])
-    good = ~repeated & np.any(cross != 0, axis=1)
-    keep = np.flatnonzero(good)
+    keep = np.flatnonzero(_proper(pos, g))
     degenerate = len(g) - len(keep)
     if len(keep) == 0:  # nothing with an area: nothing encloses anything
         return Repair(mesh=Mesh(pos, np.zeros((0, 3), np.int64), source=mesh.source),
@@ -533,14 +553,7 @@ def repair(mesh: Mesh) -> Repair:
                       merged_vertices=int(merged), welded=int(welded), degenerate=int(degenerate))
 
     # Duplicates: the same vertex set; the first face of each set stays.
-    s = np.sort(g[keep], axis=1)
-    first, inverse = _face_groups(s, nv)
-    # Winding of each face relative to its sorted vertex order (even or odd permutation).
-    w = g[keep]
-    rot = np.argmin(w, axis=1)
-    nxt = w[np.arange(len(w)), (rot + 1) % 3]
-    prv = w[np.arange(len(w)), (rot + 2) % 3]
-    parity = nxt < prv
+    first, inverse, parity = _face_groups(g[keep], nv)
     dropped = np.ones(len(keep), dtype=bool)
     dropped[first] = False
     same = parity == parity[first[inverse]]
@@ -563,7 +576,7 @@ def repair(mesh: Mesh) -> Repair:
     fp = pairs // 3
     npieces, label, flip = components(nf, fp[:, 0], fp[:, 1],
                                       forward[pairs[:, 0]] == forward[pairs[:, 1]])
-    f = np.where(flip[:, None], f[:, [0, 2, 1]], f)
+    f[flip, 1], f[flip, 2] = f[flip, 2], f[flip, 1]
 
     # Outward: signed volume about the centroid of each piece's boundary
     # (open edges' midpoints), or of its vertices when it has none.
@@ -587,7 +600,8 @@ def repair(mesh: Mesh) -> Repair:
     det = np.einsum("ij,ij->i", rel[:, 0], np.cross(rel[:, 1], rel[:, 2]))
     volume = np.bincount(label, weights=det, minlength=npieces)
     turn = volume < 0
-    f = np.where(turn[label][:, None], f[:, [0, 2, 1]], f)
+    t = turn[label]
+    f[t, 1], f[t, 2] = f[t, 2], f[t, 1]
     swapped = flip ^ turn[label]
     out = Mesh(pos, f, source=mesh.source)
     # Its vertices are distinct and in lexicographic order (the first of

@@ -112,7 +112,7 @@ def _compiled_boundary(mesh: Mesh, module) -> np.ndarray:
     """
     from .repair import merged_faces
 
-    n, g = merged_faces(mesh)
+    n, g, _ = merged_faces(mesh)
     _, _, low, high, count, net = module.edge_sort(g)
     mesh._cache["non_manifold"] = bool(len(count) and count.max() > 2)
     mesh._cache["edge_counts"] = (int(np.count_nonzero(count == 1)),
