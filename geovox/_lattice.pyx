@@ -19,6 +19,16 @@ are bucketed by their lowest vertex (a counting sort) and settled with
 per-vertex scratch arrays, so nothing is sorted. The NumPy code in
 :mod:`geovox.inside` gives the same answers (it is the fallback where this
 module is not built).
+
+:func:`edge_sort`, :func:`components`, :func:`face_groups`,
+:func:`proper_faces` and :func:`near_pairs` are the steps of
+:func:`geovox.inside.repair.repair` (and of
+:func:`geovox.inside.boundary_edges` of an open mesh) in linear time: the
+edge table numbered as ``np.unique`` numbers it (a counting sort by the
+lower vertex, then a few entries per bucket), the spanning forest's rounds
+as the NumPy rounds run them (the same flips, even on a Moebius band),
+duplicate faces and close vertices by hash tables. The repaired copy is the
+NumPy path's, array for array.
 """
 
 import numpy as np

@@ -161,14 +161,21 @@ def test_compiled_repair_gives_the_numpy_arrays(case):
             assert np.array_equal(a[k].view(np.uint64), b[k].view(np.uint64)), k
 
 
-@pytest.mark.parametrize("case", ["messy0", "messy1", "truck", "pyramids"])
-def test_the_repaired_mesh_numbers_its_vertices_as_merging_would(case):
-    # repair() seeds the copy's geometric faces with its faces: its vertices
-    # are distinct and in lexicographic order, so merging changes nothing.
+@pytest.mark.parametrize("kernel", ["numpy", "compiled"])
+@pytest.mark.parametrize("case", ["messy0", "messy1", "moebius", "truck", "pyramids", "wallhole"])
+def test_what_the_repair_caches_on_its_copy_is_what_the_checks_would_find(case, kernel):
+    # repair() seeds the copy's geometric faces with its faces (its vertices
+    # are distinct and in lexicographic order, so merging changes nothing),
+    # and its open edges and edge counts from its own edge table.
     v, f = CASES[case]()
-    rep = R.repair(build_mesh(v, f, "case"))
-    fresh = Mesh(rep.mesh.vertices, rep.mesh.faces)
-    assert np.array_equal(fresh.geometric_faces, rep.mesh.faces)
+    with chosen(kernel):
+        rep = R.repair(build_mesh(v, f, "case"))
+        fresh = Mesh(rep.mesh.vertices, rep.mesh.faces)
+        assert np.array_equal(fresh.geometric_faces, rep.mesh.faces)
+        for check in (W.boundary_edges, W.edge_counts, W._non_manifold, W.consistent):
+            seeded, again = check(rep.mesh), check(fresh)
+            assert np.asarray(seeded).dtype == np.asarray(again).dtype
+            assert np.array_equal(seeded, again), check.__name__
 
 
 def test_the_cases_break_what_they_are_meant_to():

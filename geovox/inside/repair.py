@@ -24,6 +24,16 @@ assumption, in whole-array steps (no loop per face or per piece):
    faces out of the solid its rim bridges to (a flat sheet, volume 0, is
    kept as it is).
 
+Every step is whole-array NumPy, or, with the compiled kernel
+(:mod:`geovox._lattice`, chosen as :mod:`geovox.kernels` says), a loop in
+linear time that gives the same arrays: hash tables instead of sorts for the
+positions, the close pairs and the duplicates, a counting sort for the edge
+table, the forest's rounds as loops. Only the distinct positions are sorted
+(the copy's vertex ids are their lexicographic order). Results are cached on
+the mesh (:func:`merged_faces`, and ``boundary_edges`` counts the open and
+non-manifold edges as it goes), and the copy is made with its merged faces
+known, so nothing is computed twice.
+
 The copy keeps, for each of its faces, the original face it came from and
 whether its vertices 1 and 2 were swapped, so crossings found on the copy are
 crossings of the original triangles (with their barycentric weights swapped
@@ -317,8 +327,12 @@ def close_pairs(pos: np.ndarray, tol: float) -> np.ndarray:
     n = len(pos)
     if n < 2 or not tol > 0:
         return np.zeros((0, 2), np.int64)
-    q = np.floor((pos - pos.min(axis=0)) / tol).astype(np.int64) + 1  # >= 1: no wrap at -1
-    dims = q.max(axis=0) + 2
+    low = pos.min(axis=0)
+
+    def cells(p):  # >= 1: no wrap at -1
+        return np.floor((p - low) / tol).astype(np.int64) + 1
+
+    dims = cells(pos.max(axis=0)) + 2  # the largest cells (each step is monotonic)
     if float(dims[0]) * float(dims[1]) * float(dims[2]) >= 2.0 ** 62:  # one key would overflow
         from scipy.spatial import cKDTree
 
@@ -327,11 +341,11 @@ def close_pairs(pos: np.ndarray, tol: float) -> np.ndarray:
     if kernel is not None:
         # Candidates through a hash table of coarser cells (no sort): a
         # superset of the pairs that pass the tests below.
-        low = pos.min(axis=0)
         pairs = kernel.near_pairs(np.ascontiguousarray(pos, dtype=np.float64), low, tol, 16 * tol)
-        # Of those, the pairs in neighbouring cells of this grid, as here.
-        pairs = pairs[np.all(np.abs(q[pairs[:, 0]] - q[pairs[:, 1]]) <= 1, axis=1)]
-        return _within(pos, pairs, tol)
+        # Of those, the pairs in neighbouring cells of this grid, as below.
+        near = np.abs(cells(pos[pairs[:, 0]]) - cells(pos[pairs[:, 1]])) <= 1
+        return _within(pos, pairs[np.all(near, axis=1)], tol)
+    q = cells(pos)
     key = (q[:, 0] * dims[1] + q[:, 1]) * dims[2] + q[:, 2]
     order = np.argsort(key, kind="stable")
     sk = key[order]
@@ -450,35 +464,35 @@ def merged_faces(mesh: Mesh):
     faces : (m, 3) int64
         Each corner's position, numbered ``0 .. n - 1`` in lexicographic
         order of ``(x, y, z)``.
-    positions : (n, 3) float64
-        The positions, each the coordinates of the last corner there (which
-        only -0.0 and 0.0 tell apart).
+    vertex : (n,) int64
+        At each position, the vertex of the last corner there (vertices at
+        one position differ at most in the sign of a zero).
     """
     if "merged_faces" not in mesh._cache:
         kernel = lattice()
-        if kernel is None or "geometric_faces" in mesh._cache:
+        sorted_ids = kernel is None or "geometric_faces" in mesh._cache
+        if sorted_ids:  # already lexicographic: renumbered by a count
             ids, nid = mesh.geometric_faces, len(mesh.vertices)
         else:
-            ids = kernel.merge_positions(mesh.vertices)[mesh.faces]
+            from .winding import _position_faces
+
+            ids = _position_faces(mesh, kernel)
             nid = int(ids.max()) + 1
+        flat = ids.reshape(-1)
         used = np.zeros(nid, dtype=bool)
-        used[ids.reshape(-1)] = True
-        if kernel is None or "geometric_faces" in mesh._cache:  # already lexicographic
+        used[flat] = True
+        one = np.zeros(nid, dtype=np.int64)
+        one[flat] = mesh.faces.reshape(-1)  # the last corner at each position
+        where = np.flatnonzero(used)
+        if sorted_ids:
             rank = np.cumsum(used) - 1
         else:
-            where = np.flatnonzero(used)
-            one = np.empty(nid, dtype=np.int64)  # a vertex at each position
-            one[ids.reshape(-1)] = mesh.faces.reshape(-1)
             v = mesh.vertices[one[where]]
             rank = np.empty(nid, dtype=np.int64)
             rank[where[np.lexsort((v[:, 2], v[:, 1], v[:, 0]))]] = np.arange(len(where))
-        g = rank[ids].astype(np.int64)
-        pos = np.zeros((int(np.count_nonzero(used)), 3))
-        if kernel is None or "geometric_faces" in mesh._cache:
-            pos[g.reshape(-1)] = mesh.vertices[mesh.faces.reshape(-1)]
-        else:  # the same vertex at each position: the last corner there
-            pos[rank[where]] = mesh.vertices[one[where]]
-        mesh._cache["merged_faces"] = (len(pos), g, pos)
+        vertex = np.empty(len(where), dtype=np.int64)
+        vertex[rank[where]] = one[where]
+        mesh._cache["merged_faces"] = (len(where), rank[ids], vertex)
     return mesh._cache["merged_faces"]
 
 
@@ -528,6 +542,45 @@ def _face_groups(w: np.ndarray, nv: int):
     return first[order], renumber[inverse.reshape(-1)], nxt < prv
 
 
+def _edge_ends(f: np.ndarray, count: np.ndarray, slots: np.ndarray) -> np.ndarray:
+    """(2, e) int64: each edge's lower and higher vertex, from its first slot (see :func:`sorted_edges`)."""
+    s = slots[np.cumsum(count) - count]
+    flat = f.reshape(-1)
+    a, b = flat[s], flat[s - s % 3 + (s % 3 + 1) % 3]
+    return np.stack([np.minimum(a, b), np.maximum(a, b)])
+
+
+def _known_edges(out: Mesh, edge, count, forward, ends) -> None:
+    """Cache on the repaired copy what ``boundary_edges`` and ``edge_counts`` would find.
+
+    The copy's edges are the edge table's (turning faces over changes only
+    the directions they run their edges), so its open edges and counts need
+    no second table: the same arrays as
+    :func:`geovox.inside.winding.boundary_edges` of the copy (its vertices
+    are its merged positions, numbered in order).
+
+    Parameters
+    ----------
+    edge, count
+        As :func:`edge_table` gives them for the copy's faces.
+    forward : (3k,) bool
+        Each slot's edge is run from its lower to its higher vertex by the
+        copy's face (after the flips).
+    ends : (2, e) int64
+        :func:`_edge_ends`.
+    """
+    net = np.bincount(edge, weights=np.where(forward, 1, -1), minlength=len(count)).astype(np.int64)
+    k = np.flatnonzero(net)
+    m = net[k]
+    # net > 0: low -> high left over; net < 0: high -> low.
+    src = np.where(m > 0, ends[0, k], ends[1, k])
+    dst = np.where(m > 0, ends[1, k], ends[0, k])
+    reps = np.abs(m)
+    out._cache["boundary"] = np.stack([np.repeat(src, reps), np.repeat(dst, reps)], axis=1)
+    out._cache["non_manifold"] = bool(len(count) and count.max() > 2)
+    out._cache["edge_counts"] = (int(np.count_nonzero(count == 1)), int(np.count_nonzero(count > 2)))
+
+
 def repair(mesh: Mesh) -> Repair:
     """A consistently oriented, outward-facing copy of ``mesh`` (see the module notes).
 
@@ -539,7 +592,8 @@ def repair(mesh: Mesh) -> Repair:
     -------
     Repair
     """
-    nused, g, pos = merged_faces(mesh)
+    _, g, vertex = merged_faces(mesh)
+    pos = mesh.vertices[vertex]
     g, pos, welded = _weld(g, pos, WELD * mesh.scale)
     nv = len(pos)
     # Every merged vertex is used (pos holds only those): a count, not a sort.
@@ -576,6 +630,7 @@ def repair(mesh: Mesh) -> Repair:
     fp = pairs // 3
     npieces, label, flip = components(nf, fp[:, 0], fp[:, 1],
                                       forward[pairs[:, 0]] == forward[pairs[:, 1]])
+    ends = _edge_ends(f, count, slots)
     f[flip, 1], f[flip, 2] = f[flip, 2], f[flip, 1]
 
     # Outward: signed volume about the centroid of each piece's boundary
@@ -608,6 +663,7 @@ def repair(mesh: Mesh) -> Repair:
     # each merged group, in order): merging them by position numbers them
     # as they are, so the lexicographic sort of that is not needed.
     out._cache["geometric_faces"] = f
+    _known_edges(out, edge, count, forward ^ np.repeat(swapped, 3), ends)
     return Repair(mesh=out, face=face, swapped=swapped, piece=label, merged_vertices=int(merged), welded=int(welded),
                   degenerate=int(degenerate), duplicates=duplicates, opposite=opposite, inner=inner,
                   flipped=int(np.count_nonzero(swapped)), pieces=npieces,

@@ -112,7 +112,7 @@ def _compiled_boundary(mesh: Mesh, module) -> np.ndarray:
     """
     from .repair import merged_faces
 
-    n, g, _ = merged_faces(mesh)
+    _, g, vertex = merged_faces(mesh)
     _, _, low, high, count, net = module.edge_sort(g)
     mesh._cache["non_manifold"] = bool(len(count) and count.max() > 2)
     mesh._cache["edge_counts"] = (int(np.count_nonzero(count == 1)),
@@ -124,9 +124,7 @@ def _compiled_boundary(mesh: Mesh, module) -> np.ndarray:
     dst = np.where(m > 0, b, a)
     reps = np.abs(m)
     out = np.stack([np.repeat(src, reps), np.repeat(dst, reps)], axis=1)
-    rep = np.zeros(n, dtype=np.int64)  # a vertex of the mesh at each position
-    rep[g.reshape(-1)] = mesh.faces.reshape(-1)
-    return rep[out]
+    return vertex[out]  # the NumPy path's representatives: the last corner at each position
 
 
 def _position_faces(mesh: Mesh, module) -> np.ndarray:
