@@ -639,9 +639,10 @@ def repair(mesh: Mesh) -> Repair:
     bad_slot = count[edge] != 2
     slot_face = np.repeat(np.arange(nf), 3)
     closed_piece = np.bincount(label[slot_face[bad_slot]], minlength=npieces) == 0
-    a, b = f.reshape(-1), f[:, [1, 2, 0]].reshape(-1)
+    o = np.flatnonzero(open_slot)  # each open slot's vertex and the next one round its face
+    a, b = f.reshape(-1)[o], f.reshape(-1)[o - o % 3 + (o % 3 + 1) % 3]
     centre = pos.mean(axis=0) if nv else np.zeros(3)
-    mid = (pos[a[open_slot]] + pos[b[open_slot]]) / 2 - centre
+    mid = (pos[a] + pos[b]) / 2 - centre
     lab_open = label[slot_face[open_slot]]
     n_open = np.bincount(lab_open, minlength=npieces)
     c = np.stack([np.bincount(lab_open, weights=mid[:, k], minlength=npieces) for k in range(3)], 1)
