@@ -19,13 +19,23 @@ are bucketed by their lowest vertex (a counting sort) and settled with
 per-vertex scratch arrays, so nothing is sorted. The NumPy code in
 :mod:`geovox.inside` gives the same answers (it is the fallback where this
 module is not built).
+
+:func:`edge_sort`, :func:`components`, :func:`face_groups`,
+:func:`proper_faces` and :func:`near_pairs` are the steps of
+:func:`geovox.inside.repair.repair` (and of
+:func:`geovox.inside.boundary_edges` of an open mesh) in linear time: the
+edge table numbered as ``np.unique`` numbers it (a counting sort by the
+lower vertex, then a few entries per bucket), the spanning forest's rounds
+as the NumPy rounds run them (the same flips, even on a Moebius band),
+duplicate faces and close vertices by hash tables. The repaired copy is the
+NumPy path's, array for array.
 """
 
 import numpy as np
 
 from libc.stdint cimport int64_t, uint8_t, uint64_t
 from libc.string cimport memcpy
-from libc.math cimport hypot, rint
+from libc.math cimport floor, hypot, rint
 
 #: Buckets of at most this many entries are settled by comparing every pair.
 DEF SMALL = 16
@@ -570,3 +580,429 @@ def merge_positions(vertices):
                 break
             h = (h + 1) & mask
     return out_a
+
+
+# ---------------------------------------------------------------------------
+# The repair of open and messy meshes (geovox.inside.repair): the same arrays
+# as its NumPy steps, in linear time (or a sort of a few entries per vertex).
+# ---------------------------------------------------------------------------
+
+cdef void _sort_bucket(int64_t[::1] hi, int64_t[::1] slot, int64_t[::1] tmp_h,
+                       int64_t[::1] tmp_s, Py_ssize_t a, Py_ssize_t b) noexcept nogil:
+    """Stable sort of ``hi[a:b]`` (carrying ``slot``): insertion for a few, else merging.
+
+    ``tmp_h`` and ``tmp_s`` hold at least ``b - a`` entries (indexed from 0).
+    """
+    cdef Py_ssize_t i, j, w, lo, mid, hi_end, p, q
+    cdef int64_t h, s
+    if b - a <= SMALL:
+        for i in range(a + 1, b):
+            h, s = hi[i], slot[i]
+            j = i - 1
+            while j >= a and hi[j] > h:
+                hi[j + 1], slot[j + 1] = hi[j], slot[j]
+                j -= 1
+            hi[j + 1], slot[j + 1] = h, s
+        return
+    # Bottom-up merge sort (a vertex on thousands of edges: a fan's apex).
+    w = 1
+    while w < b - a:
+        lo = a
+        while lo < b:
+            mid = lo + w if lo + w < b else b
+            hi_end = lo + 2 * w if lo + 2 * w < b else b
+            p, q, i = lo, mid, lo - a
+            while p < mid and q < hi_end:
+                if hi[q] < hi[p]:
+                    tmp_h[i], tmp_s[i] = hi[q], slot[q]
+                    q += 1
+                else:
+                    tmp_h[i], tmp_s[i] = hi[p], slot[p]
+                    p += 1
+                i += 1
+            while p < mid:
+                tmp_h[i], tmp_s[i] = hi[p], slot[p]
+                p += 1
+                i += 1
+            while q < hi_end:
+                tmp_h[i], tmp_s[i] = hi[q], slot[q]
+                q += 1
+                i += 1
+            lo = hi_end
+        for i in range(a, b):
+            hi[i], slot[i] = tmp_h[i - a], tmp_s[i - a]
+        w *= 2
+
+
+def edge_sort(faces):
+    """Undirected edges numbered in ``(low, high)`` vertex order, and their face-edge slots.
+
+    What ``np.unique`` of the keys ``low * n + high`` and a stable argsort
+    of the slots by edge give (:func:`geovox.inside.repair.edge_table`,
+    :func:`~geovox.inside.repair.manifold_pairs`), in linear time: slots
+    bucketed by their lower vertex (a counting sort), then each bucket's few
+    entries sorted by the higher vertex.
+
+    Parameters
+    ----------
+    faces : (m, 3) int64, non-negative
+
+    Returns
+    -------
+    order : (q,) int64
+        The slots ``3 f + j`` (edge ``j`` of face ``f`` runs from vertex
+        ``j`` to ``j + 1``) that are not degenerate (two equal vertices),
+        sorted by edge, then slot.
+    edge : (3m,) int64
+        Edge number of each slot; -1 for a degenerate one.
+    low, high : (e,) int64
+        Each edge's vertices, ``low < high``.
+    count : (e,) int64
+        Slots on each edge.
+    net : (e,) int64
+        Slots running it from low to high, less those running it back.
+    """
+    cdef const int64_t[:, ::1] fv = np.ascontiguousarray(faces, dtype=np.int64)
+    cdef Py_ssize_t m = fv.shape[0], f, i, v, big = 0
+    cdef int k
+    cdef int64_t n = int(np.max(faces)) + 1 if m else 1
+    cdef int64_t a, b, lo, e, s
+    start_a = np.zeros(n + 1, np.int64)
+    cdef int64_t[::1] start = start_a
+    for f in range(m):
+        for k in range(3):
+            a, b = fv[f, k], fv[f, (k + 1) % 3]
+            if a != b:
+                start[(a if a < b else b) + 1] += 1
+    for v in range(n):
+        if start[v + 1] > big:
+            big = start[v + 1]
+        start[v + 1] += start[v]
+    cdef Py_ssize_t q = start[n]
+    # Each bucket entry: the higher vertex, and the slot times 2 plus
+    # whether the face runs the edge from low to high.
+    packed_a = np.empty(q, np.int64)
+    bh_a = np.empty(q, np.int64)
+    pos_a = start_a[:n].copy()
+    cdef int64_t[::1] packed = packed_a, bh = bh_a, pos = pos_a
+    for f in range(m):  # in slot order: each bucket starts sorted by slot
+        for k in range(3):
+            a, b = fv[f, k], fv[f, (k + 1) % 3]
+            if a != b:
+                lo = a if a < b else b
+                packed[pos[lo]] = 2 * (3 * f + k) + (a < b)
+                bh[pos[lo]] = b if a < b else a
+                pos[lo] += 1
+    th_a = np.empty(big if big > SMALL else 0, np.int64)
+    ts_a = np.empty(big if big > SMALL else 0, np.int64)
+    cdef int64_t[::1] th = th_a, ts = ts_a
+    for v in range(n):
+        if start[v + 1] - start[v] > 1:
+            _sort_bucket(bh, packed, th, ts, start[v], start[v + 1])
+    order_a = np.empty(q, np.int64)
+    edge_a = np.full(3 * m, -1, np.int64)
+    low_a = np.empty(q, np.int64)
+    high_a = np.empty(q, np.int64)
+    count_a = np.zeros(q, np.int64)
+    net_a = np.zeros(q, np.int64)
+    cdef int64_t[::1] order = order_a, edge = edge_a, low = low_a, high = high_a
+    cdef int64_t[::1] count = count_a, net = net_a
+    e = -1
+    for v in range(n):
+        for i in range(start[v], start[v + 1]):
+            if i == start[v] or bh[i] != bh[i - 1]:
+                e += 1
+                low[e], high[e] = v, bh[i]
+            s = packed[i] >> 1
+            order[i] = s
+            edge[s] = e
+            count[e] += 1
+            net[e] += 1 if packed[i] & 1 else -1
+    e += 1
+    return order_a, edge_a, low_a[:e], high_a[:e], count_a[:e], net_a[:e]
+
+
+def components(int64_t n, a_in, b_in, odd_in=None):
+    """:func:`geovox.inside.repair.components`, round for round, in compiled loops.
+
+    The same forest (each round hooks every root to its smallest
+    neighbouring root, through the first such edge in the given order), so
+    the same parities even where they contradict (a Moebius band).
+
+    Parameters
+    ----------
+    n : int
+    a_in, b_in : (e,) int64
+    odd_in : (e,) bool, optional
+
+    Returns
+    -------
+    count : int
+    label : (n,) int64
+    parity : (n,) bool
+    """
+    a_a = np.array(a_in, dtype=np.int64, copy=True).reshape(-1)
+    b_a = np.array(b_in, dtype=np.int64, copy=True).reshape(-1)
+    o_a = (np.zeros(len(a_a), np.uint8) if odd_in is None
+           else np.array(odd_in, dtype=np.uint8, copy=True).reshape(-1))
+    root_a = np.arange(n, dtype=np.int64)
+    x_a = np.zeros(n, np.uint8)
+    best_a = np.full(n, -1, np.int64)
+    hooked_a = np.empty(n, np.int64)
+    nx_a = np.empty(n, np.uint8)
+    nlo_a = np.empty(n, np.int64)
+    cdef int64_t[::1] ea = a_a, eb = b_a, root = root_a, best = best_a, hooked = hooked_a
+    cdef int64_t[::1] nlo = nlo_a
+    cdef uint8_t[::1] od = o_a, x = x_a, nx = nx_a
+    cdef Py_ssize_t live = ea.shape[0], i, w, t, nh
+    cdef int64_t ra, rb, lo, hi, j, v, p
+    with nogil:
+        while live > 0:
+            w = 0
+            for i in range(live):
+                if root[ea[i]] != root[eb[i]]:
+                    ea[w], eb[w], od[w] = ea[i], eb[i], od[i]
+                    w += 1
+            live = w
+            if live == 0:
+                break
+            nh = 0
+            for i in range(live):
+                ra, rb = root[ea[i]], root[eb[i]]
+                lo, hi = (ra, rb) if ra < rb else (rb, ra)
+                j = best[hi]
+                if j < 0:
+                    best[hi] = i
+                    hooked[nh] = hi
+                    nh += 1
+                elif lo < (root[ea[j]] if root[ea[j]] < root[eb[j]] else root[eb[j]]):
+                    best[hi] = i
+            # Every hooked root's new pointer and parity from the round's
+            # old values (as NumPy's whole-array assignment reads them).
+            for t in range(nh):
+                i = best[hooked[t]]
+                ra, rb = root[ea[i]], root[eb[i]]
+                nlo[t] = ra if ra < rb else rb
+                nx[t] = x[ea[i]] ^ x[eb[i]] ^ od[i]
+            for t in range(nh):
+                hi = hooked[t]
+                x[hi] = nx[t]
+                root[hi] = nlo[t]
+                best[hi] = -1
+            # Pointers only go to smaller nodes: in increasing order, each
+            # node's pointer is already final when the node is reached.
+            for v in range(n):
+                p = root[v]
+                if p != v:
+                    x[v] ^= x[p]
+                    root[v] = root[p]
+    label_a = np.empty(n, np.int64)
+    cdef int64_t[::1] label = label_a
+    cdef int64_t count = 0
+    for v in range(n):
+        if root[v] == v:
+            label[v] = count
+            count += 1
+        else:
+            label[v] = label[root[v]]
+    return int(count), label_a, x_a.astype(bool)
+
+
+cdef inline uint64_t _mix3(uint64_t x, uint64_t y, uint64_t z) noexcept nogil:
+    cdef uint64_t h = x * 0x9E3779B97F4A7C15ULL
+    h = (h ^ (h >> 29) ^ y) * 0xBF58476D1CE4E5B9ULL
+    h = (h ^ (h >> 32) ^ z) * 0x94D049BB133111EBULL
+    return h ^ (h >> 31)
+
+
+def face_groups(faces):
+    """Faces grouped by their three vertices (in any order), groups numbered by first appearance.
+
+    Parameters
+    ----------
+    faces : (k, 3) int64
+        No vertex repeated within a face.
+
+    Returns
+    -------
+    first : (g,) int64
+        The first face of each group, increasing.
+    group : (k,) int64
+        The group of each face.
+    parity : (k,) bool
+        After its lowest vertex, the face's next vertex is lower than its
+        last (its winding relative to the sorted order).
+    """
+    cdef const int64_t[:, ::1] fv = np.ascontiguousarray(faces, dtype=np.int64)
+    cdef Py_ssize_t k = fv.shape[0], f
+    cdef uint64_t size = 16
+    while size < 2 * <uint64_t>k:
+        size *= 2
+    s_a = np.empty((k, 3), np.int64)
+    table_a = np.full(size, -1, np.int64)
+    first_a = np.empty(k, np.int64)
+    group_a = np.empty(k, np.int64)
+    parity_a = np.empty(k, np.uint8)
+    cdef int64_t[:, ::1] s = s_a
+    cdef int64_t[::1] table = table_a, first = first_a, group = group_a
+    cdef uint8_t[::1] parity = parity_a
+    cdef uint64_t h, mask = size - 1
+    cdef int64_t g, c = 0, r, p0, p1, p2
+    cdef int rot
+    with nogil:
+        for f in range(k):
+            p0, p1, p2 = fv[f, 0], fv[f, 1], fv[f, 2]
+            rot = 0 if p0 <= p1 and p0 <= p2 else (1 if p1 <= p2 else 2)
+            parity[f] = fv[f, (rot + 1) % 3] < fv[f, (rot + 2) % 3]
+            if p0 > p1:
+                p0, p1 = p1, p0
+            if p1 > p2:
+                p1, p2 = p2, p1
+            if p0 > p1:
+                p0, p1 = p1, p0
+            s[f, 0], s[f, 1], s[f, 2] = p0, p1, p2
+            h = _mix3(<uint64_t>p0, <uint64_t>p1, <uint64_t>p2) & mask
+            while True:
+                g = table[h]
+                if g < 0:
+                    table[h] = c
+                    first[c] = f
+                    group[f] = c
+                    c += 1
+                    break
+                r = first[g]
+                if s[r, 0] == p0 and s[r, 1] == p1 and s[r, 2] == p2:
+                    group[f] = g
+                    break
+                h = (h + 1) & mask
+    return first_a[:c].copy(), group_a, parity_a.astype(bool)
+
+
+def proper_faces(const double[:, ::1] pos, const int64_t[:, ::1] faces):
+    """Faces with three distinct vertices and a cross product not exactly 0.
+
+    ``np.cross`` of the edges from vertex 0, operation for operation (each
+    component a product less a product, no fused multiply-add).
+
+    Parameters
+    ----------
+    pos : (n, 3) float64
+    faces : (k, 3) int64
+
+    Returns
+    -------
+    (k,) bool
+    """
+    cdef Py_ssize_t k = faces.shape[0], f
+    out_a = np.empty(k, np.uint8)
+    cdef uint8_t[::1] out = out_a
+    cdef int64_t i0, i1, i2
+    cdef double a0, a1, a2, b0, b1, b2
+    with nogil:
+        for f in range(k):
+            i0, i1, i2 = faces[f, 0], faces[f, 1], faces[f, 2]
+            if i0 == i1 or i1 == i2 or i2 == i0:
+                out[f] = 0
+                continue
+            a0, a1, a2 = pos[i1, 0] - pos[i0, 0], pos[i1, 1] - pos[i0, 1], pos[i1, 2] - pos[i0, 2]
+            b0, b1, b2 = pos[i2, 0] - pos[i0, 0], pos[i2, 1] - pos[i0, 1], pos[i2, 2] - pos[i0, 2]
+            out[f] = (a1 * b2 - a2 * b1 != 0) or (a2 * b0 - a0 * b2 != 0) or (a0 * b1 - a1 * b0 != 0)
+    return out_a.astype(bool)
+
+
+cdef inline int64_t _probe(int64_t[::1] table, const int64_t[:, ::1] cell, uint64_t mask,
+                           int64_t c0, int64_t c1, int64_t c2) noexcept nogil:
+    """The slot of cell ``(c0, c1, c2)`` in ``table``, or of the empty entry where it would go."""
+    cdef uint64_t h = _mix3(<uint64_t>c0, <uint64_t>c1, <uint64_t>c2) & mask
+    cdef int64_t k
+    while True:
+        k = table[h]
+        if k < 0 or (cell[k, 0] == c0 and cell[k, 1] == c1 and cell[k, 2] == c2):
+            return <int64_t>h
+        h = (h + 1) & mask
+
+
+def near_pairs(const double[:, ::1] pos, const double[::1] low, double tol, double width):
+    """Pairs of points whose coordinates differ by at most about ``tol`` on every axis.
+
+    Candidates for :func:`geovox.inside.repair.close_pairs` (the caller
+    applies its exact tests), through a hash table of cells ``width`` wide
+    (several ``tol``): a point looks up its own cell and, on each axis, the
+    neighbouring one only where it lies within ``tol`` of that side, so most
+    points look up one or two cells (random memory reads, which dominate).
+
+    Parameters
+    ----------
+    pos : (n, 3) float64
+    low : (3,) float64
+        At most every coordinate.
+    tol, width : float
+        ``0 < tol < width``.
+
+    Returns
+    -------
+    (p, 2) int64
+        ``i < j`` in each row, in no particular order; every pair within
+        ``1.001 tol`` on every axis is among them.
+    """
+    cdef Py_ssize_t n = pos.shape[0], i
+    cdef uint64_t size = 16
+    while size < 2 * <uint64_t>n:
+        size *= 2
+    cell_a = np.empty((n, 3), np.int64)
+    reach_a = np.zeros((n, 3, 2), np.uint8)  # per axis: look left, look right
+    table_a = np.full(size, -1, np.int64)   # a cell's slot: a point in it
+    head_a = np.full(size, -1, np.int64)    # the cell's points, chained
+    nxt_a = np.full(n, -1, np.int64)
+    cdef int64_t[:, ::1] cell = cell_a
+    cdef uint8_t[:, :, ::1] reach = reach_a
+    cdef int64_t[::1] table = table_a, head = head_a, nxt = nxt_a
+    cdef uint64_t mask = size - 1
+    cdef int64_t h, j, di, dj, dk, cap = 64, np_ = 0
+    cdef int a
+    cdef double u, f, near = 1.01 * tol, dx, dy, dz, limit = 2.0 * tol * tol
+    out_a = np.empty((cap, 2), np.int64)
+    cdef int64_t[:, ::1] out = out_a
+    for i in range(n):
+        for a in range(3):
+            u = (pos[i, a] - low[a]) / width
+            cell[i, a] = <int64_t>floor(u)
+            f = (u - floor(u)) * width
+            reach[i, a, 0] = f <= near
+            reach[i, a, 1] = width - f <= near
+        h = _probe(table, cell, mask, cell[i, 0], cell[i, 1], cell[i, 2])
+        if table[h] < 0:
+            table[h] = i
+        nxt[i] = head[h]
+        head[h] = i
+    for i in range(n):
+        for di in range(-1, 2):
+            if di != 0 and not reach[i, 0, (di + 1) // 2]:
+                continue
+            for dj in range(-1, 2):
+                if dj != 0 and not reach[i, 1, (dj + 1) // 2]:
+                    continue
+                for dk in range(-1, 2):
+                    if dk != 0 and not reach[i, 2, (dk + 1) // 2]:
+                        continue
+                    h = _probe(table, cell, mask, cell[i, 0] + di, cell[i, 1] + dj,
+                               cell[i, 2] + dk)
+                    if table[h] < 0:
+                        continue
+                    j = head[h]
+                    while j >= 0:
+                        if j > i:
+                            dx = pos[i, 0] - pos[j, 0]
+                            dy = pos[i, 1] - pos[j, 1]
+                            dz = pos[i, 2] - pos[j, 2]
+                            if dx * dx + dy * dy + dz * dz <= limit:
+                                if np_ == cap:
+                                    cap *= 2
+                                    grown = np.empty((cap, 2), np.int64)
+                                    grown[:np_] = out_a[:np_]
+                                    out_a = grown
+                                    out = out_a
+                                out[np_, 0], out[np_, 1] = i, j
+                                np_ += 1
+                        j = nxt[j]
+    return out_a[:np_].copy()

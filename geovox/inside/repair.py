@@ -24,6 +24,16 @@ assumption, in whole-array steps (no loop per face or per piece):
    faces out of the solid its rim bridges to (a flat sheet, volume 0, is
    kept as it is).
 
+Every step is whole-array NumPy, or, with the compiled kernel
+(:mod:`geovox._lattice`, chosen as :mod:`geovox.kernels` says), a loop in
+linear time that gives the same arrays: hash tables instead of sorts for the
+positions, the close pairs and the duplicates, a counting sort for the edge
+table, the forest's rounds as loops. Only the distinct positions are sorted
+(the copy's vertex ids are their lexicographic order). Results are cached on
+the mesh (:func:`merged_faces`, and ``boundary_edges`` counts the open and
+non-manifold edges as it goes), and the copy is made with its merged faces
+known, so nothing is computed twice.
+
 The copy keeps, for each of its faces, the original face it came from and
 whether its vertices 1 and 2 were swapped, so crossings found on the copy are
 crossings of the original triangles (with their barycentric weights swapped
@@ -36,6 +46,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..kernels import lattice
 from ..mesh import Mesh
 
 
@@ -155,22 +166,53 @@ def edge_table(faces: np.ndarray, nv: int):
     forward : (3k,) bool
         The face runs the edge from its lower to its higher vertex id.
     """
+    return sorted_edges(faces, nv)[:3]
+
+
+def sorted_edges(faces: np.ndarray, nv: int):
+    """:func:`edge_table`, and the slots sorted by edge (then slot).
+
+    Edges are numbered in order of their ``(lower, higher)`` vertex ids
+    either way: by ``np.unique`` of the keys, or by the compiled kernel's
+    counting sort (:func:`geovox._lattice.edge_sort`, linear), which gives
+    the same arrays.
+
+    Returns
+    -------
+    edge, count, forward
+        As :func:`edge_table`.
+    order : (3k,) int64
+        ``np.argsort(edge, kind="stable")``.
+    """
     a = faces.reshape(-1)
     b = faces[:, [1, 2, 0]].reshape(-1)
+    kernel = lattice()
+    if kernel is not None:
+        order, edge, _, _, count, _ = kernel.edge_sort(faces)
+        return edge, count, a < b, order
     key = np.minimum(a, b) * np.int64(nv) + np.maximum(a, b)
     _, edge, count = np.unique(key, return_inverse=True, return_counts=True)
-    return edge.reshape(-1), count, a < b
+    edge = edge.reshape(-1)
+    return edge, count, a < b, np.argsort(edge, kind="stable")
 
 
-def manifold_pairs(edge: np.ndarray, count: np.ndarray):
+def manifold_pairs(edge: np.ndarray, count: np.ndarray, order: np.ndarray | None = None):
     """The two face-edge slots of every edge used by exactly two faces.
+
+    Parameters
+    ----------
+    edge, count
+        As :func:`edge_table` gives them.
+    order : (3k,) int64, optional
+        The slots sorted by edge (:func:`sorted_edges`); sorted here when absent.
 
     Returns
     -------
     (p, 2) int64
         Slots ``3 f + j`` (see :func:`edge_table`), one row per manifold edge.
     """
-    order = np.argsort(edge, kind="stable")
+    if order is None:
+        order = np.argsort(edge, kind="stable")
     e = edge[order]
     two = count[e] == 2
     slots = order[two]
@@ -220,7 +262,15 @@ def components(n: int, a: np.ndarray, b: np.ndarray, odd: np.ndarray | None = No
     parity : (n,) bool
         Each node's parity relative to the smallest node of its component
         (all False without ``odd``).
+
+    Notes
+    -----
+    The compiled kernel (:func:`geovox._lattice.components`) runs the same
+    rounds in loops, so it gives the same arrays, parities included.
     """
+    kernel = lattice()
+    if kernel is not None:
+        return kernel.components(int(n), a, b, odd)
     root = np.arange(n, dtype=np.int64)
     x = np.zeros(n, dtype=bool)
     a, b = np.asarray(a, np.int64), np.asarray(b, np.int64)
@@ -270,17 +320,32 @@ def close_pairs(pos: np.ndarray, tol: float) -> np.ndarray:
     Returns
     -------
     (p, 2) int64
-        ``i < j`` in each row.
+        ``i < j`` in each row; the rows in no particular order (the compiled
+        kernel's hash table of cells, :func:`geovox._lattice.near_pairs`,
+        finds the same pairs in another order).
     """
     n = len(pos)
     if n < 2 or not tol > 0:
         return np.zeros((0, 2), np.int64)
-    q = np.floor((pos - pos.min(axis=0)) / tol).astype(np.int64) + 1  # >= 1: no wrap at -1
-    dims = q.max(axis=0) + 2
+    low = pos.min(axis=0)
+
+    def cells(p):  # >= 1: no wrap at -1
+        return np.floor((p - low) / tol).astype(np.int64) + 1
+
+    dims = cells(pos.max(axis=0)) + 2  # the largest cells (each step is monotonic)
     if float(dims[0]) * float(dims[1]) * float(dims[2]) >= 2.0 ** 62:  # one key would overflow
         from scipy.spatial import cKDTree
 
         return np.sort(cKDTree(pos).query_pairs(tol, output_type="ndarray").astype(np.int64), axis=1)
+    kernel = lattice()
+    if kernel is not None:
+        # Candidates through a hash table of coarser cells (no sort): a
+        # superset of the pairs that pass the tests below.
+        pairs = kernel.near_pairs(np.ascontiguousarray(pos, dtype=np.float64), low, tol, 16 * tol)
+        # Of those, the pairs in neighbouring cells of this grid, as below.
+        near = np.abs(cells(pos[pairs[:, 0]]) - cells(pos[pairs[:, 1]])) <= 1
+        return _within(pos, pairs[np.all(near, axis=1)], tol)
+    q = cells(pos)
     key = (q[:, 0] * dims[1] + q[:, 1]) * dims[2] + q[:, 2]
     order = np.argsort(key, kind="stable")
     sk = key[order]
@@ -302,7 +367,11 @@ def close_pairs(pos: np.ndarray, tol: float) -> np.ndarray:
         out.append(np.stack([ii[keep], jj[keep]], axis=1))
     if not out:
         return np.zeros((0, 2), np.int64)
-    pairs = np.concatenate(out)
+    return _within(pos, np.concatenate(out), tol)
+
+
+def _within(pos, pairs, tol):
+    """The pairs of points at most ``tol`` apart, lower index first: (p, 2) int64."""
     d = pos[pairs[:, 0]] - pos[pairs[:, 1]]
     pairs = pairs[np.einsum("ij,ij->i", d, d) <= tol * tol]
     return np.sort(pairs, axis=1)
@@ -357,14 +426,14 @@ def _inner_walls(faces: np.ndarray, both: np.ndarray, nv: int) -> np.ndarray:
     drop = np.zeros(len(faces), dtype=bool)
     if not both.any():
         return drop
-    edge, count, _ = edge_table(faces, nv)
+    edge, count, _, slots = sorted_edges(faces, nv)
     slot_face = np.repeat(np.arange(len(faces)), 3)
     two = both[slot_face]
     # Per edge: the faces outside any wall that use it.
     outside = np.bincount(edge[~two], minlength=len(count))
-    # Walls: two-sided faces joined through shared edges.
+    # Walls: two-sided faces joined through shared edges (their slots, by edge).
     w_slots = np.flatnonzero(two)
-    order = w_slots[np.argsort(edge[w_slots], kind="stable")]
+    order = slots[two[slots]]
     e = edge[order]
     link = np.flatnonzero(e[1:] == e[:-1])
     idx = np.flatnonzero(both)
@@ -379,6 +448,139 @@ def _inner_walls(faces: np.ndarray, both: np.ndarray, nv: int) -> np.ndarray:
     return drop
 
 
+def merged_faces(mesh: Mesh):
+    """The faces over the vertices they use, merged by position, in lexicographic order.
+
+    ``np.unique(mesh.geometric_faces, return_inverse=True)``, cached on the
+    mesh: with the compiled kernel, the positions are merged by a hash
+    (:func:`geovox._lattice.merge_positions`) and only the distinct ones a
+    face uses are sorted; without it, :attr:`Mesh.geometric_faces` is
+    renumbered by a count (no second sort).
+
+    Returns
+    -------
+    n : int
+        Distinct positions the faces use.
+    faces : (m, 3) int64
+        Each corner's position, numbered ``0 .. n - 1`` in lexicographic
+        order of ``(x, y, z)``.
+    vertex : (n,) int64
+        At each position, the vertex of the last corner there (vertices at
+        one position differ at most in the sign of a zero).
+    """
+    if "merged_faces" not in mesh._cache:
+        kernel = lattice()
+        sorted_ids = kernel is None or "geometric_faces" in mesh._cache
+        if sorted_ids:  # already lexicographic: renumbered by a count
+            ids, nid = mesh.geometric_faces, len(mesh.vertices)
+        else:
+            from .winding import _position_faces
+
+            ids = _position_faces(mesh, kernel)
+            nid = int(ids.max()) + 1
+        flat = ids.reshape(-1)
+        used = np.zeros(nid, dtype=bool)
+        used[flat] = True
+        one = np.zeros(nid, dtype=np.int64)
+        one[flat] = mesh.faces.reshape(-1)  # the last corner at each position
+        where = np.flatnonzero(used)
+        if sorted_ids:
+            rank = np.cumsum(used) - 1
+        else:
+            v = mesh.vertices[one[where]]
+            rank = np.empty(nid, dtype=np.int64)
+            rank[where[np.lexsort((v[:, 2], v[:, 1], v[:, 0]))]] = np.arange(len(where))
+        vertex = np.empty(len(where), dtype=np.int64)
+        vertex[rank[where]] = one[where]
+        mesh._cache["merged_faces"] = (len(where), rank[ids], vertex)
+    return mesh._cache["merged_faces"]
+
+
+def _proper(pos: np.ndarray, g: np.ndarray) -> np.ndarray:
+    """(k,) bool: the faces that are not degenerate (a repeated vertex, or a cross product exactly 0)."""
+    kernel = lattice()
+    if kernel is not None:
+        return kernel.proper_faces(np.ascontiguousarray(pos), np.ascontiguousarray(g))
+    t = pos[g]
+    cross = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
+    repeated = (g[:, 0] == g[:, 1]) | (g[:, 1] == g[:, 2]) | (g[:, 2] == g[:, 0])
+    return ~repeated & np.any(cross != 0, axis=1)
+
+
+def _face_groups(w: np.ndarray, nv: int):
+    """Faces with the same vertex set, groups numbered in order of their first face.
+
+    Parameters
+    ----------
+    w : (k, 3) int64
+        Faces without a repeated vertex, over vertex ids ``< nv``.
+
+    Returns
+    -------
+    first : (g,) int64
+        Each group's first face (increasing).
+    group : (k,) int64
+    parity : (k,) bool
+        Each face's winding relative to its sorted vertex order (even or
+        odd permutation).
+    """
+    kernel = lattice()
+    if kernel is not None:
+        return kernel.face_groups(w)  # a hash of the sorted rows: linear, the same groups
+    s = np.sort(w, axis=1)
+    if nv < (1 << 21):  # three ids in one int64 key: a flat unique, far faster than by rows
+        key = (s[:, 0] * np.int64(nv) + s[:, 1]) * np.int64(nv) + s[:, 2]
+        _, first, inverse = np.unique(key, return_index=True, return_inverse=True)
+    else:
+        _, first, inverse = np.unique(s, axis=0, return_index=True, return_inverse=True)
+    order = np.argsort(first)
+    renumber = np.empty(len(first), dtype=np.int64)
+    renumber[order] = np.arange(len(first))
+    rot = np.argmin(w, axis=1)
+    nxt = w[np.arange(len(w)), (rot + 1) % 3]
+    prv = w[np.arange(len(w)), (rot + 2) % 3]
+    return first[order], renumber[inverse.reshape(-1)], nxt < prv
+
+
+def _edge_ends(f: np.ndarray, count: np.ndarray, slots: np.ndarray) -> np.ndarray:
+    """(2, e) int64: each edge's lower and higher vertex, from its first slot (see :func:`sorted_edges`)."""
+    s = slots[np.cumsum(count) - count]
+    flat = f.reshape(-1)
+    a, b = flat[s], flat[s - s % 3 + (s % 3 + 1) % 3]
+    return np.stack([np.minimum(a, b), np.maximum(a, b)])
+
+
+def _known_edges(out: Mesh, edge, count, forward, ends) -> None:
+    """Cache on the repaired copy what ``boundary_edges`` and ``edge_counts`` would find.
+
+    The copy's edges are the edge table's (turning faces over changes only
+    the directions they run their edges), so its open edges and counts need
+    no second table: the same arrays as
+    :func:`geovox.inside.winding.boundary_edges` of the copy (its vertices
+    are its merged positions, numbered in order).
+
+    Parameters
+    ----------
+    edge, count
+        As :func:`edge_table` gives them for the copy's faces.
+    forward : (3k,) bool
+        Each slot's edge is run from its lower to its higher vertex by the
+        copy's face (after the flips).
+    ends : (2, e) int64
+        :func:`_edge_ends`.
+    """
+    net = np.bincount(edge, weights=np.where(forward, 1, -1), minlength=len(count)).astype(np.int64)
+    k = np.flatnonzero(net)
+    m = net[k]
+    # net > 0: low -> high left over; net < 0: high -> low.
+    src = np.where(m > 0, ends[0, k], ends[1, k])
+    dst = np.where(m > 0, ends[1, k], ends[0, k])
+    reps = np.abs(m)
+    out._cache["boundary"] = np.stack([np.repeat(src, reps), np.repeat(dst, reps)], axis=1)
+    out._cache["non_manifold"] = bool(len(count) and count.max() > 2)
+    out._cache["edge_counts"] = (int(np.count_nonzero(count == 1)), int(np.count_nonzero(count > 2)))
+
+
 def repair(mesh: Mesh) -> Repair:
     """A consistently oriented, outward-facing copy of ``mesh`` (see the module notes).
 
@@ -390,21 +592,14 @@ def repair(mesh: Mesh) -> Repair:
     -------
     Repair
     """
-    used, g = np.unique(mesh.geometric_faces, return_inverse=True)
-    g = g.reshape(-1, 3)
-    pos = np.zeros((len(used), 3))
-    pos[g.reshape(-1)] = mesh.vertices[mesh.faces.reshape(-1)]
+    _, g, vertex = merged_faces(mesh)
+    pos = mesh.vertices[vertex]
     g, pos, welded = _weld(g, pos, WELD * mesh.scale)
     nv = len(pos)
     # Every merged vertex is used (pos holds only those): a count, not a sort.
     merged = int(np.count_nonzero(np.bincount(mesh.faces.reshape(-1)))) - nv
 
-    # Degenerate: a repeated vertex, or zero area (the cross product is exactly 0).
-    t = pos[g]
-    cross = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
-    repeated = (g[:, 0] == g[:, 1]) | (g[:, 1] == g[:, 2]) | (g[:, 2] == g[:, 0])
-    good = ~repeated & np.any(cross != 0, axis=1)
-    keep = np.flatnonzero(good)
+    keep = np.flatnonzero(_proper(pos, g))
     degenerate = len(g) - len(keep)
     if len(keep) == 0:  # nothing with an area: nothing encloses anything
         return Repair(mesh=Mesh(pos, np.zeros((0, 3), np.int64), source=mesh.source),
@@ -412,19 +607,7 @@ def repair(mesh: Mesh) -> Repair:
                       merged_vertices=int(merged), welded=int(welded), degenerate=int(degenerate))
 
     # Duplicates: the same vertex set; the first face of each set stays.
-    s = np.sort(g[keep], axis=1)
-    if nv < (1 << 21):  # three ids in one int64 key: a flat unique, far faster than by rows
-        key = (s[:, 0] * np.int64(nv) + s[:, 1]) * np.int64(nv) + s[:, 2]
-        _, first, inverse = np.unique(key, return_index=True, return_inverse=True)
-    else:
-        _, first, inverse = np.unique(s, axis=0, return_index=True, return_inverse=True)
-    inverse = inverse.reshape(-1)
-    # Winding of each face relative to its sorted vertex order (even or odd permutation).
-    w = g[keep]
-    rot = np.argmin(w, axis=1)
-    nxt = w[np.arange(len(w)), (rot + 1) % 3]
-    prv = w[np.arange(len(w)), (rot + 2) % 3]
-    parity = nxt < prv
+    first, inverse, parity = _face_groups(g[keep], nv)
     dropped = np.ones(len(keep), dtype=bool)
     dropped[first] = False
     same = parity == parity[first[inverse]]
@@ -434,8 +617,6 @@ def repair(mesh: Mesh) -> Repair:
     # an inner wall (see _inner_walls), which goes on both sides.
     both = np.zeros(len(first), dtype=bool)
     both[inverse[~same]] = True
-    order = np.argsort(first)
-    first, both = first[order], both[order]
     wall = _inner_walls(g[keep[first]], both, nv)
     inner = int(np.count_nonzero(wall))
     first = first[~wall]
@@ -443,13 +624,14 @@ def repair(mesh: Mesh) -> Repair:
     f = g[face]
     nf = len(f)
 
-    edge, count, forward = edge_table(f, nv)
-    pairs = manifold_pairs(edge, count)
+    edge, count, forward, slots = sorted_edges(f, nv)
+    pairs = manifold_pairs(edge, count, slots)
     # Two faces agree across an edge when they run it in opposite directions.
     fp = pairs // 3
     npieces, label, flip = components(nf, fp[:, 0], fp[:, 1],
                                       forward[pairs[:, 0]] == forward[pairs[:, 1]])
-    f = np.where(flip[:, None], f[:, [0, 2, 1]], f)
+    ends = _edge_ends(f, count, slots)
+    f[flip, 1], f[flip, 2] = f[flip, 2], f[flip, 1]
 
     # Outward: signed volume about the centroid of each piece's boundary
     # (open edges' midpoints), or of its vertices when it has none.
@@ -457,9 +639,10 @@ def repair(mesh: Mesh) -> Repair:
     bad_slot = count[edge] != 2
     slot_face = np.repeat(np.arange(nf), 3)
     closed_piece = np.bincount(label[slot_face[bad_slot]], minlength=npieces) == 0
-    a, b = f.reshape(-1), f[:, [1, 2, 0]].reshape(-1)
+    o = np.flatnonzero(open_slot)  # each open slot's vertex and the next one round its face
+    a, b = f.reshape(-1)[o], f.reshape(-1)[o - o % 3 + (o % 3 + 1) % 3]
     centre = pos.mean(axis=0) if nv else np.zeros(3)
-    mid = (pos[a[open_slot]] + pos[b[open_slot]]) / 2 - centre
+    mid = (pos[a] + pos[b]) / 2 - centre
     lab_open = label[slot_face[open_slot]]
     n_open = np.bincount(lab_open, minlength=npieces)
     c = np.stack([np.bincount(lab_open, weights=mid[:, k], minlength=npieces) for k in range(3)], 1)
@@ -473,9 +656,15 @@ def repair(mesh: Mesh) -> Repair:
     det = np.einsum("ij,ij->i", rel[:, 0], np.cross(rel[:, 1], rel[:, 2]))
     volume = np.bincount(label, weights=det, minlength=npieces)
     turn = volume < 0
-    f = np.where(turn[label][:, None], f[:, [0, 2, 1]], f)
+    t = turn[label]
+    f[t, 1], f[t, 2] = f[t, 2], f[t, 1]
     swapped = flip ^ turn[label]
     out = Mesh(pos, f, source=mesh.source)
+    # Its vertices are distinct and in lexicographic order (the first of
+    # each merged group, in order): merging them by position numbers them
+    # as they are, so the lexicographic sort of that is not needed.
+    out._cache["geometric_faces"] = f
+    _known_edges(out, edge, count, forward ^ np.repeat(swapped, 3), ends)
     return Repair(mesh=out, face=face, swapped=swapped, piece=label, merged_vertices=int(merged), welded=int(welded),
                   degenerate=int(degenerate), duplicates=duplicates, opposite=opposite, inner=inner,
                   flipped=int(np.count_nonzero(swapped)), pieces=npieces,

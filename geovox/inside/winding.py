@@ -68,6 +68,8 @@ def boundary_edges(mesh: Mesh) -> np.ndarray:
             out = np.zeros((0, 2), dtype=np.int64)
             mesh._cache["boundary"] = out
             return out
+        mesh._cache["boundary"] = out = _compiled_boundary(mesh, kernel)
+        return out
     f = mesh.geometric_faces
     e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
     e = e[e[:, 0] != e[:, 1]]  # degenerate faces repeat a vertex
@@ -100,6 +102,32 @@ def boundary_edges(mesh: Mesh) -> np.ndarray:
     return out
 
 
+def _compiled_boundary(mesh: Mesh, module) -> np.ndarray:
+    """:func:`boundary_edges` of an open mesh by the compiled edge table, in the same order.
+
+    The edges come numbered in ``(lower, higher)`` order of the positions'
+    lexicographic numbers (:func:`geovox.inside.repair.merged_faces`), as
+    the NumPy path's ``np.unique`` of the keys numbers them, from a counting
+    sort (:func:`geovox._lattice.edge_sort`); the edge counts of
+    :func:`edge_counts` come with them.
+    """
+    from .repair import merged_faces
+
+    _, g, vertex = merged_faces(mesh)
+    _, _, low, high, count, net = module.edge_sort(g)
+    mesh._cache["non_manifold"] = bool(len(count) and count.max() > 2)
+    mesh._cache["edge_counts"] = (int(np.count_nonzero(count == 1)),
+                                  int(np.count_nonzero(count > 2)))
+    k = np.flatnonzero(net)
+    a, b, m = low[k], high[k], net[k]
+    # net > 0: a -> b left over; net < 0: b -> a.
+    src = np.where(m > 0, a, b)
+    dst = np.where(m > 0, b, a)
+    reps = np.abs(m)
+    out = np.stack([np.repeat(src, reps), np.repeat(dst, reps)], axis=1)
+    return vertex[out]  # the NumPy path's representatives: the last corner at each position
+
+
 def _position_faces(mesh: Mesh, module) -> np.ndarray:
     """(m, 3) int64: faces over vertices merged by exact position, numbered by a hash.
 
@@ -128,7 +156,19 @@ def _closed(e, lo, hi, n) -> bool:
 
 
 def edge_counts(mesh: Mesh):
-    """``(open, non_manifold)``: edges used by one face, and edges used by more than two."""
+    """``(open, non_manifold)``: edges used by one face, and edges used by more than two.
+
+    Counted with :func:`boundary_edges` by the compiled kernel where the
+    mesh is open (cached on the mesh).
+    """
+    if "edge_counts" in mesh._cache:
+        return mesh._cache["edge_counts"]
+    kernel = lattice()
+    if kernel is not None:
+        count = kernel.edge_sort(_position_faces(mesh, kernel))[4]
+        mesh._cache["edge_counts"] = (int(np.count_nonzero(count == 1)),
+                                      int(np.count_nonzero(count > 2)))
+        return mesh._cache["edge_counts"]
     f = mesh.geometric_faces
     e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
     e = e[e[:, 0] != e[:, 1]]
