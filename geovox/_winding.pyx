@@ -423,3 +423,93 @@ def cap_occupancy(const double[:, ::1] T, const double[:, ::1] S, const double[:
         free(stack)
     tot = __import__("numpy").asarray(counts).sum(axis=0)
     return int(tot[0]), int(tot[1]), int(tot[2])
+
+
+cdef void min_area_one(const double *p, int64_t n, double *cost, int64_t *arg, int64_t *cur,
+                       int64_t *nxt, int64_t *out) noexcept nogil:
+    """One polygon of :func:`min_area_triangles`: the same sums in the same order, the same ties.
+
+    ``cost``, ``arg`` (n * n) are the programme's tables; ``cur``, ``nxt``
+    (2 n) the unfolding's intervals; ``out`` (3 (n - 2)) the triangles.
+    """
+    cdef int64_t d, i, j, k, best, m, q, nc, nn, lk
+    cdef double ax, ay, az, bx, by, bz, cx, cy, cz, total, low
+    cdef bint nan
+    for i in range(n * n):
+        cost[i] = 0
+    for d in range(2, n):
+        for i in range(n - d):
+            j = i + d
+            bx = p[3 * j] - p[3 * i]; by = p[3 * j + 1] - p[3 * i + 1]; bz = p[3 * j + 2] - p[3 * i + 2]
+            best = i + 1
+            low = 0
+            nan = False
+            for k in range(i + 1, j):
+                ax = p[3 * k] - p[3 * i]; ay = p[3 * k + 1] - p[3 * i + 1]; az = p[3 * k + 2] - p[3 * i + 2]
+                cx = ay * bz - az * by
+                cy = az * bx - ax * bz
+                cz = ax * by - ay * bx
+                total = cost[i * n + k] + cost[k * n + j] + 0.5 * sqrt(cx * cx + cy * cy + cz * cz)
+                # NumPy's argmin and min: the first least value, a NaN before all.
+                if k == i + 1 or (not nan and (total != total or total < low)):
+                    if total != total:
+                        nan = True
+                    best = k
+                    low = total
+            cost[i * n + j] = low
+            arg[i * n + j] = best
+    # Unfolded as the NumPy twin does: a level's intervals, then the left
+    # halves of the next level in order, then the right halves.
+    cur[0] = 0; cur[1] = n - 1
+    nc = 1
+    m = 0
+    while nc:
+        nn = 0
+        for q in range(nc):
+            i = cur[2 * q]; j = cur[2 * q + 1]
+            lk = arg[i * n + j]
+            out[3 * m] = i; out[3 * m + 1] = lk; out[3 * m + 2] = j
+            m += 1
+            if lk - i >= 2:
+                nxt[2 * nn] = i; nxt[2 * nn + 1] = lk
+                nn += 1
+        for q in range(nc):
+            i = cur[2 * q]; j = cur[2 * q + 1]
+            lk = arg[i * n + j]
+            if j - lk >= 2:
+                nxt[2 * nn] = lk; nxt[2 * nn + 1] = j
+                nn += 1
+        for q in range(2 * nn):
+            cur[q] = nxt[q]
+        nc = nn
+
+
+def min_area_triangles(const double[:, :, ::1] poly):
+    """:func:`geovox.inside.bridge.min_area_triangles`, compiled: the same triangles in the same order.
+
+    Parameters
+    ----------
+    poly : (m, n, 3) float64, n >= 3
+
+    Returns
+    -------
+    (m, n - 2, 3) int64
+    """
+    np = __import__("numpy")
+    cdef int64_t m = poly.shape[0], n = poly.shape[1], s
+    out_arr = np.zeros((m, max(n - 2, 0), 3), dtype=np.int64)
+    cdef int64_t[:, :, ::1] out = out_arr
+    if m == 0 or n < 3:
+        return out_arr
+    cdef double *cost = <double *>malloc(n * n * sizeof(double))
+    cdef int64_t *arg = <int64_t *>malloc(n * n * sizeof(int64_t))
+    cdef int64_t *cur = <int64_t *>malloc(2 * n * sizeof(int64_t))
+    cdef int64_t *nxt = <int64_t *>malloc(2 * n * sizeof(int64_t))
+    if cost == NULL or arg == NULL or cur == NULL or nxt == NULL:
+        free(cost); free(arg); free(cur); free(nxt)
+        raise MemoryError("min_area_triangles: no memory for the tables")
+    with nogil:
+        for s in range(m):
+            min_area_one(&poly[s, 0, 0], n, cost, arg, cur, nxt, &out[s, 0, 0])
+    free(cost); free(arg); free(cur); free(nxt)
+    return out_arr
