@@ -25,11 +25,30 @@ lets the caps of messy models (fans over boundary loops with much more area
 than net area vector: unsigned solid angles near 1 at most voxels) be
 decided in bulk.
 
-A voxel whose summed bound does not decide it is refined at once, alone: a
-traversal per tighter pass (``passes``), then the exact sum over every cap
-triangle (Van Oosterom and Strackee). Only the time budget (``seconds`` of processor
-time a thread) leaves a voxel to its estimate; such voxels are marked. Every other
-decision is proven by a bound (a margin of 1e-4, far above the float64
+Two refinements of that bound (:func:`second_bound`), each a proof, not an
+estimate. The displacement at a point x of the node is ``|x - c| + rb``, so
+``A (r + rb)^2`` becomes ``int (|x - c| + rb)^2 dA <= (sqrt(M2) + rb sqrt(A))^2``
+with ``M2`` the node's second moment about ``c`` (Cauchy-Schwarz). And the
+distance along the segment from ``y0`` falls no faster than ``a - s rho``
+(``a = |y0|``), so Taylor's remainder in integral form,
+``int_0^1 (1 - s) f''(y0 + s h)[h, h] ds``, is at most
+``6 rho^2 phi(rho / a) / a^4`` with
+``phi(u) = int_0^1 (1 - s) (1 - u s)^-4 ds = (3 - 2 u) / (6 (1 - u)^2)``,
+where the closest point alone gives ``3 rho^2 / d^4``, ``d >= a (1 - u)``
+(at ``u = 1/3`` the first is 2.9 times smaller). The kernel takes the lesser.
+
+A voxel and a single cap triangle are always summed exactly (as cheap as an
+expansion and its bound), and a brick and a single triangle are judged by
+the distance to the triangle itself (:func:`tri_distance`), not to its box:
+the caps of slit-like holes are slivers across the axes, whose boxes are
+many times their own neighbourhoods.
+
+The passes: a loose one over every brick, then tighter ones over only the
+bricks that hold voxels it left undecided (``bricks`` of them in all); a
+voxel still undecided is then refined alone: a traversal per tighter pass,
+then the exact sum over every cap triangle (Van Oosterom and Strackee).
+Only the time budget (``seconds`` of processor time a thread) leaves a
+voxel to its estimate; such voxels are marked. Every other decision is proven by a bound (a margin of 1e-4, far above the float64
 rounding of these sums) or taken on the exact sum.
 """
 
@@ -102,6 +121,49 @@ cdef inline double node_gap(const Tree *tr, int64_t node, double px, double py, 
     return sqrt(g)
 
 
+cdef inline double tri_distance(const double *t, double px, double py, double pz) noexcept nogil:
+    """Distance from p to the triangle ``t`` (9 doubles): its closest point by Voronoi region.
+
+    Ericson, Real-Time Collision Detection, 5.1.5. A degenerate triangle
+    may give NaN; the caller then keeps the box's distance.
+    """
+    cdef double abx = t[3] - t[0], aby = t[4] - t[1], abz = t[5] - t[2]
+    cdef double acx = t[6] - t[0], acy = t[7] - t[1], acz = t[8] - t[2]
+    cdef double apx = px - t[0], apy = py - t[1], apz = pz - t[2]
+    cdef double d1 = abx * apx + aby * apy + abz * apz, d2 = acx * apx + acy * apy + acz * apz
+    cdef double bpx, bpy, bpz, cpx, cpy, cpz, d3, d4, d5, d6, va, vb, vc, v, w, qx, qy, qz
+    if d1 <= 0 and d2 <= 0:
+        return sqrt(apx * apx + apy * apy + apz * apz)
+    bpx = px - t[3]; bpy = py - t[4]; bpz = pz - t[5]
+    d3 = abx * bpx + aby * bpy + abz * bpz; d4 = acx * bpx + acy * bpy + acz * bpz
+    if d3 >= 0 and d4 <= d3:
+        return sqrt(bpx * bpx + bpy * bpy + bpz * bpz)
+    vc = d1 * d4 - d3 * d2
+    if vc <= 0 and d1 >= 0 and d3 <= 0:
+        v = d1 / (d1 - d3)
+        qx = apx - v * abx; qy = apy - v * aby; qz = apz - v * abz
+        return sqrt(qx * qx + qy * qy + qz * qz)
+    cpx = px - t[6]; cpy = py - t[7]; cpz = pz - t[8]
+    d5 = abx * cpx + aby * cpy + abz * cpz; d6 = acx * cpx + acy * cpy + acz * cpz
+    if d6 >= 0 and d5 <= d6:
+        return sqrt(cpx * cpx + cpy * cpy + cpz * cpz)
+    vb = d5 * d2 - d1 * d6
+    if vb <= 0 and d2 >= 0 and d6 <= 0:
+        w = d2 / (d2 - d6)
+        qx = apx - w * acx; qy = apy - w * acy; qz = apz - w * acz
+        return sqrt(qx * qx + qy * qy + qz * qz)
+    va = d3 * d6 - d5 * d4
+    if va <= 0 and d4 - d3 >= 0 and d5 - d6 >= 0:
+        w = (d4 - d3) / ((d4 - d3) + (d5 - d6))
+        qx = bpx - w * (t[6] - t[3]); qy = bpy - w * (t[7] - t[4]); qz = bpz - w * (t[8] - t[5])
+        return sqrt(qx * qx + qy * qy + qz * qz)
+    w = 1.0 / (va + vb + vc)
+    v = vb * w
+    w = vc * w
+    qx = apx - v * abx - w * acx; qy = apy - v * aby - w * acy; qz = apz - v * abz - w * acz
+    return sqrt(qx * qx + qy * qy + qz * qz)
+
+
 cdef inline double expansion(const Tree *tr, int64_t node, const double *y, double *grad) noexcept nogil:
     """The node's solid angle over 4 pi at ``p``, to first order in the node's and p's displacement.
 
@@ -163,26 +225,13 @@ cdef inline double tri_angle_gradient(const double *t, double px, double py, dou
 cdef double INV_4PI = 1.0 / (4 * M_PI)
 
 
-cdef inline double phi(double u) noexcept nogil:
-    """``int_0^1 (1 - s) / (1 - u s)^4 ds``, ``0 <= u < 1``: ``(3 - 2 u) / (6 (1 - u)^2)``.
-
-    The Taylor remainder's weight when the distance along the segment falls
-    from ``a`` to ``a - s rho`` (``u = rho / a``): the remainder of a linear
-    expansion of ``6 / |y|^4``-bounded second derivatives is at most
-    ``6 rho^2 phi(u) / a^4``, where a bound from the closest point alone is
-    ``3 rho^2 / (a (1 - u))^4`` (``phi(0) = 1/2``; at ``u = 1/3`` the two
-    differ 2.9 times).
-    """
-    return (3 - 2 * u) / (6 * (1 - u) * (1 - u))
-
-
 cdef inline double single_bound(double area, double rb, double g0) noexcept nogil:
     """Error bound of one triangle's exact value and gradient at a brick's centre, within ``rb``.
 
-    ``g0 > rb`` is the distance from the brick's centre to the triangle's
-    box. At each point x of the triangle the linear expansion in the
+    ``g0 > rb`` is the distance from the brick's centre to the triangle (or
+    its box). At each point x of the triangle the linear expansion in the
     voxel's offset h (``|h| <= rb``) errs by at most
-    ``6 rb^2 phi(rb / |x - p0|) / |x - p0|^4`` (see :func:`phi`), over 4 pi;
+    ``6 rb^2 phi(rb / |x - p0|) / |x - p0|^4`` (``phi`` of the module notes), over 4 pi;
     ``|x - p0| >= g0``, and summed over the triangle that is at most
     ``6 A rb^2 phi(u) / g0^4`` or, over a whole plane of points at least
     ``g0`` away (``int 6 / |y|^4 dA <= 6 pi / g0^2``), ``6 pi rb^2 phi(u) / g0^2``.
@@ -205,7 +254,7 @@ cdef inline double second_bound(const Tree *tr, int64_t node, double rb, double 
     and its distance never below ``gap`` (convexity) nor below
     ``a - s rho``; so the error is at most ``(3 / gap^4) int rho^2 dA`` and,
     where ``r + rb < a``, ``(6 phi(u) / a^4) int rho^2 dA`` (``u = (r + rb) / a``,
-    :func:`phi` increasing), over 4 pi. ``int rho^2 dA = M2 + 2 rb M1 + rb^2 A
+    ``phi`` of the module notes, increasing), over 4 pi. ``int rho^2 dA = M2 + 2 rb M1 + rb^2 A
     <= (sqrt(M2) + rb sqrt(A))^2`` (``M1 <= sqrt(A M2)``, Cauchy-Schwarz), with
     ``M2`` the node's second moment about its centre.
     """
@@ -252,13 +301,24 @@ cdef void brick_pass(const Tree *tr, const Grid *g, const int64_t *tb, double *s
         pz = g.lo[2] + ((tb[2] * nk + iz) * side + (side - 1) / 2 + 0.5) * g.d[2]
         rb = 0.5 * (side - 1) * g.dnorm
         node = tr.off[l] + j
+        slot = 5 * (lev_off[k] + (ix * nk + iy) * nk + iz)
+        if k == 0 and l == 0:
+            # A voxel and one triangle: exact, for about what its expansion
+            # and bound would cost.
+            sums[slot] += tri_angle(tr.T + 9 * j, px, py, pz)
+            continue
         gap = node_gap(tr, node, px, py, pz, vec) - rb
         reach = tr.R[node] + rb
-        slot = 5 * (lev_off[k] + (ix * nk + iy) * nk + iz)
-        if gap > 0 and l == 0 and k > 0:
+        if l == 0 and k > 0:
             # One triangle: exact at the brick's centre, with its gradient;
             # the bound does not grow with the triangle (a long sliver of a
-            # fan is taken per brick, not per voxel).
+            # fan is taken per brick, not per voxel), and it takes the
+            # distance to the triangle itself, not to its box: a sliver
+            # across the axes has a box many times its own neighbourhood.
+            val = tri_distance(tr.T + 9 * j, px, py, pz) - rb
+            if val > gap:  # not NaN, and no nearer than the box by rounding
+                gap = val
+        if gap > 0 and l == 0 and k > 0:
             bound = single_bound(tr.A[node], rb, gap + rb)
             if rb <= theta * gap or bound <= eps:
                 sums[slot] += tri_angle_gradient(tr.T + 9 * j, px, py, pz, grad)
@@ -273,9 +333,6 @@ cdef void brick_pass(const Tree *tr, const Grid *g, const int64_t *tb, double *s
                 sums[slot] += val; sums[slot + 1] += grad[0]; sums[slot + 2] += grad[1]
                 sums[slot + 3] += grad[2]; sums[slot + 4] += bound
                 continue
-        if k == 0 and l == 0:  # a voxel and one triangle: exact
-            sums[slot] += tri_angle(tr.T + 9 * j, px, py, pz)
-            continue
         if k > 0 and (l == 0 or rb > tr.R[node]):  # eight sub-bricks (those inside the grid)
             for o in range(8):
                 cx = 2 * ix + (o & 1); cy = 2 * iy + ((o >> 1) & 1); cz = 2 * iz + ((o >> 2) & 1)
@@ -310,6 +367,9 @@ cdef void voxel_pass(const Tree *tr, double theta, double eps, double px, double
     while sp > 0:
         sp -= 1
         l = stack[2 * sp]; j = stack[2 * sp + 1]
+        if l == 0:  # one triangle: exact (see brick_pass)
+            out[0] += tri_angle(tr.T + 9 * j, px, py, pz)
+            continue
         node = tr.off[l] + j
         gap = node_gap(tr, node, px, py, pz, vec)
         if gap > 0:
@@ -319,9 +379,6 @@ cdef void voxel_pass(const Tree *tr, double theta, double eps, double px, double
                 out[0] += expansion(tr, node, vec, grad)
                 out[1] += bound
                 continue
-        if l == 0:  # a voxel and one triangle: exact
-            out[0] += tri_angle(tr.T + 9 * j, px, py, pz)
-            continue
         for o in range(2):
             if 2 * j + o < tr.size[l - 1]:
                 stack[2 * sp] = l - 1; stack[2 * sp + 1] = 2 * j + o

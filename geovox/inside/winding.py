@@ -551,11 +551,12 @@ PAIR_BUDGET = 10_000_000
 #: exactly, left to the estimate; and the cap triangles.
 STATS: dict = {}
 #: The compiled kernel's passes (second order, see geovox/_winding.pyx): the
-#: first ``COMPILED_BRICKS`` over bricks (the first over all, the next over
-#: the bricks that hold voxels left undecided), the others over single
-#: voxels the one before left undecided.
-COMPILED_PASSES = ((0.4, 1e-4), (0.2, 1e-4), (0.25, 1e-6), (0.1, 1e-7))
-COMPILED_BRICKS = 2
+#: first ``COMPILED_BRICKS`` over bricks (the first over all, each next one
+#: over the bricks that hold voxels left undecided), the others over single
+#: voxels the one before left undecided. A loose first pass and tighter ones
+#: over what it leaves cost about half of one tight pass over everything.
+COMPILED_PASSES = ((0.4, 1e-4), (0.2, 1e-4), (0.1, 1e-5), (0.25, 1e-6), (0.1, 1e-7))
+COMPILED_BRICKS = 3
 #: The compiled kernel's top bricks are about the grid's largest side over
 #: this, voxels a side (a power of two; each top brick starts from the root of the caps' tree).
 TOP_VOXELS = 8
@@ -1152,10 +1153,10 @@ def _compiled_caps(module, occ, w, grid, cap_tris, jobs) -> None:
     """:func:`_correct_caps` in the compiled kernel (``geovox/_winding.pyx``).
 
     The first pass over bricks, as :func:`cap_winding`'s but to second order
-    (``COMPILED_PASSES[0]``), then a tighter one over the bricks that hold
-    the voxels it left undecided; each voxel still undecided is refined
-    alone at once by the voxels' passes, then summed exactly over every cap
-    triangle. Only past ``WORK_SECONDS`` of processor time per thread is an
+    (``COMPILED_PASSES[0]``), then tighter ones over the bricks that hold
+    the voxels left undecided (``COMPILED_BRICKS`` in all); each voxel still
+    undecided is refined alone at once by the voxels' passes, then summed
+    exactly over every cap triangle. Only past ``WORK_SECONDS`` of processor time per thread is an
     undecided voxel left to its estimate (with the
     warning of :func:`_estimated`).
     """
