@@ -19,6 +19,7 @@ says which is right.
 
 Usage: python benchmarks/bench_messy.py --baseline /path/to/main [--runs 3]
        [--cases truck.obj:64,truck.obj:128,...] [--write benchmarks/results/messy.json]
+       [--igl-max 128]  (libigl only up to 128³: at 256³ it takes minutes a run)
 """
 
 from __future__ import annotations
@@ -75,8 +76,11 @@ def brute_force(path, res, idx):
                      for q in p], bool)
 
 
-def case(path, res, baseline, runs, tmp):
-    """One row: medians for A, B and libigl, the pair ratios, and the voxel comparison."""
+def case(path, res, baseline, runs, tmp, igl_max=None):
+    """One row: medians for A, B and libigl, the pair ratios, and the voxel comparison.
+
+    libigl runs only up to ``igl_max`` voxels a side (None: always): at 256³ it takes minutes a run.
+    """
     py = sys.executable
     outs = {k: os.path.join(tmp, f"{k}.npy") for k in ("a", "b", "igl")}
     a_cmd = [py, "-m", "geovox", "convert", path, "-r", str(res), "-o", outs["a"]]
@@ -88,13 +92,15 @@ def case(path, res, baseline, runs, tmp):
             wall, cpu, err[k] = timed(cmd, cwd)
             got[k].append((wall, cpu))
     igl_cmd = [py, os.path.join(HERE, "libigl_winding.py"), path, str(res), outs["igl"]]
-    for _ in range(runs):
+    igl = igl_max is None or res <= igl_max
+    for _ in range(runs if igl else 0):
         got["igl"].append(timed(igl_cmd, ROOT)[:2])
     a, b = np.load(outs["a"]), np.load(outs["b"])
     row = {"model": os.path.relpath(path, ROOT), "grid": res, "runs": runs}
     for k in got:
-        row[f"{k}_wall"] = statistics.median(w for w, _ in got[k])
-        row[f"{k}_cpu"] = statistics.median(c for _, c in got[k])
+        if got[k]:
+            row[f"{k}_wall"] = statistics.median(w for w, _ in got[k])
+            row[f"{k}_cpu"] = statistics.median(c for _, c in got[k])
     row["ratio_wall"] = statistics.median(x[0] / y[0] for x, y in zip(got["a"], got["b"]))
     row["ratio_cpu"] = statistics.median(x[1] / y[1] for x, y in zip(got["a"], got["b"]))
     row["approximate_a"] = "approximate" in err["a"]
@@ -106,7 +112,8 @@ def case(path, res, baseline, runs, tmp):
         row["a_agrees"] = int(np.sum(a[tuple(idx.T)] == bf))
         row["b_agrees"] = int(np.sum(b[tuple(idx.T)] == bf))
     row["inside_a"] = int(a.sum())
-    row["inside_igl"] = int(np.load(outs["igl"]).sum())
+    if igl:
+        row["inside_igl"] = int(np.load(outs["igl"]).sum())
     return row
 
 
@@ -121,7 +128,8 @@ def table(rows):
         out.append([r["model"].split("/")[-1], f"{r['grid']}³",
                     f"{r['b_wall']:.2f} / {r['b_cpu']:.2f}", f"{r['a_wall']:.2f} / {r['a_cpu']:.2f}",
                     f"{r['ratio_wall']:.2f}, {r['ratio_cpu']:.2f}",
-                    f"{r['igl_wall']:.2f} / {r['igl_cpu']:.2f}", diff, approx])
+                    f"{r['igl_wall']:.2f} / {r['igl_cpu']:.2f}" if "igl_wall" in r else "not run",
+                    diff, approx])
     return out
 
 
@@ -131,6 +139,7 @@ def main(argv=None):
     p.add_argument("--runs", type=int, default=3)
     p.add_argument("--cases", default=",".join(CASES), help="MODEL:N,... (MODEL under tests/data)")
     p.add_argument("--write", help="write the result file here")
+    p.add_argument("--igl-max", type=int, help="run libigl only up to this grid (default: every grid)")
     args = p.parse_args(argv)
     rows = []
     load0 = os.getloadavg()[0]
@@ -139,7 +148,7 @@ def main(argv=None):
         for c in args.cases.split(","):
             rel, res = c.rsplit(":", 1)
             rows.append(case(os.path.join(DATA, rel), int(res), os.path.abspath(args.baseline),
-                             args.runs, tmp))
+                             args.runs, tmp, args.igl_max))
             print(json.dumps(rows[-1]), flush=True)
     load1 = os.getloadavg()[0]
     result = {
@@ -147,14 +156,17 @@ def main(argv=None):
         "title": "Messy models, whole process (issue 27)",
         "script": "benchmarks/bench_messy.py",
         "command": f"python benchmarks/bench_messy.py --baseline MAIN --runs {args.runs} "
-                   f"--cases {args.cases}",
+                   f"--cases {args.cases}" + (f" --igl-max {args.igl_max}" if args.igl_max else ""),
         "date": f"{started:%Y-%m-%d %H:%M} UTC",
         "machine": f"{os.cpu_count()} cores, {platform.machine()}, Python {platform.python_version()}; "
                    f"shared: load average {load0:.1f} at the start, {load1:.1f} at the end",
         "notes": "geovox convert MODEL -r N -o out.npy, default options, a fresh process each run; this "
                  "branch and main in turn, ratios pair by pair, medians. libigl: fast_winding_number on "
                  "the same grid, the mesh as read (not repaired). Wall and processor (user + system) "
-                 "seconds; on a loaded machine the processor time is the better guide.",
+                 "seconds; on a loaded machine the processor time is the better guide. "
+                 + ("PYTHONDONTWRITEBYTECODE set: both sides compile their sources each run."
+                    if os.environ.get("PYTHONDONTWRITEBYTECODE") else
+                    "PYTHONDONTWRITEBYTECODE unset: both sides run from their .pyc files."),
         "tables": [{"caption": "Whole process: main, this branch, libigl",
                     "columns": ["model", "grid", "main wall / cpu (s)", "branch wall / cpu (s)",
                                 "ratio (wall, cpu)", "libigl wall / cpu (s)",

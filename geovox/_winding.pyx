@@ -25,11 +25,30 @@ lets the caps of messy models (fans over boundary loops with much more area
 than net area vector: unsigned solid angles near 1 at most voxels) be
 decided in bulk.
 
-A voxel whose summed bound does not decide it is refined at once, alone: a
-traversal per tighter pass (``passes``), then the exact sum over every cap
-triangle (Van Oosterom and Strackee). Only the time budget (``seconds`` of processor
-time a thread) leaves a voxel to its estimate; such voxels are marked. Every other
-decision is proven by a bound (a margin of 1e-4, far above the float64
+Two refinements of that bound (:func:`second_bound`), each a proof, not an
+estimate. The displacement at a point x of the node is ``|x - c| + rb``, so
+``A (r + rb)^2`` becomes ``int (|x - c| + rb)^2 dA <= (sqrt(M2) + rb sqrt(A))^2``
+with ``M2`` the node's second moment about ``c`` (Cauchy-Schwarz). And the
+distance along the segment from ``y0`` falls no faster than ``a - s rho``
+(``a = |y0|``), so Taylor's remainder in integral form,
+``int_0^1 (1 - s) f''(y0 + s h)[h, h] ds``, is at most
+``6 rho^2 phi(rho / a) / a^4`` with
+``phi(u) = int_0^1 (1 - s) (1 - u s)^-4 ds = (3 - 2 u) / (6 (1 - u)^2)``,
+where the closest point alone gives ``3 rho^2 / d^4``, ``d >= a (1 - u)``
+(at ``u = 1/3`` the first is 2.9 times smaller). The kernel takes the lesser.
+
+A voxel and a single cap triangle are always summed exactly (as cheap as an
+expansion and its bound), and a brick and a single triangle are judged by
+the distance to the triangle itself (:func:`tri_distance`), not to its box:
+the caps of slit-like holes are slivers across the axes, whose boxes are
+many times their own neighbourhoods.
+
+The passes: a loose one over every brick, then tighter ones over only the
+bricks that hold voxels it left undecided (``bricks`` of them in all); a
+voxel still undecided is then refined alone: a traversal per tighter pass,
+then the exact sum over every cap triangle (Van Oosterom and Strackee).
+Only the time budget (``seconds`` of processor time a thread) leaves a
+voxel to its estimate; such voxels are marked. Every other decision is proven by a bound (a margin of 1e-4, far above the float64
 rounding of these sums) or taken on the exact sum.
 """
 
@@ -49,6 +68,8 @@ cdef struct Tree:
     const double *C      # (n, 3) box centres
     const double *H      # (n, 3) box half sizes
     const double *R      # (n,) radii
+    const double *M      # (n,) root of the second moment: sqrt(sum_t int_t |x - c|^2 dA)
+    const double *RA     # (n,) root of the area
     const int64_t *off   # first node of each tree level
     const int64_t *size  # nodes per tree level
     int64_t top          # the root's tree level
@@ -61,7 +82,6 @@ cdef struct Grid:
     double d[3]
     double dnorm
     int64_t T            # brick level of the top bricks
-    double theta, eps
 
 
 cdef inline double now() noexcept nogil:
@@ -99,6 +119,49 @@ cdef inline double node_gap(const Tree *tr, int64_t node, double px, double py, 
         if o > 0:
             g += o * o
     return sqrt(g)
+
+
+cdef inline double tri_distance(const double *t, double px, double py, double pz) noexcept nogil:
+    """Distance from p to the triangle ``t`` (9 doubles): its closest point by Voronoi region.
+
+    Ericson, Real-Time Collision Detection, 5.1.5. A degenerate triangle
+    may give NaN; the caller then keeps the box's distance.
+    """
+    cdef double abx = t[3] - t[0], aby = t[4] - t[1], abz = t[5] - t[2]
+    cdef double acx = t[6] - t[0], acy = t[7] - t[1], acz = t[8] - t[2]
+    cdef double apx = px - t[0], apy = py - t[1], apz = pz - t[2]
+    cdef double d1 = abx * apx + aby * apy + abz * apz, d2 = acx * apx + acy * apy + acz * apz
+    cdef double bpx, bpy, bpz, cpx, cpy, cpz, d3, d4, d5, d6, va, vb, vc, v, w, qx, qy, qz
+    if d1 <= 0 and d2 <= 0:
+        return sqrt(apx * apx + apy * apy + apz * apz)
+    bpx = px - t[3]; bpy = py - t[4]; bpz = pz - t[5]
+    d3 = abx * bpx + aby * bpy + abz * bpz; d4 = acx * bpx + acy * bpy + acz * bpz
+    if d3 >= 0 and d4 <= d3:
+        return sqrt(bpx * bpx + bpy * bpy + bpz * bpz)
+    vc = d1 * d4 - d3 * d2
+    if vc <= 0 and d1 >= 0 and d3 <= 0:
+        v = d1 / (d1 - d3)
+        qx = apx - v * abx; qy = apy - v * aby; qz = apz - v * abz
+        return sqrt(qx * qx + qy * qy + qz * qz)
+    cpx = px - t[6]; cpy = py - t[7]; cpz = pz - t[8]
+    d5 = abx * cpx + aby * cpy + abz * cpz; d6 = acx * cpx + acy * cpy + acz * cpz
+    if d6 >= 0 and d5 <= d6:
+        return sqrt(cpx * cpx + cpy * cpy + cpz * cpz)
+    vb = d5 * d2 - d1 * d6
+    if vb <= 0 and d2 >= 0 and d6 <= 0:
+        w = d2 / (d2 - d6)
+        qx = apx - w * acx; qy = apy - w * acy; qz = apz - w * acz
+        return sqrt(qx * qx + qy * qy + qz * qz)
+    va = d3 * d6 - d5 * d4
+    if va <= 0 and d4 - d3 >= 0 and d5 - d6 >= 0:
+        w = (d4 - d3) / ((d4 - d3) + (d5 - d6))
+        qx = bpx - w * (t[6] - t[3]); qy = bpy - w * (t[7] - t[4]); qz = bpz - w * (t[8] - t[5])
+        return sqrt(qx * qx + qy * qy + qz * qz)
+    w = 1.0 / (va + vb + vc)
+    v = vb * w
+    w = vc * w
+    qx = apx - v * abx - w * acx; qy = apy - v * aby - w * acy; qz = apz - v * abz - w * acz
+    return sqrt(qx * qx + qy * qy + qz * qz)
 
 
 cdef inline double expansion(const Tree *tr, int64_t node, const double *y, double *grad) noexcept nogil:
@@ -157,25 +220,59 @@ cdef inline double tri_angle_gradient(const double *t, double px, double py, dou
     return atan2(num, den) / (2.0 * M_PI)
 
 
-cdef inline double single_bound(double area, double rb, double gap) noexcept nogil:
+#: 1 / (4 pi), rounded once: a bound multiplied by it moves by an ulp, far
+#: below the decisions' margin of 1e-4.
+cdef double INV_4PI = 1.0 / (4 * M_PI)
+
+
+cdef inline double single_bound(double area, double rb, double g0) noexcept nogil:
     """Error bound of one triangle's exact value and gradient at a brick's centre, within ``rb``.
 
-    Half ``rb^2`` times the largest Hessian of its solid angle over 4 pi:
-    at most ``(1 / 4 pi) int 6 / |y|^4 dA``, which is at most
-    ``6 A / gap^4`` and, over a whole plane at least ``gap`` away, ``6 pi / gap^2``.
+    ``g0 > rb`` is the distance from the brick's centre to the triangle (or
+    its box). At each point x of the triangle the linear expansion in the
+    voxel's offset h (``|h| <= rb``) errs by at most
+    ``6 rb^2 phi(rb / |x - p0|) / |x - p0|^4`` (``phi`` of the module notes), over 4 pi;
+    ``|x - p0| >= g0``, and summed over the triangle that is at most
+    ``6 A rb^2 phi(u) / g0^4`` or, over a whole plane of points at least
+    ``g0`` away (``int 6 / |y|^4 dA <= 6 pi / g0^2``), ``6 pi rb^2 phi(u) / g0^2``.
     """
-    cdef double g2 = gap * gap
-    cdef double b1 = 3 * area * rb * rb / (4 * M_PI * g2 * g2), b2 = 0.75 * rb * rb / g2
-    return b1 if b1 < b2 else b2
+    # 6 phi(u) / g0^2 = (3 g0 - 2 rb) / (g0 (g0 - rb)^2): one division.
+    cdef double f = rb * rb * (3 * g0 - 2 * rb) * INV_4PI
+    cdef double g2 = g0 * g0
+    if area < M_PI * g2:
+        return f * area / (g0 * g2 * (g0 - rb) * (g0 - rb))
+    return f * M_PI / (g0 * (g0 - rb) * (g0 - rb))
 
 
-cdef inline double second_bound(double area, double reach, double gap) noexcept nogil:
-    """Error bound of :func:`expansion` anywhere within ``reach`` of both centres, ``gap`` apart."""
-    return 3 * area * reach * reach / (4 * M_PI * gap * gap * gap * gap)
+cdef inline double second_bound(const Tree *tr, int64_t node, double rb, double gap,
+                                double a) noexcept nogil:
+    """Error bound of :func:`expansion` of ``node`` anywhere within ``rb`` of a brick's centre.
+
+    ``gap`` (> 0) separates the node's box from the brick's ball; ``a`` is
+    the distance of the two centres. At a point x of the node and a voxel
+    offset h the segment's displacement is ``rho(x) = |x - c| + rb`` at most
+    and its distance never below ``gap`` (convexity) nor below
+    ``a - s rho``; so the error is at most ``(3 / gap^4) int rho^2 dA`` and,
+    where ``r + rb < a``, ``(6 phi(u) / a^4) int rho^2 dA`` (``u = (r + rb) / a``,
+    ``phi`` of the module notes, increasing), over 4 pi. ``int rho^2 dA = M2 + 2 rb M1 + rb^2 A
+    <= (sqrt(M2) + rb sqrt(A))^2`` (``M1 <= sqrt(A M2)``, Cauchy-Schwarz), with
+    ``M2`` the node's second moment about its centre.
+    """
+    cdef double wq = tr.M[node] + rb * tr.RA[node]
+    cdef double reach = tr.R[node] + rb, g2 = gap * gap, d1 = g2 * g2, d2
+    wq = wq * wq * INV_4PI
+    if reach < a:
+        # 6 phi(u) / a^4 = (3 a - 2 reach) / ((a - reach)^2 a^3); the lesser
+        # of the two bounds chosen without dividing (d1, d2 > 0).
+        d2 = (a - reach) * (a - reach) * a * a * a
+        if (3 * a - 2 * reach) * d1 < 3 * d2:
+            return wq * (3 * a - 2 * reach) / d2
+    return 3 * wq / d1
 
 
 cdef void brick_pass(const Tree *tr, const Grid *g, const int64_t *tb, double *sums,
-                     const int64_t *lev_off, int64_t *stack) noexcept nogil:
+                     const int64_t *lev_off, int64_t *stack, double theta, double eps,
+                     const uint8_t *act) noexcept nogil:
     """Pass one over top brick ``tb``: every (brick, node) pair, sums per brick into ``sums``.
 
     ``sums`` holds five doubles per brick of every level ``0 .. g.T`` of this
@@ -183,6 +280,8 @@ cdef void brick_pass(const Tree *tr, const Grid *g, const int64_t *tb, double *s
     value at the brick's centre, its gradient (3) and the error bound. A
     pair is far where ``r + rb <= theta * gap`` or its bound is below ``eps``;
     else the larger side splits; a voxel and a triangle are summed exactly.
+    ``act`` (one flag a brick, laid out as ``sums``; NULL: all): only the
+    flagged bricks are entered, and only their sums are meaningful.
     """
     cdef int64_t sp, k, ix, iy, iz, l, j, node, nk, slot, o, cx, cy, cz, a
     cdef double side, px, py, pz, rb, gap, reach, bound, val
@@ -202,35 +301,46 @@ cdef void brick_pass(const Tree *tr, const Grid *g, const int64_t *tb, double *s
         pz = g.lo[2] + ((tb[2] * nk + iz) * side + (side - 1) / 2 + 0.5) * g.d[2]
         rb = 0.5 * (side - 1) * g.dnorm
         node = tr.off[l] + j
+        slot = 5 * (lev_off[k] + (ix * nk + iy) * nk + iz)
+        if k == 0 and l == 0:
+            # A voxel and one triangle: exact, for about what its expansion
+            # and bound would cost.
+            sums[slot] += tri_angle(tr.T + 9 * j, px, py, pz)
+            continue
         gap = node_gap(tr, node, px, py, pz, vec) - rb
         reach = tr.R[node] + rb
-        slot = 5 * (lev_off[k] + (ix * nk + iy) * nk + iz)
-        if gap > 0 and l == 0 and k > 0:
+        if l == 0 and k > 0:
             # One triangle: exact at the brick's centre, with its gradient;
             # the bound does not grow with the triangle (a long sliver of a
-            # fan is taken per brick, not per voxel).
-            bound = single_bound(tr.A[node], rb, gap)
-            if rb <= g.theta * gap or bound <= g.eps:
+            # fan is taken per brick, not per voxel), and it takes the
+            # distance to the triangle itself, not to its box: a sliver
+            # across the axes has a box many times its own neighbourhood.
+            val = tri_distance(tr.T + 9 * j, px, py, pz) - rb
+            if val > gap:  # not NaN, and no nearer than the box by rounding
+                gap = val
+        if gap > 0 and l == 0 and k > 0:
+            bound = single_bound(tr.A[node], rb, gap + rb)
+            if rb <= theta * gap or bound <= eps:
                 sums[slot] += tri_angle_gradient(tr.T + 9 * j, px, py, pz, grad)
                 sums[slot + 1] += grad[0]; sums[slot + 2] += grad[1]
                 sums[slot + 3] += grad[2]; sums[slot + 4] += bound
                 continue
         elif gap > 0:
-            bound = second_bound(tr.A[node], reach, gap)
-            if reach <= g.theta * gap or bound <= g.eps:
+            bound = second_bound(tr, node, rb, gap, sqrt(vec[0] * vec[0] + vec[1] * vec[1]
+                                                         + vec[2] * vec[2]))
+            if reach <= theta * gap or bound <= eps:
                 val = expansion(tr, node, vec, grad)
                 sums[slot] += val; sums[slot + 1] += grad[0]; sums[slot + 2] += grad[1]
                 sums[slot + 3] += grad[2]; sums[slot + 4] += bound
                 continue
-        if k == 0 and l == 0:  # a voxel and one triangle: exact
-            sums[slot] += tri_angle(tr.T + 9 * j, px, py, pz)
-            continue
         if k > 0 and (l == 0 or rb > tr.R[node]):  # eight sub-bricks (those inside the grid)
             for o in range(8):
                 cx = 2 * ix + (o & 1); cy = 2 * iy + ((o >> 1) & 1); cz = 2 * iz + ((o >> 2) & 1)
                 ok = ((tb[0] * 2 * nk + cx) << (k - 1) < g.n[0]
                       and (tb[1] * 2 * nk + cy) << (k - 1) < g.n[1]
                       and (tb[2] * 2 * nk + cz) << (k - 1) < g.n[2])
+                if ok and act != NULL:
+                    ok = act[lev_off[k - 1] + (cx * 2 * nk + cy) * 2 * nk + cz]
                 if ok:
                     a = 6 * sp
                     stack[a] = k - 1; stack[a + 1] = cx; stack[a + 2] = cy; stack[a + 3] = cz
@@ -257,17 +367,18 @@ cdef void voxel_pass(const Tree *tr, double theta, double eps, double px, double
     while sp > 0:
         sp -= 1
         l = stack[2 * sp]; j = stack[2 * sp + 1]
+        if l == 0:  # one triangle: exact (see brick_pass)
+            out[0] += tri_angle(tr.T + 9 * j, px, py, pz)
+            continue
         node = tr.off[l] + j
         gap = node_gap(tr, node, px, py, pz, vec)
         if gap > 0:
-            bound = second_bound(tr.A[node], tr.R[node], gap)
+            bound = second_bound(tr, node, 0, gap, sqrt(vec[0] * vec[0] + vec[1] * vec[1]
+                                                        + vec[2] * vec[2]))
             if tr.R[node] <= theta * gap or bound <= eps:
                 out[0] += expansion(tr, node, vec, grad)
                 out[1] += bound
                 continue
-        if l == 0:  # a voxel and one triangle: exact
-            out[0] += tri_angle(tr.T + 9 * j, px, py, pz)
-            continue
         for o in range(2):
             if 2 * j + o < tr.size[l - 1]:
                 stack[2 * sp] = l - 1; stack[2 * sp + 1] = 2 * j + o
@@ -279,19 +390,40 @@ cdef inline int unsure_of(double v, double bound) noexcept nogil:
     return (v - bound <= 0.5 + 1e-4) and (v + bound >= 0.5 - 1e-4)
 
 
-cdef void brick_run(const Tree *tr, const Grid *g, int64_t t, const int64_t *nt,
-                    const int16_t *w, uint8_t *occ, uint8_t *est_out, const double *passes,
-                    int64_t npasses, double deadline, double *sums, const int64_t *lev_off,
-                    int64_t *stack, int64_t *counts) noexcept nogil:
-    """Decide every voxel of top brick ``t``; counts += (refined, summed exactly, estimated)."""
-    cdef int64_t tb[3]
-    cdef int64_t side = (<int64_t>1) << g.T, vx, vy, vz, gx, gy, gz, k, nk, slot, lin, q, i
-    cdef double est, bound, v, px, py, pz, s, h
+cdef inline void voxel_field(const Grid *g, const double *sums, const int64_t *lev_off,
+                             int64_t vx, int64_t vy, int64_t vz, int64_t gx, int64_t gy, int64_t gz,
+                             double *out) noexcept nogil:
+    """A voxel's estimate and bound (``out``, 2): its bricks' linear fields summed over the levels."""
+    cdef int64_t k, nk, slot
+    cdef double s, h
+    cdef double px = g.lo[0] + (gx + 0.5) * g.d[0]
+    cdef double py = g.lo[1] + (gy + 0.5) * g.d[1]
+    cdef double pz = g.lo[2] + (gz + 0.5) * g.d[2]
+    out[0] = 0; out[1] = 0
+    for k in range(g.T + 1):
+        nk = (<int64_t>1) << (g.T - k)
+        slot = 5 * (lev_off[k] + ((vx >> k) * nk + (vy >> k)) * nk + (vz >> k))
+        # The brick's linear field at the voxel: offsets from its centre.
+        s = <double>((<int64_t>1) << k)
+        h = (s - 1) / 2 + 0.5
+        out[0] += (sums[slot] + sums[slot + 1] * (px - (g.lo[0] + ((gx >> k) * s + h) * g.d[0]))
+                   + sums[slot + 2] * (py - (g.lo[1] + ((gy >> k) * s + h) * g.d[1]))
+                   + sums[slot + 3] * (pz - (g.lo[2] + ((gz >> k) * s + h) * g.d[2])))
+        out[1] += sums[slot + 4]
+
+
+cdef int64_t brick_decide(const Grid *g, const int64_t *tb, const double *sums,
+                          const int64_t *lev_off, const int16_t *w, uint8_t *occ,
+                          uint8_t *act, bint every) noexcept nogil:
+    """Decide the top brick's voxels from a brick pass's ``sums``; the undecided stay flagged.
+
+    ``act`` level 0 (one flag a voxel of the top brick): on entry the voxels
+    to decide (``every``: all those inside the grid); on return those still
+    undecided. Returns how many they are.
+    """
+    cdef int64_t side = (<int64_t>1) << g.T, vx, vy, vz, gx, gy, gz, lin, f, left = 0
+    cdef double v
     cdef double out[2]
-    cdef bint unsure
-    tb[0] = t // (nt[1] * nt[2]); tb[1] = (t // nt[2]) % nt[1]; tb[2] = t % nt[2]
-    memset(sums, 0, 5 * lev_off[g.T + 1] * sizeof(double))
-    brick_pass(tr, g, tb, sums, lev_off, stack)
     for vx in range(side):
         gx = tb[0] * side + vx
         if gx >= g.n[0]:
@@ -304,62 +436,116 @@ cdef void brick_run(const Tree *tr, const Grid *g, int64_t t, const int64_t *nt,
                 gz = tb[2] * side + vz
                 if gz >= g.n[2]:
                     break
-                px = g.lo[0] + (gx + 0.5) * g.d[0]
-                py = g.lo[1] + (gy + 0.5) * g.d[1]
-                pz = g.lo[2] + (gz + 0.5) * g.d[2]
-                est = 0; bound = 0
-                for k in range(g.T + 1):
-                    nk = (<int64_t>1) << (g.T - k)
-                    slot = 5 * (lev_off[k] + ((vx >> k) * nk + (vy >> k)) * nk + (vz >> k))
-                    # The brick's linear field at the voxel: offsets from its centre.
-                    s = <double>((<int64_t>1) << k)
-                    h = (s - 1) / 2 + 0.5
-                    est += (sums[slot] + sums[slot + 1] * (px - (g.lo[0] + ((gx >> k) * s + h) * g.d[0]))
-                            + sums[slot + 2] * (py - (g.lo[1] + ((gy >> k) * s + h) * g.d[1]))
-                            + sums[slot + 3] * (pz - (g.lo[2] + ((gz >> k) * s + h) * g.d[2])))
-                    bound += sums[slot + 4]
-                lin = gx + g.n[0] * (gy + g.n[1] * gz)
-                v = w[lin] - est
-                occ[lin] = v > 0.5
-                if not unsure_of(v, bound):
+                f = (vx * side + vy) * side + vz
+                if not every and not act[f]:
                     continue
-                if now() > deadline:
+                voxel_field(g, sums, lev_off, vx, vy, vz, gx, gy, gz, out)
+                lin = gx + g.n[0] * (gy + g.n[1] * gz)
+                v = w[lin] - out[0]
+                occ[lin] = v > 0.5
+                act[f] = unsure_of(v, out[1])
+                left += act[f]
+    return left
+
+
+cdef void flag_bricks(const Grid *g, const int64_t *lev_off, uint8_t *act) noexcept nogil:
+    """Levels 1 .. T of ``act`` from level 0: a brick is flagged where a voxel in it is."""
+    cdef int64_t k, nk, x, y, z, o
+    memset(act + lev_off[1], 0, lev_off[g.T + 1] - lev_off[1])
+    for k in range(1, g.T + 1):
+        nk = (<int64_t>1) << (g.T - k)
+        for x in range(2 * nk):
+            for y in range(2 * nk):
+                for z in range(2 * nk):
+                    if act[lev_off[k - 1] + (x * 2 * nk + y) * 2 * nk + z]:
+                        o = lev_off[k] + ((x >> 1) * nk + (y >> 1)) * nk + (z >> 1)
+                        act[o] = 1
+
+
+cdef void voxel_refine(const Tree *tr, const Grid *g, int64_t lin, double px, double py,
+                       double pz, const int16_t *w, uint8_t *occ, const double *passes,
+                       int64_t npasses, int64_t *stack, int64_t *counts) noexcept nogil:
+    """One voxel alone: each pass in turn until one decides it, else the exact sum."""
+    cdef int64_t q, i
+    cdef double v, est
+    cdef double out[2]
+    for q in range(npasses):
+        voxel_pass(tr, passes[2 * q], passes[2 * q + 1], px, py, pz, stack, out)
+        v = w[lin] - out[0]
+        occ[lin] = v > 0.5
+        if not unsure_of(v, out[1]):
+            return
+    counts[1] += 1  # the exact sum over every cap triangle
+    est = 0
+    for i in range(tr.ntri):
+        est += tri_angle(tr.T + 9 * i, px, py, pz)
+    occ[lin] = (w[lin] - est) > 0.5
+
+
+cdef void brick_run(const Tree *tr, const Grid *g, int64_t t, const int64_t *nt,
+                    const int16_t *w, uint8_t *occ, uint8_t *est_out, const double *passes,
+                    int64_t nbricks, int64_t npasses, double deadline, double *sums,
+                    uint8_t *act, const int64_t *lev_off, int64_t *stack,
+                    int64_t *counts) noexcept nogil:
+    """Decide every voxel of top brick ``t``; counts += (refined, summed exactly, estimated).
+
+    The first ``nbricks`` passes run over bricks (the later ones only over
+    the bricks that hold voxels still undecided), the rest over single voxels.
+    """
+    cdef int64_t tb[3]
+    cdef int64_t side = (<int64_t>1) << g.T, vx, vy, vz, gx, gy, gz, lin, q, left
+    cdef bint late = False
+    tb[0] = t // (nt[1] * nt[2]); tb[1] = (t // nt[2]) % nt[1]; tb[2] = t % nt[2]
+    memset(act, 0, lev_off[1])
+    for q in range(nbricks):
+        if q and now() > deadline:
+            late = True
+            break
+        if q:
+            flag_bricks(g, lev_off, act)
+        memset(sums, 0, 5 * lev_off[g.T + 1] * sizeof(double))
+        brick_pass(tr, g, tb, sums, lev_off, stack, passes[2 * q], passes[2 * q + 1],
+                   NULL if q == 0 else act)
+        left = brick_decide(g, tb, sums, lev_off, w, occ, act, q == 0)
+        if q == 0:
+            counts[0] += left
+        if left == 0:
+            return
+    for vx in range(side):
+        gx = tb[0] * side + vx
+        for vy in range(side):
+            gy = tb[1] * side + vy
+            for vz in range(side):
+                gz = tb[2] * side + vz
+                if not act[(vx * side + vy) * side + vz] or gx >= g.n[0] or gy >= g.n[1] \
+                        or gz >= g.n[2]:
+                    continue
+                lin = gx + g.n[0] * (gy + g.n[1] * gz)
+                if late or now() > deadline:
                     est_out[lin] = 1
                     counts[2] += 1
                     continue
-                counts[0] += 1
-                unsure = True
-                for q in range(npasses):
-                    voxel_pass(tr, passes[2 * q], passes[2 * q + 1], px, py, pz, stack, out)
-                    v = w[lin] - out[0]
-                    occ[lin] = v > 0.5
-                    if not unsure_of(v, out[1]):
-                        unsure = False
-                        break
-                if unsure:  # the exact sum over every cap triangle
-                    counts[1] += 1
-                    est = 0
-                    for i in range(tr.ntri):
-                        est += tri_angle(tr.T + 9 * i, px, py, pz)
-                    occ[lin] = (w[lin] - est) > 0.5
+                voxel_refine(tr, g, lin, g.lo[0] + (gx + 0.5) * g.d[0],
+                             g.lo[1] + (gy + 0.5) * g.d[1], g.lo[2] + (gz + 0.5) * g.d[2], w, occ,
+                             passes + 2 * nbricks, npasses - nbricks, stack, counts)
 
 
 def cap_occupancy(const double[:, ::1] T, const double[:, ::1] S, const double[:, ::1] Q,
                   const double[::1] A,
                   const double[:, ::1] C, const double[:, ::1] H, const double[::1] R,
-                  const int64_t[::1] offset, const int64_t[::1] size,
+                  const double[::1] M, const int64_t[::1] offset, const int64_t[::1] size,
                   const int16_t[::1] w, uint8_t[::1] occ, uint8_t[::1] estimated,
-                  shape, lo, spacing, int top, double theta, double eps,
-                  const double[:, ::1] passes, double seconds, int jobs):
+                  shape, lo, spacing, int top, const double[:, ::1] passes, int bricks,
+                  double seconds, int jobs):
     """Decide ``occ = w - w_K > 1/2`` at every voxel (see the module notes).
 
     Parameters
     ----------
     T : (k, 9) float64
         The cap triangles in the tree's order (geovox.inside._cap_tree).
-    S, Q, A, C, H, R, offset, size
-        The tree's nodes and levels (geovox.inside._cap_tree; Q from
-        geovox.inside._first_moments).
+    S, Q, A, C, H, R, M, offset, size
+        The tree's nodes and levels (geovox.inside._cap_tree; Q and M from
+        geovox.inside._first_moments and geovox.inside._second_moments).
     w : (nx * ny * nz,) int16
         ``w_{M+K}`` per voxel, flat in Fortran order.
     occ, estimated : (nx * ny * nz,) uint8, written
@@ -367,11 +553,12 @@ def cap_occupancy(const double[:, ::1] T, const double[:, ::1] S, const double[:
     shape, lo, spacing : the grid (3 ints, 3 floats, 3 floats).
     top : int
         Brick level of the top bricks (``2^top`` voxels a side).
-    theta, eps
-        The first pass's opening ratio and tolerance.
     passes : (p, 2) float64
-        The refining passes' (theta, eps), tried in turn on a voxel the
-        first pass leaves undecided, before the exact sum.
+        Every pass's (theta, eps): the first over every brick, then each in
+        turn on what the ones before left undecided, before the exact sum.
+    bricks : int
+        How many of the passes (at least 1) run over bricks; the rest refine
+        single voxels.
     seconds : float
         Processor time per thread (the process's, from this call) after
         which an undecided voxel keeps its estimate.
@@ -380,7 +567,8 @@ def cap_occupancy(const double[:, ::1] T, const double[:, ::1] S, const double[:
 
     Returns
     -------
-    (refined, exact, estimated) : voxels refined alone, of them summed exactly, left to the estimate.
+    (refined, exact, estimated) : voxels the first pass left undecided, of them summed
+    exactly, left to the estimate.
     """
     cdef Tree tr
     cdef Grid g
@@ -389,19 +577,23 @@ def cap_occupancy(const double[:, ::1] T, const double[:, ::1] S, const double[:
     cdef int64_t[::1] lev_off = __import__("numpy").zeros(top + 2, dtype="int64")
     cdef int64_t[:, ::1] counts
     cdef double *sums = NULL
+    cdef uint8_t *act = NULL
     cdef int64_t *stack = NULL
     cdef double deadline
-    cdef const double *pp = NULL
     cdef int64_t npasses = passes.shape[0]
+    if not 1 <= bricks <= npasses:
+        raise ValueError(f"cap_occupancy: {bricks} brick passes of {npasses}")
+    cdef const double *pp = &passes[0, 0]
+    cdef double[::1] RA = __import__("numpy").sqrt(A)
     tr.T = &T[0, 0]; tr.S = &S[0, 0]; tr.Q = &Q[0, 0]; tr.A = &A[0]; tr.C = &C[0, 0]; tr.H = &H[0, 0]
-    tr.R = &R[0]; tr.off = &offset[0]; tr.size = &size[0]; tr.top = nlev - 1
+    tr.R = &R[0]; tr.M = &M[0]; tr.RA = &RA[0]; tr.off = &offset[0]; tr.size = &size[0]; tr.top = nlev - 1
     tr.ntri = T.shape[0]
     for a in range(3):
         g.n[a] = shape[a]; g.lo[a] = lo[a]; g.d[a] = spacing[a]
         # (n + side - 1) // side: with cdivision, // of a negative number truncates.
         nt[a] = (g.n[a] + ((<int64_t>1) << top) - 1) // ((<int64_t>1) << top)
     g.dnorm = sqrt(g.d[0] * g.d[0] + g.d[1] * g.d[1] + g.d[2] * g.d[2])
-    g.T = top; g.theta = theta; g.eps = eps
+    g.T = top
     for a in range(top + 1):
         lev_off[a + 1] = lev_off[a] + ((<int64_t>1) << (3 * (top - a)))
     nsums = 5 * lev_off[top + 1]
@@ -411,15 +603,105 @@ def cap_occupancy(const double[:, ::1] T, const double[:, ::1] S, const double[:
     ntop = nt[0] * nt[1] * nt[2]
     counts = __import__("numpy").zeros((ntop, 3), dtype="int64")
     deadline = now() + seconds * jobs
-    if npasses:
-        pp = &passes[0, 0]
     with nogil, parallel(num_threads=jobs):
         sums = <double *>malloc(nsums * sizeof(double))
+        act = <uint8_t *>malloc(lev_off[top + 1] * sizeof(uint8_t))
         stack = <int64_t *>malloc(stack_len * sizeof(int64_t))
         for t in prange(ntop, schedule="dynamic"):
-            brick_run(&tr, &g, t, nt, &w[0], &occ[0], &estimated[0], pp, npasses, deadline,
-                      sums, &lev_off[0], stack, &counts[t, 0])
+            brick_run(&tr, &g, t, nt, &w[0], &occ[0], &estimated[0], pp, bricks, npasses,
+                      deadline, sums, act, &lev_off[0], stack, &counts[t, 0])
         free(sums)
+        free(act)
         free(stack)
     tot = __import__("numpy").asarray(counts).sum(axis=0)
     return int(tot[0]), int(tot[1]), int(tot[2])
+
+
+cdef void min_area_one(const double *p, int64_t n, double *cost, int64_t *arg, int64_t *cur,
+                       int64_t *nxt, int64_t *out) noexcept nogil:
+    """One polygon of :func:`min_area_triangles`: the same sums in the same order, the same ties.
+
+    ``cost``, ``arg`` (n * n) are the programme's tables; ``cur``, ``nxt``
+    (2 n) the unfolding's intervals; ``out`` (3 (n - 2)) the triangles.
+    """
+    cdef int64_t d, i, j, k, best, m, q, nc, nn, lk
+    cdef double ax, ay, az, bx, by, bz, cx, cy, cz, total, low
+    cdef bint nan
+    for i in range(n * n):
+        cost[i] = 0
+    for d in range(2, n):
+        for i in range(n - d):
+            j = i + d
+            bx = p[3 * j] - p[3 * i]; by = p[3 * j + 1] - p[3 * i + 1]; bz = p[3 * j + 2] - p[3 * i + 2]
+            best = i + 1
+            low = 0
+            nan = False
+            for k in range(i + 1, j):
+                ax = p[3 * k] - p[3 * i]; ay = p[3 * k + 1] - p[3 * i + 1]; az = p[3 * k + 2] - p[3 * i + 2]
+                cx = ay * bz - az * by
+                cy = az * bx - ax * bz
+                cz = ax * by - ay * bx
+                total = cost[i * n + k] + cost[k * n + j] + 0.5 * sqrt(cx * cx + cy * cy + cz * cz)
+                # NumPy's argmin and min: the first least value, a NaN before all.
+                if k == i + 1 or (not nan and (total != total or total < low)):
+                    if total != total:
+                        nan = True
+                    best = k
+                    low = total
+            cost[i * n + j] = low
+            arg[i * n + j] = best
+    # Unfolded as the NumPy twin does: a level's intervals, then the left
+    # halves of the next level in order, then the right halves.
+    cur[0] = 0; cur[1] = n - 1
+    nc = 1
+    m = 0
+    while nc:
+        nn = 0
+        for q in range(nc):
+            i = cur[2 * q]; j = cur[2 * q + 1]
+            lk = arg[i * n + j]
+            out[3 * m] = i; out[3 * m + 1] = lk; out[3 * m + 2] = j
+            m += 1
+            if lk - i >= 2:
+                nxt[2 * nn] = i; nxt[2 * nn + 1] = lk
+                nn += 1
+        for q in range(nc):
+            i = cur[2 * q]; j = cur[2 * q + 1]
+            lk = arg[i * n + j]
+            if j - lk >= 2:
+                nxt[2 * nn] = lk; nxt[2 * nn + 1] = j
+                nn += 1
+        for q in range(2 * nn):
+            cur[q] = nxt[q]
+        nc = nn
+
+
+def min_area_triangles(const double[:, :, ::1] poly):
+    """:func:`geovox.inside.bridge.min_area_triangles`, compiled: the same triangles in the same order.
+
+    Parameters
+    ----------
+    poly : (m, n, 3) float64, n >= 3
+
+    Returns
+    -------
+    (m, n - 2, 3) int64
+    """
+    np = __import__("numpy")
+    cdef int64_t m = poly.shape[0], n = poly.shape[1], s
+    out_arr = np.zeros((m, max(n - 2, 0), 3), dtype=np.int64)
+    cdef int64_t[:, :, ::1] out = out_arr
+    if m == 0 or n < 3:
+        return out_arr
+    cdef double *cost = <double *>malloc(n * n * sizeof(double))
+    cdef int64_t *arg = <int64_t *>malloc(n * n * sizeof(int64_t))
+    cdef int64_t *cur = <int64_t *>malloc(2 * n * sizeof(int64_t))
+    cdef int64_t *nxt = <int64_t *>malloc(2 * n * sizeof(int64_t))
+    if cost == NULL or arg == NULL or cur == NULL or nxt == NULL:
+        free(cost); free(arg); free(cur); free(nxt)
+        raise MemoryError("min_area_triangles: no memory for the tables")
+    with nogil:
+        for s in range(m):
+            min_area_one(&poly[s, 0, 0], n, cost, arg, cur, nxt, &out[s, 0, 0])
+    free(cost); free(arg); free(cur); free(nxt)
+    return out_arr

@@ -80,6 +80,28 @@ def test_a_slit_is_zipped_shut():
     assert fan > 5 * zipped
 
 
+@pytest.mark.skipif(not _BUILT, reason="the compiled winding kernel is not built")
+@pytest.mark.parametrize("n", [3, 4, 5, 8, 13, 31, 64, 200])
+def test_the_compiled_triangulation_is_the_numpy_one(n):
+    # The same triangles in the same order (the caps' order is the tree's
+    # and the exact sum's): random polygons, polygons of many equal areas
+    # (ties go to the lowest middle vertex), a regular planar one, all
+    # vertices at one point, and a NaN and an infinity (NumPy's min and
+    # argmin: a NaN wins).
+    import geovox._winding as kernel
+
+    rng = np.random.default_rng(n)
+    ring = np.stack([np.cos(2 * np.pi * np.arange(n) / n), np.sin(2 * np.pi * np.arange(n) / n),
+                     np.zeros(n)], axis=1)
+    bad = rng.normal(size=(2, n, 3))
+    bad[0, n // 2, 1], bad[1, n - 1, 0] = np.nan, np.inf
+    with np.errstate(invalid="ignore"):
+        for poly in (rng.normal(size=(6, n, 3)), np.round(rng.normal(size=(6, n, 3))) / 2,
+                     np.stack([ring, 3 * ring + 1]), np.zeros((1, n, 3)), bad):
+            want = bridge.min_area_triangles(poly)
+            assert np.array_equal(kernel.min_area_triangles(np.ascontiguousarray(poly)), want)
+
+
 def test_loop_order_runs_each_loop_edge_after_edge():
     vid = np.array([[0, 1], [1, 2], [2, 3], [3, 0],      # loop A
                     [0, 4], [4, 5], [5, 6], [6, 0],      # loop B, through corner 0

@@ -58,8 +58,10 @@ def _compiled_winding():
     with chosen("auto"):
         return inside.winding_kernel()
 RES = 20
-#: Voxels the compiled first pass leaves undecided on MESH at RES (see the tests below).
-ESTIMATED_AT_ZERO = 22
+#: Voxels the compiled first pass leaves undecided on MESH at RES (see the tests below):
+#: (0.4, 1e-4) with the moment- and segment-aware bounds of geovox/_winding.pyx (a
+#: first pass of (0.2, 1e-4) with the bound ``3 A (r + rb)^2 / (4 pi d^4)`` left 22).
+ESTIMATED_AT_ZERO = 78
 
 
 def brute_winding_number(mesh, grid):
@@ -146,7 +148,7 @@ def test_compiled_past_its_time_the_proven_voxels_are_the_brute_force(reference,
     # field) leaves undecided keeps its estimate. The rest are proven and
     # must be the brute force's; how many are left is pinned (a looser
     # first pass, or a bound that grew, changes it: a first pass of
-    # (0.4, 1e-3) leaves 247).
+    # (0.8, 1e-3) leaves 802).
     grid, w = reference
     monkeypatch.setenv("GEOVOX_KERNEL", "compiled")
     monkeypatch.setattr(inside, "WORK_SECONDS", 0.0)
@@ -154,6 +156,26 @@ def test_compiled_past_its_time_the_proven_voxels_are_the_brute_force(reference,
     proven = ~estimated
     np.testing.assert_array_equal(vol.occupancy[proven], (w > 0.5)[proven])
     assert np.count_nonzero(estimated) == inside.STATS["estimated"] == ESTIMATED_AT_ZERO
+
+
+@pytest.mark.skipif(_compiled_winding() is None, reason="the compiled winding kernel is not built")
+@pytest.mark.parametrize("passes, bricks", [
+    (((0.4, 1e-4), (0.25, 1e-6), (0.1, 1e-7)), 1),  # no pass over the undecided bricks
+    (((1.5, 1e-2), (0.6, 1e-3), (0.3, 1e-4), (0.1, 1e-5)), 4),  # reach past the centres' distance
+    (((0.4, 1e-4),), 1),  # straight to the exact sum
+])
+def test_compiled_passes_change_the_work_not_the_answer(reference, monkeypatch, passes, bricks):
+    # However the passes are split between bricks and single voxels, and
+    # however loose the first, every voxel is the brute force's.
+    grid, w = reference
+    monkeypatch.setenv("GEOVOX_KERNEL", "compiled")
+    monkeypatch.setattr(inside, "COMPILED_PASSES", passes)
+    monkeypatch.setattr(inside, "COMPILED_BRICKS", bricks)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", GeovoxWarning)
+        vol = geovox.voxelize(MESH, resolution=RES, inside="winding")
+    assert inside.STATS["estimated"] == 0 and inside.STATS["refined"] > 0
+    np.testing.assert_array_equal(vol.occupancy, w > 0.5)
 
 
 @pytest.mark.skipif(_compiled_winding() is None, reason="the compiled winding kernel is not built")

@@ -598,8 +598,12 @@ PASSES = ((1.0, 1e-3), (0.3, 1e-5), (0.1, 1e-6))
 #: exactly, left to the estimate; and the cap triangles.
 STATS: dict = {}
 #: The compiled kernel's passes (second order, see geovox/_winding.pyx): the
-#: first over bricks, the others over single voxels the one before left undecided.
-COMPILED_PASSES = ((0.2, 1e-4), (0.25, 1e-6), (0.1, 1e-7))
+#: first ``COMPILED_BRICKS`` over bricks (the first over all, each next one
+#: over the bricks that hold voxels left undecided), the others over single
+#: voxels the one before left undecided. A loose first pass and tighter ones
+#: over what it leaves cost about half of one tight pass over everything.
+COMPILED_PASSES = ((0.4, 1e-4), (0.2, 1e-4), (0.1, 1e-5), (0.25, 1e-6), (0.1, 1e-7))
+COMPILED_BRICKS = 3
 #: The compiled kernel's top bricks are about the grid's largest side over
 #: this, voxels a side (a power of two; each top brick starts from the root of the caps' tree).
 TOP_VOXELS = 8
@@ -1336,10 +1340,11 @@ def _compiled_caps(module, occ, w, grid, cap_tris, jobs) -> None:
     """:func:`_correct_caps` in the compiled kernel (``geovox/_winding.pyx``).
 
     The first pass over bricks, as :func:`cap_winding`'s but to second order
-    (``COMPILED_PASSES[0]``); each voxel it leaves undecided is refined
-    alone at once by the tighter passes, then summed exactly over every cap
-    triangle. Only past ``WORK_SECONDS`` of processor time per thread is an
-    undecided voxel left to its estimate.
+    (``COMPILED_PASSES[0]``), then tighter ones over the bricks that hold
+    the voxels left undecided (``COMPILED_BRICKS`` in all); each voxel still
+    undecided is refined alone at once by the voxels' passes, then summed
+    exactly over every cap triangle. Only past ``WORK_SECONDS`` of processor
+    time per thread is an undecided voxel left to its estimate.
 
     Returns
     -------
@@ -1360,10 +1365,12 @@ def _compiled_caps(module, occ, w, grid, cap_tris, jobs) -> None:
     c3 = np.ascontiguousarray
     counts = module.cap_occupancy(
         c3(tris.reshape(-1, 9)), c3(nodes["S"]), _first_moments(tris, nodes, size), c3(nodes["A"]), c3(nodes["c"]), c3(nodes["h"]),
-        c3(nodes["r"]), c3(offset, np.int64), c3(size, np.int64), w.reshape(-1, order="F"), flat,
+        c3(nodes["r"]), _second_moments(tris, nodes, size), c3(offset, np.int64),
+        c3(size, np.int64), w.reshape(-1, order="F"), flat,
         estimated, tuple(int(n) for n in grid.shape), tuple(float(x) for x in grid.lo),
-        tuple(float(x) for x in grid.spacing), top, *COMPILED_PASSES[0],
-        c3(np.asarray(COMPILED_PASSES[1:], float).reshape(-1, 2)), WORK_SECONDS, max(1, int(jobs)))
+        tuple(float(x) for x in grid.spacing), top,
+        c3(np.asarray(COMPILED_PASSES, float).reshape(-1, 2)), COMPILED_BRICKS, WORK_SECONDS,
+        max(1, int(jobs)))
     STATS.update(zip(("refined", "exact", "estimated"), counts), caps=len(tris))
     if estimated.any():
         return estimated.view(bool).reshape(grid.shape, order="F")
@@ -1384,6 +1391,28 @@ def _first_moments(tris, nodes, size):
     m = np.concatenate(levels)
     assert len(m) == int(np.sum(size))
     return np.ascontiguousarray(m - (nodes["S"][:, :, None] * nodes["c"][:, None, :]).reshape(-1, 9))
+
+
+def _second_moments(tris, nodes, size):
+    """(n,) float64: per node of :func:`_cap_tree`, ``sqrt(sum_t int_t |x - c|^2 dA)``.
+
+    The root of the second moment of the node's area about its box centre
+    ``c``, for the compiled kernel's far-field bound (``A r^2`` bounds the
+    moment, often three times too high). Per triangle,
+    ``int |x - c|^2 dA = A (|g - c|^2 + (|a - g|^2 + |b - g|^2 + |c' - g|^2) / 12)``
+    (``g`` its centroid), summed over each node's triangles directly, never
+    as a difference (which could round below the truth).
+    """
+    g = tris.mean(axis=1)
+    own = ((tris - g[:, None]) ** 2).sum(axis=(1, 2)) / 12
+    area = nodes["A"][: len(tris)]
+    starts = np.r_[0, np.cumsum(size)[:-1]]
+    out = []
+    for level, (first, n) in enumerate(zip(starts, size)):
+        c = nodes["c"][first:first + n][np.arange(len(tris)) >> level]
+        d = np.einsum("ij,ij->i", g - c, g - c)
+        out.append(np.add.reduceat(area * (d + own), np.arange(0, len(tris), 1 << level)))
+    return np.sqrt(np.concatenate(out))
 
 
 def _estimated(unsure, grid) -> int:
