@@ -565,3 +565,87 @@ def test_top_cells_are_the_cells_holding_an_inside_voxel(kernel, shape, p):
         cells = np.pad(occ, pad).reshape(
             [n for k in shape for n in (-(-k // s), s)]).any(axis=(1, 3, 5))
         np.testing.assert_array_equal(kernel.top_cells(flat, shape, level, 2).astype(bool), cells)
+
+
+def _raw_run(kernel, triangles, occ, spacing, lo, setup=lambda k: None, jobs=1):
+    """(tri, uv) of the inside voxels (argwhere order) from the kernel, ``setup(k)`` first."""
+    n = occ.size
+    tri = np.full(n, -1, np.int32)
+    uv = np.zeros((n, 2))
+
+    def output(k):
+        k.raw_output(tri, uv)
+        setup(k)
+
+    run_kernel(kernel, triangles, occ, spacing, origin=lo, jobs=jobs, output=output)
+    lin = np.ravel_multi_index(np.argwhere(occ).T, occ.shape, order="F")
+    return tri[lin], uv[lin]
+
+
+@pytest.mark.parametrize("rel,res", [("spot/spot.obj", 24), ("fuze/fuze.obj", 20)])
+@pytest.mark.parametrize("level", [0, 2, 3])
+def test_cells_finished_by_tangent_planes(kernel, rel, res, level):
+    # Cells of 2**level voxels finish by the tangent planes of their
+    # candidates at the centre (leaf_planes; 2 is the default, 3 has bounds
+    # four times as loose sideways, 0 never: the interpolated corners of
+    # leaf4): the brute-force answers bit for bit either way, and the NumPy
+    # search's.
+    mesh = geovox.load_mesh(corpus(*rel.split("/")))
+    vol = geovox.voxelize(mesh, resolution=res)
+    args = (mesh.triangles, vol.occupancy, vol.grid.spacing, vol.grid.lo)
+    tri, uv = _raw_run(kernel, *args, setup=lambda k: k.planes_at(level), jobs=2)
+    ref_t, ref_uv = _brute(*args)
+    np.testing.assert_array_equal(tri, ref_t)
+    np.testing.assert_array_equal(uv, ref_uv)
+    num_t, num_uv = _kernel_answers(*args, kernel="numpy")
+    np.testing.assert_array_equal(tri, num_t)
+    np.testing.assert_array_equal(uv, num_uv)
+
+
+def _grid_frame(n, h=0.25):
+    return np.full(3, h), np.zeros(3), np.ones((n, n, n), bool)
+
+
+@pytest.mark.parametrize("plane", [2.0, 2.5, 2.0 + 1e-12])
+def test_one_triangle_and_centres_on_its_plane(kernel, plane):
+    # One triangle (every cell's list is that one), and a second, parallel
+    # one, in the plane through cell centres (x = 2 voxel sizes: the centre
+    # of every 4-voxel cell at i = 0..3, where the distance is 0 and the
+    # tangent plane has no direction), through voxel centres, and just off
+    # the cells' centres (a direction from rounding alone): every voxel's
+    # answer is the brute force's.
+    spacing, lo, occ = _grid_frame(12)
+    x = plane * spacing[0]
+    big = np.array([[[x, -5.0, -5.0], [x, 9.0, -5.0], [x, -5.0, 9.0]]])
+    tri, uv = _raw_run(kernel, big, occ, spacing, lo)
+    assert (tri == 0).all()
+    np.testing.assert_array_equal(uv, _brute(big, occ, spacing, lo)[1])
+    two = np.concatenate([big, big + [2.3 * spacing[0], 0, 0]])
+    tri, uv = _raw_run(kernel, two, occ, spacing, lo)
+    ref = _brute(two, occ, spacing, lo)
+    np.testing.assert_array_equal(tri, ref[0])
+    np.testing.assert_array_equal(uv, ref[1])
+    assert set(np.unique(tri)) == {0, 1}
+
+
+def test_tied_candidates_in_a_cell(kernel):
+    # A fan of triangles around one vertex, each twice (indices below k: the
+    # fan in reverse order; from k: the same triangles again): near the
+    # vertex every triangle of the fan ties, and everywhere a copy ties its
+    # original; the lowest index must win, as brute force and the NumPy
+    # search say.
+    spacing, lo, occ = _grid_frame(16)
+    c = np.array([2.0, 2.0, 2.0])  # the middle of the grid, on voxel corners
+    k = 7
+    ring = [c + [1.5 * np.cos(a), 1.5 * np.sin(a), -1.0]
+            for a in np.linspace(0, 2 * np.pi, k, endpoint=False)]
+    fan = np.array([[c, ring[i], ring[(i + 1) % k]] for i in range(k)])
+    tris = np.concatenate([fan[::-1], fan])
+    tri, uv = _raw_run(kernel, tris, occ, spacing, lo)
+    ref_t, ref_uv = _brute(tris, occ, spacing, lo)
+    np.testing.assert_array_equal(tri, ref_t)
+    np.testing.assert_array_equal(uv, ref_uv)
+    assert (tri < k).all()  # never the second copy
+    num_t, num_uv = _kernel_answers(tris, occ, spacing, lo, kernel="numpy")
+    np.testing.assert_array_equal(tri, num_t)
+    np.testing.assert_array_equal(uv, num_uv)
