@@ -365,6 +365,27 @@ cdef enum:
     LEAF_MAX = 256
 
 
+cdef inline int64_t pick_measured(const Ctx *c, const double *E, int64_t cnt,
+                                  double low) noexcept nogil:
+    """pick() over ``cnt`` measured candidates ``E`` (cnt, 4: squared distance, u, v,
+    triangle), ``low`` the smallest squared distance; returns the winner's row.
+
+    As in leaf(): of those within TIE of the smallest distance, the smallest
+    triangle index, compared after sqrt; every distance NaN gives row 0.
+    """
+    cdef double far
+    cdef int64_t q, win = -1
+    low = sqrt(low) + c.tieh
+    far = low * low * (1.0 + 1e-9) + c.tieh * c.tieh
+    for q in range(cnt):
+        if E[4 * q] <= far and sqrt(E[4 * q]) <= low and (
+                win < 0 or E[4 * q + 3] < E[4 * win + 3]):
+            win = q
+    if win < 0:
+        win = 0
+    return win
+
+
 cdef void leaf4(const Ctx *c, int64_t i0, int64_t i1, int64_t j0, int64_t j1, int64_t k0,
                 int64_t k1, const int32_t *cand, int64_t n, const double *D,
                 double *wbuf) noexcept nogil:
@@ -384,7 +405,7 @@ cdef void leaf4(const Ctx *c, int64_t i0, int64_t i1, int64_t j0, int64_t j1, in
     cdef int64_t i, j, k, q, t, row, vi, cnt, win, qb
     cdef double *I = wbuf               # (n, 64) interpolated bounds
     cdef double *E = wbuf + 64 * n      # (n, 4) exact distance, u, v, candidate
-    cdef double wx, wy, wz, a, b, U, lim, qx, x0, x1, x2, d, low, far, u, v
+    cdef double wx, wy, wz, a, b, U, lim, qx, x0, x1, x2, d, low, u, v
     cdef double fx = 1.0 / (lx - 1) if lx > 1 else 0.0
     cdef double fy = 1.0 / (ly - 1) if ly > 1 else 0.0
     cdef double fz = 1.0 / (lz - 1) if lz > 1 else 0.0
@@ -451,15 +472,7 @@ cdef void leaf4(const Ctx *c, int64_t i0, int64_t i1, int64_t j0, int64_t j1, in
                     emit(c, i, j, k, <int64_t>E[3], E[1], E[2])
                     continue
                 # pick(), as in leaf().
-                low = sqrt(low) + c.tieh
-                far = low * low * (1.0 + 1e-9) + c.tieh * c.tieh
-                win = -1
-                for q in range(cnt):
-                    if E[4 * q] <= far and sqrt(E[4 * q]) <= low and (
-                            win < 0 or E[4 * q + 3] < E[4 * win + 3]):
-                        win = q
-                if win < 0:
-                    win = 0
+                win = pick_measured(c, E, cnt, low)
                 emit(c, i, j, k, <int64_t>E[4 * win + 3], E[4 * win + 1], E[4 * win + 2])
 
 
@@ -499,7 +512,7 @@ cdef void leaf_planes(const Ctx *c, int64_t i0, int64_t i1, int64_t j0, int64_t 
     cdef double m0 = 0.5 * (X[0][0] + X[7][0])
     cdef double m1 = 0.5 * (X[0][1] + X[7][1])
     cdef double m2 = 0.5 * (X[0][2] + X[7][2])
-    cdef double dc, d2, u, v, e0, e1, e2, x0, x1, x2, y0, y1, y2, best, reach, lq, low, far
+    cdef double dc, d2, u, v, e0, e1, e2, x0, x1, x2, y0, y1, y2, best, reach, lq, low
     cdef const double *R
     cdef int64_t q, t, ns = 0, i, j, k, row, cnt, qb, win, same = -1
     cdef int a
@@ -605,15 +618,7 @@ cdef void leaf_planes(const Ctx *c, int64_t i0, int64_t i1, int64_t j0, int64_t 
                 for q in range(cnt):
                     if E[4 * q] < low:
                         low = E[4 * q]
-                low = sqrt(low) + c.tieh
-                far = low * low * (1.0 + 1e-9) + c.tieh * c.tieh
-                win = -1
-                for q in range(cnt):
-                    if E[4 * q] <= far and sqrt(E[4 * q]) <= low and (
-                            win < 0 or E[4 * q + 3] < E[4 * win + 3]):
-                        win = q
-                if win < 0:
-                    win = 0
+                win = pick_measured(c, E, cnt, low)
                 emit(c, i, j, k, <int64_t>E[4 * win + 3], E[4 * win + 1], E[4 * win + 2])
 
 
