@@ -386,6 +386,31 @@ cdef inline int64_t pick_measured(const Ctx *c, const double *E, int64_t cnt,
     return win
 
 
+cdef inline bint plane_drops(const double *R, double u, double v, double dc, double m0,
+                             double m1, double m2, double X[8][3], const double *r2,
+                             double th0, double *e0, double *e1, double *e2) noexcept nogil:
+    """Whether the plane bound alone drops triangle ``R`` at every corner ``X``.
+
+    ``(u, v)`` is its closest point to the cell centre ``m``, ``dc > 0`` that
+    distance; ``e`` gets the unit normal from that point to ``m``. T lies
+    behind the plane through the point, facing the centre (T is convex), so
+    ``dc + (X - m) . e`` bounds ``d(X, T)`` from below; where its square beats
+    ``r2[k] = |X[k] - p|**2`` by ``th0`` at all 8 corners, the centre's point
+    ``p`` dominates T over the cell.
+    """
+    cdef double d2
+    cdef int k
+    e0[0] = (m0 - (R[0] + u * R[3] + v * R[6])) / dc
+    e1[0] = (m1 - (R[1] + u * R[4] + v * R[7])) / dc
+    e2[0] = (m2 - (R[2] + u * R[5] + v * R[8])) / dc
+    for k in range(8):
+        d2 = dc + (X[k][0] - m0) * e0[0] + (X[k][1] - m1) * e1[0] + (X[k][2] - m2) * e2[0]
+        d2 = d2 * d2 if d2 > 0 else 0.0
+        if not (d2 - r2[k] > th0):
+            return False
+    return True
+
+
 cdef void leaf4(const Ctx *c, int64_t i0, int64_t i1, int64_t j0, int64_t j1, int64_t k0,
                 int64_t k1, const int32_t *cand, int64_t n, const double *D,
                 double *wbuf) noexcept nogil:
@@ -533,19 +558,8 @@ cdef void leaf_planes(const Ctx *c, int64_t i0, int64_t i1, int64_t j0, int64_t 
         e0 = e1 = e2 = 0.0
         if dc > guard:
             R = c.T + 21 * t
-            u = dbuf[9 * q + 1]
-            v = dbuf[9 * q + 2]
-            e0 = (m0 - (R[0] + u * R[3] + v * R[6])) / dc
-            e1 = (m1 - (R[1] + u * R[4] + v * R[7])) / dc
-            e2 = (m2 - (R[2] + u * R[5] + v * R[8])) / dc
-            drop = True
-            for a in range(8):
-                d2 = dc + (X[a][0] - m0) * e0 + (X[a][1] - m1) * e1 + (X[a][2] - m2) * e2
-                d2 = d2 * d2 if d2 > 0 else 0.0
-                if not (d2 - r2c[a] > th0):
-                    drop = False
-                    break
-            if drop:
+            if plane_drops(R, dbuf[9 * q + 1], dbuf[9 * q + 2], dc, m0, m1, m2, X, r2c, th0,
+                           &e0, &e1, &e2):
                 continue
         if not (dc > guard and isfinite(e0) and isfinite(e1) and isfinite(e2)):
             dc = e0 = e1 = e2 = 0.0
@@ -721,19 +735,8 @@ cdef void solve(const Ctx *c, int level, int64_t ci, int64_t cj, int64_t ck,
             # centre, facing the centre (T is convex): the distance to that
             # plane bounds d(corner, T) from below; if it alone lets the
             # centre's point dominate T at every corner, T is dropped unmeasured.
-            u = dbuf[9 * q + 1]
-            v = dbuf[9 * q + 2]
-            e0 = (m0 - (R[0] + u * R[3] + v * R[6])) / dc
-            e1 = (m1 - (R[1] + u * R[4] + v * R[7])) / dc
-            e2 = (m2 - (R[2] + u * R[5] + v * R[8])) / dc
-            drop = True
-            for k in range(8):
-                d2 = dc + (X[k][0] - m0) * e0 + (X[k][1] - m1) * e1 + (X[k][2] - m2) * e2
-                d2 = d2 * d2 if d2 > 0 else 0.0
-                if not (d2 - r2[0][k] > th0):
-                    drop = False
-                    break
-            if drop:
+            if plane_drops(R, dbuf[9 * q + 1], dbuf[9 * q + 2], dc, m0, m1, m2, X, r2[0], th0,
+                           &e0, &e1, &e2):
                 continue
         buf[ns] = <int32_t>t
         for k in range(8):
