@@ -168,3 +168,39 @@ def test_atomic_output_in_a_read_only_folder(tmp_path):
                 pass
     finally:
         folder.chmod(0o700)
+
+
+BLAS_PROBE = r"""
+import os, runpy, sys
+sys.argv = ["geovox", "convert", sys.argv[1], "-r", "16", "-o", sys.argv[2]]
+try:
+    runpy.run_module("geovox", run_name="__main__")
+except SystemExit as exc:
+    assert not exc.code, exc.code
+print(os.environ.get("OPENBLAS_NUM_THREADS"))
+"""
+
+
+@pytest.mark.parametrize("given, expected", [(None, "1"), ("2", "2")])
+def test_the_cli_asks_numpys_blas_for_one_thread_unless_told(tmp_path, given, expected):
+    # OpenBLAS's own thread pool costs a 2-core machine 0.03-0.05 s of a short
+    # conversion (single_threaded_blas); a value the user set is theirs.
+    env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_NUM_THREADS"}
+    if given is not None:
+        env["OPENBLAS_NUM_THREADS"] = given
+    r = subprocess.run([sys.executable, "-c", BLAS_PROBE, corpus("suzanne", "suzanne.obj"),
+                        str(tmp_path / "s.raw")], cwd=ROOT, capture_output=True, text=True,
+                       env=env, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.split()[-1] == expected
+
+
+def test_blas_threads_are_left_alone_once_numpy_is_imported(monkeypatch):
+    # In a process that already imported NumPy (a library user, these tests)
+    # the variable would change nothing but what its children inherit.
+    from geovox.cli import commands
+
+    monkeypatch.delenv("OPENBLAS_NUM_THREADS", raising=False)
+    assert "numpy" in sys.modules
+    commands.single_threaded_blas()
+    assert "OPENBLAS_NUM_THREADS" not in os.environ
