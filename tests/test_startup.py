@@ -183,8 +183,8 @@ print(os.environ.get("OPENBLAS_NUM_THREADS"))
 
 @pytest.mark.parametrize("given, expected", [(None, "1"), ("2", "2")])
 def test_the_cli_asks_numpys_blas_for_one_thread_unless_told(tmp_path, given, expected):
-    # OpenBLAS's own thread pool costs a 2-core machine 0.03-0.05 s of a short
-    # conversion (single_threaded_blas); a value the user set is theirs.
+    # OpenBLAS's own spinning threads cost a 2-core machine 0.1 s of processor
+    # time in a short conversion (single_threaded_blas); a value the user set is theirs.
     env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_NUM_THREADS"}
     if given is not None:
         env["OPENBLAS_NUM_THREADS"] = given

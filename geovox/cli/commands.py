@@ -729,12 +729,12 @@ def single_threaded_blas() -> None:
     """Ask NumPy's BLAS for one thread, when NumPy is not imported yet and the user set none.
 
     OpenBLAS starts a thread per core when NumPy is imported and keeps them
-    spinning after each call: on a 2-core machine that is 0.03-0.05 s of a
-    0.3 s conversion (bunny105k at 256³), and a core taken from the compiled
-    kernels' own threads while it spins. geovox's BLAS calls are 3 x 3 and 4
-    x 4 transforms, as fast on one thread; its parallel work is its own
-    (OpenMP kernels, threads, processes). The pool's workers and a local
-    cluster's inherit the setting.
+    spinning after each call: on a 2-core machine 0.1 s of processor time of
+    a 0.26 s conversion (bunny105k at 256³), a core taken from other work or
+    from the compiled kernels' own threads while it spins. geovox's BLAS
+    calls are 3 x 3 and 4 x 4 transforms, as fast on one thread; its
+    parallel work is its own (OpenMP kernels, threads, processes). The
+    pool's workers and a local cluster's inherit the setting.
     """
     if "numpy" not in sys.modules:
         os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
