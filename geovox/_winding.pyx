@@ -574,13 +574,14 @@ cdef void voxel_refine(const Tree *tr, const Grid *g, int64_t lin, double px, do
 
 cdef void brick_run(const Tree *tr, const Grid *g, int64_t t, const int64_t *nt,
                     const int16_t *w, uint8_t *occ, uint8_t *est_out, const double *passes,
-                    int64_t nbricks, int64_t npasses, double deadline, double *sums,
-                    uint8_t *act, const int64_t *lev_off, int64_t *stack,
+                    int64_t nbricks, int64_t npasses, int64_t few, double deadline,
+                    double *sums, uint8_t *act, const int64_t *lev_off, int64_t *stack,
                     int64_t *counts) noexcept nogil:
     """Decide every voxel of top brick ``t``; counts += (refined, summed exactly, estimated).
 
     The first ``nbricks`` passes run over bricks (the later ones only over
-    the bricks that hold voxels still undecided), the rest over single voxels.
+    the bricks that hold voxels still undecided, and only while at least
+    1 / ``few`` of the top brick's voxels are), the rest over single voxels.
     """
     cdef int64_t tb[3]
     cdef int64_t side = (<int64_t>1) << g.T, vx, vy, vz, gx, gy, gz, lin, q, left
@@ -602,6 +603,11 @@ cdef void brick_run(const Tree *tr, const Grid *g, int64_t t, const int64_t *nt,
             counts[0] += left
         if left == 0:
             return
+        if left * few < side * side * side:
+            # Under 1 / few of the top brick's voxels left: refining them
+            # alone costs less than another pass over their bricks (each
+            # from the root of the caps' tree).
+            break
     for vx in range(side):
         gx = tb[0] * side + vx
         for vy in range(side):
@@ -634,7 +640,7 @@ def cap_occupancy(const double[:, ::1] T, const double[:, ::1] S, const double[:
                   const double[::1] M, const int64_t[::1] offset, const int64_t[::1] size,
                   const int16_t[::1] w, uint8_t[::1] occ, uint8_t[::1] estimated,
                   shape, lo, spacing, int top, const double[:, ::1] passes, int bricks,
-                  double seconds, int jobs):
+                  int few, double seconds, int jobs):
     """Decide ``occ = w - w_K > 1/2`` at every voxel (see the module notes).
 
     Parameters
@@ -657,6 +663,9 @@ def cap_occupancy(const double[:, ::1] T, const double[:, ::1] S, const double[:
     bricks : int
         How many of the passes (at least 1) run over bricks; the rest refine
         single voxels.
+    few : int
+        A top brick with under 1 / ``few`` of its voxels undecided after a
+        brick pass goes on to the single voxels' passes at once.
     seconds : float
         Processor time per thread (the process's, from this call) after
         which an undecided voxel keeps its estimate.
@@ -706,7 +715,7 @@ def cap_occupancy(const double[:, ::1] T, const double[:, ::1] S, const double[:
         act = <uint8_t *>malloc(lev_off[top + 1] * sizeof(uint8_t))
         stack = <int64_t *>malloc(stack_len * sizeof(int64_t))
         for t in prange(ntop, schedule="dynamic"):
-            brick_run(&tr, &g, t, nt, &w[0], &occ[0], &estimated[0], pp, bricks, npasses,
+            brick_run(&tr, &g, t, nt, &w[0], &occ[0], &estimated[0], pp, bricks, npasses, few,
                       deadline, sums, act, &lev_off[0], stack, &counts[t, 0])
         free(sums)
         free(act)

@@ -607,6 +607,10 @@ STATS: dict = {}
 COMPILED_PASSES = ((0.4, 1e-4), (0.2, 1e-4), (0.1, 1e-5), (0.05, 1e-5), (0.25, 1e-6),
                    (0.1, 1e-7))
 COMPILED_BRICKS = 4
+#: A top brick whose undecided voxels are under 1 / COMPILED_FEW of its own
+#: after a brick pass has them refined alone instead (another pass over their
+#: bricks would cost more: the truck's fourth pass cost 3 % of its 128³ kernel).
+COMPILED_FEW = 64
 #: The compiled kernel's top bricks are about the grid's largest side over
 #: this, voxels a side (a power of two; each top brick starts from the root of the caps' tree).
 TOP_VOXELS = 8
@@ -1373,8 +1377,8 @@ def _compiled_caps(module, occ, w, grid, cap_tris, jobs) -> None:
         c3(size, np.int64), w.reshape(-1, order="F"), flat,
         estimated, tuple(int(n) for n in grid.shape), tuple(float(x) for x in grid.lo),
         tuple(float(x) for x in grid.spacing), top,
-        c3(np.asarray(COMPILED_PASSES, float).reshape(-1, 2)), COMPILED_BRICKS, WORK_SECONDS,
-        max(1, int(jobs)))
+        c3(np.asarray(COMPILED_PASSES, float).reshape(-1, 2)), COMPILED_BRICKS, COMPILED_FEW,
+        WORK_SECONDS, max(1, int(jobs)))
     STATS.update(zip(("refined", "exact", "estimated"), counts), caps=len(tris))
     if estimated.any():
         return estimated.view(bool).reshape(grid.shape, order="F")
