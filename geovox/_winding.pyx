@@ -66,9 +66,12 @@ per edge e at distance ``d_e`` from c this is at most
 4 pi: the error of the winding number). Over a brick at height g0 above a
 big triangle's interior, with its edges D away, that is of order
 ``(rb / D)^2`` where the face's is of order ``(rb / g0)^2``. It costs about
-what the triangle's exact value and gradient cost, so it is taken only
-where the face's bound is above the pass's ``eps``. (A voxel alone has no
-such use: a voxel and a triangle are summed exactly.)
+what the triangle's exact value and gradient cost, so it is worked out only
+for a pair that the pass takes (by ``theta`` or the face's bound, the same
+pairs as without it) and whose face's bound is above the pass's ``eps``:
+the bounds shrink, the pairs do not change, so no voxel's sum of bounds
+grows. (A voxel alone has no such use: a voxel and a triangle are summed
+exactly.)
 
 The passes: a loose one over every brick, then tighter ones over only the
 bricks that hold voxels it left undecided (``bricks`` of them in all); a
@@ -403,14 +406,15 @@ cdef void brick_pass(const Tree *tr, const Grid *g, const int64_t *tb, double *s
                 gap = val
         if gap > 0 and l == 0 and k > 0:
             bound = single_bound(tr.A[node], rb, gap + rb)
-            if bound > eps:
-                # Over a big triangle the edges are far where the face is
-                # near: their bound is the lesser (a pair the face's would
-                # already accept keeps it, and its cost).
-                val = edge_bound(tr.T + 9 * j, px, py, pz, rb)
-                if val < bound:
-                    bound = val
             if rb <= theta * gap or bound <= eps:
+                if bound > eps:
+                    # Over a big triangle the edges are far where the face
+                    # is near: their bound is the lesser. Only the bound
+                    # shrinks, not the pairs taken (each voxel's sum of
+                    # bounds is at most what it was).
+                    val = edge_bound(tr.T + 9 * j, px, py, pz, rb)
+                    if val < bound:
+                        bound = val
                 sums[slot] += tri_angle_gradient(tr.T + 9 * j, px, py, pz, grad)
                 sums[slot + 1] += grad[0]; sums[slot + 2] += grad[1]
                 sums[slot + 3] += grad[2]; sums[slot + 4] += bound
