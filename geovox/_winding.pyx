@@ -53,17 +53,21 @@ triangles (each its own cap) sits there everywhere. The second
 (:func:`edge_bound`) uses the edges alone. Where the brick's ball (radius
 rb) misses the triangle, Omega (the solid angle) is smooth in the ball and
 its gradient is the Biot-Savart field of the edge loop,
-``grad Omega(p) = int_dT dl x K(y - p)`` up to sign, ``K(z) = z / |z|^3``, whose
-Jacobian has norm ``2 / |z|^3`` (eigenvalues ``1, 1, -2`` over ``|z|^3``); so
-``|Omega''(p)[h, h]| <= 2 |h|^2 int_dT |dl| / |y - p|^3``. Taylor's remainder
-in integral form along the segment from c to a voxel (it never meets the
-face, where Omega jumps by 4 pi), ``int_0^1 (1 - s) Omega''(c + s h)[h, h] ds``,
-with ``|y - c - s h| >= rho - s rb`` (``rho = |y - c|``) and
-``int_0^1 (1 - s) (1 - u s)^-3 ds = 1 / (2 (1 - u))``, is then at most
-``rb^2 int_dT |dl| / (rho^2 (rho - rb))``; ``rho / (rho - rb)`` falls with rho, so
-per edge e at distance ``d_e`` from c this is at most
-``rb^2 d_e / (d_e - rb) I_e`` with ``I_e = int_e dl / rho^3`` in closed form (over
-4 pi: the error of the winding number). Over a brick at height g0 above a
+``grad Omega(p) = int_dT dl x K(r)`` up to sign, ``r = y - p``, ``K(r) = r / |r|^3``,
+whose Jacobian is ``J = I / r^3 - 3 r r^T / r^5``. So
+``Omega''(p)[h, h] = -int_dT h . (dl x J h) = -int_dT dl . (J h x h)`` and
+``J h x h = -3 (r . h) (r x h) / r^5``: with ``a`` the angle between r and h,
+``|Omega''(p)[h, h]| <= 3 |h|^2 int_dT |dl| |cos a sin a| / r^3
+<= (3 / 2) |h|^2 int_dT |dl| / |y - p|^3`` (the Jacobian's norm, ``2 / r^3``, alone
+gives 2 for 3 / 2). Taylor's remainder in integral form along the segment
+from c to a voxel (it never meets the face, where Omega jumps by 4 pi),
+``int_0^1 (1 - s) Omega''(c + s h)[h, h] ds``, with ``|y - c - s h| >= rho - s rb``
+(``rho = |y - c|``) and ``int_0^1 (1 - s) (1 - u s)^-3 ds = 1 / (2 (1 - u))``, is then
+at most ``(3 / 4) rb^2 int_dT |dl| / (rho^2 (rho - rb))``; ``rho / (rho - rb)`` falls
+with rho, so per edge e at distance ``d_e`` from c this is at most
+``(3 / 4) rb^2 d_e / (d_e - rb) I_e`` with ``I_e = int_e dl / rho^3`` in closed form
+(over 4 pi: the error of the winding number). Beside the middle of a long
+edge the error reaches about two thirds of it (``tests/test_winding_bounds.py``). Over a brick at height g0 above a
 big triangle's interior, with its edges D away, that is of order
 ``(rb / D)^2`` where the face's is of order ``(rb / g0)^2``. It costs about
 what the triangle's exact value and gradient cost, so it is worked out only
@@ -282,7 +286,7 @@ cdef inline double single_bound(double area, double rb, double g0) noexcept nogi
 cdef inline double edge_bound(const double *t, double px, double py, double pz,
                              double rb) noexcept nogil:
     """Error bound of one triangle's exact value and gradient at a brick's centre p, within ``rb``,
-    from its edges alone: ``rb^2 sum_e d_e / (d_e - rb) I_e`` over 4 pi (module notes).
+    from its edges alone: ``(3 / 4) rb^2 sum_e d_e / (d_e - rb) I_e`` over 4 pi (module notes).
 
     Valid where the ball of radius ``rb`` about p misses the triangle (the
     caller's ``gap > 0``). ``d_e`` is p's distance to edge ``e`` and
@@ -327,7 +331,7 @@ cdef inline double edge_bound(const double *t, double px, double py, double pz,
             if not d > rb * L:
                 return 1e300
             total += (sq * l[i] - si * l[q]) * L / (l[i] * l[q] * d * (d - rb * L))
-    return rb * rb * total * INV_4PI
+    return 0.75 * rb * rb * total * INV_4PI
 
 
 cdef inline double second_bound(const Tree *tr, int64_t node, double rb, double gap,
