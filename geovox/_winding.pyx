@@ -67,9 +67,10 @@ at most ``(3 / 4) rb^2 int_dT |dl| / (rho^2 (rho - rb))``; ``rho / (rho - rb)`` 
 with rho, so per edge e at distance ``d_e`` from c this is at most
 ``(3 / 4) rb^2 d_e / (d_e - rb) I_e`` with ``I_e = int_e dl / rho^3`` in closed form
 (over 4 pi: the error of the winding number). Beside the middle of a long
-edge the error reaches about two thirds of it (``tests/test_winding_bounds.py``). Over a brick at height g0 above a
-big triangle's interior, with its edges D away, that is of order
-``(rb / D)^2`` where the face's is of order ``(rb / g0)^2``. It costs about
+edge the error reaches about two thirds of it (tests/test_winding_bounds.py).
+Over a brick at height g0 above a big triangle's interior, with its edges D
+away, that is of order ``(rb / D)^2`` where the face's is of order
+``(rb / g0)^2``. It costs about
 what the triangle's exact value and gradient cost, so it is worked out only
 for a pair that the pass takes (by ``theta`` or the face's bound, the same
 pairs as without it) and whose face's bound is above the pass's ``eps``:
@@ -851,7 +852,8 @@ def triangle_bounds(const double[::1] t, const double[::1] p, double rb):
     cdef double wx = t[6] - t[0], wy = t[7] - t[1], wz = t[8] - t[2]
     if not g0 > rb:
         raise ValueError(f"triangle_bounds: the ball of radius {rb} meets the triangle ({g0})")
-    area = 0.5 * sqrt((uy * wz - uz * wy) ** 2 + (uz * wx - ux * wz) ** 2 + (ux * wy - uy * wx) ** 2)
+    area = 0.5 * sqrt((uy * wz - uz * wy) ** 2 + (uz * wx - ux * wz) ** 2
+                      + (ux * wy - uy * wx) ** 2)
     val = tri_angle_gradient(&t[0], p[0], p[1], p[2], grad)
     return (val, (grad[0], grad[1], grad[2]), single_bound(area, rb, g0),
             edge_bound(&t[0], p[0], p[1], p[2], rb))

@@ -1,4 +1,4 @@
-"""The compiled kernel's single-triangle bounds, and a soup of big triangles held to the brute force.
+"""The compiled kernel's single-triangle bounds; a soup of big triangles held to the brute force.
 
 ``geovox/_winding.pyx`` sums a (brick, cap triangle) pair as the triangle's
 exact solid angle and gradient at the brick's centre, a linear field over
@@ -40,8 +40,8 @@ needs_kernel = pytest.mark.skipif(KERNEL is None, reason="the compiled winding k
 
 
 def _tri_distance(t, p):
-    """Distance from p to the triangle t (3, 3), by sampling its barycentric grid finely and
-    taking the edges exactly (a check of the kernel's, not used to prove anything)."""
+    """Distance from p to the triangle t (3, 3): the nearest of its edges, or its plane where p's
+    foot falls inside it (written apart from the kernel's Voronoi regions)."""
     d = min(_segment_distance(t[i], t[(i + 1) % 3], p) for i in range(3))
     n = np.cross(t[1] - t[0], t[2] - t[0])
     n = n / np.linalg.norm(n)
@@ -64,7 +64,8 @@ def _remainders(t, c, rb, rng, n=400):
     val, grad, face, edges = KERNEL.triangle_bounds(t.reshape(9).copy(), c.copy(), rb)
     h = rng.normal(size=(n, 3))
     h /= np.linalg.norm(h, axis=1)[:, None]
-    h *= rb * rng.uniform(0, 1, n)[:, None] ** (1 / 6)  # most near the sphere, where the error peaks
+    # Most points near the sphere, where the error peaks.
+    h *= rb * rng.uniform(0, 1, n)[:, None] ** (1 / 6)
     h[:3] = rb * np.eye(3)
     x = c + h
     w = inside._triangle_angles(np.repeat(t[None], n, axis=0), x)
