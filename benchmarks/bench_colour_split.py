@@ -10,7 +10,8 @@ floor:
   nearest triangle and barycentrics, no colour; it stores 20 bytes a voxel
   where colour stores 4, so the difference below is a lower bound on the
   shading's cost);
-* **search + shading**: ``Kernel.colour_output``, what ``--color`` runs.
+* **search + shading**: ``Kernel.colour_output`` (with the constant colours'
+  shortcut where a model has them), set as ``--color`` sets it.
 
 The occupancy comes from :func:`geovox.voxelize` first (not timed). The
 kernel runs over the whole grid up to 512³ (as a one-piece conversion
@@ -54,7 +55,8 @@ def _timed(fn, repeat):
 def split(res: int, jobs: int, repeat: int, slab: int) -> dict:
     import geovox
     from geovox.colour.nearest import kernel_module, run_kernel
-    from geovox.colour.shading import Shading, load_textures, shading_tables
+    from geovox.colour.shading import (Shading, _kernel_output, constant_colours, load_textures,
+                                       shading_tables)
 
     module = kernel_module()
     if module is None:
@@ -66,6 +68,7 @@ def split(res: int, jobs: int, repeat: int, slab: int) -> dict:
     grid = vol.grid
     load_textures(mesh)
     tables = shading_tables(mesh, Shading())
+    key, key_rgba = constant_colours(mesh, Shading())
     cache: dict = {}
     slab = nz if res <= 512 else slab
     blocks = [(z, min(nz, z + slab)) for z in range(0, nz, slab)]
@@ -81,8 +84,8 @@ def split(res: int, jobs: int, repeat: int, slab: int) -> dict:
                 def out(k, n=n):
                     k.raw_output(tri[:n], uv[:n])
             else:
-                def out(k, n=n):  # only inside voxels are written: no clearing timed
-                    k.colour_output(rgba[:n], *tables)
+                def out(k, n=n):  # as --color sets it; only inside voxels are written
+                    _kernel_output(k, rgba[:n], tables, key, key_rgba)
             run_kernel(module, mesh.triangles, occ[:, :, z0:z1], grid.spacing, origin=grid.lo,
                        z0=z0, jobs=jobs, output=out, cache=cache)
 
