@@ -22,6 +22,7 @@ What is hashed, per file:
   (bytes 21-56, after the magic number and the versions).
 * manifests (``.jsonl``): the records without ``time`` and ``seconds``, by
   input (models finish in any order).
+* ``.gz`` (``.nii.gz``): the gunzipped bytes (gzip stores a time).
 * anything else: its bytes.
 
 Usage::
@@ -163,7 +164,62 @@ CASES = {
                        "--local-cluster", "2", "-q"], {}, False),
     "cluster_zarr": (["convert", "M/spot.obj", "-o", "O/spot.zarr", "-r", "192", "--fast-color",
                       "--local-cluster", "2"], {}, False),
+    # labels: by part, material, component and file, fractions, streamed, with colour
+    "labels_part_segnrrd": (["convert", "M/cornell_box.obj", "-o", "O/cb.seg.nrrd", "-r", "48",
+                             "--labels", "part"], {}, False),
+    "labels_material_h5": (["convert", "M/cornell_box.obj", "-o", "O/cb.h5", "-r", "48",
+                            "--labels", "material"], {}, False),
+    "labels_component_npz": (["convert", "M/pyramids.3mf", "-o", "O/pyr.npz", "-r", "40",
+                              "--labels", "component"], {}, False),
+    "labels_file_nifti": (["convert", "M/spot.obj", "M/bunny_oded.obj", "-o", "O/two.nii.gz",
+                           "-r", "48", "--labels", "file"], {}, False),
+    "labels_fractions_vtkhdf": (["convert", "M/cornell_box.obj", "-o", "O/cb.vtkhdf", "-r", "40",
+                                 "--labels", "part", "--fractions", "--overlap", "smallest"],
+                                {}, False),
+    "labels_stream_h5": (["convert", "M/cornell_box.obj", "-o", "O/cb.h5", "-r", "160",
+                          "--labels", "part", "--color"], {}, True),
+    "labels_colour_zarr": (["convert", "M/cornell_box.obj", "-o", "O/cb.zarr", "-r", "64",
+                            "--labels", "material", "--color"], {}, False),
+    "labels_density_raw": (["convert", "M/cornell_box.obj", "-o", "O/cb.raw", "-r", "48",
+                            "--labels", "part", "--density", "coverage"], {}, False),
+    # onto an oblique, anisotropic reference grid (written by reference_image below)
+    "like_nrrd_colour": (["convert", "M/spot.obj", "--like", "M/ref.mhd", "-o", "O/spot.nrrd",
+                          "--color"], {}, False),
+    "like_nifti_sdf": (["convert", "M/spot.obj", "--like", "M/ref.mhd", "-o", "O/spot.nii.gz",
+                        "--sdf", "--density", "coverage"], {}, False),
+    "like_stream_raw": (["convert", "M/bunny_oded.obj", "--like", "M/ref_big.mhd", "-o",
+                         "O/bunny.raw", "--fast-color"], {}, True),
+    # what geovox info says (its plan and route)
+    "info": (["info", "M/cornell_box.obj", "-r", "96"], {}, False),
+    "info_like": (["info", "M/spot.obj", "--like", "M/ref.mhd"], {}, False),
 }
+
+
+def reference_image(folder, name="ref", shape=(40, 36, 24), scale=1.0) -> None:
+    """An oblique, anisotropic MetaImage reference (``ref.mhd`` + ``ref.raw``) around spot.
+
+    Written by hand, with no library, so that it is the same bytes for every tree.
+    """
+    import numpy as np
+
+    spacing = np.array([0.03, 0.035, 0.06]) * scale
+    c, s = np.cos(0.4), np.sin(0.4)
+    rx = np.array([[1, 0, 0], [0, c, -s], [0, s, c]])
+    c, s = np.cos(0.7), np.sin(0.7)
+    rz = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
+    direction = rx @ rz
+    offset = -(direction * spacing) @ ((np.asarray(shape) - 1) / 2) + [0.0, 0.1, 0.2]
+    tm = " ".join(repr(float(v)) for v in direction.T.reshape(-1))
+    with open(os.path.join(folder, name + ".mhd"), "w") as f:
+        f.write("ObjectType = Image\nNDims = 3\nBinaryData = True\n"
+                "BinaryDataByteOrderMSB = False\n"
+                f"TransformMatrix = {tm}\nOffset = {' '.join(repr(float(v)) for v in offset)}\n"
+                "AnatomicalOrientation = RAI\n"
+                f"ElementSpacing = {' '.join(repr(float(v)) for v in spacing)}\n"
+                f"DimSize = {' '.join(map(str, shape))}\nElementType = MET_UCHAR\n"
+                f"ElementDataFile = {name}.raw\n")
+    np.zeros(int(np.prod(shape)), np.uint8).tofile(os.path.join(folder, name + ".raw"))
+
 
 _BUDGET_CODE = (
     "import sys, geovox.stream as s; s.SLAB_BUDGET = {budget}\n"
@@ -274,6 +330,10 @@ def hash_file(path) -> dict:
         return hash_npz(path)
     if lower.endswith(".nrrd"):
         return hash_nrrd(path)
+    if lower.endswith(".gz"):
+        # gzip stores a time in its header: the inflated bytes.
+        with gzip.open(path, "rb") as f:
+            return {"gunzipped": _sha(f.read())}
     if lower.endswith(".jsonl"):
         return hash_manifest(path)
     if lower.endswith(".vdb"):
@@ -368,6 +428,8 @@ def main(argv=None) -> int:
     os.makedirs(models, exist_ok=True)
     for name, rel in MODELS.items():
         shutil.copyfile(os.path.join(ROOT, rel), os.path.join(models, name))
+    reference_image(models)
+    reference_image(models, "ref_big", (200, 180, 120), 0.2)
     result = {}
     for name in names:
         result[name] = run_case(name, root, args.python)
