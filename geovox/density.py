@@ -177,7 +177,7 @@ def signed_distance(mesh, grid, occupancy, band: float = BAND, jobs: int = 1) ->
     (nx, ny, nz) float32, Fortran order, in the mesh's units; values beyond
     the band are clamped to ``+-band * min(spacing)``.
     """
-    from .colour import closest_on_triangles
+    from .geometry import closest_on_triangles
 
     limit = band * float(grid.spacing.min())
     reach = band * float(grid.spacing.max())

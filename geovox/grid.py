@@ -151,7 +151,7 @@ class Columns:
         return self.v0 + (np.arange(self.nv) + 0.5) * self.dv
 
 
-def _check_positive_int(name, value):
+def check_positive_int(name, value):
     if isinstance(value, bool):
         raise ParameterError(f"`{name}` must be a positive integer, got {value!r}")
     if not isinstance(value, numbers.Integral):
@@ -164,7 +164,7 @@ def _check_positive_int(name, value):
     return int(value)
 
 
-def _check_bounds(bounds):
+def check_bounds(bounds):
     try:
         b = np.asarray(bounds, dtype=np.float64).reshape(-1)
     except (TypeError, ValueError):
@@ -241,7 +241,7 @@ def make_grid(
         lo[flat] -= pad
         hi[flat] += pad
     else:
-        lo, hi = _check_bounds(bounds)
+        lo, hi = check_bounds(bounds)
 
     if voxel_size is not None:
         try:
@@ -267,10 +267,10 @@ def make_grid(
             raise ParameterError(f"`shape` must be three positive integers, got {shape!r}") from None
         if len(items) != 3:
             raise ParameterError(f"`shape` must be three positive integers, got {shape!r}")
-        n = tuple(_check_positive_int("shape", x) for x in items)
+        n = tuple(check_positive_int("shape", x) for x in items)
         return Grid(lo=lo, hi=hi, shape=n)
 
-    r = DEFAULT_RESOLUTION if resolution is None else _check_positive_int("resolution", resolution)
+    r = DEFAULT_RESOLUTION if resolution is None else check_positive_int("resolution", resolution)
     if fit != "box":
         lo, hi = cube_region(lo, hi, centre=fit == "cube-center")
     return Grid(lo=lo, hi=hi, shape=(r, r, r))

@@ -23,8 +23,17 @@ from __future__ import annotations
 import contextlib
 import contextvars
 import functools
+import os
 
-from .options import KERNEL_ENV
+#: Environment variable that is the default of :attr:`Options.kernel <geovox.Options.kernel>`.
+KERNEL_ENV = "GEOVOX_KERNEL"
+#: The kernel choices.
+CHOICES = ("auto", "compiled", "numpy")
+
+
+def kernel_default() -> str:
+    """The kernel choice when none is given: ``$GEOVOX_KERNEL``, else ``auto``."""
+    return os.environ.get(KERNEL_ENV) or "auto"
 
 #: The kernel choice of the conversion running in this context (None: none
 #: runs; Options' default then decides).
@@ -80,13 +89,12 @@ def compiled(name: str, what: str, kernel=None):
         An unknown choice, or ``compiled`` where the module was not built.
     """
     from .errors import ParameterError
-    from .options import _kernel_default
 
     choice = kernel if kernel is not None else _CHOICE.get()
     where = ""
     if choice is None:
-        choice, where = _kernel_default(), f" (${KERNEL_ENV})"
-    if choice not in ("auto", "compiled", "numpy"):
+        choice, where = kernel_default(), f" (${KERNEL_ENV})"
+    if choice not in CHOICES:
         raise ParameterError(f"the {what} kernel{where} must be auto, compiled or numpy, "
                              f"got {choice!r}")
     if choice == "numpy":
@@ -132,3 +140,43 @@ def obj_text():
         An unknown choice, or ``compiled`` where the module was not built.
     """
     return compiled("_objtext", "OBJ reading")
+
+
+#: Whether this process has started OpenMP threads in a compiled kernel, and
+#: whether it is a fork of one that had (see :func:`_after_fork`).
+_threads_started = False
+_forked_after_threads = False
+
+
+def _after_fork():
+    # GNU OpenMP is not fork-safe: a child forked after the parent's threads
+    # started hangs forever at its first parallel region (a batch's process
+    # pool, or any multiprocessing "fork" pool, after a colour run in the
+    # same process). Such a child runs the kernels on one thread, which never
+    # enters the inherited thread pool.
+    global _forked_after_threads
+    _forked_after_threads = _forked_after_threads or _threads_started
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_after_fork)
+
+
+def openmp_threads(jobs: int) -> int:
+    """The threads a compiled kernel's OpenMP region may use for ``jobs`` asked for.
+
+    Every compiled kernel that runs OpenMP threads asks here first: 1 in a
+    process forked after this one's threads started (GNU OpenMP would hang
+    there), else ``jobs``, noting that threads have started.
+    """
+    global _threads_started
+    if _forked_after_threads:
+        return 1
+    if jobs > 1:
+        _threads_started = True
+    return jobs
+
+
+def forked_after_threads() -> bool:
+    """Whether this process is a fork of one whose OpenMP threads had started."""
+    return _forked_after_threads

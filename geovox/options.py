@@ -18,13 +18,11 @@ from __future__ import annotations
 
 import enum
 import math
-import os
 from dataclasses import MISSING, dataclass, field, fields, replace
 
 from .errors import ParameterError
-
-#: Environment variable that is the default of :attr:`Options.kernel`.
-KERNEL_ENV = "GEOVOX_KERNEL"
+from .kernels import CHOICES as KERNELS
+from .kernels import KERNEL_ENV, kernel_default
 
 
 class Inside(enum.StrEnum):
@@ -54,10 +52,6 @@ def _doc(text: str, default=MISSING, *, factory=None, record=True, new=False):
     if factory is not None:
         return field(default_factory=factory, metadata=meta)
     return field(default=default, metadata=meta)
-
-
-def _kernel_default() -> str:
-    return os.environ.get(KERNEL_ENV) or "auto"
 
 
 @dataclass(frozen=True)
@@ -100,7 +94,7 @@ class Options:
     jobs: int | None = _doc("threads for the array work (None or 0: one per core); the result "
                             "does not depend on it", None, record=False)
     kernel: str = _doc("exact colour's nearest-surface search: auto, compiled or numpy "
-                       f"(default ${KERNEL_ENV}, else auto)", factory=_kernel_default,
+                       f"(default ${KERNEL_ENV}, else auto)", factory=kernel_default,
                        new=True)
     references: str = _doc("files a model names (materials, textures, buffers): read from "
                            "'anywhere', or only under the model's own 'folder'", "anywhere",
@@ -251,14 +245,14 @@ def _json(value):
 
 def _validate(o: Options) -> None:
     """Today's checks and messages, once (values are kept as given: the plan reads them)."""
-    from .grid import _check_bounds, _check_positive_int
+    from .grid import check_bounds, check_positive_int
 
     given = [n for n in ("resolution", "shape", "voxel_size") if getattr(o, n) is not None]
     if len(given) > 1:
         raise ParameterError(
             f"give only one of `resolution`, `shape`, `voxel_size`; got {', '.join(given)}")
     if o.resolution is not None:
-        _check_positive_int("resolution", o.resolution)
+        check_positive_int("resolution", o.resolution)
     if o.shape is not None:
         try:
             items = list(o.shape)
@@ -268,7 +262,7 @@ def _validate(o: Options) -> None:
         if len(items) != 3:
             raise ParameterError(f"`shape` must be three positive integers, got {o.shape!r}")
         for x in items:
-            _check_positive_int("shape", x)
+            check_positive_int("shape", x)
     if o.voxel_size is not None:
         try:
             s = float(o.voxel_size)
@@ -278,7 +272,7 @@ def _validate(o: Options) -> None:
         if not (math.isfinite(s) and s > 0):
             raise ParameterError(f"`voxel_size` must be a positive number, got {o.voxel_size!r}")
     if o.bounds is not None:
-        _check_bounds(o.bounds)
+        check_bounds(o.bounds)
     if o.fit is not None:
         from .grid import FITS
 
@@ -295,7 +289,7 @@ def _validate(o: Options) -> None:
 
 def _validate_fields(o: Options) -> None:
     """Density, distance, threads, kernel and backend name."""
-    from .grid import _check_positive_int
+    from .grid import check_positive_int
 
     if o.density not in (None, "coverage"):
         raise ParameterError(f"`density` must be None or 'coverage', got {o.density!r}")
@@ -303,7 +297,7 @@ def _validate_fields(o: Options) -> None:
         raise ParameterError(f"`density_dtype` must be 'uint8' or 'float32', "
                              f"got {o.density_dtype!r}")
     if o.density is not None:
-        _check_positive_int("supersample", o.supersample)
+        check_positive_int("supersample", o.supersample)
     if o.sdf:
         try:
             band = float(o.band)
@@ -328,7 +322,7 @@ def _validate_fields(o: Options) -> None:
                                  "(`like`, --like)")
         if str(o.mesh_space).upper() not in ("LPS", "RAS"):
             raise ParameterError(f"`mesh_space` must be 'lps' or 'ras', got {o.mesh_space!r}")
-    if o.kernel not in ("auto", "compiled", "numpy"):
+    if o.kernel not in KERNELS:
         raise ParameterError(f"the nearest-surface kernel must be auto, compiled or numpy, "
                              f"got {o.kernel!r}")
     if isinstance(o.backend, str) or not hasattr(o.backend, "cast"):

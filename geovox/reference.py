@@ -136,7 +136,7 @@ def reference_grid(affine, shape, space: str = "LPS", source: str = "<affine>") 
     ParameterError
         Not 4 x 4, not finite, not affine, singular, or a bad shape or space.
     """
-    from .grid import _check_positive_int
+    from .grid import check_positive_int
 
     try:
         a = np.array(affine, dtype=np.float64)
@@ -160,7 +160,7 @@ def reference_grid(affine, shape, space: str = "LPS", source: str = "<affine>") 
         items = None
     if items is None:
         raise ParameterError(f"`like` shape must be three positive integers, got {shape!r}")
-    n = tuple(_check_positive_int("shape", x) for x in items)
+    n = tuple(check_positive_int("shape", x) for x in items)
     space = str(space).upper()
     if space not in ("LPS", "RAS"):
         raise ParameterError(f"`space` must be 'LPS' or 'RAS', got {space!r}")

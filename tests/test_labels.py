@@ -271,7 +271,7 @@ def die() -> Mesh:
 def brute_material(mesh, vol, lset):
     """(labels, ties): the brute-force nearest face's material per inside voxel, and the
     number of voxels where faces of different materials are equally near."""
-    from geovox.colour import closest_on_triangles
+    from geovox.geometry import closest_on_triangles
 
     idx = np.argwhere(vol.occupancy)
     pts = vol.grid.lo + (idx + 0.5) * np.asarray(vol.spacing)

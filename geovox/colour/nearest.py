@@ -62,9 +62,9 @@ grid computes every voxel bit for bit as the whole grid does.
 
 from __future__ import annotations
 
-import os
-
 import numpy as np
+
+from ..kernels import compiled, openmp_threads
 
 #: Triangles within this many voxel sizes of the nearest are tied; the one
 #: with the smallest index wins.
@@ -766,29 +766,7 @@ def kernel_module():
     ParameterError
         An unknown choice, or ``compiled`` where it was not built.
     """
-    from ..kernels import compiled
-
     return compiled("_nearest", "nearest-surface")
-
-
-#: Whether this process has started the compiled kernel's OpenMP threads, and
-#: whether it is a fork of one that had (see :func:`_after_fork`).
-_threads_started = False
-_forked_after_threads = False
-
-
-def _after_fork():
-    # GNU OpenMP is not fork-safe: a child forked after the parent's threads
-    # started hangs forever at its first parallel region (a batch's process
-    # pool, or any multiprocessing "fork" pool, after a colour run in the
-    # same process). Such a child runs the kernel on one thread, which never
-    # enters the inherited thread pool.
-    global _forked_after_threads
-    _forked_after_threads = _forked_after_threads or _threads_started
-
-
-if hasattr(os, "register_at_fork"):
-    os.register_at_fork(after_in_child=_after_fork)
 
 
 def _kernel_tables(triangles, origin) -> tuple:
@@ -841,11 +819,7 @@ def run_kernel(module, triangles, occupancy, spacing, *, origin, z0=0, jobs=1, o
                            MARGIN * hmin, TIE * hmin)
     output(kernel)
     kernel.clusters(*clusters)
-    global _threads_started
-    if _forked_after_threads:
-        jobs = 1
-    elif jobs > 1:
-        _threads_started = True
+    jobs = openmp_threads(jobs)
     cells = np.argwhere(module.top_cells(occ, shape, levels, jobs)).astype(np.int64)
     kernel.run(np.ascontiguousarray(cells), levels, jobs)
 

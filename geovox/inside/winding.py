@@ -39,7 +39,7 @@ import numpy as np
 
 from ..backends.base import Hits
 from ..errors import ParameterError, warn
-from ..kernels import lattice
+from ..kernels import lattice, openmp_threads
 from ..mesh import Mesh
 from ..parallel import scan_along
 
@@ -1359,15 +1359,10 @@ def _compiled_caps(module, occ, w, grid, cap_tris, jobs) -> None:
     (nx, ny, nz) bool or None
         The voxels left to their estimates, or None.
     """
-    from ..colour import nearest
-
     tris, nodes, offset, size = _cap_tree(cap_tris)
     shape = np.asarray(grid.shape)
     top = max(0, int(np.ceil(np.log2(max(1, int(shape.max()) / TOP_VOXELS)))))
-    if nearest._forked_after_threads:  # GNU OpenMP is not fork-safe (see nearest._after_fork)
-        jobs = 1
-    elif jobs > 1:
-        nearest._threads_started = True
+    jobs = openmp_threads(jobs)  # GNU OpenMP is not fork-safe (see geovox.kernels)
     flat = occ.reshape(-1, order="F").view(np.uint8)  # a view: occ is Fortran-ordered
     estimated = np.zeros(grid.size, np.uint8)
     c3 = np.ascontiguousarray
