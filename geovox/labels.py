@@ -30,11 +30,12 @@ import numpy as np
 from . import parity
 from .errors import MeshError, ParameterError, warn
 from .mesh import Mesh
+from .options import LabelSource, Overlap
 
 #: Label sources, in the order the CLI lists them.
-SOURCES = ("part", "component", "material", "file")
+SOURCES = tuple(LabelSource)
 #: Overlap rules.
-OVERLAPS = ("last", "first", "smallest")
+OVERLAPS = tuple(Overlap)
 #: The most labels a volume can hold (uint16, 0 the background).
 MAX_LABELS = 65535
 
@@ -82,25 +83,6 @@ class LabelSet:
     def dtype(self):
         """uint8 for up to 255 labels, else uint16."""
         return np.dtype(np.uint8 if len(self.names) <= 255 else np.uint16)
-
-
-def check(options) -> None:
-    """ParameterError for an unknown source or overlap rule, or fractions without labels.
-
-    ``options``: an :class:`~geovox.Options` (its ``labels``, ``overlap`` and ``fractions``).
-    """
-    labels, overlap, fractions = options.labels, options.overlap, options.fractions
-    if labels is not None and labels not in SOURCES:
-        raise ParameterError(f"`labels` must be one of {', '.join(SOURCES)} or None, "
-                             f"got {labels!r}")
-    if overlap not in OVERLAPS:
-        raise ParameterError(f"`overlap` must be one of {', '.join(OVERLAPS)}, got {overlap!r}")
-    if fractions and labels is None:
-        raise ParameterError("`fractions` needs `labels` (a label source: "
-                             + ", ".join(SOURCES) + ")")
-    if fractions and labels == "material":
-        raise ParameterError("`fractions` are per part (labels='part', 'component' or 'file'); "
-                             "a material's share of a voxel is not defined by its nearest point")
 
 
 def palette(n: int) -> np.ndarray:

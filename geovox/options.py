@@ -41,6 +41,30 @@ class Colour(enum.StrEnum):
     FAST = "fast"  #: from the nearest of the six axis crossings around it
 
 
+class LabelSource(enum.StrEnum):
+    """What a voxel's label says (``labels=``; see :mod:`geovox.labels`)."""
+
+    PART = "part"  #: the model's own parts: OBJ objects or groups, scene nodes
+    COMPONENT = "component"  #: its connected components
+    MATERIAL = "material"  #: the material of the voxel's exact nearest surface point
+    FILE = "file"  #: the input file (several files, one scene)
+
+
+class Overlap(enum.StrEnum):
+    """Which part a voxel inside several takes (``overlap=``)."""
+
+    LAST = "last"  #: the later in file order
+    FIRST = "first"  #: the earlier
+    SMALLEST = "smallest"  #: the one with the smaller enclosed volume
+
+
+class References(enum.StrEnum):
+    """Where the files a model names may be read from (``references=``; see :mod:`geovox.io.references`)."""
+
+    ANYWHERE = "anywhere"  #: anywhere on this machine (URLs are never fetched)
+    FOLDER = "folder"  #: only under the model's own folder, for files you did not make
+
+
 def _doc(text: str, default=MISSING, *, factory=None, record=True, new=False):
     """A dataclass field with its one line of doc.
 
@@ -309,13 +333,9 @@ def _validate_fields(o: Options) -> None:
     if o.jobs is not None and (isinstance(o.jobs, bool) or not isinstance(o.jobs, int)
                                or o.jobs < 0):
         raise ParameterError(f"`jobs` must be a non-negative integer, got {o.jobs!r}")
-    from .references import check_rule
-
-    check_rule(o.references)
-    if o.labels is not None or o.fractions or o.overlap != "last":
-        from .labels import check
-
-        check(o)
+    if o.references not in tuple(References):
+        raise ParameterError(f"`references` must be 'anywhere' or 'folder', got {o.references!r}")
+    _validate_labels(o)
     if o.mesh_space is not None:
         if o.like is None:
             raise ParameterError("`mesh_space` (--mesh-space) applies only onto a reference grid "
@@ -331,6 +351,22 @@ def _validate_fields(o: Options) -> None:
         if not isinstance(o.backend, str) or o.backend.lower() not in ("auto", *REGISTRY):
             raise ParameterError(f"`backend` must be one of auto, {', '.join(REGISTRY)}; "
                                  f"got {o.backend!r}")
+
+
+def _validate_labels(o: Options) -> None:
+    """An unknown label source or overlap rule, or fractions without part labels."""
+    sources = tuple(LabelSource)
+    if o.labels is not None and o.labels not in sources:
+        raise ParameterError(f"`labels` must be one of {', '.join(sources)} or None, "
+                             f"got {o.labels!r}")
+    if o.overlap not in tuple(Overlap):
+        raise ParameterError(f"`overlap` must be one of {', '.join(Overlap)}, got {o.overlap!r}")
+    if o.fractions and o.labels is None:
+        raise ParameterError("`fractions` needs `labels` (a label source: "
+                             + ", ".join(sources) + ")")
+    if o.fractions and o.labels == LabelSource.MATERIAL:
+        raise ParameterError("`fractions` are per part (labels='part', 'component' or 'file'); "
+                             "a material's share of a voxel is not defined by its nearest point")
 
 
 def colour_of(color):
@@ -353,4 +389,5 @@ def colour_of(color):
     raise ParameterError(f"`color` must be True, False, 'exact' or 'fast', got {color!r}")
 
 
-__all__ = ["Options", "Inside", "Colour", "colour_of", "unknown_option_message", "KERNEL_ENV"]
+__all__ = ["Options", "Inside", "Colour", "LabelSource", "Overlap", "References", "colour_of",
+           "unknown_option_message", "KERNEL_ENV"]

@@ -120,15 +120,15 @@ def _inside_names():
 
 
 def _label_sources():
-    from ..labels import SOURCES
+    from ..options import LabelSource
 
-    return list(SOURCES)
+    return [m.value for m in LabelSource]
 
 
 def _overlap_rules():
-    from ..labels import OVERLAPS
+    from ..options import Overlap
 
-    return list(OVERLAPS)
+    return [m.value for m in Overlap]
 
 
 def _format_names():

@@ -26,9 +26,10 @@ import os
 import re
 
 from ..errors import ParameterError
+from ..options import References
 
 #: The rules :func:`check_rule` accepts.
-RULES = ("anywhere", "folder")
+RULES = tuple(References)
 
 # "https://", "file://", "s3://": a URL (one letter would be a Windows drive, "C:/x").
 _URL = re.compile(r"^[A-Za-z][A-Za-z0-9+.-]+://")
