@@ -55,8 +55,8 @@ def _timed(fn, repeat):
 def split(res: int, jobs: int, repeat: int, slab: int) -> dict:
     import geovox
     from geovox.colour.nearest import kernel_module, run_kernel
-    from geovox.colour.shading import (Shading, _kernel_output, constant_colours, load_textures,
-                                       shading_tables)
+    from geovox.colour.exact import kernel_output
+    from geovox.colour.shading import Shading, constant_colours, load_textures, shading_tables
 
     module = kernel_module()
     if module is None:
@@ -85,7 +85,7 @@ def split(res: int, jobs: int, repeat: int, slab: int) -> dict:
                     k.raw_output(tri[:n], uv[:n])
             else:
                 def out(k, n=n):  # as --color sets it; only inside voxels are written
-                    _kernel_output(k, rgba[:n], tables, key, key_rgba)
+                    kernel_output(k, rgba[:n], tables, key, key_rgba)
             run_kernel(module, mesh.triangles, occ[:, :, z0:z1], grid.spacing, origin=grid.lo,
                        z0=z0, jobs=jobs, output=out, cache=cache)
 

@@ -121,7 +121,7 @@ def reason(error, path) -> str:
 
 def work_probe(path):
     from geovox.errors import GeovoxError
-    from geovox.mesh import load_mesh
+    from geovox.io.load import load_mesh
 
     try:
         mesh = load_mesh(path)

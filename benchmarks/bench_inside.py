@@ -3,7 +3,7 @@
 Agreement: for every open model of the corpus and for synthetic broken
 variants of closed ones, the share of voxels on which ``inside="auto"``
 agrees with a brute-force generalised winding number of the *repaired* mesh
-(``geovox.repair``): the solid angle of every triangle summed exactly at the
+(``geovox.inside.repair``): the solid angle of every triangle summed exactly at the
 voxel centres (float64, Van Oosterom and Strackee), inside where > 1/2. Every
 voxel is checked where triangles x voxels <= 5e7, else a random sample of
 voxels (the table says which). Flipped and doubled variants are also compared

@@ -3,7 +3,7 @@
 Readers:
 
 * ``before``: geovox 0.1's reader, one Python loop per line (a copy is kept below, as it was);
-* ``geovox``: ``geovox.obj.read_obj``, the reader on whole arrays;
+* ``geovox``: ``geovox.io.obj.read_obj``, the reader on whole arrays;
 * ``load``: ``geovox.load_mesh``, the user's path (read + the mesh checks);
 * ``trimesh``: ``trimesh.load(path, process=False)``, trimesh's own OBJ loader (it also decodes
   textures, which the others leave to the colour stage).

@@ -2,13 +2,13 @@
 # cython: initializedcheck=False, nonecheck=False
 """Compiled exact nearest triangle (and colour) of every inside voxel.
 
-The same search as :mod:`geovox.nearest` -- a branch and bound over an
+The same search as :mod:`geovox.colour.nearest` -- a branch and bound over an
 octree of voxel cells, a triangle leaving a cell's list only when a surface
 point provably dominates it over the whole cell -- written as a depth-first
 recursion per top cell, with OpenMP threads over the top cells. Every
-distance is :func:`geovox.nearest.closest`'s float64 formula operation for
+distance is :func:`geovox.colour.nearest.closest`'s float64 formula operation for
 operation (built with ``-ffp-contract=off``, no fast-math), and the tie rule
-is :func:`geovox.nearest.pick`'s, so the answer is the brute-force one bit
+is :func:`geovox.colour.nearest.pick`'s, so the answer is the brute-force one bit
 for bit. :meth:`Kernel.run` optionally shades each voxel too, with
 :func:`geovox.colour.shade`'s arithmetic (see ``shade_one``).
 
@@ -83,7 +83,7 @@ cdef struct Ctx:
 
 cdef inline double closest(const double *R, uint8_t flat, double x0, double x1, double x2,
                            double *u, double *v) noexcept nogil:
-    """geovox.nearest.closest for one point and triangle, the same operations in order."""
+    """geovox.colour.nearest.closest for one point and triangle, the same operations in order."""
     cdef double ap0 = x0 - R[0]
     cdef double ap1 = x1 - R[1]
     cdef double ap2 = x2 - R[2]
@@ -645,7 +645,7 @@ cdef void solve(const Ctx *c, int level, int64_t ci, int64_t cj, int64_t ck,
     over the cell's box: ``d(x, T)**2 - |x - p|**2`` is concave in ``x``, so
     if it exceeds ``2 m r + m**2`` (``r`` the largest ``|corner - p|``) at
     the 8 corners it does everywhere in the box, and then ``d(x, T) > d(x,
-    surface) + m`` there (see geovox.nearest). Nine points are tried: the
+    surface) + m`` there (see geovox.colour.nearest). Nine points are tried: the
     nearest surface point to the centre and to each corner (among the
     candidates); a point near one corner drops what lies beyond that corner.
     """
@@ -931,7 +931,7 @@ cdef class Kernel:
                  const double[:, ::1] rep):
         """Triangle boxes ``tlo, thi`` (t, 3); clusters of triangles: boxes (g, 3),
         ``members[cstart[i]:cstart[i + 1]]``; ``rep`` (r, 3) surface points
-        (see geovox.nearest._Search._clusters)."""
+        (see geovox.colour.nearest._Search._clusters)."""
         cdef int64_t t = self.keep[1].shape[0]
         if (tlo.shape[0] != t or thi.shape[0] != t or members.shape[0] != t
                 or cstart.shape[0] != clo.shape[0] + 1 or chi.shape[0] != clo.shape[0]

@@ -2,15 +2,15 @@
 # cython: initializedcheck=False, nonecheck=False
 """Compiled reading of an OBJ's ``v``/``vt`` numbers and ``f`` corners.
 
-:func:`number_lines` and :func:`corner_lines` are :func:`geovox.obj._number_lines`
-and :func:`geovox.obj._corner_lines` written as one loop over the bytes of
+:func:`number_lines` and :func:`corner_lines` are :func:`geovox.io.obj._number_lines`
+and :func:`geovox.io.obj._corner_lines` written as one loop over the bytes of
 each line: the same lines are read, the same lines are left to the plain
 (``str.split``) reading, and every number read is the one ``float()`` gives:
 a token is read only when it has the form ``float()`` accepts
 (``[+-]digits[.digits][(e|E)[+-]digits]``, at least one digit before the
 exponent), and then either by Clinger's fast path (a mantissa of at most
 2**53 and a power of ten within 10**±22: one correctly rounded operation, as
-geovox.obj._floats does) or by ``PyOS_string_to_double``, the very function
+geovox.io.obj._floats does) or by ``PyOS_string_to_double``, the very function
 ``float()`` calls (correctly rounded, independent of the locale). The
 NumPy code gives the same vertices, UVs and corners (it is the fallback
 where this module is not built; tests/test_obj_kernel.py holds the two to
@@ -26,7 +26,7 @@ cdef extern from "Python.h":
     double PyOS_string_to_double(const char *s, char **endptr,
                                  PyObject *overflow_exception) except? -1.0
 
-#: geovox.obj._NO_UV: the texture index of a corner that names none.
+#: geovox.io.obj._NO_UV: the texture index of a corner that names none.
 cdef int64_t NO_UV = -(2 ** 62)
 
 
@@ -35,13 +35,13 @@ cdef inline bint _digit(uint8_t c) noexcept nogil:
 
 
 cdef inline bint _number_byte(uint8_t c) noexcept nogil:
-    # What geovox.obj._number_lines reads fast: digits . - + e E, blanks.
+    # What geovox.io.obj._number_lines reads fast: digits . - + e E, blanks.
     return (_digit(c) or c == 32 or c == 9 or c == 46 or c == 45 or c == 43
             or c == 101 or c == 69)
 
 
 cdef inline bint _corner_byte(uint8_t c) noexcept nogil:
-    # What geovox.obj._corner_lines reads fast: digits / - +, blanks.
+    # What geovox.io.obj._corner_lines reads fast: digits / - +, blanks.
     return _digit(c) or c == 32 or c == 9 or c == 47 or c == 45 or c == 43
 
 
@@ -124,7 +124,7 @@ cdef Py_ssize_t _token_count(const uint8_t *s, const int64_t[::1] starts,
 
 def number_lines(const uint8_t[::1] buf, const int64_t[::1] starts, const int64_t[::1] ends,
                  const int64_t[::1] lines, int64_t need):
-    """The numbers of ``v`` or ``vt`` lines, as :func:`geovox.obj._read_numbers` reads them.
+    """The numbers of ``v`` or ``vt`` lines, as :func:`geovox.io.obj._read_numbers` reads them.
 
     Parameters
     ----------
@@ -256,7 +256,7 @@ cdef inline Py_ssize_t _corner(const uint8_t *s, Py_ssize_t a, Py_ssize_t b, int
 
 def corner_lines(const uint8_t[::1] buf, const int64_t[::1] starts, const int64_t[::1] ends,
                  const int64_t[::1] lines):
-    """The corners of ``f`` lines, as :func:`geovox.obj._read_corners` reads them.
+    """The corners of ``f`` lines, as :func:`geovox.io.obj._read_corners` reads them.
 
     Parameters
     ----------
@@ -268,7 +268,7 @@ def corner_lines(const uint8_t[::1] buf, const int64_t[::1] starts, const int64_
     line_of : (c,) int64
         Index into ``lines`` of each corner read, in order.
     v, t : (c,) int64
-        The vertex and texture indices as written; ``t`` is ``geovox.obj._NO_UV``
+        The vertex and texture indices as written; ``t`` is ``geovox.io.obj._NO_UV``
         where a corner names none.
     slow : (j,) int64
         Indices into ``lines`` of the lines left to the plain reading (an

@@ -17,7 +17,7 @@ wins over it is. Label 0 is the background.
 
 ``"material"`` is different: the inside is the whole mesh's, and each
 inside voxel takes the material of the face holding its exact nearest
-surface point (the search exact colour uses, :mod:`geovox.nearest`).
+surface point (the search exact colour uses, :mod:`geovox.colour.nearest`).
 """
 
 from __future__ import annotations
@@ -104,10 +104,10 @@ def components(mesh: Mesh) -> np.ndarray:
     """(m,) int64: each face's connected component, after merging vertices by position.
 
     Faces sharing a vertex position are connected; components are numbered
-    by their first face. (NumPy's union-find of :func:`geovox.repair.components`,
+    by their first face. (NumPy's union-find of :func:`geovox.inside.repair.components`,
     not scipy's csgraph, whose import alone cost 0.2-2 s of a labelled conversion.)
     """
-    from .repair import components as graph_components
+    from .inside.repair import components as graph_components
 
     f = mesh.geometric_faces
     n = int(f.max()) + 1
@@ -185,7 +185,7 @@ def _stem(path: str) -> str:
 def scene(sources, options=None) -> Mesh:
     """One mesh of several files (or meshes), each file's faces a label for ``"file"``.
 
-    Each file is read by :func:`geovox.mesh.load_mesh` as ``options`` (an
+    Each file is read by :func:`geovox.io.load.load_mesh` as ``options`` (an
     :class:`~geovox.Options`; default its defaults) say: the rule
     ``references``.
 
@@ -540,7 +540,7 @@ def material_labels(mesh: Mesh, grid, occupancy: np.ndarray, lset: LabelSet, *, 
                     jobs: int = 1) -> np.ndarray:
     """Each inside voxel's label: the material of its exact nearest surface point.
 
-    The search is exact colour's (:func:`geovox.nearest.nearest_inside`, with
+    The search is exact colour's (:func:`geovox.colour.nearest.nearest_inside`, with
     its tie rule between faces); faces of one material are interchangeable,
     so the NumPy search need not tell them apart.
 
@@ -555,7 +555,7 @@ def material_labels(mesh: Mesh, grid, occupancy: np.ndarray, lset: LabelSet, *, 
     -------
     labels : (nx, ny, nz) uint8 or uint16, Fortran order; 0 outside.
     """
-    from .nearest import kernel_module, nearest_inside, run_kernel
+    from .colour.nearest import kernel_module, nearest_inside, run_kernel
 
     nx, ny, _ = grid.shape
     labels = np.zeros(grid.shape, dtype=lset.dtype, order="F")

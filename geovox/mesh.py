@@ -2,14 +2,7 @@
 
 The OBJ reader (:mod:`geovox.io.obj`) and the loader of every other format
 (:mod:`geovox.io.load`) both build these; keeping them here, with no I/O, lets
-the two readers import this module instead of each other. (This was
-geovox/surface.py; ``geovox.surface`` is still this module.)
-
-This module was the loader before it was the data model (issue 21), so the
-loader's names are still found here, live: ``geovox.mesh.load_mesh`` is
-:func:`geovox.io.load.load_mesh`, imported the first time it is asked for.
-Patch such a name on :mod:`geovox.io.load`, where the code reads it; setting
-it here is refused (see :mod:`geovox._forward`).
+the two readers import this module instead of each other.
 """
 
 from __future__ import annotations
@@ -254,14 +247,3 @@ def check_mesh(mesh: Mesh) -> Mesh:
              ("face_material", "materials", "corner_uv", "vertex_colors", "problems",
               "face_part", "parts")}
     return build_mesh(mesh.vertices, mesh.faces, mesh.source, **extra)
-
-
-def _forward_the_loader():
-    import sys
-
-    from . import _forward
-
-    _forward.forward(sys.modules[__name__], "geovox.io.load")
-
-
-_forward_the_loader()

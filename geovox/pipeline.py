@@ -216,7 +216,7 @@ def plan(mesh, options=None, path=None, *, fmt=None, stream=None, cluster=False,
     Parameters
     ----------
     mesh : geovox.mesh.Mesh
-        The loaded model (anything :func:`geovox.mesh.load_mesh` reads is loaded first).
+        The loaded model (anything :func:`geovox.io.load.load_mesh` reads is loaded first).
     options : Options or dict, optional
         What to make (a dict is checked by :meth:`Options.from_kwargs`).
     path : str, optional
@@ -560,7 +560,7 @@ def voxelize(
         Where the files a model file names (materials, textures, buffers)
         may be read from: anywhere (``../textures/x.png`` included), or only
         under the model's own folder, for files you did not make (see
-        :mod:`geovox.references`). URLs are never fetched.
+        :mod:`geovox.io.references`). URLs are never fetched.
     labels : {None, "part", "component", "material", "file"}
         Also fill ``Volume.labels`` and ``Volume.label_table`` (see
         :mod:`geovox.labels`): the model's own parts (OBJ objects or groups,
@@ -690,7 +690,7 @@ def voxelize_block(mesh, plan: Plan, block=None, *, buffers=None) -> Volume:
     Parameters
     ----------
     mesh : geovox.mesh.Mesh
-        The loaded model (anything :func:`geovox.mesh.load_mesh` reads is
+        The loaded model (anything :func:`geovox.io.load.load_mesh` reads is
         loaded first, once per call).
     plan : Plan
         What to make (:func:`plan`): the grid, backend, inside test, colour

@@ -95,8 +95,7 @@ STACK = ("geovox.pipeline", "geovox.io.load", "geovox.io.obj", "geovox.io.refere
          "geovox.formats.headers", "geovox.cluster", "geovox.batch")
 
 #: Compiled kernels (each optional: the NumPy twins run where one is missing).
-KERNELS = ("geovox._lattice", "geovox._winding", "geovox._objtext", "geovox._nearest",
-           "geovox._forward")
+KERNELS = ("geovox._lattice", "geovox._winding", "geovox._objtext", "geovox._nearest")
 
 #: Loaders by input extension; every file type but OBJ is read through trimesh.
 LOADERS = {".ply": "geovox.io.ply", ".gltf": "geovox.io.gltf", ".glb": "geovox.io.gltf",

@@ -37,7 +37,7 @@ def read_binvox(data: bytes):
 
 
 def _mesh_box(path=SPOT):
-    from geovox.mesh import load_mesh
+    from geovox.io.load import load_mesh
 
     return np.asarray(load_mesh(path).bounds, dtype=np.float64)
 

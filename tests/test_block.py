@@ -10,7 +10,7 @@ import pytest
 import geovox
 from geovox.errors import ParameterError
 from geovox.grid import make_grid
-from geovox.mesh import load_mesh
+from geovox.io.load import load_mesh
 from geovox.options import Options
 from geovox.pipeline import Route, block_grid, plan, voxelize_block
 

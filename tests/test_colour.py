@@ -322,7 +322,7 @@ def test_colour_does_not_depend_on_chunks_or_tasks(monkeypatch, model, backend):
     """The six-crossing colour works through chunks of z layers (carrying the
     crossings along z from chunk to chunk), in tasks spread over the threads;
     tiny chunks, tasks and blocks must give the one-chunk result exactly."""
-    from geovox.colour import shading as colour
+    from geovox.colour import fast as colour
 
     mesh = {"spot": lambda: SPOT, "open_box": lambda: _coloured_boxes(open_bottom=True),
             "gap": lambda: _coloured_boxes(gap=True)}[model]()
@@ -342,7 +342,7 @@ def test_colour_does_not_depend_on_chunks_or_tasks(monkeypatch, model, backend):
 def test_streamed_raw_colours_written_chunk_by_chunk(tmp_path, monkeypatch):
     """Several slabs to .raw: each chunk's colours go straight into the file."""
     import geovox.formats as F
-    from geovox.colour import shading as colour
+    from geovox.colour import fast as colour
 
     monkeypatch.setattr(colour, "CHUNK_VOXELS", 16 * 16 * 5)
     opts = dict(shape=(16, 16, 150), color="fast")

@@ -251,7 +251,7 @@ def test_backend_example_gives_the_numpy_backends_crossings(axis):
 
     from geovox.backends import get_backend
     from geovox.grid import make_grid
-    from geovox.mesh import load_mesh
+    from geovox.io.load import load_mesh
     from geovox.pipeline import ray_start
 
     namespace = {}

@@ -1,4 +1,4 @@
-"""glTF triangle strips (mode 5) and fans (mode 6), triangulated by geovox (geovox.gltf).
+"""glTF triangle strips (mode 5) and fans (mode 6), triangulated by geovox (geovox.io.gltf).
 
 Winding is the glTF specification's (3.7.2.1): a closed shape built of fans
 or strips must come out outward-facing, i.e. voxelise with parity as a
@@ -20,7 +20,7 @@ import trimesh
 import geovox
 from geovox.cli import main
 from geovox.errors import MeshError
-from geovox.gltf import fan_faces, strip_faces
+from geovox.io.gltf import fan_faces, strip_faces
 
 from conftest import corpus
 

@@ -154,7 +154,7 @@ def test_triangle_angles_componentwise_match_the_vector_formula():
     # _triangle_angles is written component by component for speed; it must
     # give what the einsum/np.cross form of the same formula gives,
     # including at a triangle's own vertices and in its plane.
-    from geovox.inside import _triangle_angles
+    from geovox.inside.winding import _triangle_angles
 
     rng = np.random.default_rng(5)
     tris = rng.normal(size=(300, 3, 3))
@@ -180,7 +180,7 @@ def test_winding_of_a_triangle_soup_matches_brute_force():
 
 
 def test_argwhere_helper_matches_numpy():
-    from geovox.inside import _argwhere
+    from geovox.inside.winding import _argwhere
 
     rng = np.random.default_rng(2)
     for shape in [(1, 1, 1), (5, 7, 3), (16, 9, 33)]:
@@ -213,7 +213,7 @@ def test_far_field_bounds_hold_the_exact_value():
     # _clamp narrows a dipole's interval with |w| <= A / (4 pi g²); the
     # narrowed interval must still hold the exact sum, also where the
     # dipole's own bound is loose (opening ratio near 1).
-    from geovox.inside import _clamp, _triangle_angles
+    from geovox.inside.winding import _clamp, _triangle_angles
 
     rng = np.random.default_rng(7)
     for _ in range(200):
@@ -239,7 +239,7 @@ def test_far_field_bounds_hold_the_exact_value():
 def test_brick_pyramid_is_the_same_dense_or_sparse():
     # _pyramid builds coarse levels from indices when the mask is sparse and
     # by any over 2³ blocks when it is dense: both must give the same levels.
-    from geovox.inside import _pyramid
+    from geovox.inside.winding import _pyramid
 
     rng = np.random.default_rng(0)
     for shape in [(5, 7, 3), (16, 9, 33), (40, 33, 17)]:

@@ -16,7 +16,8 @@ import geovox
 from geovox import labels as L
 from geovox.errors import MeshError, ParameterError
 from geovox.grid import make_grid
-from geovox.mesh import Mesh, load_mesh
+from geovox.io.load import load_mesh
+from geovox.mesh import Mesh
 from geovox.pipeline import voxelize_block
 
 

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 import geovox
-from geovox.mesh import load_mesh
+from geovox.io.load import load_mesh
 
 # A cube [0, s]³ (corners numbered dx * 4 + dy * 2 + dz), wound outwards.
 _TRIS = [(0, 2, 6), (0, 6, 4), (1, 5, 7), (1, 7, 3), (0, 4, 5), (0, 5, 1), (2, 3, 7), (2, 7, 6),

@@ -32,7 +32,7 @@ import geovox
 from geovox import formats
 from geovox.cli import main
 from geovox.density import signed_distance
-from geovox.mesh import load_mesh
+from geovox.io.load import load_mesh
 
 KW = dict(resolution=24, density="coverage", sdf=True, supersample=2)
 

@@ -20,7 +20,7 @@ import pytest
 import trimesh
 
 import geovox
-from geovox import inside
+from geovox.inside import winding as inside
 from geovox.backends.numpy import rasterise
 from geovox.errors import ParameterError
 from geovox.exact import Projection

@@ -120,7 +120,7 @@ def test_any_lost_geometry_message_from_trimesh_is_an_error(tmp_path, monkeypatc
     # The rule, not just Draco: a reader that logs that it dropped geometry
     # and carries on gives an error naming the file and trimesh's words.
     path = tmp_path / "box.ply"
-    # ASCII: a plain binary triangle PLY is read by geovox.ply, not trimesh.
+    # ASCII: a plain binary triangle PLY is read by geovox.io.ply, not trimesh.
     path.write_bytes(_box().export(file_type="ply", encoding="ascii"))
     from trimesh.exchange import load
 
@@ -306,7 +306,7 @@ def test_empty_reason_names_faces_wound_against_each_other():
 def test_gltf_triangle_fan_trimesh_skips_is_read_by_geovox(tmp_path):
     # trimesh skips glTF primitives in TRIANGLE_FAN mode (6) with a debug
     # message only; geovox triangulates them itself (tests/test_gltf_modes.py).
-    from geovox.gltf import fan_faces
+    from geovox.io.gltf import fan_faces
 
     box = _box()
     data = trimesh.Scene(box).export(file_type="glb")

@@ -1,8 +1,8 @@
 """The compiled nearest-surface kernel (geovox/_nearest.pyx) against the NumPy reference.
 
-The kernel must give what :func:`geovox.nearest.brute_force` gives -- every
-triangle measured with :func:`geovox.nearest.closest`'s float64 formula, the
-tie rule of :func:`geovox.nearest.pick` -- bit for bit: the same triangle and
+The kernel must give what :func:`geovox.colour.nearest.brute_force` gives -- every
+triangle measured with :func:`geovox.colour.nearest.closest`'s float64 formula, the
+tie rule of :func:`geovox.colour.nearest.pick` -- bit for bit: the same triangle and
 the same barycentrics for every inside voxel, and so the same colours as the
 NumPy search and :func:`geovox.colour.shade`. CI builds the kernel (``pip
 install -e .``, gcc is there): these tests fail, not skip, where a C
@@ -27,7 +27,7 @@ from geovox.colour import Shading, exact_colours, load_textures, shade
 from geovox.kernels import chosen
 from geovox.errors import GeovoxWarning, ParameterError
 from geovox.mesh import Material, Mesh
-from geovox.nearest import brute_force, kernel_module, nearest_inside, prepare, run_kernel
+from geovox.colour.nearest import brute_force, kernel_module, nearest_inside, prepare, run_kernel
 from geovox.stream import convert_to
 import geovox.formats as F
 
@@ -295,7 +295,7 @@ def test_the_numpy_search_is_used_when_asked(monkeypatch, tmp_path):
     # GEOVOX_KERNEL=numpy: the fallback (what an install without a compiler
     # runs) gives the same colours, and is what runs (the compiled run_kernel
     # is never called).
-    import geovox.nearest as nearest
+    import geovox.colour.nearest as nearest
 
     ref = geovox.voxelize(SPOT, resolution=16, color="exact")
     monkeypatch.setenv("GEOVOX_KERNEL", "numpy")
@@ -400,12 +400,12 @@ def test_a_material_the_kernel_does_not_know_is_shaded_by_numpy(kernel, monkeypa
     mesh = _sphere_with(Material(image=np.zeros((4, 4, 3), np.uint8), texture_file="x.png",
                                  wrap=("spiral", "repeat")), 1.0, 0.0)
     assert colour.shading_tables(mesh) is None
-    import geovox.nearest as nearest
+    import geovox.colour.exact as exact
 
     def refuse(*a, **k):
         raise AssertionError("the compiled kernel ran")
 
-    monkeypatch.setattr(nearest, "run_kernel", refuse)
+    monkeypatch.setattr(exact, "run_kernel", refuse)
     monkeypatch.setattr(colour, "_texel_axis", lambda t, n, mode: colour_axis(t, n))
     vol = geovox.voxelize(mesh, resolution=10)
     got = exact_colours(mesh, vol.grid, vol.occupancy)
@@ -482,7 +482,7 @@ def test_the_source_distribution_carries_the_kernel_source(tmp_path):
 
 def _kernel_colours(kernel, mesh, vol, key, key_rgba):
     """The compiled colour search by hand, with ``key_rgba`` as the constant colours."""
-    from geovox.colour import shading_tables
+    from geovox.colour.shading import shading_tables
 
     g = vol.grid
     flat = np.zeros(vol.occupancy.size, np.uint32)
@@ -503,7 +503,7 @@ def test_cells_of_one_constant_colour_skip_the_search(kernel, tmp_path, name, re
     # it did: there, the nearest triangle's own key; elsewhere, the shaded
     # colour of the nearest point. And with the true constant colours, the
     # answer is the shaded nearest point everywhere (the NumPy search's).
-    from geovox.colour import constant_colours
+    from geovox.colour.shading import constant_colours
 
     if name == "cornell_box":
         mesh = geovox.load_mesh(corpus("cornell_box", "cornell_box.obj"))

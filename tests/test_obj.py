@@ -18,8 +18,9 @@ from hypothesis import strategies as st
 import geovox
 from geovox.cli import main
 from geovox.errors import GeovoxWarning, MeshError
-from geovox.mesh import Material, Mesh, load_mesh
-from geovox.obj import _rest, read_mtl, read_obj, resolve_path
+from geovox.io.load import load_mesh
+from geovox.mesh import Material, Mesh
+from geovox.io.obj import _rest, read_mtl, read_obj, resolve_path
 
 from conftest import DATA, SPOT, corpus
 
@@ -589,7 +590,7 @@ def test_load_mesh_checks_what_read_obj_gives(tmp_path):
 
 def test_reading_in_small_pieces_changes_nothing(tmp_path, monkeypatch):
     """Sections are read in pieces of 256 KB; pieces of a few lines give the same."""
-    import geovox.obj as obj
+    import geovox.io.obj as obj
 
     _write(tmp_path, "a.mtl", MTL_A)
     _write(tmp_path, "b.mtl", MTL_B)

@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 import geovox
-from geovox.cli import build_parser, main
+from geovox.cli import main
+from geovox.cli.commands import build_parser
 from geovox.errors import GeovoxWarning, ParameterError
 from geovox.options import KERNEL_ENV, Colour, Inside, Options
 from geovox.pipeline import Route, plan, voxelize_block
@@ -243,7 +244,7 @@ def test_kernel_option_reaches_slabs_and_files(tmp_path, monkeypatch):
 
 def test_outside_a_conversion_the_default_is_the_environment(monkeypatch):
     from geovox import kernels
-    from geovox.nearest import kernel_module
+    from geovox.colour.nearest import kernel_module
 
     monkeypatch.setenv(KERNEL_ENV, "numpy")
     assert kernel_module() is None and kernels.lattice() is None
@@ -387,7 +388,7 @@ def test_convert_to_loads_plans_and_chooses_once(tmp_path, monkeypatch):
 
     monkeypatch.setattr(geovox.io.load, "load_mesh", counting("load", geovox.io.load.load_mesh))
     monkeypatch.setattr(geovox.stream, "plan", counting("plan", geovox.stream.plan))
-    monkeypatch.setattr(geovox.inside.winding, "choose", counting("choose", geovox.inside.winding.choose))
+    monkeypatch.setattr(geovox.inside, "choose", counting("choose", geovox.inside.choose))
     monkeypatch.setattr(geovox.pipeline, "make_grid", counting("grid", geovox.pipeline.make_grid))
     r = geovox.convert_to(SPOT, tmp_path / "v.raw", shape=(8, 8, 150), color="fast",
                           budget=8 * 8 * 64 * 25)

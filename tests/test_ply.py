@@ -1,4 +1,4 @@
-"""geovox.ply: plain binary triangle PLY read without trimesh, into the Mesh trimesh's path makes."""
+"""geovox.io.ply: plain binary triangle PLY read without trimesh, into the Mesh trimesh's path makes."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import trimesh
 import geovox
 from geovox.errors import MeshError
 from geovox.io.load import _trimesh_load
-from geovox.ply import read_plain_ply
+from geovox.io.ply import read_plain_ply
 
 from conftest import corpus
 

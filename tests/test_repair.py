@@ -13,7 +13,7 @@ from scipy import ndimage
 import geovox
 from geovox.inside import winding as inside
 from geovox.errors import GeovoxWarning, GridTooLargeError
-from geovox.repair import repair
+from geovox.inside.repair import repair
 from geovox.pipeline import ray_start
 
 from conftest import box_mesh, from_tm
@@ -288,7 +288,7 @@ def test_vertex_connectivity_without_scipy_matches_csgraph(sub):
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
-    from geovox.inside import _vertex_connected
+    from geovox.inside.winding import _vertex_connected
 
     def one_component(g):
         nv = int(g.max()) + 1
@@ -353,7 +353,7 @@ def test_components_and_parities_without_scipy_match_csgraph(seed):
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
-    from geovox.repair import components
+    from geovox.inside.repair import components
 
     rng = np.random.default_rng(seed)
     n = int(rng.integers(1, 400))
@@ -376,7 +376,7 @@ def test_components_and_parities_without_scipy_match_csgraph(seed):
 def test_close_pairs_match_a_kd_tree(seed):
     from scipy.spatial import cKDTree
 
-    from geovox.repair import close_pairs
+    from geovox.inside.repair import close_pairs
 
     rng = np.random.default_rng(seed)
     tol = 0.05

@@ -32,7 +32,7 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 #: Modules the default conversion of an OBJ, PLY or STL must not import.
 NOT_IMPORTED = ("trimesh", "scipy", "PIL", "h5py", "concurrent.futures", "tempfile",
-                "xml.etree.ElementTree", "zipfile", "difflib", "uuid", "geovox.threemf",
+                "xml.etree.ElementTree", "zipfile", "difflib", "uuid", "geovox.io.threemf",
                 "geovox.colour")
 
 PROBE = r"""
@@ -60,7 +60,7 @@ def _modules(model, out):
 
 def _plain_ply(path):
     """The bunny as a binary PLY of x, y, z and triangles: what geovox/ply.py reads itself."""
-    from geovox.obj import read_obj
+    from geovox.io.obj import read_obj
 
     mesh = read_obj(corpus("bunny_watertight", "bunny_oded.obj"))
     head = (f"ply\nformat binary_little_endian 1.0\nelement vertex {len(mesh.vertices)}\n"
@@ -76,7 +76,7 @@ def _plain_ply(path):
 
 def _stl(path, binary):
     """The bunny as a binary or an ASCII STL: what geovox/io/stl.py reads itself."""
-    from geovox.obj import read_obj
+    from geovox.io.obj import read_obj
 
     mesh = read_obj(corpus("bunny_watertight", "bunny_oded.obj"))
     corners = mesh.vertices[mesh.faces].astype("<f4")

@@ -1,4 +1,4 @@
-"""3MF extensions trimesh does not read whole (geovox.threemf).
+"""3MF extensions trimesh does not read whole (geovox.io.threemf).
 
 Real files: assimp's test models (tests/data/assimp; BSD-3-Clause, and the
 3MF Consortium's BSD-2-Clause sample cube_gears_prod_req.3mf) and the 3MF
@@ -133,7 +133,7 @@ def test_low_resolution_mesh_beside_slices_is_refused(tmp_path):
 
 def test_plain_3mf_is_left_to_trimesh(monkeypatch):
     # A file without any of the extensions is not rewritten.
-    from geovox import threemf
+    from geovox.io import threemf
 
     assert threemf.flatten(corpus("wild", "pyramids.3mf")) is None
     data = threemf.flatten(corpus("assimp", "production_components.3mf"))

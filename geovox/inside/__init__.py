@@ -4,17 +4,34 @@
 |---|---|
 | :mod:`geovox.inside.winding` | ``choose``, the winding number, the caps and their tree |
 | :mod:`geovox.inside.repair` | the repaired copy a winding test of a broken mesh works on |
-
-Every name of :mod:`geovox.inside.winding` is also this package's
-(``geovox.inside.choose``, ``from geovox.inside import boundary_edges``), as
-when this package was the module ``geovox/inside.py``; set (or patch) such a
-name on ``geovox.inside.winding``, where the code reads it (see
-:mod:`geovox._forward`).
+| :mod:`geovox.inside.bridge` | caps that bridge the holes of open loops |
 """
 
-import sys
+from . import bridge, repair, winding
+from .winding import (
+    PASSES,
+    STATS,
+    approximate_warning,
+    boundary_edges,
+    bridged,
+    cap_winding,
+    capped,
+    choose,
+    consistent,
+    crossing_signs,
+    edge_counts,
+    overlapping_pieces,
+    settle_ties,
+    solid_angles,
+    target,
+    winding_kernel,
+    winding_occupancy,
+    working_bytes,
+)
 
-from .. import _forward
-from . import winding
-
-_forward.forward(sys.modules[__name__], winding)
+__all__ = [
+    "PASSES", "STATS", "approximate_warning", "boundary_edges", "bridge", "bridged", "cap_winding",
+    "capped", "choose", "consistent", "crossing_signs", "edge_counts", "overlapping_pieces",
+    "repair", "settle_ties", "solid_angles", "target", "winding", "winding_kernel",
+    "winding_occupancy", "working_bytes",
+]

@@ -4,7 +4,7 @@
 ``vote``    parity along x, y and z; the majority decides.
 ``winding`` the generalised winding number, computed exactly and fast, of
             the mesh itself when it is closed and consistently wound, else
-            of a repaired copy (:mod:`geovox.repair`: vertices merged,
+            of a repaired copy (:mod:`geovox.inside.repair`: vertices merged,
             degenerate and duplicate faces dropped, faces oriented across
             manifold edges, pieces turned outward).
 
@@ -429,8 +429,8 @@ def target(mesh: Mesh):
     -------
     mesh : Mesh
         ``mesh`` itself when it is :func:`consistent`; else its repaired
-        copy (see :mod:`geovox.repair`).
-    repair : geovox.repair.Repair or None
+        copy (see :mod:`geovox.inside.repair`).
+    repair : geovox.inside.repair.Repair or None
     """
     if "target" not in mesh._cache:
         if consistent(mesh):
@@ -1480,7 +1480,7 @@ def repair_warning(source, n_open: int, n_nonmanifold: int, rep, closed: bool) -
         The mesh's source (a path where it came from a file).
     n_open, n_nonmanifold : int
         Open and non-manifold edges, after merging vertices by position.
-    rep : geovox.repair.Repair
+    rep : geovox.inside.repair.Repair
         What the repair of the copy did.
     closed : bool
         Whether the repaired copy is closed (its winding number is then exact).

@@ -233,9 +233,9 @@ def _gltf_rewrite(header: dict, path: str, rule: str = "anywhere", read_buffer=N
     """Rewrite a glTF JSON header in place for trimesh (see above).
 
     ``rule`` is how the files it names are found (see
-    :mod:`geovox.references`); ``read_buffer(i) -> bytes`` reads buffer
+    :mod:`geovox.io.references`); ``read_buffer(i) -> bytes`` reads buffer
     ``i``, for the triangle strips and fans rewritten into triangles (see
-    :mod:`geovox.gltf`; None: they are left to trimesh).
+    :mod:`geovox.io.gltf`; None: they are left to trimesh).
 
     Returns
     -------
@@ -332,7 +332,7 @@ def _gltf_file(path: str, rule: str = "anywhere", said=None):
     """A glTF file with its JSON rewritten by :func:`_gltf_rewrite`.
 
     ``rule`` is how the files it names are found; ``said`` collects the
-    references refused (see :func:`geovox.references.resolver`).
+    references refused (see :func:`geovox.io.references.resolver`).
 
     Returns
     -------
@@ -377,7 +377,7 @@ def _buffer_reader(header: dict, path: str, rule: str, tail):
     """``read(i) -> bytes``: glTF buffer ``i`` (the GLB's BIN chunk, a ``data:`` URI or a file).
 
     ``tail`` is what follows a GLB's JSON chunk (None for a ``.gltf``).
-    Raises :class:`geovox.gltf.Unreadable` where the buffer cannot be read,
+    Raises :class:`geovox.io.gltf.Unreadable` where the buffer cannot be read,
     or its file is not read under ``rule``.
     """
     from .gltf import Unreadable
@@ -992,8 +992,8 @@ def _trimesh_load(path: str, rule: str = "anywhere") -> Mesh:
 def load_mesh(source, *, references: str = "anywhere") -> Mesh:
     """Load a mesh from a path, a trimesh object, or pass a :class:`Mesh` through.
 
-    OBJ files are read by :mod:`geovox.obj`, plain binary triangle PLY
-    files by :mod:`geovox.ply`, STL files (binary and ASCII) by
+    OBJ files are read by :mod:`geovox.io.obj`, plain binary triangle PLY
+    files by :mod:`geovox.io.ply`, STL files (binary and ASCII) by
     :mod:`geovox.io.stl`; everything else by trimesh
     (the other STL and PLY files, OFF, glTF/GLB with Draco compression, 3MF, COLLADA, 3DXML,
     zip and tar archives of these, ...).
@@ -1007,7 +1007,7 @@ def load_mesh(source, *, references: str = "anywhere") -> Mesh:
         Where the files a model names (OBJ materials and textures, glTF
         buffers and images, COLLADA and PLY textures) may be read from:
         anywhere, or only under the model's own folder (see
-        :mod:`geovox.references`). URLs are never fetched.
+        :mod:`geovox.io.references`). URLs are never fetched.
 
     Returns
     -------

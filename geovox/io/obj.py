@@ -71,7 +71,7 @@ def resolve_path(name: str, folder: str, rule: str = "anywhere", root: str | Non
     """Find a file named in an OBJ/MTL: backslashes, relative folders, case.
 
     ``rule`` and ``root`` (the model's folder) are as for
-    :func:`geovox.references.locate`; returns the path or None.
+    :func:`geovox.io.references.locate`; returns the path or None.
     """
     return locate(name, folder, rule, root)[0]
 
@@ -197,7 +197,7 @@ def _apply_map_options(material: Material, options: list) -> list:
 def read_mtl(path: str, problems: list, rule: str = "anywhere", root: str | None = None) -> dict:
     """Materials of an MTL file by name. Problems are appended to ``problems``.
 
-    Textures are found under ``rule`` (see :mod:`geovox.references`);
+    Textures are found under ``rule`` (see :mod:`geovox.io.references`);
     ``root`` is the model's folder (default: the MTL's).
     """
     try:
@@ -1028,7 +1028,7 @@ def read_obj(path: str, *, rule: str = "anywhere") -> Mesh:
     geometry and lose their UVs, and a vertex colour that is NaN or infinite
     counts as no colour (white, as for vertices without one); both are
     recorded in ``problems``. Material files and textures are found under
-    ``rule`` (the option ``references``, see :mod:`geovox.references`), as
+    ``rule`` (the option ``references``, see :mod:`geovox.io.references`), as
     the other loaders find theirs.
 
     Raises
