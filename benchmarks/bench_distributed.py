@@ -161,8 +161,8 @@ def _cpu_seconds():
 
 
 def _warm():
-    import geovox.pipeline  # noqa: F401
-    import geovox.stream  # noqa: F401
+    import geovox.planner  # noqa: F401
+    import geovox.runners  # noqa: F401
 
 
 def bad_setups(tmp):

@@ -71,7 +71,7 @@ def cpu_seconds() -> float:
 def cluster(n, folder, repeat):
     from dask.distributed import Client, LocalCluster
 
-    from geovox.stream import convert_to
+    from geovox.api import convert_to
 
     import dask
 
@@ -80,7 +80,7 @@ def cluster(n, folder, repeat):
     with dask.config.set({"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None}), \
             LocalCluster(n_workers=2, threads_per_worker=1, dashboard_address=":0") as lc, \
             Client(lc) as client:
-        client.run(lambda: __import__("geovox.pipeline"))  # imports are not the conversion
+        client.run(lambda: __import__("geovox.planner"))  # imports are not the conversion
         for _ in range(repeat):
             client.run(reset_peak)
             reset_peak()

@@ -222,7 +222,10 @@ def reference_image(folder, name="ref", shape=(40, 36, 24), scale=1.0) -> None:
 
 
 _BUDGET_CODE = (
-    "import sys, geovox.stream as s; s.SLAB_BUDGET = {budget}\n"
+    "import sys\n"
+    "try:\n    import geovox.planner as s\nexcept ImportError:  # a tree before geovox.planner\n"
+    "    import geovox.stream as s\n"
+    "s.SLAB_BUDGET = {budget}\n"
     "from geovox.cli import main\n"
     "sys.exit(main(sys.argv[1:]))\n"
 )

@@ -20,21 +20,21 @@ from .errors import (
     ParameterError,
 )
 
-__version__ = "0.1.0"
+from .version import __version__
 
 #: public name -> submodule that defines it
 _LAZY = {
-    "voxelize": "pipeline",
-    "plan": "pipeline",
-    "Plan": "pipeline",
-    "Route": "pipeline",
-    "voxelize_block": "pipeline",
+    "voxelize": "api",
+    "plan": "planner",
+    "Plan": "planner",
+    "Route": "planner",
+    "voxelize_block": "block",
     "Options": "options",
     "Inside": "options",
     "Report": "volume",
     "Progress": "volume",
     "Volume": "volume",
-    "convert_to": "stream",
+    "convert_to": "api",
     "convert_many": "batch",
     "Grid": "grid",
     "Mesh": "mesh",

@@ -2,7 +2,7 @@
 on local processes or on a Dask cluster, existing outputs skipped, failures
 reported without stopping the rest, a manifest to resume from.
 
-Every model runs the same function, :func:`_convert_one`, single-threaded,
+Every model runs the same function, :func:`convert_one`, single-threaded,
 whether in this process, a local process pool or a Dask worker; so the files
 are the same byte for byte however the run is spread. Dask is imported only
 when a client is given, fsspec only when the output is a URL.
@@ -18,13 +18,13 @@ import time
 from dataclasses import dataclass, field
 
 from .errors import GeovoxError, InputNotFoundError, OutputError, ParameterError
+from .output import Kind, Target, is_url, make_folder, output_exists, upload
 from .volume import Progress
 
 #: File types searched for in folders. Archives (.zip, .tar.gz) are read when
 #: named, but not searched for: a downloaded zip often holds several models or
 #: none, and would be voxelised as one scene.
 MESH_EXTENSIONS = (".obj", ".stl", ".ply", ".off", ".glb", ".gltf", ".3mf", ".dae", ".zae")
-
 
 
 @dataclass
@@ -125,33 +125,6 @@ def parse_shard(shard):
     return k, n
 
 
-def is_url(path) -> bool:
-    """Whether ``path`` names a place through fsspec (``s3://``, ``memory://``, ...)."""
-    return isinstance(path, str) and "://" in path
-
-
-def _output_exists(target) -> bool:
-    # A .zarr is a folder whose root zarr.json is uploaded last (see _upload):
-    # on an object store, some of its chunks may be there before it is whole.
-    if target.lower().rstrip("/").endswith(".zarr"):
-        target = target.rstrip("/") + "/zarr.json"
-    if is_url(target):
-        import fsspec
-
-        fs, p = fsspec.core.url_to_fs(target)
-        return fs.exists(p)
-    return os.path.exists(target)
-
-
-def _folder_files(folder) -> list:
-    """The files under ``folder`` (relative paths, ``/``-separated), the root ``zarr.json`` last."""
-    out = []
-    for here, _, names in os.walk(folder):
-        rel = os.path.relpath(here, folder)
-        out += [n if rel == "." else rel.replace(os.sep, "/") + "/" + n for n in sorted(names)]
-    return sorted(out, key=lambda r: r == "zarr.json")
-
-
 def _written_since(target, started) -> bool:
     """Whether the local file ``target`` was written after the wall-clock time ``started``.
 
@@ -167,39 +140,7 @@ def _written_since(target, started) -> bool:
         return False
 
 
-def _upload(local_files, main, folder) -> list:
-    """Copy files (or a ``.zarr`` folder) written locally into the URL ``folder``; ``main`` last.
-
-    An object store shows an object only once its upload is complete; on a
-    plain file system each file goes to a temporary name first and is then
-    renamed. The volume is copied last, so its presence (what skipping and
-    resuming look at) means its side files are there too.
-    """
-    import fsspec
-
-    fs, base = fsspec.core.url_to_fs(folder)
-    order = [f for f in local_files if f != main] + [main]
-    atomic_rename = "file" in (fs.protocol if isinstance(fs.protocol, tuple) else (fs.protocol,))
-    urls = {}
-    for f in order:
-        name = os.path.basename(f.rstrip(os.sep))
-        target = base.rstrip("/") + "/" + name
-        dest = base.rstrip("/") + f"/.{name}.{os.getpid()}.part" if atomic_rename else target
-        if os.path.isdir(f):  # a .zarr: every file, its root zarr.json last
-            if atomic_rename and fs.exists(target):
-                fs.rm(target, recursive=True)  # mv would nest the folder inside the old one
-            for rel in _folder_files(f):
-                fs.makedirs((dest + "/" + rel).rsplit("/", 1)[0], exist_ok=True)
-                fs.put_file(os.path.join(f, *rel.split("/")), dest + "/" + rel)
-        else:
-            fs.put_file(f, dest)
-        if atomic_rename:
-            fs.mv(dest, target, recursive=os.path.isdir(f))
-        urls[f] = folder.rstrip("/") + "/" + name  # as the user spelt the folder
-    return [urls[f] for f in local_files]
-
-
-def _convert_one(task) -> Result:
+def convert_one(task) -> Result:
     """Convert one model; the unit of work of every batch (never raises for a bad model).
 
     A plan (:func:`geovox.plan`, streaming by the one rule) and its run.
@@ -214,22 +155,22 @@ def _convert_one(task) -> Result:
     path, out_dir, options = task["input"], task["out"], task["options"]
     try:
         _check_worker(task)
-        from .formats.headers import default_name
-        from .pipeline import as_options, grid_of, load, plan, run
+        from .formats import format_for
+        from .planner import as_options, grid_of, load, plan
+        from .runners import run
 
         options = as_options(options)
         remote = is_url(out_dir)
+        folder = Target(Kind.FOLDER, out_dir, format_for("x" + task["ext"])).named(task["stem"])
         # geovox's own collector, not warnings.catch_warnings: tasks may run
         # side by side on threads of one worker (see geovox.errors.warn).
         with collect_warnings() as said:
             mesh = load(path, options)
-            from .formats import format_for
-
             # .binvox: a resolution is binvox's -d N cube (see geovox.grid.fit_for).
-            grid = grid_of(mesh, options, format_for("x" + task["ext"]))
-            name = default_name(task["stem"], grid.shape, "uint8", task["ext"])
-            target = out_dir.rstrip("/") + "/" + name if remote else os.path.join(out_dir, name)
-            if not task["overwrite"] and _output_exists(target):
+            grid = grid_of(mesh, options, folder.fmt)
+            target = folder.file_for(grid.shape)
+            name = os.path.basename(target)
+            if not task["overwrite"] and output_exists(target):
                 if _written_since(target, task.get("started")):
                     # Written by this very run: its result was lost with the worker
                     # that held it, and the scheduler ran the task again.
@@ -247,7 +188,7 @@ def _convert_one(task) -> Result:
                 report = run(mesh, plan(mesh, options, local, grid=grid),
                              write_options=task["write_options"])
                 written = [local] + [f for f in report.files if f != local]
-                outputs = _upload(written, local, out_dir) if remote else written
+                outputs = upload(written, local, out_dir) if remote else written
         note = f"{report.inside:,} inside" + (f"; warning: {warning_cell(said, path)}" if said
                                                else "")
         return Result(path, "ok", outputs, "", time.perf_counter() - t0, note, list(said),
@@ -261,9 +202,9 @@ def _convert_one(task) -> Result:
 
 def _check_worker(task) -> None:
     """A ClusterError where this worker's geovox or NumPy is not the client's."""
-    from .cluster import _versions
+    from .cluster import versions
 
-    mine = _versions()
+    mine = versions()
     if task.get("versions") and mine != task["versions"]:
         from .errors import ClusterError
 
@@ -368,10 +309,67 @@ def _submit_local(tasks, workers, on_result):
         from . import pool
 
         # Workers that import before their first model and end with the batch.
-        pool.run(tasks, workers, on_result)
+        extensions = tuple(sorted({os.path.splitext(t["input"])[1].lower() for t in tasks}))
+        pool.run(convert_one, tasks, workers, on_result, initializer=warm,
+                 initargs=(tasks[0]["ext"], extensions, tasks[0]["options"]))
     else:
         for i, t in enumerate(tasks):
-            on_result(i, _convert_one(t))
+            on_result(i, convert_one(t))
+
+
+#: geovox modules every conversion may import on its way (loaders, inside
+#: tests, slab streaming, the manifest's version check).
+STACK = ("geovox.planner", "geovox.block", "geovox.runners", "geovox.io.load", "geovox.io.obj",
+         "geovox.io.references", "geovox.mesh", "geovox.inside", "geovox.inside.winding",
+         "geovox.inside.repair", "geovox.inside.bridge", "geovox.exact", "geovox.parity",
+         "geovox.formats.headers", "geovox.cluster", "geovox.batch")
+
+
+#: Compiled kernels (each optional: the NumPy twins run where one is missing).
+KERNELS = ("geovox._lattice", "geovox._winding", "geovox._objtext", "geovox._nearest")
+
+
+#: Loaders by input extension; every file type but OBJ is read through trimesh.
+LOADERS = {".ply": "geovox.io.ply", ".gltf": "geovox.io.gltf", ".glb": "geovox.io.gltf",
+           ".3mf": "geovox.io.threemf", ".dae": "geovox.io.dae", ".zae": "geovox.io.dae"}
+
+
+def warm(ext: str, extensions: tuple, options) -> None:
+    """A batch's pool initializer: import what the batch's models will use.
+
+    Parameters
+    ----------
+    ext : str
+        The output extension (``".binvox"``): its writer and the packages it uses.
+    extensions : tuple of str
+        The lower-case extensions of the batch's inputs: their loaders (and
+        trimesh for all but ``.obj``).
+    options : Options
+        The batch's options: the backend they name, colour's modules.
+    """
+    import importlib
+
+    wanted = list(STACK) + list(KERNELS)
+    if options.color:
+        wanted += ["geovox.colour.shading", "geovox.colour.nearest"]
+    if options.labels is not None:
+        wanted.append("geovox.labels")
+    for e in extensions:
+        wanted += [LOADERS[e]] if e in LOADERS else []
+        wanted += ["trimesh"] if e != ".obj" else []
+    for name in dict.fromkeys(wanted):
+        try:
+            importlib.import_module(name)
+        except Exception:  # optional, or broken: the model says so where it matters
+            pass
+    from . import formats
+    from .backends import get_backend
+
+    try:
+        formats.format_for("x" + ext).load()
+        get_backend(options.backend)  # embree's first use imports trimesh and embreex
+    except Exception:  # never the pool's failure: each model reports its own
+        pass
 
 
 #: Tasks out per worker thread on a cluster (see :func:`_submit_dask`).
@@ -401,7 +399,7 @@ def _submit_dask(client, tasks, retries, on_result):
     if not tasks:
         return
 
-    from .cluster import _one_line
+    from .cluster import one_line
 
     meta = {}
     queue = deque((i, 0) for i in range(len(tasks)))
@@ -419,7 +417,7 @@ def _submit_dask(client, tasks, retries, on_result):
         nonlocal out
         while queue and out < limit:
             i, attempt = queue.popleft()
-            f = client.submit(_convert_one, tasks[i], pure=False,
+            f = client.submit(convert_one, tasks[i], pure=False,
                               key=f"geovox_convert-{i}-{attempt}-{os.urandom(4).hex()}")
             meta[f.key] = (i, attempt)
             ac.add(f)
@@ -442,7 +440,7 @@ def _submit_dask(client, tasks, retries, on_result):
             else:
                 worker = getattr(getattr(exc, "last_worker", None), "address", None)
                 why = (f"its worker died ({worker})" if worker else
-                       f"its task was lost ({_one_line(exc)})")
+                       f"its task was lost ({one_line(exc)})")
                 r = Result(tasks[i]["input"], "failed", [], f"{why}; tried {attempt + 1} time"
                            f"{'s' if attempt else ''} (retries={retries})")
         f.release()
@@ -458,7 +456,7 @@ def convert_many(inputs, out, *, client=None, fmt=None, overwrite=False, workers
                  **options) -> list:
     """Convert every model into the folder ``out``; one :class:`Result` per model, in input order.
 
-    Each model is a plan and a run (:func:`_convert_one`), single-threaded.
+    Each model is a plan and a run (:func:`convert_one`), single-threaded.
 
     Parameters
     ----------
@@ -539,7 +537,7 @@ def convert_many(inputs, out, *, client=None, fmt=None, overwrite=False, workers
     if overwrite:
         done = {}
     out = os.fspath(out)
-    _make_folder(out)
+    make_folder(out)
     tasks = _tasks(found, shard, out, opts, ext, overwrite, write_options, client)
     recorded = _record(opts, ext, write_options)
     # The manifest holds absolute paths: a re-run from another folder still matches.
@@ -550,7 +548,7 @@ def convert_many(inputs, out, *, client=None, fmt=None, overwrite=False, workers
         rec = done.get(t["input"])
         if (rec and rec.get("status") in ("ok", "skipped") and rec.get("out") == out_key
                 and _same_options(rec.get("options"), recorded) and rec.get("outputs")
-                and all(_output_exists(o) for o in rec["outputs"][:1])):
+                and all(output_exists(o) for o in rec["outputs"][:1])):
             results[i] = Result(t["shown"], "skipped", list(rec["outputs"]), "", 0.0,
                                 "done (manifest)")
             if progress:
@@ -644,27 +642,8 @@ def _check_manifest_path(manifest) -> None:
         raise OutputError(f"cannot write the manifest {manifest}: {why}")
 
 
-def _make_folder(out: str) -> None:
-    """Create the output folder (or the URL's), or say why not."""
-    if is_url(out):
-        import fsspec
-
-        try:
-            fs, base = fsspec.core.url_to_fs(out)
-            fs.makedirs(base, exist_ok=True)
-        except ImportError as exc:
-            raise OutputError(f"cannot write to {out}: {exc} (pip install 'geovox[cloud]')") from None
-        except (OSError, ValueError) as exc:
-            raise OutputError(f"cannot write to {out}: {type(exc).__name__}: {exc}") from None
-    else:
-        try:
-            os.makedirs(out, exist_ok=True)
-        except OSError as exc:
-            raise OutputError(f"cannot create output folder {out}: {exc.strerror or exc}") from None
-
-
 def _tasks(found, shard, out, opts, ext, overwrite, write_options, client) -> list:
-    """One task dict per model of this shard (see :func:`_convert_one`)."""
+    """One task dict per model of this shard (see :func:`convert_one`)."""
     # Names are given over all inputs before sharding, so every part names a
     # model as the whole run would.
     stems, seen = [], {}
@@ -675,9 +654,9 @@ def _tasks(found, shard, out, opts, ext, overwrite, write_options, client) -> li
     picked = range(len(found)) if shard is None else range(shard[0] - 1, len(found), shard[1])
     versions, task_out = None, out
     if client is not None:
-        from .cluster import _versions
+        from .cluster import versions
 
-        versions = _versions()
+        versions = versions()
         # A worker's working folder is not ours: it gets the absolute path.
         task_out = out if is_url(out) else os.path.abspath(out)
     return [dict(input=os.path.abspath(found[i]) if not is_url(found[i]) else found[i],
@@ -742,4 +721,5 @@ def summary_table(results) -> str:
     return "\n".join(lines)
 
 
-__all__ = ["Result", "convert_many", "find_inputs", "parse_shard", "summary_table"]
+__all__ = ["Result", "convert_many", "convert_one", "find_inputs", "parse_shard", "summary_table",
+           "warm"]

@@ -126,7 +126,7 @@ def _probe(distributed, address: str, where: str) -> None:
             reply = pool.submit(asyncio.run, asyncio.wait_for(ask(), CONNECT_TIMEOUT)).result()
     except (OSError, asyncio.TimeoutError) as exc:
         why = f"no answer in {CONNECT_TIMEOUT:g} s" if isinstance(exc, asyncio.TimeoutError) \
-            else _one_line(exc)
+            else one_line(exc)
         raise ClusterError(f"no Dask scheduler answered at {where} ({why})") from None
     except Exception:  # e.g. a web server's reply read as a Dask frame length
         reply = None
@@ -134,16 +134,17 @@ def _probe(distributed, address: str, where: str) -> None:
         raise ClusterError(f"{where} answered, but not as a Dask scheduler")
 
 
-def _versions() -> dict:
+def versions() -> dict:
     """Run on each worker (and here): the versions that must agree."""
     import numpy
 
-    import geovox
+    from .version import __version__
 
-    return {"geovox": geovox.__version__, "numpy": numpy.__version__}
+    return {"geovox": __version__, "numpy": numpy.__version__}
 
 
-def _one_line(exc) -> str:
+def one_line(exc) -> str:
+    """An exception as one line: its type and the first line of its message."""
     text = str(exc).strip().splitlines()
     return f"{type(exc).__name__}: {text[0]}" if text else type(exc).__name__
 
@@ -165,11 +166,11 @@ def check_versions(client) -> None:
     ClusterError
         A worker differs or cannot import geovox.
     """
-    mine = _versions()
+    mine = versions()
     try:
         # With a bound: a worker that hangs must not hang the set-up (errors
         # within 10 s); client.run itself waits for ever.
-        theirs = client.sync(client._run, _versions, on_error="return",
+        theirs = client.sync(client._run, versions, on_error="return",
                              callback_timeout=VERSION_TIMEOUT)
     except TimeoutError:
         raise ClusterError(f"the cluster's workers did not say their versions within "
@@ -177,7 +178,7 @@ def check_versions(client) -> None:
     bad = []
     for address, v in sorted(theirs.items()):
         if isinstance(v, BaseException):
-            raise ClusterError(f"worker {address} cannot run geovox ({_one_line(v)}); install "
+            raise ClusterError(f"worker {address} cannot run geovox ({one_line(v)}); install "
                                f"geovox {mine['geovox']} and NumPy {mine['numpy']} on every worker")
         if v != mine:
             bad.append((address, v))
@@ -268,7 +269,7 @@ def client_from_options(scheduler=None, scheduler_file=None, local_cluster=None)
                         dashboard_address=":0", silence_logs=logging.CRITICAL))
             except Exception as exc:  # e.g. a script without `if __name__ == "__main__":`
                 raise ClusterError(f"cannot start a local Dask cluster of {local_cluster} "
-                                   f"workers ({_one_line(exc)})") from None
+                                   f"workers ({one_line(exc)})") from None
             client = stack.enter_context(distributed.Client(cluster))
         else:
             where = scheduler + (f" (from {os.fspath(scheduler_file)})" if scheduler_file else "")
@@ -277,7 +278,7 @@ def client_from_options(scheduler=None, scheduler_file=None, local_cluster=None)
                 client = distributed.Client(scheduler, timeout=CONNECT_TIMEOUT)
             except Exception as exc:  # it answered a moment ago; say what went wrong
                 raise ClusterError(f"cannot open a client of the Dask scheduler at {where} "
-                                   f"({_one_line(exc)})") from None
+                                   f"({one_line(exc)})") from None
             stack.enter_context(client)
         check_versions(client)
         yield client

@@ -268,24 +268,6 @@ def part_mesh(mesh: Mesh, faces: np.ndarray, name: str) -> Mesh:
     return part
 
 
-def working_bytes(lset: LabelSet, options=None) -> float:
-    """Bytes a voxel of a labelled block takes beside the occupancy, at its peak.
-
-    ``options`` (a :class:`geovox.Options`, or None for labels alone) says
-    whether there are fractions, and their dtype.
-
-    The labels (1 or 2 bytes), the voxels seen once and twice, and a part's
-    box of toggles and occupancy (at most the block's size): 4 more bytes.
-    Fractions add one value per label (1 or 4 bytes) and the union coverage
-    (float32) with its two rounded int16 copies. Slab planning counts these
-    (see :func:`geovox.pipeline.plan`).
-    """
-    per = lset.dtype.itemsize + 4.0
-    if options is not None and options.fractions:
-        per += len(lset.names) * (4.0 if options.density_dtype == "float32" else 1.0) + 8.0
-    return per
-
-
 def enclosed_volume(mesh: Mesh) -> float:
     """|signed volume| of the triangles (the enclosed volume of a closed, wound part)."""
     t = mesh.triangles
@@ -424,7 +406,7 @@ def classify(mesh: Mesh, grid, lset: LabelSet, *, cast_mesh, axis: int, jobs: in
         Its ``face_label`` gives the parts (not ``"material"``).
     cast_mesh : callable
         ``cast_mesh(mesh, axis, on=grid) -> (Hits, Columns)`` on grid ``on``
-        (rays from outside the mesh, see :func:`geovox.pipeline.ray_start`).
+        (rays from outside the mesh, see :func:`geovox.block.ray_start`).
     axis, jobs
         As for :func:`geovox.voxelize`.
     within : (Grid, (z0, z1)), optional
@@ -724,29 +706,173 @@ def parts_report(mesh: Mesh, sources=("part", "component", "material"), most: in
     return "\n".join(lines)
 
 
-def label_results(mesh: Mesh, grid, occupancy, lset: LabelSet, classified, *, engine, axis,
-                  jobs, fractions, density_dtype, supersample, frame, start, timings,
-                  step, within=None) -> dict:
-    """A block's label fields for its Volume: ``labels``, ``label_table``, ``contested``,
-    ``fractions`` (material labels and fractions are made here, timed into ``timings``).
+@dataclass(frozen=True)
+class LabelStage:
+    """Labels as one stage of a conversion: built once by the plan, run per block like colour.
 
-    ``within``: ``(whole grid, (z0, z1))``, the block (see :func:`label_fractions`)."""
-    import time
+    Attributes
+    ----------
+    set : LabelSet
+        What each label is; by parts, each part's inside test (``methods``),
+        chosen once here on the part alone; the overlap rule.
+    fractions : bool
+        Also each label's coverage fraction per voxel (:func:`label_fractions`).
+    dtype : str
+        The fractions' dtype: ``"uint8"`` (255 x fraction) or ``"float32"``.
+    supersample : int
+        The fractions' rays per voxel column, per axis.
+    option : str
+        The label source asked for (``Options.labels``; ``set.source`` may
+        differ where ``"part"`` fell back to components), as the summary says it.
+    """
 
-    if classified is not None:
-        lab = classified.labels
-    else:
-        t = time.perf_counter()
-        step("labels")
-        lab = material_labels(mesh, grid, occupancy, lset, jobs=jobs, frame=frame)
-        timings["labels"] = time.perf_counter() - t
-    fracs = None
-    if fractions:
-        step("fractions")
-        t = time.perf_counter()
-        fracs = label_fractions(mesh, grid, lset, engine=engine, axis=axis, start=start,
-                                supersample=supersample, jobs=jobs,
-                                dtype=density_dtype, within=within)
-        timings["fractions"] = time.perf_counter() - t
-    return {"labels": lab, "label_table": table(lset, lab, grid.spacing),
-            "contested": 0 if classified is None else classified.contested, "fractions": fracs}
+    set: LabelSet
+    fractions: bool = False
+    dtype: str = "uint8"
+    supersample: int = 4
+    option: str = ""
+
+    @classmethod
+    def build(cls, mesh: Mesh, options, methods=()) -> "LabelStage":
+        """The stage ``options`` (an :class:`~geovox.Options` with ``labels``) make of ``mesh``.
+
+        ``methods``: by parts, each part's inside test (the plan's choice, see
+        :func:`part_meshes`); empty for materials.
+        """
+        import dataclasses
+
+        # The overlap rule and the parts' tests travel with the labels (paint_order reads it).
+        lset = dataclasses.replace(label_set(mesh, options.labels, stacklevel=5),
+                                   overlap=options.overlap, methods=tuple(methods))
+        return cls(set=lset, fractions=bool(options.fractions), dtype=options.density_dtype,
+                   supersample=int(options.supersample), option=str(options.labels))
+
+    @property
+    def by_parts(self) -> bool:
+        """Whether the parts give the occupancy, each by its own inside test (not materials)."""
+        return self.set.source != LabelSource.MATERIAL
+
+    def working_bytes(self) -> float:
+        """Bytes a voxel of a labelled block takes beside the occupancy, at its peak.
+
+        The labels (1 or 2 bytes), the voxels seen once and twice, and a part's
+        box of toggles and occupancy (at most the block's size): 4 more bytes.
+        Fractions add one value per label (1 or 4 bytes) and the union coverage
+        (float32) with its two rounded int16 copies. Slab planning counts these.
+        """
+        per = self.set.dtype.itemsize + 4.0
+        if self.fractions:
+            per += len(self.set.names) * (4.0 if self.dtype == "float32" else 1.0) + 8.0
+        return per
+
+    def classify(self, mesh: Mesh, grid, *, cast_mesh, axis: int, jobs: int,
+                 within=None) -> Classified:
+        """The block's occupancy by parts (see :func:`classify`)."""
+        return classify(mesh, grid, self.set, cast_mesh=cast_mesh, axis=axis, jobs=jobs,
+                        within=within)
+
+    def fields(self, mesh: Mesh, grid, occupancy, classified, *, run, timings, step) -> dict:
+        """A block's label fields for its Volume: ``labels``, ``label_table``, ``contested``,
+        ``fractions`` (material labels and fractions are made here, timed into ``timings``).
+
+        ``run`` is the block's :class:`BlockRun`: its engine, axis, threads,
+        frame and the ray start of the whole grid.
+        """
+        import time
+
+        if classified is not None:
+            lab = classified.labels
+        else:
+            t = time.perf_counter()
+            step("labels")
+            lab = material_labels(mesh, grid, occupancy, self.set, jobs=run.jobs, frame=run.frame)
+            timings["labels"] = time.perf_counter() - t
+        fracs = None
+        if self.fractions:
+            step("fractions")
+            t = time.perf_counter()
+            fracs = label_fractions(mesh, grid, self.set, engine=run.engine, axis=run.axis,
+                                    start=run.start, supersample=self.supersample,
+                                    jobs=run.jobs, dtype=self.dtype, within=run.within)
+            timings["fractions"] = time.perf_counter() - t
+        return {"labels": lab, "label_table": table(self.set, lab, grid.spacing),
+                "contested": 0 if classified is None else classified.contested, "fractions": fracs}
+
+    def meta(self, grid) -> dict:
+        """What the writers lay out before any block exists: the labels' dtype and table
+        (counts 0 until every block is made), and the fractions' count and dtype."""
+        n = len(self.set.names)
+        return {"labels": self.set.dtype,
+                "label_table": table(self.set, None, grid.spacing, counts=np.zeros(n + 1, np.int64)),
+                "fractions": (n, np.dtype(np.float32 if self.dtype == "float32" else np.uint8))
+                if self.fractions else None}
+
+    def lines(self, labels_table: list, contested: int) -> list:
+        """The summary's line on the labels made (the table, the contested voxels)."""
+        return [f"labels {self.option}: {len(labels_table) - 1:,} "
+                f"({', '.join(e['name'] for e in labels_table[1:][:6])}"
+                f"{', ...' if len(labels_table) > 7 else ''}), "
+                f"{contested:,} contested voxels (overlap rule {self.set.overlap})"]
+
+
+@dataclass(frozen=True)
+class BlockRun:
+    """What a label stage needs of the block it runs on, beside the block's grid.
+
+    Attributes
+    ----------
+    engine : geovox.backends.Backend
+    axis : int
+        The block's ray axis.
+    jobs : int
+    frame : (lo, spacing, z0)
+        The whole grid's low corner and voxel size, and the block's first layer.
+    start : float
+        Where the whole grid's rays along ``axis`` start.
+    within : (Grid, (z0, z1)) or None
+        The whole grid and the block's layers (None: the block is the whole grid).
+    """
+
+    engine: object
+    axis: int
+    jobs: int
+    frame: tuple
+    start: float
+    within: tuple | None = None
+
+
+class LabelTally:
+    """The label table's voxel counts and the contested voxels, summed over the blocks.
+
+    A block equals that part of the whole grid, so the whole grid's counts
+    are the sums of the blocks' (and a voxel is contested in one block only).
+    ``approximate`` sums the blocks' approximate voxels (with or without labels).
+    """
+
+    def __init__(self, stage: LabelStage | None):
+        self.stage = stage
+        self.counts = None if stage is None else np.zeros(len(stage.set.names) + 1, np.int64)
+        self.contested = 0
+        self.approximate = 0
+        self.inside = None  # the inside tests the parts ran (the same in every block)
+
+    @staticmethod
+    def of(vol):
+        """``(counts, contested, inside)`` of a block's Volume, or None without labels."""
+        if vol.label_table is None:
+            return None
+        return (np.array([e["voxels"] for e in vol.label_table], np.int64), int(vol.contested),
+                vol.inside)
+
+    def add(self, labelled) -> None:
+        """Count one block's ``of(vol)``."""
+        if labelled is None:
+            return
+        counts, contested, inside = labelled
+        self.counts += counts
+        self.contested += contested
+        self.inside = self.inside or inside
+
+    def table(self, spacing) -> list:
+        """The whole grid's label table (:func:`table`)."""
+        return table(self.stage.set, None, spacing, counts=self.counts)

@@ -13,7 +13,7 @@ from .grid import Grid
 MEMORY_FRACTION = 0.8
 
 
-def _available_memory() -> int | None:
+def available_memory() -> int | None:
     """Bytes of memory available now (``MemAvailable``), or None where unknown."""
     try:
         with open("/proc/meminfo") as f:
@@ -48,7 +48,7 @@ def check_memory(grid: Grid, bytes_per_voxel: float = 1.0) -> None:
         available memory.
     """
     need = grid.size * bytes_per_voxel
-    avail = _available_memory()
+    avail = available_memory()
     if avail is not None and need > MEMORY_FRACTION * avail:
         nx, ny, nz = grid.shape
         raise GridTooLargeError(

@@ -4,7 +4,7 @@ In the manner of zarr's frozen ``ArrayConfig``: :class:`Options` holds each
 option with its type, default and one line of doc (the ``doc`` metadata of
 its field), validated once in ``__post_init__``. Everything below the public
 functions -- :func:`geovox.plan`, the block function, the writers, a cluster
-task -- takes an ``Options`` (or the :class:`~geovox.pipeline.Plan` made from
+task -- takes an ``Options`` (or the :class:`~geovox.planner.Plan` made from
 one) and checks nothing again.
 
 A new option is one field here; the public keyword signatures of

@@ -1,11 +1,11 @@
-"""A batch's local process pool: workers ready before their first model, and
-stopped with the batch.
+"""A local process pool: workers ready before their first task, and stopped with the run.
 
-Each worker runs :func:`warm` before it takes a model: the conversion stack,
-the compiled kernels, the backend, the loaders of the batch's file types and
-the writer of its format are imported there, so a model's ``seconds`` in the
-manifest is its own work and not the worker's start-up (which reached 12 s
-under load for the first model of each worker).
+Generic: :func:`run` takes the work function and an initializer (a batch's
+:func:`geovox.batch.warm` imports the conversion stack, the compiled kernels,
+the backend, the loaders of the batch's file types and the writer of its
+format, so a model's ``seconds`` in the manifest is its own work and not the
+worker's start-up, which reached 12 s under load for the first model of
+each worker).
 
 SIGTERM or SIGINT to the batch stops it: the models running are abandoned
 (their workers unwind them, so every temporary file of an atomic write is
@@ -25,8 +25,8 @@ import time
 #: killed (a long compiled call must return before Python code runs).
 GRACE = 10.0
 
-#: In a worker: ``time.perf_counter()`` when :func:`warm` had imported
-#: everything (None before, and in the parent); a test's hook.
+#: In a worker: ``time.perf_counter()`` when its initializer had run
+#: (None before, and in the parent); a test's hook.
 WARMED = None
 
 #: In a worker: whether a model is being converted (SIGTERM then unwinds it).
@@ -87,86 +87,39 @@ def sigterm_raises():
 
 # --- in a worker -------------------------------------------------------------
 
-#: geovox modules every conversion may import on its way (loaders, inside
-#: tests, slab streaming, the manifest's version check).
-STACK = ("geovox.pipeline", "geovox.io.load", "geovox.io.obj", "geovox.io.references",
-         "geovox.mesh", "geovox.inside", "geovox.inside.winding", "geovox.inside.repair",
-         "geovox.inside.bridge", "geovox.exact", "geovox.parity", "geovox.stream",
-         "geovox.formats.headers", "geovox.cluster", "geovox.batch")
-
-#: Compiled kernels (each optional: the NumPy twins run where one is missing).
-KERNELS = ("geovox._lattice", "geovox._winding", "geovox._objtext", "geovox._nearest")
-
-#: Loaders by input extension; every file type but OBJ is read through trimesh.
-LOADERS = {".ply": "geovox.io.ply", ".gltf": "geovox.io.gltf", ".glb": "geovox.io.gltf",
-           ".3mf": "geovox.io.threemf", ".dae": "geovox.io.dae", ".zae": "geovox.io.dae"}
-
-
-def warm(ext: str, extensions: tuple, options) -> None:
-    """The pool's initializer: import what the batch's models will use, then set :data:`WARMED`.
-
-    Parameters
-    ----------
-    ext : str
-        The output extension (``".binvox"``): its writer and the packages it uses.
-    extensions : tuple of str
-        The lower-case extensions of the batch's inputs: their loaders (and
-        trimesh for all but ``.obj``).
-    options : Options
-        The batch's options: the backend they name, colour's modules.
+def _start(initializer, initargs) -> None:
+    """Every worker's start: its signals set, then the caller's ``initializer(*initargs)``
+    (importing what the work will use), then :data:`WARMED`.
 
     SIGINT is ignored here: Ctrl-C reaches the whole process group, and the
-    parent stops the workers itself (with SIGTERM, which unwinds a model).
+    parent stops the workers itself (with SIGTERM, which unwinds the work).
     """
     global WARMED
-    import importlib
-
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, _worker_stop)
-    wanted = list(STACK) + list(KERNELS)
-    if options.color:
-        wanted += ["geovox.colour.shading", "geovox.colour.nearest"]
-    if options.labels is not None:
-        wanted.append("geovox.labels")
-    for e in extensions:
-        wanted += [LOADERS[e]] if e in LOADERS else []
-        wanted += ["trimesh"] if e != ".obj" else []
-    for name in dict.fromkeys(wanted):
-        try:
-            importlib.import_module(name)
-        except Exception:  # optional, or broken: the model says so where it matters
-            pass
-    from . import formats
-    from .backends import get_backend
-
-    try:
-        formats.format_for("x" + ext).load()
-        get_backend(options.backend)  # embree's first use imports trimesh and embreex
-    except Exception:  # never the pool's failure: each model reports its own
-        pass
+    if initializer is not None:
+        initializer(*initargs)
     WARMED = time.perf_counter()
 
 
 def _worker_stop(signum, frame):
-    """A worker's SIGTERM: unwind the model being converted (its atomic writes
-    remove their temporary files; see :func:`convert`), or exit at once when idle."""
+    """A worker's SIGTERM: unwind the work running (its atomic writes remove their
+    temporary files; see :func:`_call`), or exit at once when idle."""
     if _RUNNING:
         raise Stopped(signum)
     os._exit(128 + signum)
 
 
-def convert(task):
-    """A pool worker's unit of work: :func:`geovox.batch._convert_one` (a model), stoppable.
+def _call(work, task):
+    """A worker's unit of work: ``work(task)``, stoppable.
 
-    A :class:`Stopped` that unwound the model ends the worker; the parent is
+    A :class:`Stopped` that unwound the work ends the worker; the parent is
     stopping the pool and waits for no result.
     """
     global _RUNNING
-    from .batch import _convert_one
-
     try:
         _RUNNING = True
-        return _convert_one(task)
+        return work(task)
     except Stopped as exc:
         os._exit(128 + exc.signum)
     finally:
@@ -175,34 +128,38 @@ def convert(task):
 
 # --- in the parent -----------------------------------------------------------
 
-def run(tasks, workers: int, on_result) -> None:
-    """Convert ``tasks`` on ``workers`` processes; ``on_result(i, Result)`` as each arrives.
+def run(work, tasks, workers: int, on_result, *, initializer=None, initargs=()) -> None:
+    """Run ``work(task)`` for each of ``tasks`` on ``workers`` processes; ``on_result(i, result)``
+    as each arrives.
 
     Parameters
     ----------
-    tasks : list of dict
-        :func:`geovox.batch._convert_one`'s tasks, one output extension.
+    work : callable
+        A module-level function (the workers import it by name).
+    tasks : list
+        Its arguments, one per call.
     workers : int
         Processes (at most one per task).
     on_result : callable
-        Called in this process with the task's index and its Result.
+        Called in this process with the task's index and its result.
+    initializer : callable, optional
+        Run once in each worker before its first task, with ``initargs``:
+        the imports the work needs, so that a task's time is its own.
 
     Raises
     ------
     Stopped
-        SIGTERM (where it had its default action) stopped the batch; a
+        SIGTERM (where it had its default action) stopped the run; a
         KeyboardInterrupt (SIGINT) passes through. Either way the workers
         have ended and no partial file is left.
     """
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
-    extensions = tuple(sorted({os.path.splitext(t["input"])[1].lower() for t in tasks}))
-
-    pool = ProcessPoolExecutor(max_workers=min(workers, len(tasks)), initializer=warm,
-                               initargs=(tasks[0]["ext"], extensions, tasks[0]["options"]))
+    pool = ProcessPoolExecutor(max_workers=min(workers, len(tasks)), initializer=_start,
+                               initargs=(initializer, tuple(initargs)))
     with sigterm_raises():
         try:
-            futures = {pool.submit(convert, t): i for i, t in enumerate(tasks)}
+            futures = {pool.submit(_call, work, t): i for i, t in enumerate(tasks)}
             for f in as_completed(futures):
                 on_result(futures[f], f.result())
         except BaseException:

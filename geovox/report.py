@@ -84,19 +84,14 @@ def mesh_report(mesh: Mesh) -> dict:
     }
 
 
-def grid_cost(mesh: Mesh, options=None, **grid_options) -> dict:
+def grid_cost(grid) -> dict:
     """Grid shape and the memory a conversion needs, without allocating it.
 
     Parameters
     ----------
-    mesh : Mesh
-    options : geovox.Options, optional
-        The grid's options (or give them as keywords: ``resolution=256``).
+    grid : geovox.grid.Grid
+        The plan's grid (:attr:`geovox.planner.Plan.grid`).
     """
-    from .options import Options
-    from .pipeline import grid_of
-
-    grid = grid_of(mesh, options if options is not None else Options(**grid_options))
     n = grid.size
     return {"shape": list(grid.shape), "spacing": grid.spacing.tolist(), "voxels": n,
             "occupancy_bytes": n, "with_colour_bytes": n * 21}

@@ -140,7 +140,7 @@ class Report:
     inside : int
         Voxels inside.
     route : str
-        How it ran (:class:`geovox.pipeline.Route`).
+        How it ran (:class:`geovox.planner.Route`).
     slabs : int
         Blocks it ran in.
     volume : Volume or None

@@ -11,7 +11,7 @@ import trimesh
 import geovox
 from geovox import backends
 from geovox.errors import BackendUnavailableError, ParameterError
-from geovox.pipeline import ray_start
+from geovox.block import ray_start
 
 from conftest import SPOT, corpus, from_tm
 

@@ -27,27 +27,28 @@ def _task(out, ext=".npy", **options):
 
 def test_the_batch_makes_each_models_grid_once(tmp_path, monkeypatch):
     """The grid that names the file is the plan's: make_grid runs once per model."""
-    import geovox.pipeline
+    import geovox.planner
 
-    real, made = geovox.pipeline.make_grid, []
+    real, made = geovox.planner.make_grid, []
 
     def counting(*args, **kwargs):
         made.append(args)
         return real(*args, **kwargs)
 
-    monkeypatch.setattr(geovox.pipeline, "make_grid", counting)
+    monkeypatch.setattr(geovox.planner, "make_grid", counting)
     for ext in (".npy", ".binvox"):
         made.clear()
-        r = batch._convert_one(_task(tmp_path / ext[1:], ext))
+        r = batch.convert_one(_task(tmp_path / ext[1:], ext))
         assert r.status == "ok", r.error
         assert len(made) == 1, ext
     monkeypatch.undo()
     # The same bytes as a plan that makes its own grid.
-    from geovox.pipeline import load, plan, run
+    from geovox.planner import load, plan
+    from geovox.runners import run
 
     o = _task(tmp_path)["options"]
     for ext in (".npy", ".binvox"):
-        name = os.path.basename(batch._convert_one(_task(tmp_path / ext[1:], ext)).outputs[0])
+        name = os.path.basename(batch.convert_one(_task(tmp_path / ext[1:], ext)).outputs[0])
         mesh = load(SPOT, o)
         own = tmp_path / ("own" + ext)
         run(mesh, plan(mesh, o, str(own)))
@@ -88,16 +89,16 @@ def _models(folder, names):
 SPY = """
 import json, os, sys, time
 import geovox.batch, geovox.pool
-real = geovox.batch._convert_one
+real = geovox.batch.convert_one
 def spy(task):
-    mods = ("geovox.pipeline", "geovox.inside.winding", "geovox.inside.repair",
+    mods = ("geovox.planner", "geovox.inside.winding", "geovox.inside.repair",
             "geovox.formats.binvox", "geovox._lattice", "geovox.backends.numpy")
     rec = dict(pid=os.getpid(), warmed=geovox.pool.WARMED, start=time.perf_counter(),
                present=[m for m in mods if m in sys.modules])
     with open(os.environ["SPY_LOG"], "a") as f:
         f.write(json.dumps(rec) + "\\n")
     return real(task)
-geovox.batch._convert_one = spy
+geovox.batch.convert_one = spy
 """
 
 

@@ -132,7 +132,7 @@ def test_cube_for_any_format(tmp_path):
 
 
 def test_cube_through_convert_to_and_batch(tmp_path):
-    from geovox.stream import convert_to
+    from geovox.api import convert_to
 
     ref = geovox.voxelize(SPOT, resolution=16, fit="cube", backend="numpy")
     convert_to(SPOT, tmp_path / "s.h5", resolution=16, fit="cube", budget=16 * 16 * 4 * 30)

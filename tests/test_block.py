@@ -12,7 +12,8 @@ from geovox.errors import ParameterError
 from geovox.grid import make_grid
 from geovox.io.load import load_mesh
 from geovox.options import Options
-from geovox.pipeline import Route, block_grid, plan, voxelize_block
+from geovox.planner import Route, plan
+from geovox.block import block_grid, voxelize_block
 
 from conftest import SPOT
 
@@ -65,23 +66,24 @@ def test_bad_block_is_refused(block):
 
 def test_batch_streams_by_the_cli_rule(tmp_path, monkeypatch):
     import geovox.formats as F
-    import geovox.stream as stream
+    import geovox.runners as runners
     from geovox.batch import convert_many
 
     calls = []
-    real = stream.run_slabs
-    monkeypatch.setattr(stream, "run_slabs", lambda m, p, **k: calls.append(p) or real(m, p, **k))
+    real = runners.run_slabs
+    monkeypatch.setattr(runners, "run_slabs", lambda m, p, **k: calls.append(p) or real(m, p, **k))
     opts = dict(shape=(16, 16, 150))
     [r] = convert_many([SPOT], tmp_path / "mem", **opts)  # one slab: in memory
     assert r.status == "ok" and calls == []
-    monkeypatch.setattr(stream, "SLAB_BUDGET", 16 * 16 * 64)  # three slabs: streamed
+    import geovox.planner
+    monkeypatch.setattr(geovox.planner, "SLAB_BUDGET", 16 * 16 * 64)  # three slabs: streamed
     [s] = convert_many([SPOT], tmp_path / "slabs", **opts)
     assert s.status == "ok" and len(calls) == 1
     assert calls[0].route == Route.SLABS and calls[0].blocks == ((0, 64), (64, 128), (128, 150))
     ref = geovox.voxelize(SPOT, axis=1, **opts)  # several slabs cast along y
     np.testing.assert_array_equal(F.read(s.output).occupancy, ref.occupancy)
-    monkeypatch.setattr(stream, "SLAB_BUDGET", 1 << 30)
-    monkeypatch.setattr(stream, "streams_whole", lambda grid, *a: True)  # one piece, streamed
+    monkeypatch.setattr(geovox.planner, "SLAB_BUDGET", 1 << 30)
+    monkeypatch.setattr(geovox.planner, "streams_whole", lambda grid, *a: True)  # one piece, streamed
     [w] = convert_many([SPOT], tmp_path / "whole", **opts)
     assert len(calls) == 2 and calls[1].route == Route.FILL
     assert Path(w.output).read_bytes() == Path(r.output).read_bytes()

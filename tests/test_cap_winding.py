@@ -266,7 +266,9 @@ def test_the_report_counts_the_approximate_voxels(reference, monkeypatch, kernel
     # the brute force's is one of them; the summary says it.
     import re
 
-    from geovox.pipeline import as_options, plan, run
+    from geovox.planner import as_options, plan
+
+    from geovox.runners import run
 
     grid, w = reference
     monkeypatch.setenv("GEOVOX_KERNEL", kernel)

@@ -288,7 +288,7 @@ def test_faces_indexing_missing_vertices(tmp_path, capsys):
 def test_grid_too_large_is_refused_before_allocating(tmp_path, capsys, monkeypatch):
     import geovox.memory as memory
 
-    monkeypatch.setattr(memory, "_available_memory", lambda: 64 * 2**20)
+    monkeypatch.setattr(memory, "available_memory", lambda: 64 * 2**20)
     assert main(["convert", SPOT, "-o", str(tmp_path / "o.h5"), "-r", "1024"]) == 2
     err = capsys.readouterr().err
     assert "1024 x 1024 x 1024" in err and "GiB" in err and "smaller resolution" in err

@@ -25,7 +25,7 @@ from geovox.kernels import chosen
 from geovox.errors import GeovoxWarning
 from geovox.mesh import Mesh
 from geovox.colour.nearest import TIE, nearest_inside
-from geovox.stream import convert_to
+from geovox.api import convert_to
 import geovox.formats as F
 
 from conftest import SPOT, corpus

@@ -22,8 +22,8 @@ import geovox
 from geovox.backends import REGISTRY, backend_report, get_backend
 from geovox.errors import GeovoxWarning
 from geovox.grid import make_grid
-from geovox.pipeline import voxelize_block
-from geovox.pipeline import ray_start
+from geovox.block import voxelize_block
+from geovox.block import ray_start
 
 from conftest import SPOT, box_mesh, from_tm, reference_occupancy
 from test_backends import t_junction_box
@@ -197,7 +197,7 @@ class TestBackendConformance:
         np.testing.assert_array_equal(np.concatenate([p.occupancy for p in parts], axis=2),
                                       ref.occupancy)
         np.testing.assert_array_equal(np.concatenate([p.colors for p in parts], axis=2), ref.colors)
-        from geovox.stream import convert_to
+        from geovox.api import convert_to
 
         # Slabs are at least 64 layers: 150 layers in three.
         info = convert_to(SPOT, tmp_path / "s.raw", shape=(6, 5, 150), backend=engine,

@@ -412,7 +412,7 @@ def test_missing_extra_says_what_to_install(tmp_path):
 
 
 def test_workers_with_other_versions_are_refused(client, monkeypatch, tmp_path, capsys):
-    real = cluster_mod._versions
+    real = cluster_mod.versions
 
     def versions(dask_worker=None):  # dask_worker is given only on a worker
         v = real()
@@ -420,7 +420,7 @@ def test_workers_with_other_versions_are_refused(client, monkeypatch, tmp_path, 
             v["numpy"] = "1.0.0"
         return v
 
-    monkeypatch.setattr(cluster_mod, "_versions", versions)
+    monkeypatch.setattr(cluster_mod, "versions", versions)
     address = client.scheduler.address
     with pytest.raises(geovox.ClusterError, match="2 of 2 workers differ.*NumPy 1.0.0"):
         with cluster_mod.client_from_options(scheduler=address):
@@ -441,17 +441,17 @@ def test_one_cluster_option_at_a_time():
 
 def test_a_task_on_a_worker_with_other_versions_fails_its_model(tmp_path):
     # Workers that join after the check at connection: each task checks too.
-    from geovox.batch import _convert_one
-    from geovox.cluster import _versions
+    from geovox.batch import convert_one
+    from geovox.cluster import versions as cluster_versions
 
     task = dict(input=SPOT, stem="spot", out=str(tmp_path), options=geovox.Options(resolution=8,
                                                                                   jobs=1), ext=".raw",
-                overwrite=False, write_options={}, versions=dict(_versions(), geovox="0.0.1"))
-    r = _convert_one(task)
+                overwrite=False, write_options={}, versions=dict(cluster_versions(), geovox="0.0.1"))
+    r = convert_one(task)
     assert r.status == "failed" and "the client geovox 0.0.1" in r.error
     assert os.listdir(tmp_path) == []
-    task["versions"] = _versions()
-    assert _convert_one(task).status == "ok"
+    task["versions"] = cluster_versions()
+    assert convert_one(task).status == "ok"
 
 
 def test_manifest_holds_absolute_paths(models, tmp_path, monkeypatch):
@@ -504,19 +504,19 @@ def test_workers_that_do_not_answer_the_version_check_are_an_error_in_bounded_ti
     import threading
     import time
 
-    real = cluster_mod._versions
+    real = cluster_mod.versions
 
     def slow():  # on the workers only: the client answers at once
         if threading.current_thread() is not threading.main_thread():
             time.sleep(1.5)
         return real()
 
-    monkeypatch.setattr(cluster_mod, "_versions", slow)
+    monkeypatch.setattr(cluster_mod, "versions", slow)
     monkeypatch.setattr(cluster_mod, "VERSION_TIMEOUT", 0.3)
     # Had it waited, the workers would have answered (same versions) and nothing raised.
     with pytest.raises(geovox.errors.ClusterError, match="did not say their versions within 0.3 s"):
         cluster_mod.check_versions(client)
-    monkeypatch.setattr(cluster_mod, "_versions", real)
+    monkeypatch.setattr(cluster_mod, "versions", real)
     time.sleep(1.5)  # let the workers finish before the next test uses them
 
 

@@ -205,7 +205,7 @@ def test_api_page_shows_voxelize_parameters(browser, server):
     assert "geovox.voxelize" in text
     # The text of voxelize's own entry (mkdocstrings: the heading's id is the object's path).
     section = browser.execute_script(
-        "const h = document.getElementById('geovox.pipeline.voxelize');"
+        "const h = document.getElementById('geovox.api.voxelize');"
         "return h ? h.closest('.doc-object').innerText : '';")
     assert section.startswith("geovox.voxelize"), section[:200]
     assert "Parameters" in section and "Returns" in section and "Raises" in section
@@ -252,7 +252,7 @@ def test_backend_example_gives_the_numpy_backends_crossings(axis):
     from geovox.backends import get_backend
     from geovox.grid import make_grid
     from geovox.io.load import load_mesh
-    from geovox.pipeline import ray_start
+    from geovox.block import ray_start
 
     namespace = {}
     exec(_python_blocks("api/backends.md")[0], namespace)  # noqa: S102 - the page's own code

@@ -17,7 +17,7 @@ import geovox
 from geovox.backends import get_backend
 from geovox.exact import Projection
 from geovox.grid import make_grid
-from geovox.pipeline import ray_start
+from geovox.block import ray_start
 
 from conftest import box_mesh, from_tm, reference_occupancy
 

@@ -639,7 +639,7 @@ def test_new_writers_cli_one_line_for_bad_output(tmp_path, monkeypatch, capsys, 
 
 
 def test_vtkhdf_streams_slab_by_slab(tmp_path):
-    from geovox.stream import convert_to
+    from geovox.api import convert_to
 
     opts = dict(shape=(16, 16, 150), color=True, backend="numpy")
     info = convert_to(SPOT, tmp_path / "s.vtkhdf", budget=16 * 16 * 64 * 25, **opts)
@@ -698,12 +698,12 @@ def test_paraview_opens_the_files_by_name(tmp_path):
 
 def test_cli_refuses_binvox_with_unequal_voxels_before_work(tmp_path, capsys, monkeypatch):
     from geovox.cli import main
-    import geovox.pipeline as pipeline
+    import geovox.runners as runners
 
     def never(*a, **k):
         raise AssertionError("voxelised before the grid was checked")
 
-    monkeypatch.setattr(pipeline, "voxelize", never)
+    monkeypatch.setattr(runners, "voxelize_block", never)
     assert main(["convert", SPOT, "-o", str(tmp_path / "s.binvox"), "--shape", "16", "16", "16"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "binvox needs cubic voxels" in err and "--voxel-size" in err

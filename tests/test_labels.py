@@ -18,7 +18,7 @@ from geovox.errors import MeshError, ParameterError
 from geovox.grid import make_grid
 from geovox.io.load import load_mesh
 from geovox.mesh import Mesh
-from geovox.pipeline import voxelize_block
+from geovox.block import voxelize_block
 
 
 def assembly(open_part=False) -> Mesh:

@@ -22,7 +22,7 @@ from geovox import formats
 from geovox import labels as L
 from geovox.cli import main
 from geovox.grid import make_grid
-from geovox.pipeline import voxelize_block
+from geovox.block import voxelize_block
 
 
 @pytest.mark.parametrize("overlap", L.OVERLAPS)

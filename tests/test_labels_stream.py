@@ -25,7 +25,7 @@ import geovox
 from geovox import formats
 from geovox import labels as L
 from geovox.mesh import Mesh
-from geovox.pipeline import Route
+from geovox.planner import Route
 
 from test_labels import assembly
 
@@ -257,7 +257,7 @@ def test_jobs_give_the_same_files(tmp_path):
 
 
 def test_cli_jobs_2_streams_labels(tmp_path, capsys, monkeypatch):
-    import geovox.stream as stream
+    import geovox.planner as stream
     from geovox.cli import main
 
     shape = (31, 27, 140)
@@ -315,20 +315,19 @@ def test_a_grid_too_big_for_memory_streams_its_labels(monkeypatch, tmp_path):
     from geovox import memory
     from geovox.errors import GridTooLargeError
 
-    monkeypatch.setattr(memory, "_available_memory", lambda: 1 << 30)
+    monkeypatch.setattr(memory, "available_memory", lambda: 1 << 30)
     m = assembly()
     big = dict(shape=(400, 400, 2048), labels="part")
     lset = L.label_set(m, "part")
     p = quiet(geovox.plan, m, big, "big.h5")
     assert p.route == Route.SLABS and len(p.blocks) > 1
-    assert p.per_voxel >= 1.0 + L.working_bytes(lset)
+    assert p.per_voxel >= 1.0 + p.labels.working_bytes()
     assert 400 * 400 * 2048 * p.per_voxel > memory.MEMORY_FRACTION * (1 << 30)
     assert 400 * 400 * p.thick * p.per_voxel <= 0.5 * (1 << 30)  # slab_budget: half
     pf = quiet(geovox.plan, m, dict(big, fractions=True), "big.seg.nrrd")
     assert pf.route == Route.SLABS and len(pf.blocks) > len(p.blocks)
-    assert pf.per_voxel - p.per_voxel == \
-        L.working_bytes(lset, pf.options) - L.working_bytes(lset, p.options)
-    assert L.working_bytes(lset, pf.options) == L.working_bytes(lset) + len(lset.names) + 8.0
+    assert pf.per_voxel - p.per_voxel == pf.labels.working_bytes() - p.labels.working_bytes()
+    assert pf.labels.working_bytes() == p.labels.working_bytes() + len(lset.names) + 8.0
     assert quiet(geovox.plan, m, big, "big.zarr").route == Route.SLABS
     with pytest.raises(GridTooLargeError):
         quiet(geovox.convert_to, m, tmp_path / "big.npz", **big)

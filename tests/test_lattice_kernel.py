@@ -27,7 +27,7 @@ from geovox.exact import Projection
 from geovox.grid import make_grid
 from geovox.kernels import chosen, lattice
 from geovox.mesh import Mesh
-from geovox.pipeline import ray_start
+from geovox.block import ray_start
 
 from conftest import box_mesh, corpus, from_tm
 from test_exact import CASES

@@ -28,7 +28,7 @@ from geovox.kernels import chosen
 from geovox.errors import GeovoxWarning, ParameterError
 from geovox.mesh import Material, Mesh
 from geovox.colour.nearest import brute_force, kernel_module, nearest_inside, prepare, run_kernel
-from geovox.stream import convert_to
+from geovox.api import convert_to
 import geovox.formats as F
 
 from conftest import SPOT, corpus

@@ -16,7 +16,8 @@ from geovox.cli import main
 from geovox.cli.commands import build_parser
 from geovox.errors import GeovoxWarning, ParameterError
 from geovox.options import KERNEL_ENV, Colour, Inside, Options
-from geovox.pipeline import Route, plan, voxelize_block
+from geovox.planner import Route, plan
+from geovox.block import voxelize_block
 
 from conftest import DATA, SPOT
 
@@ -367,13 +368,13 @@ def test_no_hand_copied_signature_of_voxelize():
             copied = [x for x in f.read().splitlines() if x.lstrip("`").startswith("voxelize(mesh,")]
         assert not copied, (page, copied)
     with open(os.path.join(root, "docs", "api", "voxelize.md"), encoding="utf-8") as f:
-        assert "::: geovox.pipeline.voxelize" in f.read()
+        assert "::: geovox.api.voxelize" in f.read()
 
 
 def test_convert_to_loads_plans_and_chooses_once(tmp_path, monkeypatch):
     import geovox.inside.winding
     import geovox.io.load
-    import geovox.pipeline
+    import geovox.planner
 
     calls = {"load": 0, "plan": 0, "choose": 0, "grid": 0}
 
@@ -384,12 +385,12 @@ def test_convert_to_loads_plans_and_chooses_once(tmp_path, monkeypatch):
             return fn(*a, **k)
         return f
 
-    import geovox.stream
+    import geovox.api
 
     monkeypatch.setattr(geovox.io.load, "load_mesh", counting("load", geovox.io.load.load_mesh))
-    monkeypatch.setattr(geovox.stream, "plan", counting("plan", geovox.stream.plan))
+    monkeypatch.setattr(geovox.api, "plan", counting("plan", geovox.api.plan))
     monkeypatch.setattr(geovox.inside, "choose", counting("choose", geovox.inside.choose))
-    monkeypatch.setattr(geovox.pipeline, "make_grid", counting("grid", geovox.pipeline.make_grid))
+    monkeypatch.setattr(geovox.planner, "make_grid", counting("grid", geovox.planner.make_grid))
     r = geovox.convert_to(SPOT, tmp_path / "v.raw", shape=(8, 8, 150), color="fast",
                           budget=8 * 8 * 64 * 25)
     assert r.slabs == 3

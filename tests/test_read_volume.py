@@ -82,7 +82,7 @@ def test_binvox_and_vox(tmp_path, cube):
 @pytest.mark.skipif(importlib.util.find_spec("zarr") is None, reason="zarr is not installed "
                     "(pip install 'geovox[distributed]')")
 def test_zarr(tmp_path, full):
-    from geovox.stream import convert_to
+    from geovox.api import convert_to
 
     convert_to(SPOT, tmp_path / "v.zarr", shape=(11, 13, 9), color=True, backend="numpy")
     ref = geovox.voxelize(SPOT, shape=(11, 13, 9), color=True, backend="numpy", axis=1)

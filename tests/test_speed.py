@@ -22,8 +22,8 @@ from geovox.backends import get_backend
 from geovox.formats.chunks import _transpose_binary
 from geovox.grid import make_grid
 from geovox.mesh import Mesh
-from geovox.pipeline import ray_start
-from geovox.stream import convert_to
+from geovox.block import ray_start
+from geovox.api import convert_to
 
 from conftest import ROOT, SPOT, box_mesh
 
@@ -161,8 +161,8 @@ def test_default_convert_to_raw_imports_only_what_it_uses(tmp_path):
 
 def test_streams_whole_only_for_big_occupancy_grids(tmp_path):
     from geovox.grid import Grid
-    from geovox.pipeline import Route, plan
-    from geovox.stream import WHOLE_STREAM_VOXELS, streams_whole
+    from geovox.planner import Route, plan
+    from geovox.planner import WHOLE_STREAM_VOXELS, streams_whole
 
     def grid(nx, ny, nz):
         return Grid(np.zeros(3), np.ones(3), (nx, ny, nz))
@@ -189,11 +189,11 @@ def test_streams_whole_only_for_big_occupancy_grids(tmp_path):
 
 
 def test_cli_fills_big_occupancy_in_slabs(tmp_path, capsys, monkeypatch):
-    import geovox.stream
+    import geovox.planner
     from geovox.cli import main
 
     # The size threshold lowered, so a small grid takes the big grids' path.
-    monkeypatch.setattr(geovox.stream, "streams_whole", lambda grid, *a: True)
+    monkeypatch.setattr(geovox.planner, "streams_whole", lambda grid, *a: True)
     out = tmp_path / "s.h5"
     assert main(["convert", SPOT, "-o", str(out), "--shape", "24", "16", "150"]) == 0
     printed = capsys.readouterr().out

@@ -101,7 +101,7 @@ def test_a_default_conversion_imports_only_what_it_uses(tmp_path, model):
             _stl(tmp_path / model, model == "binary.stl") if model.endswith(".stl") else
             corpus("bunny_watertight" if "bunny" in model else "fuze", model))
     mods = _modules(path, str(tmp_path / "out.raw"))
-    assert "numpy" in mods and "geovox.pipeline" in mods  # the probe ran the conversion
+    assert "numpy" in mods and "geovox.planner" in mods  # the probe ran the conversion
     assert not mods & set(NOT_IMPORTED), sorted(mods & set(NOT_IMPORTED))
 
 

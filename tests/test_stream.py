@@ -8,7 +8,8 @@ import pytest
 import geovox
 import geovox.formats as F
 from geovox.cli import main
-from geovox.stream import convert_to, slab_plan
+from geovox.api import convert_to
+from geovox.planner import slab_plan
 
 from conftest import SPOT
 
@@ -50,9 +51,9 @@ def test_streamed_hdf5_opens_in_vtk(tmp_path):
 
 
 def test_cli_streams_big_grids(tmp_path, capsys, monkeypatch):
-    import geovox.stream as stream
+    import geovox.planner as planner
 
-    monkeypatch.setattr(stream, "SLAB_BUDGET", 24 * 24 * 64)
+    monkeypatch.setattr(planner, "SLAB_BUDGET", 24 * 24 * 64)
     assert main(["convert", SPOT, "-o", str(tmp_path / "s.h5"), "--shape", "24", "24", "200"]) == 0
     out = capsys.readouterr().out
     assert "in 4 slabs" in out
@@ -62,7 +63,7 @@ def test_cli_streams_big_grids(tmp_path, capsys, monkeypatch):
 
 
 def test_failed_stream_leaves_nothing(tmp_path, monkeypatch):
-    import geovox.stream as stream
+    import geovox.runners.slabs as stream
 
     real = stream.voxelize_block
     calls = {"n": 0}

@@ -144,7 +144,7 @@ DECIDED_ELSEWHERE: dict = {}
 
 
 def test_the_grid_the_streaming_and_the_inside_test_are_decided_in_the_plan():
-    """``make_grid``, ``streams`` and ``inside.choose`` are called from pipeline.py alone."""
+    """``make_grid``, ``streams`` and ``inside.choose`` are called from planner.py alone."""
     decisions = {"make_grid", "streams", "choose"}
     callers = collections.defaultdict(set)
     for d, _, names in os.walk(ROOT):
@@ -160,5 +160,5 @@ def test_the_grid_the_streaming_and_the_inside_test_are_decided_in_the_plan():
                         if called in decisions:
                             callers[called].add(name)
     assert callers["make_grid"] and callers["choose"] and callers["streams"]
-    elsewhere = {(c, m) for c, ms in callers.items() for m in ms if m != "pipeline.py"}
+    elsewhere = {(c, m) for c, ms in callers.items() for m in ms if m != "planner.py"}
     assert elsewhere == set(DECIDED_ELSEWHERE), elsewhere

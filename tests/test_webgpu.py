@@ -20,7 +20,7 @@ from geovox.errors import BackendUnavailableError, GeovoxWarning
 from geovox.exact import Projection
 from geovox.grid import Grid, make_grid
 from geovox.mesh import Mesh
-from geovox.pipeline import ray_start
+from geovox.block import ray_start
 
 from conftest import SPOT, box_mesh, corpus, from_tm
 from test_backends import CLOSED_CORPUS, SYNTHETIC, t_junction_box

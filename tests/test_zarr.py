@@ -18,7 +18,7 @@ import geovox.formats as F  # noqa: E402
 from geovox.cli import main  # noqa: E402
 from geovox.errors import ParameterError  # noqa: E402
 from geovox.formats import zarr as Z  # noqa: E402
-from geovox.stream import convert_to  # noqa: E402
+from geovox.api import convert_to  # noqa: E402
 
 from conftest import SPOT  # noqa: E402
 
@@ -84,10 +84,11 @@ def test_slabs_equal_the_volume_in_one_piece(outputs, ref):
     assert ref.inside_count > 1000
 
 
-def test_cluster_writes_what_the_local_path_writes(outputs):
-    import geovox.stream
+def test_cluster_writes_what_the_local_path_writes(outputs, client):
+    from geovox.runners.on_cluster import PLUGIN
 
-    assert geovox.stream._SLAB_BUFFERS == {}  # the workers' slab buffers are released
+    # The workers' slab buffers went with their plugin when the conversion ended.
+    assert not any(client.run(lambda dask_worker: PLUGIN in dask_worker.plugins).values())
     here, there = arrays(outputs["local128"]), arrays(outputs["cluster128"])
     assert sorted(here) == sorted(there) and len(here) == 16  # 4 fields x 4 levels
     for key in here:
@@ -283,14 +284,14 @@ def test_own_shard_reader_equals_zarr_python(outputs):
 
 
 def test_a_worker_that_cannot_see_the_output_says_so(tmp_path):
-    from geovox.stream import _zarr_slab
+    from geovox.runners.on_cluster import slab_task
 
     vol = geovox.voxelize(SPOT, shape=(8, 8, 64))
     layout = Z.make_layout(str(tmp_path / "elsewhere"), vol, 64)
     m = geovox.load_mesh(SPOT)
     p = geovox.plan(m, geovox.Options(shape=(8, 8, 64))).for_task()
     with pytest.raises(geovox.errors.OutputError, match="share"):
-        _zarr_slab(m, p, (0, 64), layout)
+        slab_task(m, p, (0, 64), layout)
 
 
 def test_levels_from_full_and_empty_chunks(tmp_path, small_top):
@@ -313,13 +314,13 @@ def test_levels_from_full_and_empty_chunks(tmp_path, small_top):
 
 def test_scheduler_variable_is_only_for_zarr(tmp_path, monkeypatch, capsys):
     import geovox.cluster
-    import geovox.stream
+    import geovox.planner
 
     # A big .h5 streams here even with a scheduler in the environment: no
     # client is asked for (the address answers nothing), the file is the
     # in-memory volume's.
     monkeypatch.setenv("DASK_SCHEDULER_ADDRESS", "tcp://127.0.0.1:1")
-    monkeypatch.setattr(geovox.stream, "streams", lambda *a, **k: True)
+    monkeypatch.setattr(geovox.planner, "streams", lambda *a, **k: True)
     asked = []
     monkeypatch.setattr(geovox.cluster, "client_from_options", lambda *a: asked.append(a))
     out = tmp_path / "v.h5"

@@ -17,8 +17,8 @@ import os
 import sys
 import time
 
-from .. import __version__
-from ..errors import GeovoxError
+from ..errors import GeovoxError, ParameterError
+from ..version import __version__
 
 EXIT_OK, EXIT_ERROR, EXIT_USAGE = 0, 2, 2
 
@@ -390,26 +390,12 @@ def _volume_or_mesh(args, path, largest=None):
 
 def _voxelize(mesh, options):
     """The volume of ``mesh`` in memory (a plan and a run), its warnings printed."""
-    from ..pipeline import load, plan, run
+    from ..planner import load, plan
+    from ..runners import run
 
     with collecting():
         m = load(mesh, options)
         return run(m, plan(m, options)).volume
-
-
-def _output_path(args, input_path, shape) -> str:
-    """The -o path, or a default name carrying the grid size inside a folder."""
-    from .. import formats
-    from ..formats.headers import default_name
-
-    out = args.output
-    if out is not None and not (os.path.isdir(out) or out.endswith(("/", os.sep))) or (
-            out is not None and out.lower().endswith(".zarr")):
-        return out
-    folder = out or os.getcwd()
-    fmt = formats.format_for("x.raw", args.fmt)
-    stem = os.path.splitext(os.path.basename(input_path))[0]
-    return os.path.join(folder, default_name(stem, shape, "uint8", fmt.extensions[0]))
 
 
 def _write_options(args, fmt) -> dict:
@@ -433,23 +419,14 @@ def _cluster(args):
 
 # --- convert --------------------------------------------------------------
 
-def _batch(args) -> int:
-    from .. import formats
-    from ..batch import convert_many, find_inputs, is_url, parse_shard, summary_table
-    from ..errors import ParameterError
+def _batch(args, target) -> int:
+    from ..batch import convert_many, find_inputs, parse_shard, summary_table
 
-    inputs = find_inputs(args.input)  # a missing input or an empty folder says so before anything else
+    inputs = find_inputs(args.input)
     shard = parse_shard(args.shard)
-    if args.output is None:
-        args.output = os.getcwd()
-    if not (is_url(args.output) or os.path.isdir(args.output)
-            or args.output.endswith(("/", os.sep)) or not os.path.splitext(args.output)[1]):
-        raise ParameterError(f"with several inputs (or --manifest, --shard), -o must be a folder; "
-                             f"got {args.output!r}")
     if args.preview:
         raise ParameterError("--preview takes one input; run geovox preview on each output instead")
-    fmt = formats.format_for("x.raw", args.fmt)
-    write_options = _write_options(args, fmt)
+    write_options = _write_options(args, target.fmt)
     options = _options(args)
     with _cluster(args) as client:
         bar = None
@@ -473,7 +450,7 @@ def _batch(args) -> int:
 
         try:
             # -j is processes here: each model runs single-threaded.
-            results = convert_many(args.input, args.output, client=client, fmt=fmt.name,
+            results = convert_many(args.input, target.path, client=client, fmt=target.fmt.name,
                                    overwrite=args.overwrite, workers=resolve_jobs(args.jobs),
                                    retries=args.retries, manifest=args.manifest, shard=args.shard,
                                    progress=progress if bar else None,
@@ -488,114 +465,100 @@ def _batch(args) -> int:
     return EXIT_ERROR if any(r.status == "failed" for r in results) else EXIT_OK
 
 
-def _names_a_file(url: str) -> bool:
-    """Whether an output URL names one volume (``s3://b/spot.zarr``), not a folder (``s3://b/out/``)."""
-    return not url.endswith("/") and bool(os.path.splitext(url.rsplit("/", 1)[-1])[1])
-
-
-def _convert_to_url(args) -> int:
+def _convert_to_url(args, target) -> int:
     """One model into an fsspec URL: written into a local scratch folder, then copied up.
 
-    The copy goes through :func:`geovox.batch._upload`, as a batch's outputs do:
-    the volume (a ``.zarr``'s root ``zarr.json``) last, so nothing half-written
-    is taken for a volume. What the local run prints is reprinted with the URL.
+    The copy is :func:`geovox.output.upload`, as a batch's outputs' is: the
+    volume (a folder output's root file) last, so nothing half-written is
+    taken for a volume. What the local run prints is reprinted with the URL.
     """
     import io
     import shutil
     import tempfile
 
-    from ..batch import _upload
-    from ..errors import ParameterError
+    from ..output import check_url, resolve_output, upload
 
-    url = args.output
+    url = target.path
     parent, name = url.rsplit("/", 1)
-    try:
-        import fsspec
-
-        fsspec.core.url_to_fs(url)  # an unknown protocol or a missing filesystem package
-    except ImportError:
-        raise ParameterError(f"an output URL needs fsspec (pip install 'geovox[cloud]'): {url}")
-    except ValueError as exc:
-        raise ParameterError(f"cannot write to {url}: {exc}")
+    check_url(url)
     tmp = tempfile.mkdtemp(prefix="geovox-")
     try:
-        args.output = os.path.join(tmp, name)
+        local = resolve_output(os.path.join(tmp, name), args.fmt)
         said = io.StringIO()
         with contextlib.redirect_stdout(said):
-            rc = run_convert(args)
+            rc = _convert_one_model(args, local)
         if rc == EXIT_OK:
-            local = sorted(os.path.join(tmp, f) for f in os.listdir(tmp))
-            _upload(local, args.output, parent)
+            files = sorted(os.path.join(tmp, f) for f in os.listdir(tmp))
+            upload(files, local.path, parent)
         print(said.getvalue().replace(tmp + os.sep, parent + "/"), end="")
         return rc
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
 
 
-def _is_batch(args) -> bool:
-    """Many models, or one sent as a batch of one to a cluster (several with --labels: a scene)."""
-    cluster = args.scheduler or args.scheduler_file or args.local_cluster
-    out = args.output
+def _many(args) -> bool:
+    """Many models: several inputs (not one scene), a folder, a manifest or a shard."""
     if args.labels is not None and len(args.input) > 1:
-        return False
-    return bool(len(args.input) > 1 or os.path.isdir(args.input[0]) or args.manifest or args.shard
-                or (cluster and (out is None or out.endswith(("/", os.sep))
-                                 or (os.path.isdir(out) and not out.lower().endswith(".zarr"))))
-                or (out and "://" in out and not _names_a_file(out)))
-
-
-def _check_outputs(args) -> None:
-    """Fail before any work where the outputs cannot be written."""
-    from .. import formats
-
-    default_out = args.output is None or args.output.endswith(("/", os.sep)) or (
-        os.path.isdir(args.output) and not args.output.lower().endswith(".zarr"))
-    if not default_out:
-        formats.format_for(args.output, args.fmt)  # unknown extension: fail before work
-        formats.check_writable(args.output)
-    elif args.output is not None and not os.path.isdir(args.output):
-        formats.check_writable(os.path.join(args.output, "x"))
-    if args.preview:
-        formats.check_writable(args.preview)
+        return False  # several files with --labels: one scene on one grid
+    return bool(len(args.input) > 1 or os.path.isdir(args.input[0]) or args.manifest
+                or args.shard)
 
 
 def run_convert(args) -> int:
-    """``geovox convert``: one model a plan and a run; many models a batch."""
-    from .. import formats
-    from ..errors import ParameterError
-    from ..pipeline import grid_of, load, plan, run
+    """``geovox convert``: one model a plan and a run; many models a batch.
+
+    The output (``-o``) is resolved once (:func:`geovox.output.resolve_output`):
+    a file, a folder of named files, or a URL. One model sent to a cluster
+    with a folder output, or to a URL folder, runs as a batch of one.
+    """
+    from ..output import Kind, resolve_output
 
     if args.fractions and not args.labels:
         raise ParameterError("--fractions needs --labels (part, component, material or file)")
-    if _is_batch(args):
-        return _batch(args)
-    if "://" in (args.output or ""):
-        return _convert_to_url(args)
-    inputs = args.input if isinstance(args.input, list) else [args.input]
-    args.input = inputs[0]
+    args.input = args.input if isinstance(args.input, list) else [args.input]
+    many = _many(args)
+    if many:
+        from ..batch import find_inputs
+
+        find_inputs(args.input)  # a missing input or an empty folder says so before anything else
+    target = resolve_output(args.output, args.fmt, many=many)
+    cluster = args.scheduler or args.scheduler_file or args.local_cluster
+    if many or (target.kind == Kind.FOLDER and (cluster or target.url)):
+        return _batch(args, target)
+    if target.url:
+        return _convert_to_url(args, target)
+    return _convert_one_model(args, target)
+
+
+def _convert_one_model(args, target) -> int:
+    """One model (or one scene of several files) into ``target``: a plan and a run."""
+    from ..planner import load, plan
+    from ..runners import run
+
+    inputs = args.input
     t0 = time.perf_counter()
-    _check_outputs(args)
+    target.check()  # before any work
+    if args.preview:
+        from .. import formats
+
+        formats.check_writable(args.preview)
     options = _options(args)
     # Several files with --labels: one scene on one grid (--labels file names them).
-    mesh = load(inputs if len(inputs) > 1 else args.input, options)
-    if len(inputs) > 1:
-        args.input = "scene"
+    mesh = load(inputs if len(inputs) > 1 else inputs[0], options)
+    stem = "scene" if len(inputs) > 1 else os.path.splitext(os.path.basename(inputs[0]))[0]
     t_read = time.perf_counter() - t0
-    default_out = args.output is None or args.output.endswith(("/", os.sep)) or (
-        os.path.isdir(args.output) and not args.output.lower().endswith(".zarr"))
-    # .binvox: -r N is binvox's -d N cube (geovox.grid.fit_for).
-    named = formats.format_for("x.raw" if default_out else args.output, args.fmt)
-    output = _output_path(args, args.input, grid_of(mesh, options, named).shape)
-    fmt = formats.format_for(output, args.fmt)
-    write_options = _write_options(args, fmt)  # a bad combination fails before any work
-    if (args.scheduler or args.scheduler_file or args.local_cluster) and fmt.name != "zarr":
-        raise ParameterError(f"a cluster writes one volume only into .zarr, not {fmt.name}; "
+    target = target.named(stem)
+    write_options = _write_options(args, target.fmt)  # a bad combination fails before any work
+    cluster = args.scheduler or args.scheduler_file or args.local_cluster
+    if cluster and not target.fmt.can.cluster:
+        raise ParameterError(f"a cluster writes one volume only into .zarr, not {target.fmt.name}; "
                              f"give -o a folder to send models to it as tasks")
     bar, progress = _progress_bar(args, options)
-    # Only a .zarr runs on a cluster ($DASK_SCHEDULER_ADDRESS included).
-    cluster = _cluster(args) if fmt.name == "zarr" else contextlib.nullcontext()
-    with collecting(), cluster as client:
-        p = plan(mesh, options, output, fmt=args.fmt, cluster=client is not None)
+    # Only a format that can runs on a cluster ($DASK_SCHEDULER_ADDRESS included).
+    client_of = _cluster(args) if target.fmt.can.cluster else contextlib.nullcontext()
+    with collecting(), client_of as client:
+        # The plan makes the grid (once) and names a folder's file after it.
+        p = plan(mesh, options, target, cluster=client is not None)
         report = run(mesh, p, progress=progress, client=client, write_options=write_options)
         if bar is not None:
             bar.close()
@@ -673,14 +636,14 @@ def run_view(args) -> int:
 
 def run_info(args) -> int:
     from ..errors import collect_warnings
-    from ..pipeline import load, plan
+    from ..planner import load, plan
     from ..report import format_report, grid_cost, mesh_report
 
     options = _options(args)
     mesh = load(args.input, options)
     with collect_warnings(drop=True):  # the report says what a repair does
         p = plan(mesh, options)
-    cost = grid_cost(mesh, options)
+    cost = grid_cost(p.grid)  # the plan's grid: made once
     if options.like is not None:
         from ..reference import field_of_view, format_field_of_view, load_reference
 

@@ -101,7 +101,7 @@ def cube_of(volume):
 def write_binvox(volume, path) -> list:
     """Write the occupancy as a ``.binvox`` file (see the module docstring)."""
     from ..errors import warn
-    from . import atomic_output
+    from .base import atomic_output
 
     path = os.fspath(path)
     dim, translate, scale = cube_of(volume)

@@ -15,7 +15,7 @@ import os
 
 import numpy as np
 
-from . import SlabWriter
+from .base import FIELD_VALUES, SlabWriter, as_meta, atomic_outputs, label_table_json, table_from_json
 
 
 def _dataset(f, name, shape, dtype, chunks):
@@ -30,18 +30,15 @@ def _dataset(f, name, shape, dtype, chunks):
 class HDF5Writer(SlabWriter):
     """Writes a volume into a new HDF5 file, whole or one z-slab at a time.
 
-    ``meta`` is anything with ``shape``, ``spacing``, ``bounds``, ``backend``,
-    ``source`` and ``colors`` / ``density`` / ``sdf`` (None when absent; for
-    ``density`` and ``sdf`` an array whose dtype is the one to store).
-    Slabs must start on multiples of 64 voxels in z (the chunk size), and
+    ``meta`` is the :class:`~geovox.formats.base.Meta` of the whole volume
+    (or the volume itself, written whole). Slabs must start on multiples of 64 voxels in z (the chunk size), and
     the file appears only on :meth:`close`.
     """
 
     def __init__(self, path, meta, jobs: int = 2):
         import h5py
 
-        from . import atomic_outputs
-
+        meta = as_meta(meta)
         self.path, self.meta, self.jobs = os.fspath(path), meta, jobs
         self._ctx = atomic_outputs()
         self.f = None
@@ -71,33 +68,30 @@ class HDF5Writer(SlabWriter):
         g.attrs["Direction"] = (np.eye(3) if direction is None else direction).reshape(-1)
         pd = g.create_group("PointData")
         self.vtk = {"occupancy": _dataset(pd, "occupancy", (nz, ny, nx), np.uint8, zyx)}
-        if meta.colors is not None:
+        if meta.colors:
             c = _dataset(f, "color", meta.shape + (4,), np.uint8, self.chunks + (4,))
             c.attrs["components"] = "RGBA"
             c.attrs["axis_order"] = "xyzc"
             self.sets["color"] = c
             self.vtk["color"] = _dataset(pd, "color", (nz, ny, nx, 4), np.uint8, zyx + (4,))
-        from . import FIELD_VALUES
-
         for name in ("density", "sdf", "labels"):
-            arr = getattr(meta, name, None)
-            if arr is not None:
-                d = _dataset(f, name, meta.shape, arr.dtype, self.chunks)
-                d.attrs["values"] = FIELD_VALUES[name](arr.dtype)
+            dtype = meta.dtype(name)
+            if dtype is not None:
+                d = _dataset(f, name, meta.shape, dtype, self.chunks)
+                d.attrs["values"] = FIELD_VALUES[name](dtype)
                 d.attrs["axis_order"] = "xyz"
                 self.sets[name] = d
-                self.vtk[name] = _dataset(pd, name, (nz, ny, nx), arr.dtype, zyx)
-        fr = getattr(meta, "fractions", None)
+                self.vtk[name] = _dataset(pd, name, (nz, ny, nx), dtype, zyx)
         self.fractions = None
-        if fr is not None:
+        if meta.fractions is not None:
             # One 64³ chunk per label and block of voxels, so that a slab fills whole chunks.
-            n = fr.shape[3]
-            d = f.create_dataset("fractions", shape=meta.shape + (n,), dtype=fr.dtype,
+            n, dtype = meta.fractions
+            d = f.create_dataset("fractions", shape=meta.shape + (n,), dtype=dtype,
                                  chunks=self.chunks + (1,), compression="gzip",
                                  compression_opts=1, fillvalue=0)
             d.attrs["axis_order"] = "xyzl"
             d.attrs["values"] = ("fraction of the voxel per label (index k: label k + 1), "
-                                 + ("x 255" if fr.dtype == np.uint8 else "0 to 1"))
+                                 + ("x 255" if dtype == np.uint8 else "0 to 1"))
             self.fractions = d
 
     def write(self, z0: int, vol) -> None:
@@ -133,8 +127,6 @@ class HDF5Writer(SlabWriter):
             self.sets["occupancy"].attrs[key] = value
             self.f.attrs[key] = value
         if "labels" in self.sets and meta.label_table:
-            from . import label_table_json
-
             self.sets["labels"].attrs["label_table"] = label_table_json(meta)
             self.f.attrs["label_table"] = label_table_json(meta)
         self.f.close()
@@ -177,8 +169,6 @@ def read_hdf5(path):
         extra = {name: np.asfortranarray(f[name][...])
                  for name in ("density", "sdf", "labels", "fractions") if name in f}
         if "labels" in f and "label_table" in f["labels"].attrs:
-            from . import table_from_json
-
             extra["label_table"] = table_from_json(f["labels"].attrs["label_table"])
         return Volume(occupancy=occ, grid=Grid(bounds[0], bounds[1], occ.shape),
                       backend=str(d.attrs.get("backend", "?")),

@@ -55,7 +55,7 @@ def _image(nibabel, data, affine, description: str, table=None):
     img = nibabel.Nifti1Image(data, affine)
     hdr = img.header
     if table is not None:  # a label map: NIFTI_INTENT_LABEL, the table as a comment
-        from . import label_table_json
+        from .base import label_table_json
 
         hdr.set_intent("label")
         hdr.extensions.append(nibabel.nifti1.Nifti1Extension(
@@ -76,7 +76,7 @@ def field_path(path: str, name: str) -> str:
 
 def write_nifti(volume, path) -> list:
     """``NAME.nii[.gz]`` (uint8 0/1 mask), with ``_rgba``, ``_density``, ``_sdf`` as present."""
-    from . import atomic_outputs, scalar_fields
+    from .base import atomic_outputs, scalar_fields
 
     nibabel = _nibabel()
     path = os.fspath(path)
@@ -131,7 +131,7 @@ def read_nifti(path):
             img = nibabel.load(fpath)
             extra[name] = np.asfortranarray(np.asarray(img.dataobj))
             if name == "labels":
-                from . import table_from_json
+                from .base import table_from_json
 
                 text = next((e.get_content() for e in img.header.extensions
                              if e.get_code() == COMMENT), b"[]")

@@ -58,7 +58,7 @@ def _write_one(path, arr, volume, components: int = 1, times: int = 1, keys=None
 def write_nrrd(volume, path) -> list:
     """``NAME.nrrd`` (uint8 0/255, x fastest) and, with colour, ``NAME_rgba.nrrd`` (RGBA);
     density and distance in ``NAME_density.nrrd`` and ``NAME_sdf.nrrd``."""
-    from . import atomic_outputs, scalar_fields
+    from .base import atomic_outputs, scalar_fields
     from .raw import colour_path, field_path
 
     path = os.fspath(path)
@@ -79,7 +79,7 @@ def write_nrrd(volume, path) -> list:
 
 def _label_keys(volume) -> dict:
     """The label table as NRRD key/value pairs: one per label, and the whole as JSON."""
-    from . import label_table_json
+    from .base import label_table_json
 
     keys = {}
     for e in volume.label_table or []:
@@ -120,7 +120,7 @@ def read_nrrd(path):
         grid = load_reference(os.fspath(path)).local_grid()
     lpath = field_path(os.fspath(path), "labels")
     if os.path.exists(lpath):
-        from . import table_from_json
+        from .base import table_from_json
 
         lab, lheader = nrrd.read(lpath)
         extra["labels"] = np.asfortranarray(lab)

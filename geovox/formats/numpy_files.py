@@ -9,7 +9,7 @@ import numpy as np
 
 def write_npy(volume, path) -> list:
     """``[x, y, z]`` uint8 0/1 (stored Fortran-ordered, no copy)."""
-    from . import atomic_output
+    from .base import atomic_output
 
     path = os.fspath(path)
     with atomic_output(path) as tmp:
@@ -56,7 +56,7 @@ def write_npz(volume, path, pack_bits: bool = False) -> list:
     ``np.unpackbits(d["occupancy_bits"])[:np.prod(d["shape"])].reshape(d["shape"])``
     is the volume again; one bit per voxel instead of a byte.
     """
-    from . import atomic_output
+    from .base import atomic_output
     from .headers import origin_of
 
     path = os.fspath(path)
@@ -79,14 +79,14 @@ def write_npz(volume, path, pack_bits: bool = False) -> list:
                       origin=np.asarray(ref["affine"])[:3, 3])
     if volume.colors is not None:
         arrays["colors"] = volume.colors
-    from . import scalar_fields
+    from .base import scalar_fields
 
     for name, arr, _, _ in scalar_fields(volume):
         arrays[name] = arr
     if getattr(volume, "fractions", None) is not None:
         arrays["fractions"] = volume.fractions
     if getattr(volume, "label_table", None):
-        from . import label_table_json
+        from .base import label_table_json
 
         arrays["label_table"] = np.array(label_table_json(volume))
     with atomic_output(path) as tmp:
@@ -114,7 +114,7 @@ def read_npz(path):
         extra = {name: np.asfortranarray(z[name]) for name in ("density", "sdf", "labels")
                  if name in z}
         if "label_table" in z:
-            from . import table_from_json
+            from .base import table_from_json
 
             extra["label_table"] = table_from_json(z["label_table"][()])
     return Volume(occupancy=occ, grid=Grid(bounds[0], bounds[1], occ.shape), backend="?",

@@ -7,7 +7,7 @@ import os
 
 import numpy as np
 
-from . import SlabWriter
+from .base import FIELD_VALUES, SlabWriter, as_meta, atomic_outputs
 
 #: Voxels converted per slab, which bounds the extra memory of writing: 1 MB
 #: of 0/255 bytes at a time (1 << 24 made a 256³ volume's whole second copy,
@@ -93,17 +93,18 @@ class RawWriter(SlabWriter):
     """
 
     def __init__(self, path, meta, jobs: int = 1):
-        from . import atomic_outputs
-
+        meta = as_meta(meta)
         self.path, self.meta = os.fspath(path), meta
         self._ctx = atomic_outputs()
         self.group = self._ctx.__enter__()
         self.names = {"occupancy": self.path}
-        if meta.colors is not None:
+        if meta.colors:
             self.names["color"] = colour_path(self.path)
-        for name in ("density", "sdf", "labels", "fractions"):
-            if getattr(meta, name, None) is not None:
+        for name in ("density", "sdf", "labels"):
+            if meta.dtype(name) is not None:
                 self.names[name] = field_path(self.path, name)
+        if meta.fractions is not None:
+            self.names["fractions"] = field_path(self.path, "fractions")
         self.files = {k: open(self.group.add(p), "wb") for k, p in self.names.items()}
 
     def write(self, z0: int, vol) -> None:
@@ -151,8 +152,6 @@ class RawWriter(SlabWriter):
             data, offset = data[n:], offset + n
 
     def _finish(self) -> list:
-        from . import FIELD_VALUES
-
         for fh in self.files.values():
             fh.close()
         meta = self.meta
@@ -173,7 +172,7 @@ class RawWriter(SlabWriter):
             }
         for name in ("density", "sdf", "labels"):
             if name in self.names:
-                dtype = str(getattr(meta, name).dtype)
+                dtype = str(meta.dtype(name))
                 fpath = self.names[name]
                 written += [fpath] + _write_headers(self.group, meta, fpath, dtype)
                 info[name] = {"data_file": os.path.basename(fpath), "dtype": dtype,
@@ -182,7 +181,7 @@ class RawWriter(SlabWriter):
                                         f".reshape(({nx}, {ny}, {nz}), order='F')")}
         if "fractions" in self.names:
             written += self._fractions_info(info)
-        if "labels" in info and getattr(meta, "label_table", None):
+        if "labels" in info and meta.label_table:
             info["labels"]["label_table"] = meta.label_table
         sidecar = os.path.splitext(self.path)[0] + ".json"
         with open(self.group.add(sidecar), "w") as fh:
@@ -195,8 +194,8 @@ class RawWriter(SlabWriter):
         """The fractions file's headers and its entry in the sidecar; the files written."""
         meta = self.meta
         nx, ny, nz = meta.shape
-        n = meta.fractions.shape[3]
-        dtype = str(meta.fractions.dtype)
+        n, dtype = meta.fractions
+        dtype = str(dtype)
         fpath = self.names["fractions"]
         info["fractions"] = {
             "data_file": os.path.basename(fpath), "dtype": dtype, "components": n,

@@ -110,7 +110,7 @@ def volume_source(path):
             if root.endswith(suffix) and os.path.isfile(main):
                 return main, "nrrd"
         return path, "nrrd"
-    from . import format_for
+    from .registry import format_for
 
     return path, format_for(path).name
 

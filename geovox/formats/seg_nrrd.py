@@ -23,7 +23,7 @@ import zlib
 
 import numpy as np
 
-from . import SlabWriter
+from .base import SlabWriter, as_meta, atomic_output, atomic_outputs
 
 def extents(labels: np.ndarray, n: int) -> np.ndarray:
     """(n + 1, 6) int64: each label value's inclusive ``x0 x1 y0 y1 z0 z1``; empty: ``0 -1`` each.
@@ -80,13 +80,17 @@ SEGMENT_COLOUR = [230, 77, 51, 255]
 
 
 def _table_of(volume) -> tuple:
-    """``(dtype, table)``: the volume's labels' own, or its occupancy's as one segment (value 1)."""
-    if getattr(volume, "labels", None) is not None:
-        return volume.labels.dtype, volume.label_table
-    name = os.path.splitext(os.path.basename(str(volume.source)))[0] or "mesh"
+    """``(dtype, table)``: the volume's labels' own, or its occupancy's as one segment (value 1).
+
+    ``volume``: a Volume, or the :class:`~geovox.formats.base.Meta` of one.
+    """
+    meta = as_meta(volume)
+    if meta.dtype("labels") is not None:
+        return meta.dtype("labels"), meta.label_table
+    name = os.path.splitext(os.path.basename(str(meta.source)))[0] or "mesh"
     name = "".join(c if c.isprintable() else "_" for c in name)
     table = [{"value": 0, "name": "background", "source": "", "color": [0, 0, 0, 0]},
-             {"value": 1, "name": name, "source": str(volume.source), "color": SEGMENT_COLOUR}]
+             {"value": 1, "name": name, "source": str(meta.source), "color": SEGMENT_COLOUR}]
     return np.dtype(np.uint8), table
 
 
@@ -127,8 +131,7 @@ class SegNrrdWriter(SlabWriter):
     def __init__(self, path, meta, jobs: int = 1):
         import tempfile
 
-        from . import atomic_outputs
-
+        meta = as_meta(meta)
         self.path, self.meta = os.fspath(path), meta
         self._ctx = atomic_outputs()
         self.body = None
@@ -203,8 +206,6 @@ def write_seg_nrrd(volume, path) -> list:
     list of str
         ``[path]``.
     """
-    from . import atomic_output
-
     path = os.fspath(path)
     lab, _ = _labels_of(volume)
     z = zlib.compressobj(1, zlib.DEFLATED, 31)

@@ -401,8 +401,8 @@ def write_vdb(volume, path) -> list:
     """Write ``volume`` as an OpenVDB file (see the module docstring)."""
     import uuid  # (not imported with the format registry)
 
-    from .. import __version__
-    from . import atomic_output
+    from ..version import __version__
+    from .base import atomic_output
 
     path = os.fspath(path)
     header = (struct.pack("<qIIIB", MAGIC, FILE_VERSION, *LIBRARY_VERSION, 1)

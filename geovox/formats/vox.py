@@ -147,7 +147,7 @@ def encode(occ: np.ndarray, colors: np.ndarray | None, shell: bool = False,
 
 
 def write_vox(volume, path, shell: bool = False) -> list:
-    from . import atomic_output
+    from .base import atomic_output
 
     path = os.fspath(path)
     if getattr(volume, "labels", None) is not None:

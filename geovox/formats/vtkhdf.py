@@ -20,7 +20,7 @@ import os
 
 import numpy as np
 
-from . import SlabWriter
+from .base import SlabWriter, as_meta, atomic_outputs
 
 #: The oldest VTK-HDF version with image data: what ParaView 5.10+ reads silently.
 VERSION = (1, 0)
@@ -65,10 +65,10 @@ class VTKHDFWriter(SlabWriter):
     def __init__(self, path, meta, jobs: int = 2):
         import h5py
 
-        from . import atomic_outputs
         from .chunks import LEVEL
         from .headers import frame_of
 
+        meta = as_meta(meta)
         self.path, self.jobs = os.fspath(path), jobs
         self._ctx = atomic_outputs()
         self.f = None
@@ -84,18 +84,18 @@ class VTKHDFWriter(SlabWriter):
             pd = g.create_group("PointData")
             zyx = tuple(min(64, n) for n in meta.shape[::-1])
             fields = {"occupancy": (np.uint8, ())}
-            if meta.colors is not None:
+            if meta.colors:
                 fields["color"] = (np.uint8, (4,))
             for name in ("density", "sdf", "labels"):
-                if getattr(meta, name, None) is not None:
-                    fields[name] = (getattr(meta, name).dtype, ())
+                if meta.dtype(name) is not None:
+                    fields[name] = (meta.dtype(name), ())
             # Chunks arrive compressed (formats.chunks); the level only labels the filter.
             self.sets = {
                 name: pd.create_dataset(name, shape=tuple(meta.shape[::-1]) + tail, dtype=dtype,
                                         chunks=zyx + tail, compression="gzip",
                                         compression_opts=LEVEL, fillvalue=0)
                 for name, (dtype, tail) in fields.items()}
-            if getattr(meta, "label_table", None):
+            if meta.label_table:
                 _label_field_data(g, meta.label_table)
         except BaseException:
             self.abort()

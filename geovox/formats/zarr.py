@@ -51,6 +51,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import OutputError, ParameterError
+from .base import FIELD_VALUES, as_meta
 
 #: Chunk side; shard z-thickness must be a multiple of it.
 CHUNK = 64
@@ -154,21 +155,20 @@ def make_layout(root, meta, thick: int) -> Layout:
             out.append(Level(prefix + str(k), s, shard))
         return tuple(out)
 
+    meta = as_meta(meta)
     fields = [Field("occupancy", "uint8", 0, levels("", 0))]
-    if meta.colors is not None:
+    if meta.colors:
         fields.append(Field("color", "uint8", 4, levels("color/", 4)))
     for name in ("density", "sdf"):
-        arr = getattr(meta, name, None)
-        if arr is not None:
-            fields.append(Field(name, str(arr.dtype), 0, levels(name + "/", 0)))
-    if getattr(meta, "labels", None) is not None:
+        if meta.dtype(name) is not None:
+            fields.append(Field(name, str(meta.dtype(name)), 0, levels(name + "/", 0)))
+    if meta.dtype("labels") is not None:
         # OME-Zarr's labels/ group: one label image, "labels/labels".
-        fields.append(Field("labels", str(meta.labels.dtype), 0, levels("labels/labels/", 0)))
-    fr = getattr(meta, "fractions", None)
-    if fr is not None:
+        fields.append(Field("labels", str(meta.dtype("labels")), 0, levels("labels/labels/", 0)))
+    if meta.fractions is not None:
         # One channel per label (index k: label k + 1), as colour has one per component.
-        n = int(fr.shape[3])
-        fields.append(Field("fractions", str(fr.dtype), n, levels("fractions/", n)))
+        n, dtype = meta.fractions
+        fields.append(Field("fractions", str(dtype), int(n), levels("fractions/", int(n))))
     return Layout(os.fspath(root), tuple(int(n) for n in meta.shape), thick, in_slab, tuple(fields))
 
 
@@ -207,7 +207,6 @@ def create(layout: Layout, meta, unit=None) -> None:
     zarr = _zarr()
     from zarr.codecs import BytesCodec, GzipCodec
 
-    from . import FIELD_VALUES
     from .headers import frame_metadata
 
     root = zarr.open_group(layout.root, mode="w", zarr_format=3)
@@ -627,10 +626,8 @@ def build_levels(layout: Layout, client=None, jobs: int = 1) -> None:
 class ZarrWriter:
     """Writes a ``.zarr`` folder slab by slab under a temporary name, renamed into place on close.
 
-    ``meta`` is anything with ``shape``, ``spacing``, ``bounds``, ``backend``,
-    ``source`` and ``colors`` / ``density`` / ``sdf`` (None when absent; for
-    ``density`` and ``sdf`` an array whose dtype is the one to store).
-    Slabs are ``thick`` layers (a multiple of 64; default the whole depth,
+    ``meta`` is the :class:`~geovox.formats.base.Meta` of the whole volume
+    (or the volume itself, written whole). Slabs are ``thick`` layers (a multiple of 64; default the whole depth,
     :func:`whole_thick`) starting on multiples of ``thick``; any process that
     can reach the folder may write them (see :attr:`layout` and
     :func:`write_slab`). The first three parameters are every slab writer's
@@ -641,6 +638,7 @@ class ZarrWriter:
     def __init__(self, path, meta, jobs: int = 2, *, thick=None, client=None, unit=None):
         import tempfile
 
+        meta = as_meta(meta)
         self.path, self.jobs, self.client = os.fspath(path), jobs, client
         self.meta, self.unit = meta, unit
         thick = check_thick(whole_thick(meta.shape) if thick is None else thick)
@@ -686,7 +684,7 @@ class ZarrWriter:
         """The labels' ``image-label`` again, from ``meta.label_table`` as it is now.
 
         Streamed, the counts (``voxels``, ``volume``) are known only once
-        every slab is made (:func:`geovox.stream.run_slabs` sets them).
+        every slab is made (:func:`geovox.runners.run_slabs` sets them).
         """
         field = next((f for f in self.layout.fields if f.name == "labels"), None)
         if field is None:
