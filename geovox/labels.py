@@ -335,7 +335,7 @@ def _box_fill(hits, columns, grid, lo_ray, z0: int = 0, jobs=1):
     odd_voxel = lin[starts[np.diff(np.r_[starts, len(lin)]) % 2 == 1]]
     t = np.zeros((nx,) + shape[1:], dtype=bool, order="F")
     t.reshape(-1, order="F")[odd_voxel] = True
-    parity._running_xor(t, axis, jobs)
+    parity.running_xor(t, axis, jobs)
     return tuple(slice(l, h) for l, h in zip(lo, hi)), t[:shape[0]]
 
 

@@ -77,11 +77,11 @@ def fill(hits: Hits, columns: Columns, grid: Grid, out: np.ndarray | None = None
         out[...] = False
     flat = out.reshape(-1, order="F")  # a view: `out` is Fortran-ordered
     flat[toggle_indices(hits, columns, grid)] = True
-    _running_xor(out, columns.axis, jobs)
+    running_xor(out, columns.axis, jobs)
     return out
 
 
-def _running_xor(out: np.ndarray, axis: int, jobs: int) -> None:
+def running_xor(out: np.ndarray, axis: int, jobs: int) -> None:
     """Toggles -> occupancy in place: a running XOR along ``axis``."""
     if axis != 0 and out.shape[0] % 8 == 0:
         # Eight voxels per XOR: bytes holding 0 or 1 stay 0 or 1, and with

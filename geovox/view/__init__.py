@@ -21,6 +21,10 @@ SHELL_ABOVE = 200_000
 LARGEST = 256
 
 
+__all__ = ["LARGEST", "SHELL_ABOVE", "ViewerUnavailableError", "render_page", "show", "to_html",
+           "voxel_cells"]
+
+
 def __getattr__(name):
     # geovox.view.to_html without importing the page writer with the PyVista viewer.
     if name in ("to_html", "render_page"):
