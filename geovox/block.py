@@ -363,14 +363,14 @@ def _why_empty(m, grid: Grid, method: str, extent) -> str:
     region = ("" if np.all(grid.lo <= m.bounds[0]) and np.all(grid.hi >= m.bounds[1])
               else " of the region")
     thin = [ax for ax, e, h in zip("xyz", extent, grid.spacing) if e < h]
-    if n_open and method != "parity":
+    if n_open and method != Inside.PARITY:
         return (f"the mesh is an open surface ({n_open:,} open edges) that encloses no volume "
                 f"at any voxel centre{region}")
     if n_dup:
         return (f"no voxel centre{region} lies inside the mesh: {n_dup:,} of its {len(f):,} faces "
                 f"repeat another face (a double-sided model), so each crossing counts twice and "
                 f"cancels")
-    if n_same and method != "parity":
+    if n_same and method != Inside.PARITY:
         return (f"no voxel centre{region} lies inside the mesh by its winding number: its faces "
                 f"are wound against each other ({n_same:,} edges run the same way in two faces), "
                 f"so their solid angles cancel; try inside='parity' (--inside parity)")

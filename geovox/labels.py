@@ -30,7 +30,7 @@ import numpy as np
 from . import parity
 from .errors import MeshError, ParameterError, warn
 from .mesh import Mesh
-from .options import LabelSource, Overlap
+from .options import Inside, LabelSource, Overlap
 
 #: Label sources, in the order the CLI lists them.
 SOURCES = tuple(LabelSource)
@@ -440,13 +440,13 @@ def classify(mesh: Mesh, grid, lset: LabelSet, *, cast_mesh, axis: int, jobs: in
     for k in paint_order(lset, parts):
         if parts[k] is None:
             continue
-        if methods[k] == "parity":
+        if methods[k] == Inside.PARITY:
             got = _box_fill(hits.take(by_part[hcuts[k]:hcuts[k + 1]]), columns, grid, lo_ray,
                             z0, jobs)
             if got is None:
                 continue
             box, occ = got
-        elif methods[k] == "vote":
+        elif methods[k] == Inside.VOTE:
             votes = sum(parity.fill(*cast_mesh(parts[k], a), grid, jobs=jobs).view(np.uint8)
                         for a in range(3))
             box, occ = (slice(None),) * 3, votes >= 2

@@ -474,7 +474,7 @@ def _label_stage(m, o: Options, f):
             with warnings.catch_warnings():
                 # A part's repair is its own business; the whole mesh's is said once.
                 warnings.simplefilter("ignore")
-                methods.append("parity" if part is None else choose(part, o.inside))
+                methods.append(Inside.PARITY if part is None else Inside(choose(part, o.inside)))
     return LabelStage.build(m, o, methods)
 
 

@@ -198,3 +198,17 @@ def test_requires_python_is_the_readme_s_and_the_classifiers():
     assert f'"Programming Language :: Python :: {major}.{minor}"' in text
     older = [f"{major}.{m}" for m in range(minor)]
     assert not any(f"Python :: {v}\"" in text for v in older)
+
+
+def test_every_format_geovox_formats_prints_is_on_the_formats_page(capsys):
+    """``geovox formats`` in aligned columns, and every name it prints documented by name."""
+    from geovox.cli import main
+
+    assert main(["formats"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    with open(os.path.join(ROOT, "docs", "formats.md"), encoding="utf-8") as f:
+        page = f.read()
+    starts = {line.index(line.split()[1]) for line in lines}
+    assert len(starts) == 1, lines  # the extensions start in one column
+    for line in lines:
+        assert f"`{line.split()[0]}`" in page, line

@@ -672,8 +672,10 @@ def run_backends(args) -> int:
 def run_formats(args) -> int:
     from ..formats import formats
 
-    for f in formats():
-        print(f"{f.name:6s} {' '.join(f.extensions):12s} {f.description}")
+    rows = [(f.name, " ".join(f.extensions), f.description) for f in formats()]
+    width = [max(len(r[k]) for r in rows) for k in (0, 1)]  # columns as wide as their longest
+    for name, ext, description in rows:
+        print(f"{name:{width[0]}s}  {ext:{width[1]}s}  {description}")
     return EXIT_OK
 
 
