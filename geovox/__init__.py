@@ -82,7 +82,6 @@ _MOVED = {
     "geovox.references": "geovox.io.references",
     "geovox.repair": "geovox.inside.repair",
     "geovox.nearest": "geovox.colour.nearest",
-    "geovox.surface": "geovox.mesh",
 }
 
 

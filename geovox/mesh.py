@@ -3,7 +3,7 @@
 The OBJ reader (:mod:`geovox.io.obj`) and the loader of every other format
 (:mod:`geovox.io.load`) both build these; keeping them here, with no I/O, lets
 the two readers import this module instead of each other. (This was
-geovox/surface.py; ``geovox.surface`` is still this module.)
+geovox/surface.py, a name now :mod:`geovox.surface`'s.)
 
 This module was the loader before it was the data model (issue 21), so the
 loader's names are still found here, live: ``geovox.mesh.load_mesh`` is

@@ -29,7 +29,6 @@ MOVED = {
     "geovox.references": "geovox.io.references",
     "geovox.repair": "geovox.inside.repair",
     "geovox.nearest": "geovox.colour.nearest",
-    "geovox.surface": "geovox.mesh",
 }
 #: module that became a package -> the module whose names the package shows
 PACKAGES = {
@@ -197,10 +196,10 @@ def test_relative_imports_in_the_sub_packages_name_real_modules(package):
                     f"{where}: {'.' * node.level}{node.module} is not a module")
 
 
-def test_the_data_model_is_geovox_mesh_and_geovox_surface_is_it():
+def test_the_data_model_is_geovox_mesh():
     import geovox.io.load
     import geovox.mesh
-    from geovox.surface import Material, Mesh, build_mesh, check_mesh, texels
+    from geovox.mesh import Material, Mesh, build_mesh, check_mesh, texels
 
     assert geovox.mesh.__file__ == os.path.join(ROOT, "geovox", "mesh.py")
     assert geovox.io.load.__file__ == os.path.join(ROOT, "geovox", "io", "load.py")
@@ -280,7 +279,7 @@ def test_the_data_model_imports_without_the_loader():
     # stays light and there is no import cycle, in either order.
     code = ("import sys\nimport geovox.mesh\n"
             "assert 'geovox.io.load' not in sys.modules and 'geovox.io' not in sys.modules\n"
-            "from geovox.surface import Mesh\nassert Mesh is geovox.mesh.Mesh\n"
+            "from geovox.mesh import Mesh\nassert Mesh is geovox.mesh.Mesh\n"
             "assert 'geovox.io.load' not in sys.modules\n"
             "f = geovox.mesh.load_mesh\nassert f is sys.modules['geovox.io.load'].load_mesh\n"
             "print('ok')\n")
