@@ -37,7 +37,7 @@ copy of the output.
 
 from cython.parallel cimport prange, parallel, threadid
 from libc.math cimport rint, floor, isfinite
-from libc.stdint cimport int64_t, uint8_t
+from libc.stdint cimport int64_t, uint8_t, uint64_t, uint64_t
 from libc.stdlib cimport calloc, free
 from libc.string cimport memset
 
@@ -50,6 +50,7 @@ cdef extern from *:
     """
     ctypedef long long i128 "geovox_i128"
     void set_on "geovox_set_on"(uint8_t *p) noexcept nogil
+    int ctz "__builtin_ctzll"(unsigned long long x) noexcept nogil
 
 #: Candidates of a triangle's box tested one by one below this many voxels;
 #: above it the column walk (measured on the dragon at 1024^3: see
@@ -108,6 +109,19 @@ cdef inline double dmin(double a, double b) noexcept nogil:
 
 cdef inline double dmax(double a, double b) noexcept nogil:
     return a if a > b else b
+
+
+cdef inline int64_t ifloor(double x) noexcept nogil:
+    # floor() for |x| < 2**62 without a call into libm (it was not inlined).
+    cdef int64_t i = <int64_t>x
+    return i - (x < i)
+
+
+#: The axes after a: b = AFTER1[a], c = AFTER2[a] (no % in the inner loops).
+cdef int AFTER1[3]
+cdef int AFTER2[3]
+AFTER1[:] = [1, 2, 0]
+AFTER2[:] = [2, 0, 1]
 
 
 cdef inline bint reach(const double *x, const Frame *F, double *f) noexcept nogil:
@@ -224,7 +238,7 @@ cdef inline bint edge_separates(const Tri *t, const Frame *F, int e, const int64
                                 const bint *inner) noexcept nogil:
     """Whether edge x axis ``e`` separates the triangle from voxel ``idx`` (eps symbolic)."""
     cdef int a = e % 3
-    cdef int b = (a + 1) % 3, c = (a + 2) % 3
+    cdef int b = AFTER1[a], c = AFTER2[a]
     cdef int64_t lb = t.lb[e], lc = t.lc[e]
     cdef int64_t corner = F.S * (lb * idx[b] + lc * idx[c])
     # The box's top moves down with eps on the axes where the voxel is not
@@ -278,17 +292,135 @@ cdef void run(const Tri *t, const Frame *F) noexcept nogil:
         mark(F, idx)
 
 
-cdef void each(const Tri *t, const Frame *F) noexcept nogil:
+cdef uint64_t plane_mask(const Tri *t, const Frame *F, int a, int64_t ib0, int64_t nb,
+                         int64_t ic0, int64_t nc) noexcept nogil:
+    """Bit ``(ib - ib0) * nc + (ic - ic0)`` set where no edge x ``a`` axis separates cell ``(ib, ic)``.
+
+    The cells are those of the plane across ``a`` (``b, c`` the axes after
+    ``a``), ``nb * nc <= 64``. These axes are the 2-D separating axes of the
+    triangle's projection along ``a`` and a cell: its edge normals in that
+    plane. Written with ``&`` and ``|``: the outcomes are data-dependent, and
+    mispredicted branches cost more than the tests.
+    """
+    cdef int b = AFTER1[a], c = AFTER2[a], k, e
+    cdef int64_t sb[3]
+    cdef int64_t sc[3]
+    cdef int64_t low[3]
+    cdef int64_t high[3]
+    cdef int64_t upb[3]
+    cdef int64_t upc[3]
+    cdef int64_t dnb[3]
+    cdef int64_t dnc[3]
+    cdef int64_t ib, ic, inb, inc, corner, row
+    cdef uint64_t bits = 0, ok
+    for k in range(3):
+        e = 3 * k + a
+        sb[k], sc[k] = F.S * t.lb[e], F.S * t.lc[e]
+        # Not separated: tmin - corner + up <= bmax and tmax - corner - down >= bmin.
+        low[k], high[k] = t.tmin[e] - t.bmax[e], t.tmax[e] - t.bmin[e]
+        upb[k], upc[k] = t.lb[e] > 0, t.lc[e] > 0
+        dnb[k], dnc[k] = t.lb[e] < 0, t.lc[e] < 0
+    for ib in range(nb):
+        inb = ib0 + ib < F.n[b] - 1
+        for ic in range(nc):
+            inc = ic0 + ic < F.n[c] - 1
+            ok = 1
+            for k in range(3):
+                corner = sb[k] * (ib0 + ib) + sc[k] * (ic0 + ic)
+                ok &= ((corner >= low[k] + ((upb[k] & inb) | (upc[k] & inc)))
+                       & (corner <= high[k] - ((dnb[k] & inb) | (dnc[k] & inc))))
+            bits |= ok << (ib * nc + ic)
+    return bits
+
+
+cdef void flat(const Tri *t, const Frame *F, int a) noexcept nogil:
+    """Every point of the triangle is in one layer ``t.lo[a]`` along ``a``: a 2-D problem.
+
+    Voxel ``(cell, layer)`` meets the triangle iff the cell meets its
+    projection along ``a``, so the edge x ``a`` axes decide alone.
+    """
+    cdef int b = (a + 1) % 3, c = (a + 2) % 3, k
     cdef int64_t idx[3]
-    cdef int64_t i, j, k
-    for k in range(t.lo[2], t.hi[2] + 1):
-        idx[2] = k
-        for j in range(t.lo[1], t.hi[1] + 1):
-            idx[1] = j
-            for i in range(t.lo[0], t.hi[0] + 1):
-                idx[0] = i
-                if meets(t, F, idx, -1):
-                    mark(F, idx)
+    cdef int64_t ib, ic, clo, chi, nc
+    cdef uint64_t bits
+    cdef double pb[3]
+    cdef double pc[3]
+    cdef double Sd = <double>F.S, vmin, vmax
+    cdef bint walk = (t.hi[b] - t.lo[b] + 1) * (t.hi[c] - t.lo[c] + 1) > SMALL
+    for k in range(3):
+        pb[k] = <double>t.q[3 * k + b]
+        pc[k] = <double>t.q[3 * k + c]
+    idx[a] = t.lo[a]
+    for ib in range(t.lo[b], t.hi[b] + 1):
+        clo, chi = t.lo[c], t.hi[c]
+        if walk:
+            # Only the cells of the strip that the projected triangle may reach.
+            strip_range(pb, pc, ib * Sd - MARGIN, (ib + 1) * Sd + MARGIN, &vmin, &vmax)
+            if vmin > vmax:
+                continue
+            clo = imax(clo, ifloor((vmin - MARGIN) / Sd))
+            chi = imin(chi, ifloor((vmax + MARGIN) / Sd))
+        idx[b] = ib
+        while clo <= chi:
+            # 64 cells at a time as bits, then only the set ones visited.
+            nc = imin(chi - clo + 1, 64)
+            bits = plane_mask(t, F, a, ib, 1, clo, nc)
+            while bits:
+                idx[c] = clo + ctz(bits)
+                mark(F, idx)
+                bits &= bits - 1
+            clo += nc
+
+
+cdef void box(const Tri *t, const Frame *F) noexcept nogil:
+    """A triangle whose box holds at most 64 voxels: every voxel tested, as bits.
+
+    The nine edge x axis tests are the 2-D tests of the triangle's three
+    coordinate projections, so they are made once per projected cell (bit
+    masks) and shared by the voxels over it; each voxel adds the normal's
+    test. The voxels that pass are a 64-bit mask whose set bits are marked.
+    """
+    cdef uint64_t mask[3]
+    cdef uint64_t on = 0, ok
+    cdef int64_t span[3]
+    cdef int64_t idx[3]
+    cdef int64_t i, j, k, ib, ic, inx, iny, inz, up, down, bit
+    cdef i128 rk, rj, r, sx, sy, sz
+    cdef int a, b, c
+    for a in range(3):
+        span[a] = t.hi[a] - t.lo[a] + 1
+    for a in range(3):
+        b, c = AFTER1[a], AFTER2[a]
+        mask[a] = plane_mask(t, F, a, t.lo[b], span[b], t.lo[c], span[c])
+        if mask[a] == 0:
+            return
+    # The normal's projection of each voxel's corner, stepped along the axes.
+    sx, sy, sz = <i128>F.S * t.N[0], <i128>F.S * t.N[1], <i128>F.S * t.N[2]
+    rk = t.d0 - sx * t.lo[0] - sy * t.lo[1] - sz * t.lo[2]
+    for k in range(span[2]):
+        inz = t.lo[2] + k < F.n[2] - 1
+        rj = rk
+        for j in range(span[1]):
+            iny = t.lo[1] + j < F.n[1] - 1
+            r = rj
+            for i in range(span[0]):
+                inx = t.lo[0] + i < F.n[0] - 1
+                up = ((t.N[0] > 0) & inx) | ((t.N[1] > 0) & iny) | ((t.N[2] > 0) & inz)
+                down = ((t.N[0] < 0) & inx) | ((t.N[1] < 0) & iny) | ((t.N[2] < 0) & inz)
+                ok = ((mask[0] >> (j * span[2] + k)) & (mask[1] >> (k * span[0] + i))
+                      & (mask[2] >> (i * span[1] + j)) & 1)
+                ok &= (r + up <= t.pmax) & (r - down >= t.pmin)
+                on |= ok << ((k * span[1] + j) * span[0] + i)
+                r -= sx
+            rj -= sy
+        rk -= sz
+    while on:
+        bit = ctz(on)
+        idx[0] = t.lo[0] + bit % span[0]
+        idx[1] = t.lo[1] + (bit // span[0]) % span[1]
+        idx[2] = t.lo[2] + bit // (span[0] * span[1])
+        mark(F, idx)
+        on &= on - 1
 
 
 cdef void strip_range(const double *pu, const double *pv, double ul, double uh,
@@ -319,77 +451,99 @@ cdef void strip_range(const double *pu, const double *pv, double ul, double uh,
 
 
 cdef void columns(const Tri *t, const Frame *F) noexcept nogil:
-    """Walk a triangle column by column along its normal's dominant axis."""
+    """Walk a triangle column by column along its normal's dominant axis ``w``."""
     cdef int w = 0, u, v, k, e
     cdef int64_t idx[3]
     cdef bint inner[3]
     cdef double pu[3]
     cdef double pv[3]
-    cdef double Sd = <double>F.S, gu, gv, vmin, vmax, wc, wlo, whi
-    cdef int64_t i, j, layer, jlo, jhi, klo, khi, corner, up, down, lb, lc
-    cdef bint separated, interior
     cdef int64_t an[3]
+    # The edge x w axes, as in plane_mask, and the cell-inside-triangle bounds.
+    cdef int64_t su[3]
+    cdef int64_t sv[3]
+    cdef int64_t low[3]
+    cdef int64_t high[3]
+    cdef int64_t inlow[3]
+    cdef int64_t inhigh[3]
+    cdef int64_t upu[3]
+    cdef int64_t upv[3]
+    cdef int64_t dnu[3]
+    cdef int64_t dnv[3]
+    cdef double Sd = <double>F.S, inv = 1.0 / Sd, gu, gv, vmin, vmax, wc, below, above
+    cdef int64_t i, j, layer, jlo, jhi, klo, khi, corner, inu, inv_, inw, up, down, ok, inside
+    cdef int64_t nu_up, nv_up, nw_up, nu_dn, nv_dn, nw_dn
+    cdef i128 r, rrow, snu, snv, snw
+    cdef bint separated
     for k in range(3):
         an[k] = t.N[k] if t.N[k] >= 0 else -t.N[k]
     if an[1] > an[w]:
         w = 1
     if an[2] > an[w]:
         w = 2
-    u, v = (w + 1) % 3, (w + 2) % 3
-    gu = <double>t.N[u] / <double>t.N[w]
-    gv = <double>t.N[v] / <double>t.N[w]
+    u, v = AFTER1[w], AFTER2[w]
     for k in range(3):
+        e = 3 * k + w
+        su[k], sv[k] = F.S * t.lb[e], F.S * t.lc[e]
+        low[k], high[k] = t.tmin[e] - t.bmax[e], t.tmax[e] - t.bmin[e]
+        inlow[k], inhigh[k] = t.tmin[e] - t.bmin[e], t.tmax[e] - t.bmax[e]
+        upu[k], upv[k] = t.lb[e] > 0, t.lc[e] > 0
+        dnu[k], dnv[k] = t.lb[e] < 0, t.lc[e] < 0
         pu[k] = <double>t.q[3 * k + u]
         pv[k] = <double>t.q[3 * k + v]
+    nu_up, nv_up, nw_up = t.N[u] > 0, t.N[v] > 0, t.N[w] > 0
+    nu_dn, nv_dn, nw_dn = t.N[u] < 0, t.N[v] < 0, t.N[w] < 0
+    snu, snv, snw = <i128>F.S * t.N[u], <i128>F.S * t.N[v], <i128>F.S * t.N[w]
+    gu = <double>t.N[u] / <double>t.N[w]
+    gv = <double>t.N[v] / <double>t.N[w]
+    # The plane's w over a cell is wc (at its low corner) minus these, widened.
+    below = Sd * (dmax(gu, 0.0) + dmax(gv, 0.0)) + MARGIN
+    above = -Sd * (dmin(gu, 0.0) + dmin(gv, 0.0)) + MARGIN
     for i in range(t.lo[u], t.hi[u] + 1):
         strip_range(pu, pv, i * Sd - MARGIN, (i + 1) * Sd + MARGIN, &vmin, &vmax)
         if vmin > vmax:
             continue
-        jlo = imax(t.lo[v], <int64_t>floor((vmin - MARGIN) / Sd))
-        jhi = imin(t.hi[v], <int64_t>floor((vmax + MARGIN) / Sd))
+        jlo = imax(t.lo[v], ifloor((vmin - MARGIN) * inv))
+        jhi = imin(t.hi[v], ifloor((vmax + MARGIN) * inv))
+        inu = i < F.n[u] - 1
         idx[u] = i
+        rrow = t.d0 - snu * i
         for j in range(jlo, jhi + 1):
-            idx[v] = j
-            idx[w] = t.lo[w]
-            inner_of(F, idx, inner)
-            # The edge x w axes: in the (u, v) plane, the same for the whole column.
-            separated = False
-            interior = True
+            inv_ = j < F.n[v] - 1
+            ok = 1
+            inside = 1
             for k in range(3):
-                e = 3 * k + w
-                lb, lc = t.lb[e], t.lc[e]
-                corner = F.S * (lb * idx[u] + lc * idx[v])
-                up = (lb > 0 and inner[u]) or (lc > 0 and inner[v])
-                down = (lb < 0 and inner[u]) or (lc < 0 and inner[v])
-                if (t.tmin[e] - corner + up > t.bmax[e]) or (t.tmax[e] - corner - down < t.bmin[e]):
-                    separated = True
-                    break
-                if corner + t.bmin[e] < t.tmin[e] or corner + t.bmax[e] > t.tmax[e]:
-                    interior = False
-            if separated:
+                corner = su[k] * i + sv[k] * j
+                ok &= ((corner >= low[k] + ((upu[k] & inu) | (upv[k] & inv_)))
+                       & (corner <= high[k] - ((dnu[k] & inu) | (dnv[k] & inv_))))
+                inside &= (corner >= inlow[k]) & (corner <= inhigh[k])
+            if not ok:
                 continue
-            # The plane's w over the cell [iS, (i+1)S] x [jS, (j+1)S].
+            idx[v] = j
+            # The plane's w-range over the cell [iS, (i+1)S] x [jS, (j+1)S].
             wc = t.q[w] - gu * (i * Sd - pu[0]) - gv * (j * Sd - pv[0])
-            wlo = wc - Sd * (dmax(gu, 0.0) + dmax(gv, 0.0)) - MARGIN
-            whi = wc - Sd * (dmin(gu, 0.0) + dmin(gv, 0.0)) + MARGIN
-            klo = imax(t.lo[w], <int64_t>floor(wlo / Sd))
-            khi = imin(t.hi[w], <int64_t>floor(whi / Sd))
+            klo = imax(t.lo[w], ifloor((wc - below) * inv))
+            khi = imin(t.hi[w], ifloor((wc + above) * inv))
+            r = rrow - snv * j - snw * klo
             for layer in range(klo, khi + 1):
-                idx[w] = layer
-                inner[w] = layer < F.n[w] - 1
-                if normal_separates(t, F, idx, inner):
-                    continue
-                # Inside the projected triangle, the triangle over the cell
-                # is the plane: the normal's test was the whole test.
-                if not interior:
-                    separated = False
-                    for e in range(9):
-                        if e % 3 != w and edge_separates(t, F, e, idx, inner):
-                            separated = True
-                            break
-                    if separated:
-                        continue
-                mark(F, idx)
+                inw = layer < F.n[w] - 1
+                up = (nu_up & inu) | (nv_up & inv_) | (nw_up & inw)
+                down = (nu_dn & inu) | (nv_dn & inv_) | (nw_dn & inw)
+                if (r + up <= t.pmax) & (r - down >= t.pmin):
+                    idx[w] = layer
+                    # Inside the projected triangle, the triangle over the
+                    # cell is the plane: the normal's test was the whole test.
+                    if not inside:
+                        inner[u], inner[v], inner[w] = inu, inv_, inw
+                        separated = False
+                        for e in range(9):
+                            if e % 3 != w and edge_separates(t, F, e, idx, inner):
+                                separated = True
+                                break
+                        if separated:
+                            r -= snw
+                            continue
+                    mark(F, idx)
+                r -= snw
 
 
 cdef void segment(const Tri *t, const Frame *F) noexcept nogil:
@@ -423,11 +577,11 @@ cdef void segment(const Tri *t, const Frame *F) noexcept nogil:
         if t0 > t1:
             continue
         va, vb = p0[b] + t0 * delta[b], p0[b] + t1 * delta[b]
-        lo1 = imax(t.lo[b], <int64_t>floor((dmin(va, vb) - MARGIN) / Sd))
-        hi1 = imin(t.hi[b], <int64_t>floor((dmax(va, vb) + MARGIN) / Sd))
+        lo1 = imax(t.lo[b], ifloor((dmin(va, vb) - MARGIN) / Sd))
+        hi1 = imin(t.hi[b], ifloor((dmax(va, vb) + MARGIN) / Sd))
         va, vb = p0[c] + t0 * delta[c], p0[c] + t1 * delta[c]
-        lo2 = imax(t.lo[c], <int64_t>floor((dmin(va, vb) - MARGIN) / Sd))
-        hi2 = imin(t.hi[c], <int64_t>floor((dmax(va, vb) + MARGIN) / Sd))
+        lo2 = imax(t.lo[c], ifloor((dmin(va, vb) - MARGIN) / Sd))
+        hi2 = imin(t.hi[c], ifloor((dmax(va, vb) + MARGIN) / Sd))
         idx[d] = layer
         for i in range(lo1, hi1 + 1):
             idx[b] = i
@@ -441,6 +595,7 @@ cdef void triangle(const double *x, const Frame *F) noexcept nogil:
     cdef double f[9]
     cdef Tri t
     cdef int a, v, single = 0
+    cdef bint flat_axis[3]
     cdef int64_t mn, mx, side, count
     if not reach(x, F, f):
         return
@@ -456,8 +611,8 @@ cdef void triangle(const double *x, const Frame *F) noexcept nogil:
         t.lo[a] = 0 if mn < 0 else imin(mn >> F.s, F.n[a] - 1)
         t.hi[a] = imin(mx >> F.s, F.n[a] - 1)
         # Every point of the triangle in one voxel's half-open interval along a.
-        if t.lo[a] == t.hi[a] and mn >= 0 and mx <= side:
-            single += 1
+        flat_axis[a] = t.lo[a] == t.hi[a] and mn >= 0 and mx <= side
+        single += flat_axis[a]
     t.lo[2] = imax(t.lo[2], F.z0)
     t.hi[2] = imin(t.hi[2], F.z1 - 1)
     if t.lo[2] > t.hi[2]:
@@ -466,12 +621,17 @@ cdef void triangle(const double *x, const Frame *F) noexcept nogil:
         run(&t, F)
         return
     prepare(&t, F)
+    if single == 1:
+        for a in range(3):
+            if flat_axis[a]:
+                flat(&t, F, a)
+                return
     if t.N[0] == 0 and t.N[1] == 0 and t.N[2] == 0:
         segment(&t, F)
         return
     count = (t.hi[0] - t.lo[0] + 1) * (t.hi[1] - t.lo[1] + 1) * (t.hi[2] - t.lo[2] + 1)
-    if count <= SMALL:
-        each(&t, F)
+    if count <= 64:
+        box(&t, F)
     else:
         columns(&t, F)
 
