@@ -66,16 +66,26 @@ def reference_voxels(triangles, lo, spacing, shape):
         to ``lo + (i + 1) * spacing`` exactly.
     shape : (3,) int
     """
-    out = np.zeros(tuple(shape), dtype=bool)
     lo = [Fraction(float(x)) for x in lo]
     h = [Fraction(float(x)) for x in spacing]
-    for t in np.asarray(triangles, dtype=np.float64):
-        if not np.isfinite(t).all():
-            continue
-        tri = [[Fraction(float(x)) for x in p] for p in t]
+    index = [[[(Fraction(float(p[a])) - lo[a]) / h[a] for a in range(3)] for p in t]
+             for t in np.asarray(triangles, dtype=np.float64) if np.isfinite(t).all()]
+    return reference_index_voxels(index, shape)
+
+
+def reference_index_voxels(triangles, shape):
+    """(nx, ny, nz) bool: the rule in index space, where voxel ``i`` spans ``[i, i + 1]``.
+
+    Parameters
+    ----------
+    triangles : sequence of triangles, each 3 points of 3 Fractions (voxel units)
+    shape : (3,) int
+    """
+    out = np.zeros(tuple(shape), dtype=bool)
+    for tri in triangles:
         ranges = []
         for a in range(3):
-            f = [(p[a] - lo[a]) / h[a] for p in tri]
+            f = [p[a] for p in tri]
             i0 = max(math.floor(min(f)) - 1, 0)
             i1 = min(math.floor(max(f)) + 1, shape[a] - 1)
             ranges.append(range(i0, i1 + 1))
@@ -83,9 +93,9 @@ def reference_voxels(triangles, lo, spacing, shape):
             for j in ranges[1]:
                 for k in ranges[2]:
                     idx = (i, j, k)
-                    blo = [lo[a] + idx[a] * h[a] for a in range(3)]
-                    bhi = [lo[a] + (idx[a] + 1) * h[a] for a in range(3)]
+                    if out[idx]:
+                        continue
                     last = [idx[a] == shape[a] - 1 for a in range(3)]
-                    if meets(tri, blo, bhi, last):
+                    if meets(tri, idx, [x + 1 for x in idx], last):
                         out[idx] = True
     return out
