@@ -11,10 +11,18 @@ its NumPy twin. Per triangle, in order of cost:
 * snapped, and missing the grid or the block: skipped;
 * in one voxel, or spanning voxels along one axis only (the other two
   axes each in one voxel's half-open interval): those voxels, no test;
+* within one layer along an axis ``a``: a 2-D problem, for the layer holds
+  every point of the triangle -- a voxel of the layer is on iff its cell
+  meets the triangle's projection along ``a``, which the three edge x ``a``
+  axes decide (no normal's test); cells found by rows as in the walk below;
 * a segment (zero normal): walked layer by layer along its longest axis,
   at most 3 x 3 candidates a layer;
-* a triangle whose box holds at most ``SMALL`` voxels: each tested;
-* a larger one: walked column by column along ``w``, the axis of its
+* a box of at most 64 voxels: the nine edge x axis tests are the 2-D tests
+  of the three coordinate projections, so they are made once per projected
+  cell (64-bit masks) and shared by the voxels over it, each voxel adding the
+  normal's test; the voxels that pass are a 64-bit mask whose set bits are
+  marked;
+* a larger box: walked column by column along ``w``, the axis of the
   normal's largest component. Per ``(u, v)`` strip, the cells that the
   projected triangle can meet (float64, widened by ``MARGIN`` lattice steps);
   per cell, the three edge x ``w`` axes first (they do not depend on the
@@ -22,6 +30,13 @@ its NumPy twin. Per triangle, in order of cost:
   widened), and only those voxels get the normal's test -- and, unless the
   cell lies inside the projected triangle (then the triangle over the cell
   *is* the plane), the six edge x ``u`` and edge x ``v`` axes.
+
+Measured against testing every voxel of the box instead of the last two
+(paired, one thread, a loaded 2-core machine): the dragon (100,000
+triangles) 34 against 53 ms at 256^3 and 264 against 427 ms at 1024^3; one
+tilted triangle across a 512^3 grid 7 against 525 ms. The tests are written
+with ``&`` and ``|`` rather than ``and``/``or``: their outcomes are
+data-dependent, and mispredicted branches cost more than the arithmetic.
 
 The float64 ranges only choose candidates; every voxel marked has passed the
 exact integer tests (int64, and ``__int128`` for the normal's degree-3
@@ -36,8 +51,8 @@ copy of the output.
 """
 
 from cython.parallel cimport prange, parallel, threadid
-from libc.math cimport rint, floor, isfinite
-from libc.stdint cimport int64_t, uint8_t, uint64_t, uint64_t
+from libc.math cimport rint, isfinite
+from libc.stdint cimport int64_t, uint8_t, uint64_t
 from libc.stdlib cimport calloc, free
 from libc.string cimport memset
 
@@ -52,9 +67,8 @@ cdef extern from *:
     void set_on "geovox_set_on"(uint8_t *p) noexcept nogil
     int ctz "__builtin_ctzll"(unsigned long long x) noexcept nogil
 
-#: Candidates of a triangle's box tested one by one below this many voxels;
-#: above it the column walk (measured on the dragon at 1024^3: see
-#: benchmarks/bench_surface.py).
+#: A flat triangle's cells are all tested up to this many; above, only the
+#: cells of each row that its projection may reach.
 cdef int64_t SMALL = 8
 #: Widening of the walks' float64 ranges, in lattice steps (their rounding
 #: is below 2**-20 of a step: coordinates < 2**30).

@@ -70,7 +70,12 @@ candidate voxels (found in float64 with a margin of 4 lattice steps, far
 above its rounding; the exact test decides), and a cell inside the
 projected triangle needs only the plane's test. A segment is walked layer
 by layer along its longest axis. So a triangle costs its footprint in
-cells, not its bounding box in voxels.
+cells, not its bounding box in voxels: one tilted triangle across a 512³
+grid takes 7 ms where testing every voxel of its box took 525 ms, and the
+dragon (100,000 triangles) 264 ms instead of 427 at 1024³ (one thread).
+The compiled kernel has two more exact shortcuts (see
+``geovox/_surface.pyx``): a triangle within one layer is a 2-D problem, and
+a small box shares its edge tests among voxels as bit masks.
 
 Threads (compiled kernel)
 -------------------------
