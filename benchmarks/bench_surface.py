@@ -154,7 +154,7 @@ def agreement(model, res):
 
 
 def _ties(triangles, grid, voxels):
-    """How many of ``voxels`` the surface meets in their closed box (exactly), none in the half-open one."""
+    """How many of ``voxels`` the surface meets in their closed box but not the half-open one (exactly)."""
     import numpy as np
 
     sys.path.insert(0, os.path.join(ROOT, "tests"))

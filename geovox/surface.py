@@ -152,7 +152,8 @@ def snap_bits(triangles, grid: Grid, *, jobs: int = 1) -> int:
     return _bits(_extent(tris, grid, kernel, openmp_threads(resolve_jobs(jobs))), grid)
 
 
-def surface_voxels(triangles, grid: Grid, block=None, *, jobs: int = 1, out=None) -> np.ndarray:
+def surface_voxels(triangles, grid: Grid, block=None, *, jobs: int = 1, out=None,
+                   bits=None) -> np.ndarray:
     """The voxels of ``grid`` that the triangles pass through (the rule in :mod:`geovox.surface`).
 
     Parameters
@@ -174,6 +175,12 @@ def surface_voxels(triangles, grid: Grid, block=None, *, jobs: int = 1, out=None
     out : (nx, ny, z1 - z0) bool array, Fortran order, optional
         A buffer to fill (its contents are overwritten), e.g. reused across
         slabs.
+    bits : int, optional
+        The snapping scale, :func:`snap_bits` of the whole mesh: given, a
+        slab may be made from only the triangles that reach it and still be
+        the whole mesh's slice. It may not exceed ``snap_bits`` of the
+        triangles given (their coordinates would not fit the integer
+        bounds). Default: ``snap_bits(triangles, grid)``.
 
     Returns
     -------
@@ -185,8 +192,8 @@ def surface_voxels(triangles, grid: Grid, block=None, *, jobs: int = 1, out=None
     MeshError
         ``triangles`` is not an (n, 3, 3) array of numbers.
     ParameterError
-        A bad ``grid``, ``block``, ``jobs`` or ``out``, or a triangle too far
-        from the grid to snap (see :func:`snap_bits`).
+        A bad ``grid``, ``block``, ``jobs``, ``out`` or ``bits``, or a
+        triangle too far from the grid to snap (see :func:`snap_bits`).
     """
     tris = _as_triangles(triangles)
     _check_grid(grid)
@@ -201,6 +208,11 @@ def surface_voxels(triangles, grid: Grid, block=None, *, jobs: int = 1, out=None
         _check_out(out, shape)
     kernel = compiled("_surface", "surface-voxel")
     s = _bits(_extent(tris, grid, kernel, threads), grid)
+    if bits is not None:
+        if isinstance(bits, bool) or not isinstance(bits, (int, np.integer)) or not 1 <= bits <= s:
+            raise ParameterError(f"`bits` must be an integer from 1 to {s} (snap_bits of these "
+                                 f"triangles), got {bits!r}")
+        s = int(bits)
     lo, h, n = _frame(grid)
     if kernel is not None:
         kernel.surface(tris, lo, h, n, s, z0, z1, out.view(np.uint8), not fresh, threads)
@@ -217,7 +229,8 @@ def _as_triangles(triangles) -> np.ndarray:
     try:
         tris = np.ascontiguousarray(triangles, dtype=np.float64)
     except (TypeError, ValueError):
-        raise MeshError(f"`triangles` must be an (n, 3, 3) array of numbers, got {type(triangles).__name__}") from None
+        raise MeshError("`triangles` must be an (n, 3, 3) array of numbers, "
+                        f"got {type(triangles).__name__}") from None
     if tris.ndim != 3 or tris.shape[1:] != (3, 3):
         raise MeshError(f"`triangles` must be an (n, 3, 3) array, got shape {tris.shape}")
     return tris
@@ -496,8 +509,10 @@ def _segment_candidates(q, lo_i, hi_i, which, S):
             ax = (dd + shift) % 3
             va = p0[owner, ax] + t0 * delta[owner, ax]
             vb = p0[owner, ax] + t1 * delta[owner, ax]
-            rlo = np.maximum(lo[owner, ax], np.floor((np.minimum(va, vb) - _MARGIN) / Sd).astype(np.int64))
-            rhi = np.minimum(hi[owner, ax], np.floor((np.maximum(va, vb) + _MARGIN) / Sd).astype(np.int64))
+            low = np.floor((np.minimum(va, vb) - _MARGIN) / Sd).astype(np.int64)
+            high = np.floor((np.maximum(va, vb) + _MARGIN) / Sd).astype(np.int64)
+            rlo = np.maximum(lo[owner, ax], low)
+            rhi = np.minimum(hi[owner, ax], high)
             ranges.append((ax, rlo, np.maximum(rhi - rlo + 1, 0)))
         (ax1, lo1, n1), (ax2, lo2, n2) = ranges
         cand, off = _ragged(np.where(t0 <= t1, n1 * n2, 0))
@@ -584,7 +599,7 @@ class _Tests:
 
 
 def _limbs(values):
-    """(hi, lo) int64 arrays of Python integers ``values``: ``v = hi * 2**31 + lo``, ``0 <= lo < 2**31``."""
+    """(hi, lo) int64 arrays of Python integers: ``v = hi * 2**31 + lo``, ``0 <= lo < 2**31``."""
     hi = np.array([v >> _LIMB for v in values], dtype=np.int64).reshape(-1)
     lo = np.array([v & _LIMB_MASK for v in values], dtype=np.int64).reshape(-1)
     return hi, lo

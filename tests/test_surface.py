@@ -338,6 +338,26 @@ def test_every_block_split_equals_the_whole_grid(kernel):
             assert np.array_equal(got, whole[:, :, z0:z1]), (z0, z1)
 
 
+def test_a_slab_from_the_triangles_that_reach_it_with_the_whole_meshs_bits(kernel):
+    # Streaming: each slab made from only its triangles, snapped at the whole
+    # mesh's scale (here lowered by one far triangle), is the whole grid's slice.
+    mesh = geovox.load_mesh(SPOT)
+    grid = make_grid(mesh.bounds, resolution=32)
+    far = grid.lo + np.array([[(0.1, 0.1, 0.1), (5000.0, 0.2, 0.1), (0.1, 0.3, 0.2)]]) * grid.spacing
+    tris = np.concatenate([mesh.triangles, far])
+    bits = snap_bits(tris, grid)
+    assert bits == 29 - 13 < snap_bits(mesh.triangles, grid)
+    whole = voxels(tris, grid, kernel)
+    zmin = (tris[:, :, 2].min(axis=1) - grid.lo[2]) / grid.spacing[2]
+    zmax = (tris[:, :, 2].max(axis=1) - grid.lo[2]) / grid.spacing[2]
+    for z0, z1 in ((0, 7), (7, 20), (20, 32)):
+        near = (zmax >= z0 - 1) & (zmin <= z1 + 1)
+        got = voxels(tris[near], grid, kernel, block=(z0, z1), bits=bits)
+        assert np.array_equal(got, whole[:, :, z0:z1])
+    with pytest.raises(ParameterError, match="bits"):
+        voxels(mesh.triangles, grid, kernel, bits=MAX_SUB_BITS + 1)
+
+
 def test_output_is_a_fortran_ordered_bool_array(kernel):
     got = voxels([[(0.1, 0.2, 0.3), (0.4, 0.2, 0.3), (0.1, 0.6, 0.3)]], dyadic_grid(), kernel)
     assert got.dtype == np.bool_ and got.flags.f_contiguous and got.shape == (6, 5, 7)
