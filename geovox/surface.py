@@ -109,7 +109,7 @@ MAX_SUB_BITS = 20
 # Triangles per batch of the NumPy twin, and candidate voxels per exact
 # test: the twin's memory is bounded by these, not by the mesh or the grid.
 _BATCH = 1 << 15
-_CANDIDATES = 1 << 20
+_CANDIDATES = 1 << 18
 # The walks' float64 ranges are widened by this many lattice steps; their
 # rounding error is below 2**-20 of a step (coordinates < 2**30).
 _MARGIN = 4.0

@@ -382,6 +382,20 @@ def test_snap_bits_is_chosen_from_the_grid_and_the_triangles_that_reach_it():
         surface_voxels(np.array([[(0.5, 0.5, 0.5), (2.0**21, 0.5, 0.5), (0.5, 0.6, 0.5)]]), unit(256))
 
 
+@needs_compiled
+def test_both_kernels_choose_the_same_snapping():
+    rng = np.random.default_rng(11)
+    grid = Grid(lo=np.array([-1.3, 0.7, 2.1]), hi=np.array([2.9, 3.1, 5.3]), shape=(370, 290, 410))
+    for scale in (1.0, 30.0, 3e4):
+        tris = rng.normal(size=(5000, 3, 3)) * scale
+        tris[::97, 1, 2] = np.nan
+        with chosen("numpy"):
+            a = snap_bits(tris, grid)
+        with chosen("compiled"):
+            b = snap_bits(tris, grid, jobs=2)
+        assert a == b
+
+
 def test_non_finite_triangles_are_skipped(kernel):
     tris = world([[(1, 1, 1), (2, 1, 1), (1, 2, 1)], [(1, 1, 1), (np.nan, 1, 1), (1, 2, 1)],
                   [(1, 1, 3), (np.inf, 1, 3), (1, 2, 3)]])
