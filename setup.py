@@ -36,7 +36,8 @@ serial = [f for f in flags if "openmp" not in f]
 sources = [("geovox._nearest", "geovox/_nearest.pyx", flags, link),
            ("geovox._lattice", "geovox/_lattice.pyx", serial, []),
            ("geovox._winding", "geovox/_winding.pyx", flags, link),
-           ("geovox._objtext", "geovox/_objtext.pyx", serial, [])]
+           ("geovox._objtext", "geovox/_objtext.pyx", serial, []),
+           ("geovox._surface", "geovox/_surface.pyx", flags, link)]
 ext = []
 # A tree without a .pyx (an old source distribution) installs without that kernel.
 if cythonize is not None:
