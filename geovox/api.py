@@ -26,6 +26,7 @@ def voxelize(
     voxel_size=None,
     fit=None,
     axis=2,
+    occupancy="solid",
     color=False,
     diffuse=True,
     ambient=False,
@@ -82,6 +83,12 @@ def voxelize(
         use y, see :mod:`geovox.runners`). Occupancy is the same up to ties on
         the surface; coverage density, sampled across the rays, can differ
         by a step or so where the surface is steep.
+    occupancy : {"solid", "surface", "both"}
+        Which voxels are on: ``"solid"`` those whose centre is inside the
+        closed surface (by ``inside``); ``"surface"`` every voxel the surface
+        passes through, exactly, each surface point in one voxel (see
+        :mod:`geovox.surface`); ``"both"`` either, which keeps open sheets and
+        thin parts. ``density`` and ``sdf`` describe the solid whatever it is.
     color : bool, "exact" or "fast"
         Also fill ``Volume.colors`` from the model's materials, textures or
         vertex colours (see :mod:`geovox.colour` for the exact rule): True

@@ -20,7 +20,7 @@ from .errors import ParameterError
 from .grid import Grid
 from .kernels import follows_plan
 from .memory import bytes_per_voxel, check_memory
-from .options import Colour, Inside
+from .options import Colour, Inside, Occupancy
 from .planner import Plan, load
 from .volume import Progress, Volume
 
@@ -169,28 +169,37 @@ def voxelize_block(mesh, plan: Plan, block=None, *, buffers: BlockBuffers | None
     buffers.step("rays")
     crossings = {}
     classified = None
-    method = plan.inside.value
+    method = None if plan.inside is None else plan.inside.value
     approximate = 0
+    counts = None
     if buffers.slices is not None:
         occ, t_rays = _fill_in_slices(m, plan, grid, buffers.slices)
     elif plan.labels is not None and plan.labels.by_parts:
-        # By parts: each part's own inside test, overlaps settled by the rule.
+        # By parts: each part's own inside test (and surface voxels), overlaps settled by the rule.
         classified = plan.labels.classify(
             m, grid, axis=plan.axis, jobs=plan.jobs,
             cast_mesh=lambda mesh, ax, on=grid: _cast(mesh, plan, on, ax),
-            within=None if block is None else (plan.grid, block))
+            within=None if block is None else (plan.grid, block),
+            surface=None if plan.occupancy == Occupancy.SOLID else
+            (plan.occupancy, lambda part: _surface(part, plan, block)))
         if classified.crossings is not None:
             crossings[plan.axis] = classified.crossings
         t_rays = time.perf_counter()
         occ = np.asfortranarray(classified.labels != 0)
         method = "+".join(sorted(set(classified.methods)))
         approximate = classified.approximate
-    else:
+    elif plan.inside is not None:
         occ, t_rays, approximate = _fill(m, plan, grid, crossings, buffers.out)
+    else:
+        occ, t_rays = None, time.perf_counter()  # surface voxels alone: no solid
     t_fill = time.perf_counter()
     # The checks and the inside test's choice count with the rays.
     timings = {"rays": t_rays - t0, "fill": t_fill - t_rays}
     colors = dens = dist = None
+    if plan.occupancy != Occupancy.SOLID:
+        if o.sdf:  # the distance describes the solid: signed by it, before the surface joins
+            dist, timings["sdf"] = _sdf(m, plan, grid, occ)
+        occ, method, counts = _with_surface(m, plan, block, occ, method, classified, timings)
     if plan.colour:
         buffers.step("colour")
         if textures is not None:
@@ -202,20 +211,56 @@ def voxelize_block(mesh, plan: Plan, block=None, *, buffers: BlockBuffers | None
         t = time.perf_counter()
         dens = _density(m, plan, grid, winding=plan.density_inside == Inside.WINDING)
         timings["density"] = time.perf_counter() - t
-    if o.sdf:
-        from .density import signed_distance
-
+    if o.sdf and dist is None:
         buffers.step("sdf")
-        t = time.perf_counter()
-        dist = signed_distance(m, grid, occ, band=float(o.band), jobs=plan.jobs)
-        timings["sdf"] = time.perf_counter() - t
+        dist, timings["sdf"] = _sdf(m, plan, grid, occ)
     extra = {}
     if plan.labels is not None:
         extra = plan.labels.fields(m, grid, occ, classified, run=_label_run(m, plan, grid, block),
                                    timings=timings, step=buffers.step)
     return Volume(occupancy=occ, grid=grid, backend=plan.backend.name, source=m.source,
                   colors=colors, timings=timings, inside=method, density=dens, sdf=dist,
-                  approximate=approximate, **extra)
+                  approximate=approximate, counts=counts, **extra)
+
+
+def _sdf(m, plan: Plan, grid: Grid, solid):
+    """``(signed distance, seconds)`` of the block, signed by the solid ``solid``."""
+    from .density import signed_distance
+
+    t = time.perf_counter()
+    dist = signed_distance(m, grid, solid, band=float(plan.options.band), jobs=plan.jobs)
+    return dist, time.perf_counter() - t
+
+
+def _surface(mesh, plan: Plan, block):
+    """The block's surface voxels of ``mesh`` (the whole model, or one part of it)."""
+    from .surface import surface_voxels
+
+    return surface_voxels(mesh.triangles, plan.grid, block, jobs=plan.jobs,
+                          bits=plan.surface_bits)
+
+
+def _with_surface(m, plan: Plan, block, solid, method, classified, timings):
+    """``(occupancy, what ran, counts)`` with the surface voxels: alone, or joined to the solid.
+
+    By parts the labels' classification has joined each part's already.
+    """
+    t = time.perf_counter()
+    if classified is not None:
+        occ = solid  # the parts' solids and surfaces, joined by classify
+        surface = occ if plan.occupancy == Occupancy.SURFACE else _surface(m, plan, block)
+        counts = {"surface": int(np.count_nonzero(surface))}
+        if classified.inside is not None:
+            counts["inside"] = classified.inside
+    else:
+        surface = occ = _surface(m, plan, block)
+        counts = {"surface": int(np.count_nonzero(surface))}
+        if plan.occupancy == Occupancy.BOTH:
+            counts["inside"] = int(np.count_nonzero(solid))
+            occ = np.logical_or(solid, surface, out=solid)  # the solid is done with
+    timings["surface"] = time.perf_counter() - t
+    what = "surface" if not method else f"{method}+surface"
+    return occ, what, counts
 
 
 def _label_run(m, plan: Plan, grid: Grid, block):

@@ -30,7 +30,7 @@ import numpy as np
 from . import parity
 from .errors import MeshError, ParameterError, warn
 from .mesh import Mesh
-from .options import Inside, LabelSource, Overlap
+from .options import Inside, LabelSource, Occupancy, Overlap
 
 #: Label sources, in the order the CLI lists them.
 SOURCES = tuple(LabelSource)
@@ -356,6 +356,9 @@ class Classified:
     approximate : int
         Voxels the parts' winding numbers left to an estimate (the work
         budget ran out), summed over the parts.
+    inside : int or None
+        With surface voxels joined to the parts' solids: the voxels inside
+        some part (None otherwise).
     """
 
     labels: np.ndarray
@@ -363,6 +366,7 @@ class Classified:
     methods: list
     crossings: tuple
     approximate: int = 0
+    inside: int | None = None
 
 
 def part_meshes(mesh: Mesh, lset: LabelSet) -> list:
@@ -393,7 +397,7 @@ def part_meshes(mesh: Mesh, lset: LabelSet) -> list:
 
 
 def classify(mesh: Mesh, grid, lset: LabelSet, *, cast_mesh, axis: int, jobs: int = 1,
-             within=None) -> Classified:
+             within=None, surface=None) -> Classified:
     """Each part by its own inside test (``lset.methods``, the plan's), overlaps by ``lset.overlap``.
 
     Parameters
@@ -415,6 +419,11 @@ def classify(mesh: Mesh, grid, lset: LabelSet, *, cast_mesh, axis: int, jobs: in
         (its depths, its voxel centres) and move them into the block by
         whole layers (:func:`_box_fill`), so a block's labels are the whole
         grid's exactly, ties on the surface included.
+    surface : (Occupancy, callable) or None
+        With surface voxels (``occupancy="surface"`` or ``"both"``):
+        ``surface_of(part) -> (nx, ny, nz) bool``, each part's surface voxels
+        on the block, which are the part's own (``"surface"``) or join its
+        solid (``"both"``) before the overlap rule settles shared voxels.
     """
     import warnings
 
@@ -437,10 +446,16 @@ def classify(mesh: Mesh, grid, lset: LabelSet, *, cast_mesh, axis: int, jobs: in
     # Parts inside each voxel (it cannot wrap: a uint8 count for at most 255 parts).
     inside_count = np.zeros(grid.shape, dtype=lset.dtype, order="F")
     approximate = 0
+    kind, surface_of = surface if surface is not None else (None, None)
+    solid_union = None
+    if kind == Occupancy.BOTH:
+        solid_union = np.zeros(grid.shape, dtype=bool, order="F")
     for k in paint_order(lset, parts):
         if parts[k] is None:
             continue
-        if methods[k] == Inside.PARITY:
+        if kind == Occupancy.SURFACE:
+            box, occ = (slice(None),) * 3, surface_of(parts[k])
+        elif methods[k] == Inside.PARITY:
             got = _box_fill(hits.take(by_part[hcuts[k]:hcuts[k + 1]]), columns, grid, lo_ray,
                             z0, jobs)
             if got is None:
@@ -457,6 +472,12 @@ def classify(mesh: Mesh, grid, lset: LabelSet, *, cast_mesh, axis: int, jobs: in
                                                               jobs)
             approximate += n
             box = (slice(None),) * 3
+        if kind == Occupancy.BOTH:
+            # The part's solid joins its surface voxels: the whole grid's box.
+            whole = surface_of(parts[k])
+            np.logical_or(solid_union[box], occ, out=solid_union[box])
+            np.logical_or(whole[box], occ, out=whole[box])
+            box, occ = (slice(None),) * 3, whole
         # One add and one masked copy per part (a mask index is slower).
         np.add(inside_count[box], occ, out=inside_count[box])
         np.copyto(labels[box], lset.dtype.type(k + 1), where=occ)
@@ -467,7 +488,8 @@ def classify(mesh: Mesh, grid, lset: LabelSet, *, cast_mesh, axis: int, jobs: in
         warn(approximate_warning(approximate, grid.size), stacklevel=3)
     return Classified(labels=labels, contested=contested, methods=methods,
                       crossings=(hits, columns) if frame is grid else None,
-                      approximate=approximate)
+                      approximate=approximate,
+                      inside=None if solid_union is None else int(np.count_nonzero(solid_union)))
 
 
 def table(lset: LabelSet, labels: np.ndarray, spacing, counts=None) -> list:
@@ -766,10 +788,10 @@ class LabelStage:
         return per
 
     def classify(self, mesh: Mesh, grid, *, cast_mesh, axis: int, jobs: int,
-                 within=None) -> Classified:
+                 within=None, surface=None) -> Classified:
         """The block's occupancy by parts (see :func:`classify`)."""
         return classify(mesh, grid, self.set, cast_mesh=cast_mesh, axis=axis, jobs=jobs,
-                        within=within)
+                        within=within, surface=surface)
 
     def fields(self, mesh: Mesh, grid, occupancy, classified, *, run, timings, step) -> dict:
         """A block's label fields for its Volume: ``labels``, ``label_table``, ``contested``,
@@ -855,6 +877,7 @@ class LabelTally:
         self.contested = 0
         self.approximate = 0
         self.inside = None  # the inside tests the parts ran (the same in every block)
+        self.counts_of_surface = None  # surface and inside voxels, summed (Volume.counts)
 
     @staticmethod
     def of(vol):
@@ -863,6 +886,13 @@ class LabelTally:
             return None
         return (np.array([e["voxels"] for e in vol.label_table], np.int64), int(vol.contested),
                 vol.inside)
+
+    def add_counts(self, counts) -> None:
+        """Sum one block's surface and inside counts (its ``Volume.counts``; None without)."""
+        if counts is None:
+            return
+        total = self.counts_of_surface or {}
+        self.counts_of_surface = {k: total.get(k, 0) + v for k, v in counts.items()}
 
     def add(self, labelled) -> None:
         """Count one block's ``of(vol)``."""

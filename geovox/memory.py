@@ -28,13 +28,15 @@ def available_memory() -> int | None:
 def bytes_per_voxel(options) -> float:
     """Working memory per voxel of one conversion (occupancy and what ``options`` ask for).
 
-    Occupancy is 1 byte a voxel; colour adds 4 for RGBA and about 16 of
-    working arrays while nearest crossings are found; density and distance
+    Occupancy is 1 byte a voxel, and the surface voxels (``occupancy``
+    ``"surface"`` or ``"both"``) 1 more; colour adds 4 for RGBA and about 16
+    of working arrays while nearest crossings are found; density and distance
     4 each plus a float32 working copy.
     """
     from .options import colour_of
 
-    return (1.0 + (20.0 if colour_of(options.color) else 0.0)
+    return (1.0 + (1.0 if getattr(options, "occupancy", "solid") != "solid" else 0.0)
+            + (20.0 if colour_of(options.color) else 0.0)
             + (8.0 if options.density else 0.0) + (8.0 if options.sdf else 0.0))
 
 

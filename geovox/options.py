@@ -41,6 +41,14 @@ class Colour(enum.StrEnum):
     FAST = "fast"  #: from the nearest of the six axis crossings around it
 
 
+class Occupancy(enum.StrEnum):
+    """Which voxels are on (``occupancy=``; the rule of each: :mod:`geovox.surface`, :mod:`geovox.inside`)."""
+
+    SOLID = "solid"  #: the voxels whose centre is inside the closed surface
+    SURFACE = "surface"  #: the voxels the surface passes through
+    BOTH = "both"  #: either: the solid with its thin parts and open sheets kept
+
+
 class LabelSource(enum.StrEnum):
     """What a voxel's label says (``labels=``; see :mod:`geovox.labels`)."""
 
@@ -106,6 +114,8 @@ class Options:
                            "or 'cube-center' (binvox -cb); .binvox defaults to 'cube'", None,
                            new=True)
     axis: int = _doc("direction of the column rays: 0, 1 or 2 (z)", 2)
+    occupancy: str = _doc("which voxels are on: 'solid' (centre inside), 'surface' (the surface "
+                          "passes through) or 'both'", "solid", new=True)
     color: object = _doc("colour the voxels: False, True or 'exact', or 'fast'", False)
     diffuse: bool = _doc("with color: multiply by the material's Kd", True)
     ambient: bool = _doc("with color: add the material's Ka", False)
@@ -305,6 +315,9 @@ def _validate(o: Options) -> None:
                                  f"got {o.fit!r}")
     if o.axis not in (0, 1, 2):
         raise ParameterError(f"`axis` must be 0, 1 or 2, got {o.axis!r}")
+    if o.occupancy not in tuple(Occupancy):
+        raise ParameterError(f"`occupancy` must be one of {', '.join(Occupancy)}, "
+                             f"got {o.occupancy!r}")
     colour_of(o.color)
     if o.inside not in tuple(Inside):
         raise ParameterError(f"`inside` must be one of {', '.join(Inside)}; got {o.inside!r}")
@@ -389,5 +402,6 @@ def colour_of(color):
     raise ParameterError(f"`color` must be True, False, 'exact' or 'fast', got {color!r}")
 
 
-__all__ = ["Options", "Inside", "Colour", "LabelSource", "Overlap", "References", "colour_of",
+__all__ = ["Options", "Inside", "Colour", "LabelSource", "Occupancy", "Overlap", "References",
+           "colour_of",
            "unknown_option_message", "KERNEL_ENV"]

@@ -26,7 +26,7 @@ from .grid import Grid, make_grid
 from .kernels import chosen
 from . import memory
 from .memory import bytes_per_voxel, check_memory
-from .options import Colour, Inside, LabelSource, Options, colour_of
+from .options import Colour, Inside, LabelSource, Occupancy, Options, colour_of
 from .output import Target
 
 #: Memory a slab's arrays may take, by default: 2048³ occupancy goes in
@@ -64,8 +64,9 @@ class Plan:
         The whole grid.
     backend : geovox.backends.Backend
         The ray-casting engine (shipped to cluster tasks by name).
-    inside : Inside
-        The inside test that runs (``auto`` resolved).
+    inside : Inside or None
+        The inside test that runs (``auto`` resolved); None where no solid
+        is made (``occupancy="surface"`` alone: no inside test runs).
     colour : Colour or None
         The colour method, None without colour.
     jobs : int
@@ -107,6 +108,11 @@ class Plan:
     reuse_buffers : bool
         Several slabs, not chunked: one set of slab arrays is reused by
         every slab instead of faulting fresh memory in for each.
+    occupancy : Occupancy
+        Which voxels are on: the solid, the surface voxels, or both.
+    surface_bits : int or None
+        With surface voxels: the whole mesh's snapping scale
+        (:func:`geovox.surface.snap_bits`), the same for every block.
     """
 
     options: Options
@@ -130,6 +136,8 @@ class Plan:
     colour_sink: bool = False
     write_behind: bool = False
     reuse_buffers: bool = False
+    occupancy: Occupancy = Occupancy.SOLID
+    surface_bits: int | None = None
 
     def mesh_for(self, mesh):
         """The mesh the blocks run on: ``mesh``, or with ``like`` the copy moved into the
@@ -174,8 +182,9 @@ class Plan:
         """Lines for ``geovox info``: what this plan will do."""
         nx, ny, nz = self.grid.shape
         o = self.options
-        lines = [f"plan: backend {self.backend.name}, inside test {self.inside}, "
-                 f"colour {self.colour or 'none'}"
+        lines = [f"plan: backend {self.backend.name}, inside test {self.inside or 'none'}, "
+                 + (f"occupancy {self.occupancy}, " if self.occupancy != Occupancy.SOLID else "")
+                 + f"colour {self.colour or 'none'}"
                  + (f", density {o.density} ({o.density_dtype})" if o.density else "")
                  + (f", sdf (band {float(o.band):g} voxels)" if o.sdf else "")
                  + f", {self.jobs} thread{'s' if self.jobs > 1 else ''}"]
@@ -391,8 +400,15 @@ def _plan(mesh, o: Options, path, fmt, how: _Request, grid=None) -> Plan:
     if target is not None:  # a folder's file is named after the grid
         path = target.file_for(grid.shape)
     colour = colour_of(o.color)
+    occupancy = Occupancy(o.occupancy)
     base = dict(options=o, grid=grid, backend=engine, colour=colour, jobs=resolve_jobs(o.jobs),
-                format=f, path=None if path is None else str(path), mesh_space=used)
+                format=f, path=None if path is None else str(path), mesh_space=used,
+                occupancy=occupancy)
+    if occupancy != Occupancy.SOLID:
+        from .surface import snap_bits
+
+        # One snapping scale for the whole mesh: every block's surface voxels are the whole grid's.
+        base["surface_bits"] = snap_bits(m.triangles, grid, jobs=base["jobs"])
     stage = _label_stage(m, o, f)
     stream = how.stream
     extra = 0.0  # the labels' and fractions' bytes per voxel
@@ -401,17 +417,20 @@ def _plan(mesh, o: Options, path, fmt, how: _Request, grid=None) -> Plan:
         extra = stage.working_bytes()
         if f is None or f.slab_writer is None:
             stream = False  # the format is written whole
+    solid = _makes_solid(o, occupancy, stage)
     if o.density is not None:
         # Coverage follows the whole mesh's own inside test, also where labels by
-        # part give the occupancy (so density is the same bytes with and without labels).
+        # part give the occupancy (so density is the same bytes with and without labels),
+        # and describes the solid whatever the occupancy.
         base["density_inside"] = _chosen_quietly(inside_tests, m, o.inside) \
-            if stage is not None and stage.by_parts else None
+            if stage is not None and stage.by_parts else \
+            None if solid else Inside(inside_tests.choose(m, o.inside))
     if stream is None:
         stream = f is not None and streams(grid, f, o, extra=extra)
     if not stream or f is None:
         # By parts, each part takes its own inside test (geovox.labels.classify).
         method = (Inside(o.inside) if stage is not None and stage.by_parts
-                  else Inside(inside_tests.choose(m, o.inside)))
+                  else Inside(inside_tests.choose(m, o.inside)) if solid else None)
         p = Plan(inside=method, axis=o.axis, route=Route.MEMORY, blocks=((0, grid.shape[2]),),
                  per_voxel=bytes_per_voxel(o) + extra, **base)
     else:
@@ -421,6 +440,14 @@ def _plan(mesh, o: Options, path, fmt, how: _Request, grid=None) -> Plan:
     # With `like`, the mesh the blocks run on is the moved one (see Plan.mesh_for).
     object.__setattr__(p, "_mesh", m if used is not None else None)
     return p
+
+
+def _makes_solid(o: Options, occupancy: Occupancy, stage) -> bool:
+    """Whether the blocks make the solid: its voxels are on, or the signed distance's sign
+    needs it (the distance, like density, describes the solid whatever the occupancy)."""
+    if stage is not None and stage.by_parts:
+        return occupancy != Occupancy.SURFACE  # each part's own solid (geovox.labels.classify)
+    return occupancy != Occupancy.SURFACE or bool(o.sdf)
 
 
 def _chosen_quietly(inside_tests, m, method) -> Inside:
@@ -488,14 +515,17 @@ def _streamed_plan(m, base: dict, how: _Request, *, extra=0.0) -> Plan:
 
     o, grid, colour, f = base["options"], base["grid"], base["colour"], base["format"]
     stage = base.get("labels")
+    occupancy = base["occupancy"]
     if stage is not None and stage.by_parts:
         # Each part takes its own inside test (as in memory); the budget counts
         # the winding number's arrays wherever a part may need them.
         method = Inside(o.inside)
         working = 15.0 if len(inside_tests.boundary_edges(m)) else 2.0
-    else:
+    elif _makes_solid(o, occupancy, stage):
         method = Inside(inside_tests.choose(m, o.inside))
         working = inside_tests.working_bytes(m, method)
+    else:
+        method, working = None, 0.0  # surface voxels alone: no inside test
     per = bytes_per_voxel(o) + working + extra
     budget = slab_budget() if how.budget is None else how.budget
     blocks = slab_plan(grid, per, budget)
@@ -516,6 +546,7 @@ def _streamed_plan(m, base: dict, how: _Request, *, extra=0.0) -> Plan:
     if how.cluster:
         route = Route.CLUSTER
     elif (not f.can.chunk and not several and method == Inside.PARITY
+          and occupancy == Occupancy.SOLID
           and not (colour or o.density or o.sdf or stage is not None)):
         # Occupancy alone, one piece: the rays along z are cast once for the
         # whole grid (as voxelize casts them, so the file is the same) and the

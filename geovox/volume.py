@@ -60,6 +60,10 @@ class Volume:
         Voxels whose inside was left to an estimate of the winding number
         (its work budget ran out: ``Report.approximate``); 0 where every
         voxel is exact or proven.
+    counts : dict or None
+        With surface voxels (``occupancy="surface"`` or ``"both"``): how many
+        the surface passes through (``"surface"``) and, with ``"both"``, how
+        many are inside (``"inside"``); ``occupancy`` holds their union.
     """
 
     occupancy: np.ndarray
@@ -77,6 +81,7 @@ class Volume:
     contested: int = 0
     fractions: np.ndarray | None = None
     approximate: int = 0
+    counts: dict | None = None
 
     @property
     def bounds(self) -> tuple:
@@ -179,6 +184,9 @@ class Report:
     #: With labels: voxels inside more than one part (summed over the slabs).
     contested: int = 0
     approximate: int = 0
+    #: With surface voxels: how many the surface passes through ("surface") and, with
+    #: ``occupancy="both"``, how many are inside ("inside"); ``inside`` counts their union.
+    counts: dict | None = None
 
     @property
     def shape(self) -> tuple:
@@ -243,12 +251,33 @@ class Report:
                                                                    self.mesh_space)]
         return [f"{os.path.basename(self.source)}: grid {nx} x {ny} x {nz}{where}",
                 f"voxel size {dx:.6g} x {dy:.6g} x {dz:.6g}, backend {self.backend}, "
-                f"inside test {self.inside_test}", *onto,
-                f"inside {self.inside:,} of {n:,} voxels ({100.0 * self.inside / n:.2f}%)",
+                f"{self._test()}", *onto, self._count_line(n),
                 *([approximate_line(self.approximate, n)] if self.approximate else []),
                 *self.lines,
                 f"time {wall:.2f} s ({stages})",
                 "wrote " + ", ".join(self.files)]
+
+
+    def _test(self) -> str:
+        """What decided the voxels: the inside test, with the surface voxels where they are on."""
+        if self.counts is None:
+            return f"inside test {self.inside_test}"
+        test = self.inside_test.removesuffix("+surface")
+        if test == "surface":
+            return "occupancy surface (the voxels the surface passes through)"
+        return f"inside test {test}, occupancy both (inside or on the surface)"
+
+    def _count_line(self, n: int) -> str:
+        """The summary's count: inside voxels, surface voxels, or both and their union."""
+        def share(k):
+            return f"{k:,} of {n:,} voxels ({100.0 * k / n:.2f}%)"
+
+        if self.counts is None:
+            return f"inside {share(self.inside)}"
+        if "inside" not in self.counts:
+            return f"surface {share(self.counts['surface'])}"
+        return (f"occupied {share(self.inside)}: inside {self.counts['inside']:,}, "
+                f"surface {self.counts['surface']:,}")
 
 
 def approximate_line(n: int, total: int) -> str:

@@ -131,6 +131,12 @@ def _overlap_rules():
     return [m.value for m in Overlap]
 
 
+def _occupancy_kinds():
+    from ..options import Occupancy
+
+    return [m.value for m in Occupancy]
+
+
 def _format_names():
     from ..formats import formats
 
@@ -162,6 +168,11 @@ def add_grid_arguments(c, *, grid_only=False):
     c.add_argument("--mesh-space", choices=["lps", "ras"], type=str.lower, default=None,
                    help="with --like: the mesh's coordinate frame, overriding its 3D Slicer "
                         "SPACE= mark (default: the mark, else LPS)")
+    c.add_argument("--occupancy", default="solid", choices=_Choices(_occupancy_kinds),
+                   metavar="KIND",
+                   help="which voxels are on: %(choices)s (default solid: the voxels whose centre "
+                        "is inside; surface: every voxel the surface passes through; both: "
+                        "either, which keeps open sheets and thin parts)")
     _references_argument(c)
     if grid_only:
         return

@@ -90,7 +90,7 @@ def run(mesh, p: Plan, *, progress=None, client=None, write_options=None) -> Rep
     return Report(source=mesh.source, grid=p.grid, backend=p.backend.name,
                   inside_test=vol.inside, inside=vol.inside_count, route=str(p.route),
                   slabs=1, volume=vol, files=files, timings=t, mesh_space=p.mesh_space,
-                  lines=lines, approximate=vol.approximate)
+                  lines=lines, approximate=vol.approximate, counts=vol.counts)
 
 
 @follows_plan
@@ -158,7 +158,7 @@ def run_slabs(m, p: Plan, *, progress=None, client=None) -> Report:
     return Report(source=m.source, grid=grid, backend=p.backend.name,
                   inside_test=tally.inside or str(p.inside), inside=inside, route=str(p.route),
                   slabs=len(p.blocks), files=files, timings=timings, mesh_space=p.mesh_space,
-                  approximate=tally.approximate, **labelled)
+                  approximate=tally.approximate, counts=tally.counts_of_surface, **labelled)
 
 
 def _meta(m, p: Plan):

@@ -99,8 +99,8 @@ def _worker_buffers():
 def slab_task(m, p: Plan, block, layout, z_part=None, z_start=None):
     """One cluster task: voxelise slab ``block`` of plan ``p`` and write it into its own shards.
 
-    Returns ``(inside count, timings, label counts, approximate voxels)`` (see
-    :meth:`LabelTally.of`).
+    Returns ``(inside count, timings, label counts, approximate voxels, surface counts)``
+    (see :meth:`LabelTally.of`, :attr:`geovox.volume.Volume.counts`).
     """
     from ..formats.zarr import write_slab
 
@@ -123,7 +123,7 @@ def slab_task(m, p: Plan, block, layout, z_part=None, z_start=None):
     timings = {k: v for k, v in vol.timings.items() if k != "total"}
     timings["write"] = time.perf_counter() - tb
     timings["task"] = time.perf_counter() - t
-    return vol.inside_count, timings, LabelTally.of(vol), vol.approximate
+    return vol.inside_count, timings, LabelTally.of(vol), vol.approximate, vol.counts
 
 
 def run_on_cluster(client, m, p: Plan, layout, reuse_z, progress, timings, tally) -> int:
@@ -150,9 +150,10 @@ def run_on_cluster(client, m, p: Plan, layout, reuse_z, progress, timings, tally
     inside = 0
     try:
         for n, future in enumerate(as_completed(futures)):
-            count, t, labelled, approximate = future.result()
+            count, t, labelled, approximate, counts = future.result()
             inside += count
             tally.add(labelled)
+            tally.add_counts(counts)
             tally.approximate += approximate
             for key, value in t.items():
                 timings[key] = timings.get(key, 0.0) + value

@@ -80,6 +80,7 @@ def run_blocks(m, p: Plan, writer, reuse, timings, progress, tally) -> int:
             timings["write"] += time.perf_counter() - tb
             inside += vol.inside_count
             tally.add(LabelTally.of(vol))
+            tally.add_counts(vol.counts)
             tally.approximate += vol.approximate
             del vol
             if progress:
