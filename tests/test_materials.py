@@ -572,7 +572,7 @@ def test_map_kd_offset_and_scale_agree_with_khr_texture_transform(tmp_path):
 def test_map_kd_clamp_on_is_one_copy_of_the_texture(tmp_path):
     # The MTL specification: "one copy of the texture is mapped onto the surface
     # [...]. Outside of the origin texture, the underlying material is unchanged."
-    from geovox.obj import read_mtl
+    from geovox.io.mtl import read_mtl
 
     mtl = ("newmtl c\nKd 0.2 0.4 0.6\nmap_Kd -clamp on t.png\n"
            "newmtl w\nmap_Kd -clamp on t.png\n"
@@ -634,7 +634,7 @@ def test_map_kd_clamp_on_across_a_face_keeps_the_texture_inside(tmp_path):
     ("-dash.png", "-dash.png"),
 ])
 def test_map_kd_options_and_names_find_the_right_image(tmp_path, statement, file):
-    from geovox.obj import read_mtl
+    from geovox.io.mtl import read_mtl
 
     (tmp_path / "sub").mkdir()
     for name in ("my tex.png", "my  tex.png", "12 monkeys.png", "sub/t.png", "-dash.png",
@@ -655,7 +655,7 @@ def test_map_kd_statements_written_any_way_find_their_file_and_values(tmp_path_f
     from hypothesis import given, settings
     from hypothesis import strategies as st
 
-    from geovox.obj import _apply_map_options, _map_statement
+    from geovox.io.mtl import _apply_map_options, _map_statement
 
     folder = tmp_path_factory.mktemp("names")
     number = st.floats(-4, 4, allow_nan=False).map(lambda x: round(x, 3))

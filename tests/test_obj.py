@@ -18,8 +18,10 @@ from hypothesis import strategies as st
 import geovox
 from geovox.cli import main
 from geovox.errors import GeovoxWarning, MeshError
-from geovox.mesh import Material, Mesh, load_mesh
-from geovox.obj import _rest, read_mtl, read_obj, resolve_path
+from geovox.io.load import load_mesh
+from geovox.mesh import Material, Mesh
+from geovox.io.mtl import read_mtl, resolve_path, rest_of
+from geovox.io.obj import read_obj
 
 from conftest import DATA, SPOT, corpus
 
@@ -81,13 +83,13 @@ def reference_read_obj(path: str) -> Mesh:
                     tri_t.append((corners_t[0], corners_t[k], corners_t[k + 1]))
                     tri_m.append(current)
             elif key == "usemtl":
-                name = _rest(line, "usemtl")
+                name = rest_of(line, "usemtl")
                 if name not in mat_index:
                     mat_index[name] = len(mat_names)
                     mat_names.append(name)
                 current = mat_index[name]
             elif key == "mtllib":
-                libs.append(_rest(line, "mtllib"))
+                libs.append(rest_of(line, "mtllib"))
         except (ValueError, IndexError):
             raise MeshError(f"{path}: line {lineno} is not valid OBJ: {line.strip()[:60]!r}") from None
     if not v and not tri_v:
@@ -589,7 +591,7 @@ def test_load_mesh_checks_what_read_obj_gives(tmp_path):
 
 def test_reading_in_small_pieces_changes_nothing(tmp_path, monkeypatch):
     """Sections are read in pieces of 256 KB; pieces of a few lines give the same."""
-    import geovox.obj as obj
+    import geovox.io.obj as obj
 
     _write(tmp_path, "a.mtl", MTL_A)
     _write(tmp_path, "b.mtl", MTL_B)

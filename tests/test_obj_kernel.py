@@ -21,7 +21,7 @@ from hypothesis import strategies as st
 
 from geovox.errors import MeshError, ParameterError
 from geovox.kernels import chosen, obj_text
-from geovox.obj import read_obj
+from geovox.io.obj import read_obj
 
 from test_lattice_kernel import _have_compiler
 from test_obj import (MTL_A, MTL_B, REAL, _features_text, _spellings, _write, assert_same,
@@ -129,7 +129,7 @@ def test_corners_every_form(kernel, tmp_path, corner):
 
 def test_a_wrong_number_is_noticed(kernel, tmp_path, monkeypatch):
     """The comparison above can fail: a kernel one ulp off is caught."""
-    import geovox.obj as obj
+    import geovox.io.obj as obj
 
     path = _write(tmp_path, "one.obj", "v 0.1 0.2 0.3\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
     real = kernel.number_lines

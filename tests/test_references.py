@@ -23,7 +23,7 @@ from PIL import Image
 import geovox
 from geovox.cli import main
 from geovox.errors import GeovoxWarning, MeshError, ParameterError
-from geovox.references import locate
+from geovox.io.references import locate
 
 RED, BLUE = (255, 0, 0), (0, 0, 255)
 # The material's own colour, which multiplies its texture: red stays red,

@@ -133,7 +133,7 @@ def test_low_resolution_mesh_beside_slices_is_refused(tmp_path):
 
 def test_plain_3mf_is_left_to_trimesh(monkeypatch):
     # A file without any of the extensions is not rewritten.
-    from geovox import threemf
+    from geovox.io import threemf
 
     assert threemf.flatten(corpus("wild", "pyramids.3mf")) is None
     data = threemf.flatten(corpus("assimp", "production_components.3mf"))

@@ -1,0 +1,86 @@
+"""How much a file may grow to once read: the guard against small files that claim a lot.
+
+A 2 MB zip can hold a 2 GB STL, a 1 KB glTF can declare an accessor of a
+billion zeros, a Draco or meshopt buffer can decode to far more than it
+stores, and a PLY header can announce more vertices than its bytes hold.
+Every reader asks :func:`input_limit` how many bytes the file may become,
+and refuses in one line (:func:`refuse`) before it allocates more.
+
+The default limit is the smaller of
+
+* :data:`RATIO` times the file's own size (but at least :data:`FLOOR`):
+  real meshes compress a few to one (binary STL about 1.2:1 under deflate,
+  ASCII formats 3-8:1), while zeros compress 1000:1; and
+* :data:`MEMORY_SHARE` of the memory available now.
+
+``max_input_size`` (the option, ``--max-input-size`` on the command line)
+replaces both with a number of bytes, for a model that really is that
+compressible or a service that wants a tighter bound. Time and processor
+are not bounded here: a service should bound those from outside (see
+docs/guide/input-formats.md).
+"""
+
+from __future__ import annotations
+
+from ..errors import MeshError
+
+__all__ = ["RATIO", "FLOOR", "MEMORY_SHARE", "available_memory", "input_limit", "refuse",
+           "size_text"]
+
+#: Inflated bytes per stored byte that no real mesh reaches.
+RATIO = 100
+#: Below this many bytes an input is never refused for its ratio.
+FLOOR = 64 << 20
+#: The share of the available memory one input may grow to.
+MEMORY_SHARE = 0.5
+
+
+def available_memory() -> int | None:
+    """Bytes of memory available now (Linux's ``MemAvailable``), or None where unknown."""
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    return None
+
+
+def input_limit(stored: int, max_input_size: int | None = None) -> int:
+    """The most bytes a file of ``stored`` bytes may become once read or inflated.
+
+    Parameters
+    ----------
+    stored : int
+        The file's size (an archive's, or a model's with the buffers it names).
+    max_input_size : int or None
+        The option: the limit itself, when given.
+    """
+    if max_input_size is not None:
+        return int(max_input_size)
+    limit = max(RATIO * int(stored), FLOOR)
+    memory = available_memory()
+    return limit if memory is None else min(limit, int(MEMORY_SHARE * memory))
+
+
+def size_text(n: float) -> str:
+    """``"2.0 GB"``: a byte count for messages (decimal units, as file managers show)."""
+    for unit, size in (("GB", 1e9), ("MB", 1e6), ("kB", 1e3)):
+        if n >= size:
+            return f"{n / size:,.1f} {unit}"
+    return f"{int(n):,} bytes"
+
+
+def refuse(path: str, what: str, need, limit: int, max_input_size=None) -> MeshError:
+    """The one-line error (to raise) for ``what`` needing ``need`` bytes past ``limit``.
+
+    ``need`` None: ``what`` is a verb that went past the limit ("inflates").
+    """
+    why = ("max_input_size, --max-input-size" if max_input_size is not None else
+           f"the limit for a file of this size: {RATIO} times its size, at most half the "
+           f"memory available; --max-input-size sets it")
+    if need is None:
+        return MeshError(f"{path}: {what} past {size_text(limit)} ({why}); not read")
+    return MeshError(f"{path}: {what} would take {size_text(need)}, more than "
+                     f"{size_text(limit)} ({why}); not read")
