@@ -297,9 +297,9 @@ class Document:
 
     def buffer(self, i) -> memoryview:
         """Buffer ``i``'s bytes (the GLB's BIN chunk, a data URI or a file)."""
+        entry = self.item("buffers", i, "a buffer view")
         if i in self._buffers:
             return self._buffers[i]
-        entry = self.item("buffers", i, "a buffer view")
         uri = entry.get("uri")
         if uri is None:
             if self.binary is None or i != 0:
@@ -339,9 +339,9 @@ class Document:
 
     def view(self, i) -> tuple:
         """``(bytes, byteStride or None)`` of buffer view ``i`` (meshopt decoded)."""
+        bv = self.item("bufferViews", i, "an accessor or image")
         if i in self._views:
             return self._views[i]
-        bv = self.item("bufferViews", i, "an accessor or image")
         stride = bv.get("byteStride")
         if stride is not None and (not _is_int(stride) or stride <= 0):
             raise self.damaged(f"buffer view {i} has byteStride {stride!r}")
@@ -376,7 +376,8 @@ class Document:
         count, size = packed.get("count"), packed.get("byteStride")
         mode, filt = packed.get("mode"), packed.get("filter", "NONE")
         if not (_is_int(count) and _is_int(size) and count > 0 and size > 0) or mode not in (
-                "ATTRIBUTES", "TRIANGLES", "INDICES"):
+                "ATTRIBUTES", "TRIANGLES", "INDICES") or filt not in (
+                "NONE", "OCTAHEDRAL", "QUATERNION", "EXPONENTIAL", "COLOR"):
             raise self.damaged(f"buffer view {i}'s meshopt compression has count {count!r}, "
                                f"byteStride {size!r}, mode {mode!r}")
         self.spend(count * size, f"buffer view {i} (meshopt, {count:,} x {size} bytes)")
@@ -394,12 +395,12 @@ class Document:
 
     def accessor(self, i, what: str) -> np.ndarray:
         """Accessor ``i`` as a (count, width) array: its stored type, or float64 when normalized."""
-        key = i
-        if key in self._accessors:
-            return self._accessors[key]
         acc = self.item("accessors", i, what)
-        dtype = COMPONENTS.get(acc.get("componentType"))
-        width = _WIDTH.get(acc.get("type"))
+        if i in self._accessors:
+            return self._accessors[i]
+        dtype = COMPONENTS.get(acc.get("componentType")) if _is_int(acc.get("componentType")) \
+            else None
+        width = _WIDTH.get(acc.get("type")) if isinstance(acc.get("type"), str) else None
         count = acc.get("count")
         if dtype is None or width is None or not _is_int(count) or count < 0:
             raise self.damaged(f"accessor {i} has componentType {acc.get('componentType')!r}, "
@@ -431,14 +432,14 @@ class Document:
             out = out.astype(np.float64) / top
             if dtype.kind == "i":
                 out = np.maximum(out, -1.0)
-        self._accessors[key] = out
+        self._accessors[i] = out
         return out
 
     def _sparse(self, i, sparse: dict, out: np.ndarray, count: int) -> np.ndarray:
         k = sparse.get("count")
         idx, val = sparse.get("indices"), sparse.get("values")
-        if not (_is_int(k) and 0 < k <= count and isinstance(idx, dict)
-                and isinstance(val, dict) and idx.get("componentType") in _INDEX_TYPES):
+        if not (_is_int(k) and 0 < k <= count and isinstance(idx, dict) and isinstance(val, dict)
+                and _is_int(idx.get("componentType")) and idx["componentType"] in _INDEX_TYPES):
             raise self.damaged(f"accessor {i} has a sparse part that does not add up")
         itype = COMPONENTS[idx["componentType"]]
         where = self._packed(idx, k, itype, 1, f"accessor {i}'s sparse indices")
@@ -490,7 +491,7 @@ def _draco(doc: Document, prim: dict, where: str) -> dict:
     except Exception as exc:  # DracoPy raises its own and RuntimeError types
         raise doc.damaged(f"{where}'s Draco data does not decode ({type(exc).__name__})") \
             from None
-    names = {ident: name for name, ident in ext["attributes"].items()}
+    names = {ident: name for name, ident in ext["attributes"].items() if _is_int(ident)}
     out = {}
     for attr in getattr(decoded, "attributes", []):
         name = names.get(attr.get("unique_id"))
@@ -513,7 +514,7 @@ def read_primitive(doc: Document, prim: dict, where: str, materials) -> Primitiv
     if not isinstance(attrs, dict) or "POSITION" not in attrs:
         raise doc.damaged(f"{where} has no POSITION attribute")
     mode = prim.get("mode", _TRIANGLES)
-    if mode not in range(7):
+    if not _is_int(mode) or mode not in range(7):
         raise doc.damaged(f"{where} has mode {mode!r}")
     ext = prim.get("extensions") if isinstance(prim.get("extensions"), dict) else {}
     decoded = _draco(doc, prim, where) if "KHR_draco_mesh_compression" in ext else {}
@@ -540,7 +541,8 @@ def read_primitive(doc: Document, prim: dict, where: str, materials) -> Primitiv
         index = decoded["indices"].reshape(-1)
     elif prim.get("indices") is not None:
         acc = doc.item("accessors", prim["indices"], where)
-        if acc.get("componentType") not in _INDEX_TYPES or acc.get("type") != "SCALAR":
+        if not _is_int(acc.get("componentType")) or acc["componentType"] not in _INDEX_TYPES \
+                or acc.get("type") != "SCALAR":
             raise doc.damaged(f"{where}'s indices are not unsigned integers")
         index = doc.accessor(prim["indices"], f"{where}'s indices").reshape(-1)
     else:

@@ -25,7 +25,7 @@ from __future__ import annotations
 from ..errors import MeshError
 
 __all__ = ["RATIO", "FLOOR", "MEMORY_SHARE", "available_memory", "input_limit", "refuse",
-           "size_text"]
+           "size_text", "parse_size"]
 
 #: Inflated bytes per stored byte that no real mesh reaches.
 RATIO = 100
@@ -62,6 +62,26 @@ def input_limit(stored: int, max_input_size: int | None = None) -> int:
     limit = max(RATIO * int(stored), FLOOR)
     memory = available_memory()
     return limit if memory is None else min(limit, int(MEMORY_SHARE * memory))
+
+
+def parse_size(text: str) -> int:
+    """``"500M"`` -> 500_000_000: bytes, with an optional k/M/G/T (powers of 1000, or KiB..TiB of 1024).
+
+    Raises
+    ------
+    ValueError
+        Not a positive size (argparse says so, naming the option).
+    """
+    import re
+
+    m = re.fullmatch(r"\s*([0-9]+(?:\.[0-9]*)?)\s*([kmgt]?)(i?)b?\s*", str(text), re.I)
+    if m is None:
+        raise ValueError(f"not a size: {text!r}")
+    power = "kmgt".find(m.group(2).lower()) + 1
+    value = int(float(m.group(1)) * (1024 if m.group(3) else 1000) ** power)
+    if value <= 0:
+        raise ValueError(f"not a positive size: {text!r}")
+    return value
 
 
 def size_text(n: float) -> str:

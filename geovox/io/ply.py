@@ -80,6 +80,9 @@ def parse_header(path: str, data: bytes) -> tuple:
         raise MeshError(f"{path}: cannot be read as PLY: no end_header line in its first "
                         f"{MAX_HEADER:,} bytes; the file is damaged or not PLY")
     text = data[:end.start()].decode("latin-1")
+    start = end.end()
+    if end.group(1) == b"\r\n" and m.group(1) == b"\r":
+        start -= 1  # a CR-ended header: the LF after it is the data's first byte
     fmt, elements, comments = None, [], []
     for number, line in enumerate(re.split(r"\r\n|\r|\n", text)[1:], 2):
         words = line.split()
@@ -104,7 +107,7 @@ def parse_header(path: str, data: bytes) -> tuple:
         # anything else (a comment's second line, as some exporters write) says nothing
     if fmt is None:
         raise MeshError(f"{path}: cannot be read as PLY: its header has no format line")
-    return fmt, elements, comments, end.end()
+    return fmt, elements, comments, start
 
 
 def _short(path: str, elements, what: str) -> MeshError:
@@ -252,8 +255,9 @@ def _is_number(word: str) -> bool:
 
 
 def _as(values: np.ndarray, code: str) -> np.ndarray:
-    """Numbers read as text, in the property's type (integers exactly, floats as written)."""
-    return values.astype(code) if code[0] in "iu" else values
+    """Numbers read as text, in the property's type (a ``float`` is rounded to 32 bits, as
+    trimesh's reader and the format have it)."""
+    return values.astype(code)
 
 
 def _layout(path: str, first: np.ndarray, e: Element) -> list:
