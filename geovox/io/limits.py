@@ -77,7 +77,7 @@ def parse_size(text: str) -> int:
     m = re.fullmatch(r"\s*([0-9]+(?:\.[0-9]*)?)\s*([kmgt]?)(i?)b?\s*", str(text), re.I)
     if m is None:
         raise ValueError(f"not a size: {text!r}")
-    power = "kmgt".find(m.group(2).lower()) + 1
+    power = "kmgt".find(m.group(2).lower()) + 1 if m.group(2) else 0
     value = int(float(m.group(1)) * (1024 if m.group(3) else 1000) ** power)
     if value <= 0:
         raise ValueError(f"not a positive size: {text!r}")
