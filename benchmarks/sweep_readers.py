@@ -148,14 +148,73 @@ def compare(path: str, resolution: int) -> dict:
     return row
 
 
+COLOUR_PROBE = """
+import sys, warnings, numpy as np, geovox
+out = sys.argv[1]
+for k, path in enumerate(sys.argv[2:]):
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            v = geovox.voxelize(path, resolution=int(out.split(":")[1]), color=True,
+                                backend="numpy")
+        np.savez(f"{out.split(':')[0]}/{k}.npz", occ=v.occupancy, col=v.colors)
+    except Exception as exc:
+        print(k, type(exc).__name__, str(exc).splitlines()[0][:100] if str(exc) else "")
+"""
+
+
+def colours(files: list, old_root: str, out: str, resolution: int) -> list:
+    """Colours (``--color``, exact) of each file here and under the tree ``old_root``.
+
+    Each tree runs in its own process (``PYTHONPATH``); the rows say how many
+    inside voxels each has and how many of the shared ones differ in colour,
+    by at most how much.
+    """
+    here = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    rows = []
+    for tag, root in (("new", here), ("old", old_root)):
+        folder = os.path.join(out, "colours", tag)
+        os.makedirs(folder, exist_ok=True)
+        env = dict(os.environ, PYTHONPATH=root)
+        subprocess.run([sys.executable, "-c", COLOUR_PROBE, f"{folder}:{resolution}", *files],
+                       env=env, cwd="/", check=True)
+    for k, path in enumerate(files):
+        got = {}
+        for tag in ("new", "old"):
+            f = os.path.join(out, "colours", tag, f"{k}.npz")
+            got[tag] = np.load(f) if os.path.exists(f) else None
+        row = {"file": path}
+        if got["new"] is None or got["old"] is None:
+            row["verdict"] = "not both"
+        elif got["new"]["occ"].shape != got["old"]["occ"].shape:
+            row["verdict"] = "grids differ"
+        else:
+            both = got["new"]["occ"] & got["old"]["occ"]
+            a = got["new"]["col"][both].astype(int)
+            b = got["old"]["col"][both].astype(int)
+            diff = np.any(a != b, axis=1)
+            row.update(inside=int(both.sum()), colours_differ=int(diff.sum()),
+                       most=int(np.abs(a - b).max()) if diff.any() else 0,
+                       occupancy_differ=int((got["new"]["occ"] != got["old"]["occ"]).sum()))
+            row["verdict"] = "same colours" if not diff.any() else "colours differ"
+        rows.append(row)
+    return rows
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--mirrors", default="/work/.mirror")
     ap.add_argument("--out", default="/tmp/geovox_sweep")
     ap.add_argument("-r", "--resolution", type=int, default=48)
     ap.add_argument("--json")
+    ap.add_argument("--colours-against", metavar="TREE",
+                    help="also compare --color volumes with geovox as it is in TREE (a "
+                         "checkout of main: `git archive main geovox | tar -x -C TREE`)")
+    ap.add_argument("--extra", nargs="*", default=[],
+                    help="more model files to sweep (the corpus's textured ones)")
     args = ap.parse_args(argv)
     files, absent = extract(args.mirrors, args.out)
+    files += args.extra
     lacking = [a for a in absent if a.lower().endswith(EXTS)]
     print(f"{len(absent)} files the mirrors lack ({len(lacking)} models: {', '.join(lacking) or 'none'})")
     rows = []
@@ -170,6 +229,19 @@ def main(argv=None) -> int:
     for row in rows:
         counts[row["verdict"]] = counts.get(row["verdict"], 0) + 1
     print(f"{len(rows)} files: " + ", ".join(f"{n} {k}" for k, n in sorted(counts.items())))
+    if args.colours_against:
+        read = [r["file"] for r in rows if r["verdict"] in ("same", "differs", "trimesh fails")]
+        crows = colours(read, args.colours_against, args.out, max(16, args.resolution // 2))
+        for row in crows:
+            extra = {k: v for k, v in row.items() if k not in ("file", "verdict")}
+            print(f"{row['verdict']:>15}  {os.path.relpath(row['file'], args.out)}  "
+                  f"{json.dumps(extra)}")
+        tally = {}
+        for row in crows:
+            tally[row["verdict"]] = tally.get(row["verdict"], 0) + 1
+        print(f"colours: {len(crows)} files: "
+              + ", ".join(f"{n} {k}" for k, n in sorted(tally.items())))
+        rows += [dict(r, colours=True) for r in crows]
     if args.json:
         with open(args.json, "w") as f:
             json.dump(rows, f, indent=1)
