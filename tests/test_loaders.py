@@ -1,6 +1,6 @@
-"""Formats read through trimesh (GLB/glTF, 3MF, STL, PLY, OFF, COLLADA, archives):
-each either converts or fails with one line naming the file and the problem,
-and nothing loses geometry silently. Regressions from benchmarks/bench_wild.py
+"""Every format (geovox's own readers for GLB/glTF, STL and PLY; trimesh for 3MF, OFF,
+COLLADA, archives): each either converts or fails with one line naming the file and the
+problem, and nothing loses geometry silently. Regressions from benchmarks/bench_wild.py
 (trimesh's own models/ folder); most files are made here, a few small ones are
 copied in tests/data/wild (trimesh's, MIT)."""
 
@@ -105,8 +105,9 @@ def test_draco_compressed_gltf_decodes(tmp_path):
 
 def test_draco_that_does_not_decode_is_an_error_not_an_empty_volume(tmp_path, capsys,
                                                                       monkeypatch):
-    # Without DracoPy trimesh logs a warning and returns placeholder zeros;
-    # voxelising those once gave exit 0 and an empty volume.
+    # Without DracoPy, trimesh logged a warning and returned placeholder zeros;
+    # voxelising those once gave exit 0 and an empty volume. geovox's reader says
+    # what to install.
     path = _draco_glb(tmp_path / "draco.glb")
     monkeypatch.setitem(sys.modules, "DracoPy", None)  # import DracoPy now fails
     with pytest.raises(MeshError, match="Draco-compressed.*not installed"):

@@ -109,6 +109,11 @@ class Materials:
     def _texture(self, fact: dict, ref) -> None:
         index = ref.get("index") if isinstance(ref, dict) else None
         if not (isinstance(index, int) and 0 <= index < len(self._textures)):
+            if index is not None:
+                # trimesh took -1 as Python does: the last texture
+                self._problems.append(f"material {fact['name']!r} names base colour texture "
+                                      f"{index!r}, which does not exist; using its base colour "
+                                      f"factor")
             return
         tex = self._textures[index]
         sampler = tex.get("sampler")
