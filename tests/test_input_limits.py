@@ -75,7 +75,7 @@ def test_real_archives_still_load_and_max_input_size_sets_the_limit(tmp_path):
     gz.write_bytes(gzip.compress(box.export(file_type="stl")))
     geovox.io.archive.check_archive(str(gz))  # within the limit: nothing said
     with pytest.raises(MeshError, match="inflates past 100 bytes"):
-        geovox.io.archive.check_archive(str(gz), max_input_size=100)
+        geovox.io.archive.check_archive(str(gz), limits.Limit(100))
 
 
 def test_max_input_size_refuses_a_plain_file_too(tmp_path):
@@ -99,7 +99,7 @@ def test_parse_size():
 
 def test_default_limit():
     assert limits.input_limit(1000) >= limits.FLOOR or limits.available_memory() < 2 ** 28
-    assert limits.input_limit(10**6, max_input_size=5) == 5
+    assert limits.input_limit(10**6, most=5) == 5 == limits.Limit(5).of(10**6)
     memory = limits.available_memory()
     if memory:
         assert limits.input_limit(10**12) == int(limits.MEMORY_SHARE * memory)

@@ -32,50 +32,49 @@ STREAMS = {b"\x1f\x8b": "gzip", b"BZh": "bz2", b"\xfd7zXZ\x00": "lzma"}
 _PIECE = 1 << 20
 
 
-def check_archive(path: str, max_input_size=None) -> None:
+def check_archive(path: str, limit: limits.Limit = limits.Limit()) -> None:
     """Refuse ``path`` if it would inflate past the limit; return quietly otherwise.
 
     Parameters
     ----------
     path : str
         A zip, tar, gzip, bzip2 or xz file (anything else passes).
-    max_input_size : int or None
-        The most bytes its contents may inflate to (default:
-        :func:`geovox.io.limits.input_limit` of its size).
+    limit : geovox.io.limits.Limit
+        ``max_input_size``: the most bytes its contents may inflate to
+        (default: :func:`geovox.io.limits.input_limit` of its size).
 
     Raises
     ------
     MeshError
         One line naming the file, what it would inflate to and the limit.
     """
-    stored = os.path.getsize(path)
-    limit = limits.input_limit(stored, max_input_size)
+    cap = limit.of(os.path.getsize(path))
     with open(path, "rb") as f:
         head = f.read(6)
     if head[:4] == b"PK\x03\x04" or zipfile.is_zipfile(path):
-        _check_zip(path, limit, max_input_size)
+        _check_zip(path, cap, limit)
         return
     opener = next((name for magic, name in STREAMS.items() if head.startswith(magic)), None)
     if opener is not None:
-        _check_stream(path, opener, limit, max_input_size)
+        _check_stream(path, opener, cap, limit)
 
 
-def _check_zip(path: str, limit: int, max_input_size) -> None:
+def _check_zip(path: str, cap: int, limit) -> None:
     try:
         with zipfile.ZipFile(path) as z:
             members = z.infolist()
     except (zipfile.BadZipFile, OSError, ValueError, EOFError):
         return  # not a zip after all: its reader says what is wrong
     total = sum(m.file_size for m in members)
-    if total > limit:
+    if total > cap:
         biggest = max(members, key=lambda m: m.file_size)
-        raise limits.refuse(path, f"its {len(members):,} member{'s' if len(members) > 1 else ''}"
+        raise limit.refuse(path, f"its {len(members):,} member{'s' if len(members) > 1 else ''}"
                                   f" ({biggest.filename!r} the largest, "
                                   f"{limits.size_text(biggest.file_size)}) inflated",
-                            total, limit, max_input_size)
+                           total, cap)
 
 
-def _check_stream(path: str, opener: str, limit: int, max_input_size) -> None:
+def _check_stream(path: str, opener: str, cap: int, limit) -> None:
     import importlib
 
     module = importlib.import_module(opener)
@@ -87,8 +86,8 @@ def _check_stream(path: str, opener: str, limit: int, max_input_size) -> None:
                 if not piece:
                     return
                 seen += len(piece)
-                if seen > limit:
-                    raise limits.refuse(path, "inflates", None, limit, max_input_size)
+                if seen > cap:
+                    raise limit.refuse(path, "inflates", None, cap)
     except MeshError:
         raise
     except (OSError, EOFError, ValueError):

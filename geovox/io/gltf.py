@@ -223,16 +223,17 @@ class Document:
         The file's bytes.
     rule : {"anywhere", "folder"}
         Where its buffer and image files may be read from.
-    max_input_size : int or None
-        The option; with the file's size, sets :attr:`limit`.
+    limit : geovox.io.limits.Limit
+        ``max_input_size``; with the file's size, sets :attr:`cap`.
     """
 
-    def __init__(self, path: str, data: bytes, rule: str = "anywhere", max_input_size=None):
-        self.path, self.rule, self.max_input_size = path, rule, max_input_size
+    def __init__(self, path: str, data: bytes, rule: str = "anywhere",
+                 limit: limits.Limit = limits.Limit()):
+        self.path, self.rule, self.limit = path, rule, limit
         self.folder = os.path.dirname(os.path.abspath(path))
         self.header, self.binary = _container(path, data)
         self.stored = len(data)  # with the buffer files it reads
-        self.limit = limits.input_limit(self.stored, max_input_size)
+        self.cap = limit.of(self.stored)
         self.spent = 0
         self.problems: list = []
         self.refused: list = []  # (uri, line) of references not read
@@ -261,10 +262,10 @@ class Document:
                        f"damaged")
 
     def spend(self, nbytes: float, what: str) -> None:
-        """Count ``nbytes`` about to be allocated; refuse past :attr:`limit`."""
+        """Count ``nbytes`` about to be allocated; refuse past :attr:`cap`."""
         self.spent += nbytes
-        if self.spent > self.limit:
-            raise limits.refuse(self.path, what, self.spent, self.limit, self.max_input_size)
+        if self.spent > self.cap:
+            raise self.limit.refuse(self.path, what, self.spent, self.cap)
 
     def _check_required(self) -> None:
         required = self.header.get("extensionsRequired", [])
@@ -333,7 +334,7 @@ class Document:
         """A file the model names, under the references rule (a refusal is a MeshError)."""
         found = self._locate(uri)
         self.stored += os.path.getsize(found)
-        self.limit = limits.input_limit(self.stored, self.max_input_size)
+        self.cap = self.limit.of(self.stored)
         with open(found, "rb") as f:
             return f.read()
 
@@ -749,7 +750,7 @@ def transform_points(points: np.ndarray, matrix: np.ndarray) -> np.ndarray:
 # --------------------------------------------------------------------- the file
 
 
-def read_gltf(path: str, *, rule: str = "anywhere", max_input_size=None):
+def read_gltf(path: str, *, rule: str = "anywhere", limit: limits.Limit = limits.Limit()):
     """The :class:`~geovox.mesh.Mesh` of a glTF 2.0 or GLB file.
 
     Parameters
@@ -758,9 +759,9 @@ def read_gltf(path: str, *, rule: str = "anywhere", max_input_size=None):
     rule : {"anywhere", "folder"}
         Where buffer and image files may be read from (see
         :mod:`geovox.io.references`).
-    max_input_size : int or None
-        The most bytes the file may grow to once decoded (default: see
-        :func:`geovox.io.limits.input_limit`).
+    limit : geovox.io.limits.Limit
+        ``max_input_size``: the most bytes the file may grow to once decoded
+        (default: see :func:`geovox.io.limits.input_limit`).
 
     Returns
     -------
@@ -779,7 +780,7 @@ def read_gltf(path: str, *, rule: str = "anywhere", max_input_size=None):
 
     with open(path, "rb") as f:
         data = f.read()
-    doc = Document(path, data, rule, max_input_size)
+    doc = Document(path, data, rule, limit)
     del data
     materials = Materials(doc)
     meshes = doc.listed("meshes")

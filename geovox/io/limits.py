@@ -22,9 +22,11 @@ docs/guide/input-formats.md).
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 from ..errors import MeshError
 
-__all__ = ["RATIO", "FLOOR", "MEMORY_SHARE", "available_memory", "input_limit", "refuse",
+__all__ = ["Limit", "RATIO", "FLOOR", "MEMORY_SHARE", "available_memory", "input_limit", "refuse",
            "size_text", "parse_size"]
 
 #: Inflated bytes per stored byte that no real mesh reaches.
@@ -47,18 +49,39 @@ def available_memory() -> int | None:
     return None
 
 
-def input_limit(stored: int, max_input_size: int | None = None) -> int:
+@dataclass(frozen=True)
+class Limit:
+    """The option ``max_input_size`` as the readers use it, made once by :func:`geovox.io.load.load_mesh`.
+
+    Attributes
+    ----------
+    most : int or None
+        Bytes an input may become; None: the default rule (:func:`input_limit`).
+    """
+
+    most: int | None = None
+
+    def of(self, stored: int) -> int:
+        """The limit for a file of ``stored`` bytes."""
+        return input_limit(stored, self.most)
+
+    def refuse(self, path: str, what: str, need, limit: int) -> MeshError:
+        """The one line for ``what`` past ``limit`` (see :func:`refuse`)."""
+        return refuse(path, what, need, limit, self.most is not None)
+
+
+def input_limit(stored: int, most: int | None = None) -> int:
     """The most bytes a file of ``stored`` bytes may become once read or inflated.
 
     Parameters
     ----------
     stored : int
         The file's size (an archive's, or a model's with the buffers it names).
-    max_input_size : int or None
-        The option: the limit itself, when given.
+    most : int or None
+        The option ``max_input_size``: the limit itself, when given.
     """
-    if max_input_size is not None:
-        return int(max_input_size)
+    if most is not None:
+        return int(most)
     limit = max(RATIO * int(stored), FLOOR)
     memory = available_memory()
     return limit if memory is None else min(limit, int(MEMORY_SHARE * memory))
@@ -92,12 +115,13 @@ def size_text(n: float) -> str:
     return f"{int(n):,} bytes"
 
 
-def refuse(path: str, what: str, need, limit: int, max_input_size=None) -> MeshError:
+def refuse(path: str, what: str, need, limit: int, given: bool = False) -> MeshError:
     """The one-line error (to raise) for ``what`` needing ``need`` bytes past ``limit``.
 
-    ``need`` None: ``what`` is a verb that went past the limit ("inflates").
+    ``need`` None: ``what`` is a verb that went past the limit ("inflates");
+    ``given``: the limit is the option's, not the default rule's.
     """
-    why = ("max_input_size, --max-input-size" if max_input_size is not None else
+    why = ("max_input_size, --max-input-size" if given else
            f"the limit for a file of this size: {RATIO} times its size, at most half the "
            f"memory available; --max-input-size sets it")
     if need is None:

@@ -75,11 +75,11 @@ def load_mesh(source, *, references: str = "anywhere", max_input_size: int | Non
         is wrong in words, in one line.
     """
     rule = check_rule(references)
-    max_input_size = check_max_input_size(max_input_size)
+    limit = limits.Limit(check_max_input_size(max_input_size))
     if isinstance(source, Mesh):
         return source
     if isinstance(source, (str, os.PathLike)):
-        return _load_file(os.fspath(source), rule, max_input_size)
+        return _load_file(os.fspath(source), rule, limit)
     from .adaptor import from_trimesh
 
     try:
@@ -93,7 +93,7 @@ def load_mesh(source, *, references: str = "anywhere", max_input_size: int | Non
         ) from None
 
 
-def _load_file(path: str, rule: str, max_input_size) -> Mesh:
+def _load_file(path: str, rule: str, limit: limits.Limit) -> Mesh:
     if not os.path.exists(path):
         raise InputNotFoundError(f"input file not found: {path}")
     if os.path.isdir(path):
@@ -101,8 +101,8 @@ def _load_file(path: str, rule: str, max_input_size) -> Mesh:
     size = os.path.getsize(path)
     if size == 0:
         raise MeshError(f"{path}: the file is empty")
-    if max_input_size is not None and size > max_input_size:
-        raise limits.refuse(path, "the file", size, max_input_size, max_input_size)
+    if limit.most is not None and size > limit.most:
+        raise limit.refuse(path, "the file", size, limit.most)
     ext = os.path.splitext(path)[1].lower()
     if ext == ".obj":
         from .obj import read_obj
@@ -111,11 +111,11 @@ def _load_file(path: str, rule: str, max_input_size) -> Mesh:
     if ext == ".ply":
         from .ply import read_ply
 
-        return read_ply(path, rule=rule, max_input_size=max_input_size)
+        return read_ply(path, rule=rule)
     if ext in (".gltf", ".glb"):
         from .gltf import read_gltf
 
-        return read_gltf(path, rule=rule, max_input_size=max_input_size)
+        return read_gltf(path, rule=rule, limit=limit)
     if ext == ".stl":
         from .stl import read_stl
 
@@ -125,7 +125,7 @@ def _load_file(path: str, rule: str, max_input_size) -> Mesh:
     if ext in ARCHIVES:
         from .archive import check_archive
 
-        check_archive(path, max_input_size)
+        check_archive(path, limit)
     from .adaptor import trimesh_load
 
     return trimesh_load(path, rule)

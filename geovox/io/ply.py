@@ -363,7 +363,7 @@ def _fan(counts: np.ndarray, corners: np.ndarray) -> tuple:
     return corners.astype(np.int64)[np.stack([c0, c0 + j, c0 + j + 1], axis=1)], poly
 
 
-def read_ply(path: str, *, rule: str = "anywhere", max_input_size=None):
+def read_ply(path: str, *, rule: str = "anywhere"):
     """The :class:`~geovox.mesh.Mesh` of a PLY file.
 
     Parameters
@@ -371,9 +371,9 @@ def read_ply(path: str, *, rule: str = "anywhere", max_input_size=None):
     path : str
     rule : {"anywhere", "folder"}
         Where the texture a ``comment TextureFile`` names may be read from.
-    max_input_size : int or None
-        Not needed beyond the file's own size: every array is checked
-        against the bytes that hold it.
+
+    Every array is checked against the bytes that hold it before it is made,
+    so a PLY needs no limit beyond its own size (``max_input_size`` bounds that).
 
     Raises
     ------
