@@ -70,7 +70,7 @@ def write_formats(name: str, source: str, folder: str) -> dict:
 def convert_time(path: str, out: str, resolution: int) -> float:
     start = time.perf_counter()
     subprocess.run([sys.executable, "-m", "geovox", "convert", path, "-o", out, "-r",
-                    str(resolution), "-q"], check=True, cwd=ROOT)
+                    str(resolution), "-q"], check=True, cwd=ROOT, stderr=subprocess.DEVNULL)
     return time.perf_counter() - start
 
 
