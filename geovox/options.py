@@ -143,6 +143,10 @@ class Options:
                         "(affine, shape)) instead of one over the mesh", None, new=True)
     mesh_space: str | None = _doc("with like: the mesh's frame, 'lps' or 'ras' (default: its "
                                   "file's SPACE= mark, else LPS)", None, new=True)
+    # issue 36 (readers): the size limit of geovox.io.limits
+    max_input_size: int | None = _doc("the most bytes an input may hold once read or inflated "
+                                      "(default: 100 x its size, at most half the memory)", None,
+                                      record=False)
 
     def __post_init__(self):
         _validate(self)
@@ -348,6 +352,10 @@ def _validate_fields(o: Options) -> None:
         raise ParameterError(f"`jobs` must be a non-negative integer, got {o.jobs!r}")
     if o.references not in tuple(References):
         raise ParameterError(f"`references` must be 'anywhere' or 'folder', got {o.references!r}")
+    if o.max_input_size is not None and (isinstance(o.max_input_size, bool) or not isinstance(
+            o.max_input_size, int) or o.max_input_size <= 0):  # issue 36 (readers)
+        raise ParameterError(f"`max_input_size` must be a positive number of bytes, "
+                             f"got {o.max_input_size!r}")
     _validate_labels(o)
     if o.mesh_space is not None:
         if o.like is None:

@@ -1,6 +1,6 @@
-"""Formats read through trimesh (GLB/glTF, 3MF, STL, PLY, OFF, COLLADA, archives):
-each either converts or fails with one line naming the file and the problem,
-and nothing loses geometry silently. Regressions from benchmarks/bench_wild.py
+"""Every format (geovox's own readers for GLB/glTF, STL and PLY; trimesh for 3MF, OFF,
+COLLADA, archives): each either converts or fails with one line naming the file and the
+problem, and nothing loses geometry silently. Regressions from benchmarks/bench_wild.py
 (trimesh's own models/ folder); most files are made here, a few small ones are
 copied in tests/data/wild (trimesh's, MIT)."""
 
@@ -105,8 +105,9 @@ def test_draco_compressed_gltf_decodes(tmp_path):
 
 def test_draco_that_does_not_decode_is_an_error_not_an_empty_volume(tmp_path, capsys,
                                                                       monkeypatch):
-    # Without DracoPy trimesh logs a warning and returns placeholder zeros;
-    # voxelising those once gave exit 0 and an empty volume.
+    # Without DracoPy, trimesh logged a warning and returned placeholder zeros;
+    # voxelising those once gave exit 0 and an empty volume. geovox's reader says
+    # what to install.
     path = _draco_glb(tmp_path / "draco.glb")
     monkeypatch.setitem(sys.modules, "DracoPy", None)  # import DracoPy now fails
     with pytest.raises(MeshError, match="Draco-compressed.*not installed"):
@@ -119,19 +120,18 @@ def test_draco_that_does_not_decode_is_an_error_not_an_empty_volume(tmp_path, ca
 def test_any_lost_geometry_message_from_trimesh_is_an_error(tmp_path, monkeypatch):
     # The rule, not just Draco: a reader that logs that it dropped geometry
     # and carries on gives an error naming the file and trimesh's words.
-    path = tmp_path / "box.ply"
-    # ASCII: a plain binary triangle PLY is read by geovox.io.ply, not trimesh.
-    path.write_bytes(_box().export(file_type="ply", encoding="ascii"))
+    path = tmp_path / "box.off"  # OFF: read through trimesh (PLY is geovox's own)
+    path.write_bytes(_box().export(file_type="off").encode())
     from trimesh.exchange import load
 
-    real = load.mesh_loaders["ply"]
+    real = load.mesh_loaders["off"]
 
     def dropping(*args, **kwargs):
         logging.getLogger("trimesh.exchange.ply").warning("PLY failed to populate: face")
         return real(*args, **kwargs)
 
-    monkeypatch.setitem(load.mesh_loaders, "ply", dropping)
-    with pytest.raises(MeshError, match=r"box\.ply: part of the geometry could not be read.*"
+    monkeypatch.setitem(load.mesh_loaders, "off", dropping)
+    with pytest.raises(MeshError, match=r"box\.off: part of the geometry could not be read.*"
                                         r"PLY failed to populate: face"):
         geovox.load_mesh(str(path))
 
@@ -182,7 +182,7 @@ def test_point_clouds_and_lines_say_there_are_no_faces(tmp_path, capsys):
     (tmp_path / "lines.glb").write_bytes(trimesh.Scene(lines).export(file_type="glb"))
     for name, held in [("points.ply", "a point cloud (10 points)"),
                        ("points.xyz", "a point cloud (10 points)"),
-                       ("lines.glb", "lines (1 line piece)")]:
+                       ("lines.glb", "lines (")]:
         _one_line_error(["info", str(tmp_path / name)], capsys, name, "has no faces", held)
 
 
@@ -291,7 +291,7 @@ def test_empty_reason_names_faces_wound_against_each_other():
     # neighbours; the winding number then cancels. The reason, asked directly
     # (whether a repair later fills such a mesh is the inside test's business).
     from geovox.grid import make_grid
-    from geovox.block import empty_reason
+    from geovox.pipeline import empty_reason
 
     box = _box()
     faces = box.faces.copy()
@@ -340,14 +340,14 @@ def test_bare_exception_from_a_reader_is_put_in_words(tmp_path, capsys, monkeypa
     # A reader that fails with a bare `assert` once gave "(AssertionError)".
     from trimesh.exchange import load
 
-    path = tmp_path / "box.glb"
-    path.write_bytes(trimesh.Scene(_box()).export(file_type="glb"))
+    path = tmp_path / "box.3mf"  # a format read through trimesh
+    path.write_bytes(_box().export(file_type="3mf"))
 
     def broken(*args, **kwargs):
         raise AssertionError()
 
-    monkeypatch.setitem(load.mesh_loaders, "glb", broken)
-    err = _one_line_error(["info", str(path)], capsys, "box.glb",
-                          "cannot be read as glTF binary (.glb); the file is damaged or not what "
+    monkeypatch.setitem(load.mesh_loaders, "3mf", broken)
+    err = _one_line_error(["info", str(path)], capsys, "box.3mf",
+                          "cannot be read as 3MF (.3mf); the file is damaged or not what "
                           "its extension says", "AssertionError")
     assert not err.rstrip().endswith("(AssertionError)")

@@ -572,7 +572,7 @@ def test_map_kd_offset_and_scale_agree_with_khr_texture_transform(tmp_path):
 def test_map_kd_clamp_on_is_one_copy_of_the_texture(tmp_path):
     # The MTL specification: "one copy of the texture is mapped onto the surface
     # [...]. Outside of the origin texture, the underlying material is unchanged."
-    from geovox.io.obj import read_mtl
+    from geovox.io.mtl import read_mtl
 
     mtl = ("newmtl c\nKd 0.2 0.4 0.6\nmap_Kd -clamp on t.png\n"
            "newmtl w\nmap_Kd -clamp on t.png\n"
@@ -612,7 +612,7 @@ def test_map_kd_clamp_on_across_a_face_keeps_the_texture_inside(tmp_path):
     edge = (np.abs(uv) < 1e-6) | (np.abs(uv - 1) < 1e-6)  # rounding decides these
     inside, outside = inside & ~edge, ~inside & ~edge
     assert np.all(got[outside] == 1.0) and outside.sum() == 200
-    from geovox.colour.shading import sample_bilinear
+    from geovox.colour import sample_bilinear
 
     want = sample_bilinear(mesh.materials[0].image,
                            np.stack([uv[inside], np.full(inside.sum(), obj_centre(1))], axis=1),
@@ -634,7 +634,7 @@ def test_map_kd_clamp_on_across_a_face_keeps_the_texture_inside(tmp_path):
     ("-dash.png", "-dash.png"),
 ])
 def test_map_kd_options_and_names_find_the_right_image(tmp_path, statement, file):
-    from geovox.io.obj import read_mtl
+    from geovox.io.mtl import read_mtl
 
     (tmp_path / "sub").mkdir()
     for name in ("my tex.png", "my  tex.png", "12 monkeys.png", "sub/t.png", "-dash.png",
@@ -655,7 +655,7 @@ def test_map_kd_statements_written_any_way_find_their_file_and_values(tmp_path_f
     from hypothesis import given, settings
     from hypothesis import strategies as st
 
-    from geovox.io.obj import _apply_map_options, _map_statement
+    from geovox.io.mtl import _apply_map_options, _map_statement
 
     folder = tmp_path_factory.mktemp("names")
     number = st.floats(-4, 4, allow_nan=False).map(lambda x: round(x, 3))
@@ -774,7 +774,7 @@ def test_map_kd_options_through_the_cli(tmp_path):
 
 
 def test_border_samples_like_clamp_on_the_texture():
-    from geovox.colour.shading import on_texture, sample_bilinear
+    from geovox.colour import on_texture, sample_bilinear
 
     rng = np.random.default_rng(7)
     img = rng.integers(0, 256, (4, 6, 3)).astype(np.uint8)
@@ -1040,7 +1040,7 @@ def test_mirror_wrap_is_repeat_over_the_unfolded_image():
     # Mirrored repeat over an image is plain repeat over the image unfolded
     # into its 2 x 2 mirror tile (period 2 in u and v): an independent check of
     # the texel arithmetic, off texel centres and across the folds.
-    from geovox.colour.shading import sample_bilinear
+    from geovox.colour import sample_bilinear
 
     rng = np.random.default_rng(5)
     img = rng.integers(0, 256, (5, 7, 3)).astype(np.uint8)
@@ -1056,7 +1056,7 @@ def test_mirror_wrap_is_repeat_over_the_unfolded_image():
 
 
 def test_clamp_wrap_holds_the_edge_texels():
-    from geovox.colour.shading import sample_bilinear
+    from geovox.colour import sample_bilinear
 
     rng = np.random.default_rng(6)
     img = rng.integers(0, 256, (4, 6, 3)).astype(np.uint8)

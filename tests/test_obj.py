@@ -20,7 +20,8 @@ from geovox.cli import main
 from geovox.errors import GeovoxWarning, MeshError
 from geovox.io.load import load_mesh
 from geovox.mesh import Material, Mesh
-from geovox.io.obj import _rest, read_mtl, read_obj, resolve_path
+from geovox.io.mtl import read_mtl, resolve_path, rest_of
+from geovox.io.obj import read_obj
 
 from conftest import DATA, SPOT, corpus
 
@@ -82,13 +83,13 @@ def reference_read_obj(path: str) -> Mesh:
                     tri_t.append((corners_t[0], corners_t[k], corners_t[k + 1]))
                     tri_m.append(current)
             elif key == "usemtl":
-                name = _rest(line, "usemtl")
+                name = rest_of(line, "usemtl")
                 if name not in mat_index:
                     mat_index[name] = len(mat_names)
                     mat_names.append(name)
                 current = mat_index[name]
             elif key == "mtllib":
-                libs.append(_rest(line, "mtllib"))
+                libs.append(rest_of(line, "mtllib"))
         except (ValueError, IndexError):
             raise MeshError(f"{path}: line {lineno} is not valid OBJ: {line.strip()[:60]!r}") from None
     if not v and not tri_v:

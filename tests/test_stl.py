@@ -22,7 +22,7 @@ from hypothesis import strategies as st
 
 import geovox
 from geovox.errors import MeshError
-from geovox.io.load import _trimesh_load, from_trimesh
+from geovox.io.adaptor import from_trimesh, trimesh_load
 from geovox.io.stl import read_stl
 
 from conftest import corpus
@@ -55,7 +55,7 @@ def _as_trimesh_reads_it(path, accepted=True):
     fast = read_stl(path)
     assert (fast is not None) == accepted, path
     try:
-        slow = _trimesh_load(path)
+        slow = trimesh_load(path)
     except MeshError as exc:
         assert fast is None, path  # what trimesh cannot read, read_stl must leave to it
         with pytest.raises(MeshError) as got:
@@ -302,7 +302,7 @@ def test_upper_case_extension_and_voxels(tmp_path, sphere):
     v, f = sphere
     path = str(_binary(tmp_path / "s.STL", v[f], header=b"solid s"))
     a = geovox.voxelize(path, resolution=24).occupancy
-    b = geovox.voxelize(_trimesh_load(path), resolution=24).occupancy
+    b = geovox.voxelize(trimesh_load(path), resolution=24).occupancy
     assert a.sum() > 100 and np.array_equal(a, b)
 
 

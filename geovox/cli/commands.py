@@ -226,6 +226,12 @@ def _references_argument(c):
                    help="files the model names (materials, textures, glTF buffers): read from "
                         "anywhere (default), or only from under the model's own folder, for "
                         "files you did not make; URLs are never fetched")
+    # issue 36 (readers): the input size limit, parsed by geovox.io.limits.parse_size
+    from ..io.limits import parse_size
+
+    c.add_argument("--max-input-size", type=parse_size, default=None, metavar="BYTES",
+                   help="refuse an input that holds more than this once read or inflated "
+                        "(500M, 2G; default: 100 x its size, at most half the memory)")
 
 
 def add_convert(sub):
@@ -638,7 +644,8 @@ def run_view(args) -> int:
     from ..view import LARGEST, show
 
     vol = _volume_or_mesh(args, args.input, LARGEST)
-    mesh = load_mesh(args.mesh, references=args.references) if args.mesh else None
+    mesh = (load_mesh(args.mesh, references=args.references,
+                      max_input_size=args.max_input_size) if args.mesh else None)
     out = show(vol, mesh=mesh, screenshot=args.screenshot)
     if out:
         print(f"wrote {out}")

@@ -17,6 +17,8 @@ from __future__ import annotations
 
 import numpy as np
 
+__all__ = ["node_parts", "regroup"]
+
 
 def _primitives(geometry):
     """The primitives of ``geometry`` that trimesh turns into meshes, in its order."""

@@ -28,6 +28,9 @@ import re
 from ..errors import ParameterError
 from ..options import References
 
+__all__ = ["RULES", "check_rule", "is_url", "inside", "Refused", "why_not_read", "instead",
+           "locate", "data_uri", "resolver"]
+
 #: The rules :func:`check_rule` accepts.
 RULES = tuple(References)
 
@@ -123,6 +126,27 @@ def locate(name: str, folder: str, rule: str, root: str | None = None) -> tuple:
     except OSError:
         pass
     return None, refused
+
+
+def data_uri(uri: str) -> bytes:
+    """The bytes of a ``data:`` URI (base64 or percent-escaped); never a file, so always read.
+
+    Raises
+    ------
+    ValueError
+        Base64 that does not decode.
+    """
+    import base64
+    import binascii
+    import urllib.parse
+
+    head, _, payload = uri.partition(",")
+    if not head.endswith(";base64"):
+        return urllib.parse.unquote_to_bytes(payload)
+    try:
+        return base64.b64decode(payload)
+    except (binascii.Error, ValueError):
+        raise ValueError("base64 that does not decode") from None
 
 
 def resolver(path: str, rule: str, said: list):

@@ -39,6 +39,8 @@ import re
 
 import numpy as np
 
+__all__ = ["read_stl", "RECORD", "HEADER"]
+
 #: One facet of a binary STL: normal, three corners, the attribute word (little-endian).
 RECORD = np.dtype([("normal", "<f4", (3,)), ("corners", "<f4", (3, 3)), ("attribute", "<u2")])
 #: The 80-byte header and the uint32 facet count.

@@ -32,6 +32,8 @@ import zipfile
 
 from ..errors import MeshError
 
+__all__ = ["flatten"]
+
 _CORE = "http://schemas.microsoft.com/3dmanufacturing/core/2015/02"
 _PROD = "http://schemas.microsoft.com/3dmanufacturing/production/2015/06"
 _BEAM = "http://schemas.microsoft.com/3dmanufacturing/beamlattice/2017/02"
