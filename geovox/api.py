@@ -44,6 +44,7 @@ def voxelize(
     fractions=False,
     like=None,
     mesh_space=None,
+    max_input_size=None,
     progress=None,
 ) -> Volume:
     """Turn a closed triangle mesh into a solid voxel volume.
@@ -151,6 +152,12 @@ def voxelize(
     mesh_space : {"lps", "ras"}, optional
         With ``like``: the mesh's frame, overriding its file's 3D Slicer
         ``SPACE=`` mark (LPS where there is none).
+    max_input_size : int, optional
+        The most bytes the model file may hold once read or inflated (an
+        archive's members together, a glTF's decoded buffers, the file
+        itself); default 100 times the file's size (at least 64 MiB), at
+        most half the available memory. A file past it is refused in one line
+        before the memory is spent (see :mod:`geovox.io.limits`).
     progress : callable, optional
         ``progress(event)`` with a :class:`geovox.volume.Progress` as each
         stage starts (``event.stage``: "load", "rays", "colour", "density",

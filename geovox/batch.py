@@ -329,8 +329,10 @@ STACK = ("geovox.planner", "geovox.block", "geovox.runners", "geovox.io.load", "
 KERNELS = ("geovox._lattice", "geovox._winding", "geovox._objtext", "geovox._nearest")
 
 
-#: Loaders by input extension; every file type but OBJ is read through trimesh.
-LOADERS = {".ply": "geovox.io.ply", ".gltf": "geovox.io.gltf", ".glb": "geovox.io.gltf",
+#: Loaders by input extension (OBJ, STL, PLY, glTF and GLB are geovox's own; the rest
+#: goes through trimesh).
+LOADERS = {".ply": "geovox.io.ply", ".gltf": "geovox.io.gltf_materials",
+           ".glb": "geovox.io.gltf_materials", ".stl": "geovox.io.stl",
            ".3mf": "geovox.io.threemf", ".dae": "geovox.io.dae", ".zae": "geovox.io.dae"}
 
 
@@ -349,6 +351,8 @@ def warm(ext: str, extensions: tuple, options) -> None:
     """
     import importlib
 
+    from .io.kinds import NATIVE
+
     wanted = list(STACK) + list(KERNELS)
     if options.color:
         wanted += ["geovox.colour.shading", "geovox.colour.nearest"]
@@ -356,7 +360,7 @@ def warm(ext: str, extensions: tuple, options) -> None:
         wanted.append("geovox.labels")
     for e in extensions:
         wanted += [LOADERS[e]] if e in LOADERS else []
-        wanted += ["trimesh"] if e != ".obj" else []
+        wanted += ["trimesh", "geovox.io.adaptor"] if e not in NATIVE else []
     for name in dict.fromkeys(wanted):
         try:
             importlib.import_module(name)

@@ -202,10 +202,11 @@ def scene(sources, options=None) -> Mesh:
     from .io.load import load_mesh
 
     rule = "anywhere" if options is None else options.references
+    most = None if options is None else options.max_input_size
     meshes = []
     for s in sources:
         try:
-            meshes.append(load_mesh(s, references=rule))
+            meshes.append(load_mesh(s, references=rule, max_input_size=most))
         except MeshError as exc:
             raise MeshError(f"in the scene: {exc}") from exc
     if not meshes:

@@ -295,7 +295,8 @@ def load(mesh, options: Options):
         with chosen(options.kernel):  # the OBJ reader's compiled loop follows the option too
             return scene(mesh, options)
     with chosen(options.kernel):
-        return loader.load_mesh(mesh, references=options.references)
+        return loader.load_mesh(mesh, references=options.references,
+                                max_input_size=options.max_input_size)
 
 
 def grid_of(mesh, options: Options, fmt=None) -> Grid:

@@ -105,8 +105,6 @@ def test_default_limit():
         assert limits.input_limit(10**12) == int(limits.MEMORY_SHARE * memory)
 
 
-@pytest.mark.xfail(strict=True, reason="pipeline.load must pass options.max_input_size to "
-                                       "load_mesh (the lead's one-line edit, issue 36)")
 def test_the_command_line_option_reaches_the_reader(tmp_path, capsys):
     path = tmp_path / "box.stl"
     trimesh.creation.box().export(path)

@@ -47,6 +47,7 @@ from ..errors import MeshError
 from ..mesh import build_mesh
 from . import limits
 from .kinds import kind
+from .names import unique_name
 from .references import data_uri, instead, locate, why_not_read
 
 __all__ = ["read_gltf", "Document", "Damaged", "read_primitive", "instances", "transform_points", "strip_faces", "fan_faces", "unit_colours", "unique_name", "READ",
@@ -101,32 +102,6 @@ def unit_colours(colours, n: int, problems=None):
             problems.append(f"NaN or infinite COLOR_0 on {k:,} {'vertex' if k == 1 else 'vertices'}"
                             f"; they count as having no colour (white)")
     return np.clip(out, 0.0, 1.0)
-
-
-def unique_name(start, taken, counts=None) -> str:
-    """trimesh's ``util.unique_name`` (5.2): ``start``, else ``start_1``, ``start_2``, ...
-
-    ``counts`` remembers the last number given per start, as trimesh's
-    glTF reader keeps it; the parts' names are trimesh's.
-    """
-    if start and start not in taken:
-        return start
-    increment = 0 if counts is None else counts.get(start, 0)
-    formatter = "geometry_{}"
-    if start:
-        formatter = start + "_{}"
-        split = start.rsplit("_", 1)
-        if len(split) == 2 and increment == 0:
-            try:
-                increment, formatter = int(split[1]), split[0] + "_{}"
-            except ValueError:
-                pass
-    for i in range(increment + 1, 2 + increment + len(taken)):
-        if formatter.format(i) not in taken:
-            if counts is not None:
-                counts[start] = i
-            return formatter.format(i)
-    raise AssertionError("unreachable: more candidates than names taken")
 
 
 # --------------------------------------------------------------------- strips and fans

@@ -25,8 +25,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from ..errors import MeshError
+from ..memory import available_memory
 
-__all__ = ["Limit", "RATIO", "FLOOR", "MEMORY_SHARE", "available_memory", "input_limit", "refuse",
+__all__ = ["Limit", "RATIO", "FLOOR", "MEMORY_SHARE", "input_limit", "refuse",
            "size_text", "parse_size"]
 
 #: Inflated bytes per stored byte that no real mesh reaches.
@@ -35,18 +36,6 @@ RATIO = 100
 FLOOR = 64 << 20
 #: The share of the available memory one input may grow to.
 MEMORY_SHARE = 0.5
-
-
-def available_memory() -> int | None:
-    """Bytes of memory available now (Linux's ``MemAvailable``), or None where unknown."""
-    try:
-        with open("/proc/meminfo") as f:
-            for line in f:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except (OSError, ValueError, IndexError):
-        pass
-    return None
 
 
 @dataclass(frozen=True)

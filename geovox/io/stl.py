@@ -39,6 +39,8 @@ import re
 
 import numpy as np
 
+from .names import unique_name
+
 __all__ = ["read_stl", "RECORD", "HEADER"]
 
 #: One facet of a binary STL: normal, three corners, the attribute word (little-endian).
@@ -81,25 +83,6 @@ def _solids(text: str):
         solids.append((start, lower[start:end]))
 
 
-def _unique_name(start: str, taken) -> str:
-    """trimesh's ``util.unique_name(start, taken)`` (5.2): ``name``, ``name_1``, ``geometry_1``, ..."""
-    if start and start not in taken:
-        return start
-    increment, formatter = 0, "geometry_{}"
-    if start:
-        formatter = start + "_{}"
-        split = start.rsplit("_", 1)
-        if len(split) == 2:
-            try:
-                increment, formatter = int(split[1]), split[0] + "_{}"
-            except ValueError:
-                pass
-    for i in range(increment + 1, 2 + increment + len(taken)):
-        if formatter.format(i) not in taken:
-            return formatter.format(i)
-    raise AssertionError("unreachable: more candidates than names taken")
-
-
 def _ascii(data: bytes):
     """``{name: (n, 3) float64 vertices}`` of each solid with facets, or False (trimesh reads it)."""
     try:
@@ -129,7 +112,7 @@ def _ascii(data: bytes):
             return False  # trimesh: "incorrect number of vertices", or no whole triangle
         # trimesh's name: the rest of the ``solid`` line, in the file's case
         name = text[start:start + solid.find("\n")][6:].strip()
-        found[_unique_name(name, found)] = vertices.reshape(-1, 3)
+        found[unique_name(name, found)] = vertices.reshape(-1, 3)
     return found or False  # no facets: trimesh's message
 
 
