@@ -253,6 +253,9 @@ def add_convert(sub):
                    help=".vox: keep only the voxels with a face on the outside")
     c.add_argument("--pack-bits", action="store_true",
                    help=".npz: store occupancy as np.packbits bits (occupancy_bits, shape)")
+    c.add_argument("--sparse", action="store_true",
+                   help=".npz: the occupied voxels alone: coords (N, 3) int32 and colors, labels, "
+                        "... aligned with it (a .ply is always sparse: the voxel centres)")
     c.add_argument("--preview", metavar="PNG", help="also write a preview picture")
     c.add_argument("--overwrite", action="store_true",
                    help="with several inputs: convert even where the output exists (and "
@@ -421,8 +424,15 @@ def _write_options(args, fmt) -> dict:
 
     if args.pack_bits and fmt.name != "npz":
         raise ParameterError(f"--pack-bits is for .npz output, not {fmt.name}")
+    if args.sparse and fmt.name != "npz":
+        raise ParameterError(f"--sparse is for .npz output (a .ply is always sparse), "
+                             f"not {fmt.name}")
+    if args.sparse and args.pack_bits:
+        raise ParameterError("--sparse and --pack-bits are two ways to write the occupancy; "
+                             "give one")
     return {**({"shell": True} if args.shell and fmt.name == "vox" else {}),
-            **({"pack_bits": True} if args.pack_bits else {})}
+            **({"pack_bits": True} if args.pack_bits else {}),
+            **({"sparse": True} if args.sparse else {})}
 
 
 def _cluster(args):

@@ -75,7 +75,11 @@ def is_volume_file(path) -> bool:
     """Whether ``path`` names a file geovox writes (a volume, or a RAW output's
     ``.json`` sidecar or ``.mhd`` / ``.nhdr`` header), judged by its name."""
     lower = os.fspath(path).lower().rstrip("/" + os.sep)
-    return lower.endswith(HEADER_EXTENSIONS) or match(lower) is not None
+    if lower.endswith(HEADER_EXTENSIONS):
+        return True
+    f = match(lower)
+    # An extension that is also a mesh's (.ply): the file's own header says which.
+    return f is not None and (f.sniff is None or f.sniff(os.fspath(path)))
 
 
 def read_volume(path, *, max_side=None):

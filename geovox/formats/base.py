@@ -43,6 +43,9 @@ class Meta:
     label_table : list of dict or None
         With labels: one entry per label value (see :func:`geovox.labels.table`);
         a slab run fills its counts in before the writer closes.
+    mesh_space : (str, str) or None
+        On a reference grid: the mesh's frame (``"LPS"`` or ``"RAS"``) and how
+        it was decided; a point cloud's coordinates are in it.
     """
 
     grid: Grid
@@ -52,6 +55,7 @@ class Meta:
     fields: dict = field(default_factory=dict)
     fractions: tuple | None = None
     label_table: list | None = None
+    mesh_space: tuple | None = None
 
     @classmethod
     def of(cls, volume) -> "Meta":
@@ -62,7 +66,8 @@ class Meta:
         return cls(grid=volume.grid, backend=volume.backend, source=volume.source,
                    colors=volume.colors is not None, fields=fields,
                    fractions=None if fr is None else (fr.shape[3], fr.dtype),
-                   label_table=getattr(volume, "label_table", None))
+                   label_table=getattr(volume, "label_table", None),
+                   mesh_space=getattr(volume, "mesh_space", None))
 
     def dtype(self, name):
         """The dtype of scalar field ``name`` (``"density"``, ``"sdf"``, ``"labels"``), or None."""

@@ -47,7 +47,7 @@ def packbits_c(occupancy: np.ndarray) -> np.ndarray:
     return np.concatenate(out) if out else np.zeros(0, np.uint8)
 
 
-def write_npz(volume, path, pack_bits: bool = False) -> list:
+def write_npz(volume, path, pack_bits: bool = False, sparse: bool = False) -> list:
     """Compressed arrays ``occupancy``, ``colors`` (if any), ``spacing``, ``bounds``, ``origin``.
 
     With ``pack_bits``, ``occupancy_bits`` and ``shape`` replace ``occupancy``:
@@ -55,13 +55,30 @@ def write_npz(volume, path, pack_bits: bool = False) -> list:
     as Occupancy Networks' data sets store it, so
     ``np.unpackbits(d["occupancy_bits"])[:np.prod(d["shape"])].reshape(d["shape"])``
     is the volume again; one bit per voxel instead of a byte.
+
+    With ``sparse``, the occupied voxels alone: ``coords`` (N, 3) int32, their
+    ``[i, j, k]`` in the grid's memory order (x fastest), and beside them the
+    per-voxel arrays aligned with it -- ``colors`` (N, 4) uint8, ``labels``
+    (N,), ``density`` (N,), ``sdf`` (N,), ``fractions`` (N, L) where made --
+    with ``shape``, ``spacing``, ``bounds`` and ``origin`` (the centre of
+    voxel 0; on a reference grid ``affine`` maps ``coords`` to the world).
     """
     from .base import atomic_output
     from .headers import origin_of
 
+    if pack_bits and sparse:
+        from ..errors import ParameterError
+
+        raise ParameterError("`pack_bits` and `sparse` are two ways to write the occupancy; "
+                             "give one")
     path = os.fspath(path)
-    arrays = {}
-    if pack_bits:
+    if sparse:
+        arrays, per_voxel = _sparse(volume)
+    else:
+        arrays, per_voxel = {}, None
+    if sparse:
+        pass
+    elif pack_bits:
         arrays["occupancy_bits"] = packbits_c(volume.occupancy)
         arrays["shape"] = np.asarray(volume.shape, dtype=np.int64)
     else:
@@ -85,6 +102,10 @@ def write_npz(volume, path, pack_bits: bool = False) -> list:
         arrays[name] = arr
     if getattr(volume, "fractions", None) is not None:
         arrays["fractions"] = volume.fractions
+    if per_voxel is not None:  # sparse: each field at the occupied voxels alone
+        for name in ("colors", "density", "sdf", "labels", "fractions"):
+            if name in arrays:
+                arrays[name] = per_voxel(arrays[name])
     if getattr(volume, "label_table", None):
         from .base import label_table_json
 
@@ -95,11 +116,29 @@ def write_npz(volume, path, pack_bits: bool = False) -> list:
     return [path]
 
 
+def _sparse(volume):
+    """``({"coords", "shape"}, take)``: the occupied voxels' indices, and a function that
+    gives any ``[x, y, z, ...]`` array's values there, in the same order."""
+    occ = volume.occupancy
+    nx, ny, _ = occ.shape
+    idx = np.flatnonzero(occ.reshape(-1, order="F"))  # x fastest: the volume's memory order
+    coords = np.stack([idx % nx, (idx // nx) % ny, idx // (nx * ny)], axis=1).astype(np.int32)
+
+    def take(arr):
+        if arr.ndim == 3:
+            return arr.reshape(-1, order="F")[idx]
+        return arr.reshape(-1, arr.shape[3], order="F")[idx]
+
+    return {"coords": coords, "shape": np.asarray(occ.shape, dtype=np.int64)}, take
+
+
 def read_npz(path):
     from ..grid import Grid
     from ..volume import Volume
 
     with np.load(path) as z:
+        if "coords" in z:
+            return _read_sparse(z, os.fspath(path))
         if "occupancy_bits" in z:
             shape = tuple(int(n) for n in z["shape"])
             bits = np.unpackbits(z["occupancy_bits"], count=int(np.prod(shape)))
@@ -119,6 +158,39 @@ def read_npz(path):
             extra["label_table"] = table_from_json(z["label_table"][()])
     return Volume(occupancy=occ, grid=Grid(bounds[0], bounds[1], occ.shape), backend="?",
                   source=os.fspath(path), colors=colors, **extra)
+
+
+def _read_sparse(z, path):
+    """A Volume from a sparse ``.npz`` (:func:`write_npz` with ``sparse``)."""
+    from ..grid import Grid
+    from ..volume import Volume
+
+    shape = tuple(int(n) for n in z["shape"])
+    i, j, k = z["coords"].astype(np.int64).T
+    occ = np.zeros(shape, dtype=bool, order="F")
+    occ[i, j, k] = True
+    extra = {}
+    if "colors" in z:
+        colors = np.zeros((shape[2], shape[1], shape[0], 4), np.uint8).transpose(2, 1, 0, 3)
+        colors[i, j, k] = z["colors"]
+        extra["colors"] = colors
+    for name in ("density", "sdf", "labels"):
+        if name in z:
+            arr = np.zeros(shape, dtype=z[name].dtype, order="F")
+            arr[i, j, k] = z[name]
+            extra[name] = arr
+    if "fractions" in z:
+        fr = z["fractions"]
+        arr = np.zeros(shape + (fr.shape[1],), dtype=fr.dtype, order="F")
+        arr[i, j, k] = fr
+        extra["fractions"] = arr
+    if "label_table" in z:
+        from .base import table_from_json
+
+        extra["label_table"] = table_from_json(z["label_table"][()])
+    bounds = z["bounds"]
+    return Volume(occupancy=occ, grid=Grid(bounds[0], bounds[1], shape), backend="?",
+                  source=path, **extra)
 
 
 def read_npy(path):

@@ -55,7 +55,7 @@ class Abilities:
 
 
 #: The parts of a format a :class:`Format` looks up in its module on first use.
-_PARTS = ("writer", "reader", "check", "slab_writer")
+_PARTS = ("writer", "reader", "check", "slab_writer", "sniff")
 
 
 class Format:
@@ -89,6 +89,10 @@ class Format:
     libraries : tuple of str
         The packages the writer imports when it runs (``h5py``, ``zarr``, ...):
         what :meth:`load` imports ahead of a first model.
+    sniff : callable or None
+        ``sniff(path) -> bool``: whether a file of this extension is geovox's
+        volume, where the extension is also a mesh's (``.ply``); None: the
+        extension says.
     can : Abilities
         What the format can hold and how it is written: what the plan and
         the command line read, never the format's name.
@@ -97,13 +101,14 @@ class Format:
     __slots__ = ("name", "extensions", "description", "libraries", "can", "_parts")
 
     def __init__(self, name, extensions, writer, description="", *, reader=None, check=None,
-                 slab_writer=None, libraries=(), can=None):
+                 slab_writer=None, sniff=None, libraries=(), can=None):
         self.name = name
         self.extensions = tuple(e.lower() for e in extensions)
         self.description = description
         self.libraries = tuple(libraries)
         self.can = can if can is not None else Abilities()
-        self._parts = dict(writer=writer, reader=reader, check=check, slab_writer=slab_writer)
+        self._parts = dict(writer=writer, reader=reader, check=check, slab_writer=slab_writer,
+                           sniff=sniff)
 
     def _part(self, key):
         ref = self._parts[key]
@@ -118,6 +123,7 @@ class Format:
     reader = property(lambda self: self._part("reader"))
     check = property(lambda self: self._part("check"))
     slab_writer = property(lambda self: self._part("slab_writer"))
+    sniff = property(lambda self: self._part("sniff"))
 
     def load(self) -> None:
         """Import the writer's module and the packages it uses (those installed).
@@ -253,6 +259,11 @@ register_format("zarr", (".zarr",), "zarr:write_zarr",
                 reader="zarr:read_zarr", slab_writer="zarr:ZarrWriter", libraries=("zarr",),
                 can=Abilities(folder=True, root_file="zarr.json", chunk=64, always_streams=True,
                               cluster=True))
+register_format("ply", (".ply",), "ply:write_ply",
+                "binary PLY point cloud: each occupied voxel's centre in model units, with "
+                "red/green/blue and label (Open3D, trimesh, MeshLab, CloudCompare)",
+                reader="ply:read_ply", slab_writer=_slabs("ply:PlyWriter"),
+                sniff="ply:is_geovox_ply")
 register_format("nifti", (".nii.gz", ".nii"), "nifti:write_nifti",
                 "NIfTI-1 for 3D Slicer, ITK-SNAP, FSL, nibabel: uint8 mask, sform = qform = the "
                 "grid's RAS affine (needs nibabel: the nifti extra)",

@@ -181,7 +181,8 @@ def _meta(m, p: Plan):
         fields["labels"] = labelled["labels"]
         label_table, fractions = labelled["label_table"], labelled["fractions"]
     return Meta(grid=p.grid, backend=p.backend.name, source=m.source, colors=bool(p.colour),
-                fields=fields, fractions=fractions, label_table=label_table)
+                fields=fields, fractions=fractions, label_table=label_table,
+                mesh_space=p.mesh_space)
 
 
 
