@@ -84,6 +84,35 @@ def mesh_report(mesh: Mesh) -> dict:
     }
 
 
+#: Voxels of the surface voxels' slabs :func:`surface_count` makes at a time.
+COUNT_SLAB_VOXELS = 1 << 26
+
+
+def surface_count(mesh: Mesh, plan) -> int:
+    """How many voxels of the plan's grid the surface passes through, counted slab by slab.
+
+    Parameters
+    ----------
+    mesh : Mesh
+        The loaded mesh (with ``like``, :meth:`~geovox.planner.Plan.mesh_for` moves it).
+    plan : geovox.planner.Plan
+        Its grid, threads and snapping scale (``surface_bits``).
+    """
+    from .surface import surface_voxels
+
+    m = plan.mesh_for(mesh)
+    nx, ny, nz = plan.grid.shape
+    thick = max(1, min(nz, COUNT_SLAB_VOXELS // max(1, nx * ny)))
+    out = np.empty((nx, ny, thick), dtype=bool, order="F")
+    count = 0
+    for z0 in range(0, nz, thick):
+        z1 = min(nz, z0 + thick)
+        got = surface_voxels(m.triangles, plan.grid, (z0, z1), jobs=plan.jobs,
+                             bits=plan.surface_bits, out=out[:, :, :z1 - z0])
+        count += int(np.count_nonzero(got))
+    return count
+
+
 def grid_cost(grid) -> dict:
     """Grid shape and the memory a conversion needs, without allocating it.
 

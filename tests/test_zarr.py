@@ -334,3 +334,13 @@ def test_scheduler_variable_is_only_for_zarr(tmp_path, monkeypatch, capsys):
     with pytest.raises(TypeError):  # the stand-in above is no context manager
         main(["convert", SPOT, "-o", str(tmp_path / "v.zarr"), "-r", "16", "-q"])
     assert len(asked) == 1
+
+
+def test_surface_voxels_on_the_cluster_are_the_volume_s(tmp_path, client):
+    """occupancy="both" slab by slab as cluster tasks: the in-memory volume, counts included."""
+    opts = dict(shape=(40, 36, 200), occupancy="both", color="fast")
+    ref = geovox.voxelize(SPOT, **opts)
+    info = convert_to(SPOT, tmp_path / "b.zarr", slab=64, client=client, **opts)
+    assert info.slabs == 4 and info.counts == ref.counts
+    back = F.read(tmp_path / "b.zarr")
+    np.testing.assert_array_equal(back.occupancy, ref.occupancy)

@@ -684,6 +684,10 @@ def run_info(args) -> int:
     from ..labels import parts_report
 
     print(parts_report(mesh))
+    if p.surface_bits is not None:
+        from ..report import surface_count
+
+        print(f"surface voxels: {surface_count(mesh, p):,} of {p.grid.size:,}")
     print("\n".join(p.describe()))
     return EXIT_OK
 
