@@ -35,6 +35,30 @@ def _clip(poly, axis, value, keep_above):
     return out
 
 
+def clipped(tri, box_lo, box_hi):
+    """The vertices of the triangle clipped to the closed box (an empty list: they miss)."""
+    poly = [tuple(p) for p in tri]
+    for a in range(3):
+        poly = _clip(poly, a, box_lo[a], True)
+        if not poly:
+            return []
+        poly = _clip(poly, a, box_hi[a], False)
+        if not poly:
+            return []
+    return poly
+
+
+def touches_only(tri, box_lo, box_hi):
+    """Whether the triangle meets the closed box but not its interior: a tie on its boundary.
+
+    ``K`` (the clipped set) misses the open box iff it lies in one of the
+    box's faces: every vertex of ``K`` at ``lo_a``, or every one at ``hi_a``.
+    """
+    poly = clipped(tri, box_lo, box_hi)
+    return bool(poly) and any(all(p[a] == box_lo[a] for p in poly)
+                              or all(p[a] == box_hi[a] for p in poly) for a in range(3))
+
+
 def meets(tri, box_lo, box_hi, last):
     """Whether the triangle meets the box, half-open on the axes where ``last[a]`` is False.
 
@@ -44,15 +68,8 @@ def meets(tri, box_lo, box_hi, last):
     box_lo, box_hi : 3 Fractions each
     last : 3 bools: the voxel is the grid's last along that axis (its box is closed there)
     """
-    poly = [tuple(p) for p in tri]
-    for a in range(3):
-        poly = _clip(poly, a, box_lo[a], True)
-        if not poly:
-            return False
-        poly = _clip(poly, a, box_hi[a], False)
-        if not poly:
-            return False
-    return all(last[a] or any(p[a] < box_hi[a] for p in poly) for a in range(3))
+    poly = clipped(tri, box_lo, box_hi)
+    return bool(poly) and all(last[a] or any(p[a] < box_hi[a] for p in poly) for a in range(3))
 
 
 def reference_voxels(triangles, lo, spacing, shape):
