@@ -6,8 +6,12 @@ the command line share one rule without importing each other.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 from .errors import GridTooLargeError
-from .grid import Grid
+
+if TYPE_CHECKING:  # the type alone: the command line's --help imports this, without NumPy
+    from .grid import Grid
 
 #: Refuse grids whose occupancy array alone would exceed this fraction of RAM.
 MEMORY_FRACTION = 0.8

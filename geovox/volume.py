@@ -245,8 +245,8 @@ class Report:
             where = (f" in {self.slabs} slabs" if self.slabs > 1 else
                      " in 64-slice slabs" if self.filled_in_slabs else "")
         n = nx * ny * nz
-        stages = ", ".join(f"{k} {t[k]:.2f}" for k in ("load", "rays", "fill", "colour", "density",
-                                                        "sdf", "write") if k in t)
+        stages = ", ".join(f"{k} {t[k]:.2f}" for k in ("load", "rays", "fill", "surface", "colour",
+                                                        "density", "sdf", "write") if k in t)
         onto = [] if self.mesh_space is None else [reference_line(self.grid.reference,
                                                                    self.mesh_space)]
         return [f"{os.path.basename(self.source)}: grid {nx} x {ny} x {nz}{where}",

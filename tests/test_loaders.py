@@ -291,7 +291,7 @@ def test_empty_reason_names_faces_wound_against_each_other():
     # neighbours; the winding number then cancels. The reason, asked directly
     # (whether a repair later fills such a mesh is the inside test's business).
     from geovox.grid import make_grid
-    from geovox.pipeline import empty_reason
+    from geovox.block import empty_reason
 
     box = _box()
     faces = box.faces.copy()

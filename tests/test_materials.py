@@ -612,7 +612,7 @@ def test_map_kd_clamp_on_across_a_face_keeps_the_texture_inside(tmp_path):
     edge = (np.abs(uv) < 1e-6) | (np.abs(uv - 1) < 1e-6)  # rounding decides these
     inside, outside = inside & ~edge, ~inside & ~edge
     assert np.all(got[outside] == 1.0) and outside.sum() == 200
-    from geovox.colour import sample_bilinear
+    from geovox.colour.shading import sample_bilinear
 
     want = sample_bilinear(mesh.materials[0].image,
                            np.stack([uv[inside], np.full(inside.sum(), obj_centre(1))], axis=1),
@@ -774,7 +774,7 @@ def test_map_kd_options_through_the_cli(tmp_path):
 
 
 def test_border_samples_like_clamp_on_the_texture():
-    from geovox.colour import on_texture, sample_bilinear
+    from geovox.colour.shading import on_texture, sample_bilinear
 
     rng = np.random.default_rng(7)
     img = rng.integers(0, 256, (4, 6, 3)).astype(np.uint8)
@@ -1040,7 +1040,7 @@ def test_mirror_wrap_is_repeat_over_the_unfolded_image():
     # Mirrored repeat over an image is plain repeat over the image unfolded
     # into its 2 x 2 mirror tile (period 2 in u and v): an independent check of
     # the texel arithmetic, off texel centres and across the folds.
-    from geovox.colour import sample_bilinear
+    from geovox.colour.shading import sample_bilinear
 
     rng = np.random.default_rng(5)
     img = rng.integers(0, 256, (5, 7, 3)).astype(np.uint8)
@@ -1056,7 +1056,7 @@ def test_mirror_wrap_is_repeat_over_the_unfolded_image():
 
 
 def test_clamp_wrap_holds_the_edge_texels():
-    from geovox.colour import sample_bilinear
+    from geovox.colour.shading import sample_bilinear
 
     rng = np.random.default_rng(6)
     img = rng.integers(0, 256, (4, 6, 3)).astype(np.uint8)

@@ -42,6 +42,8 @@ ALLOWED: dict = {}
 HOMONYMS = {
     "shape": "an array's shape (headers, writers, levels, index volumes), not the grid option",
     "axis": "an array axis or a ray direction handed to a geometric primitive",
+    "occupancy": "an occupancy array ((nx, ny, nz) bool) handed to a stage, not the option "
+                 "saying which voxels are on",
     "jobs": "the thread count handed to a parallel primitive (parallel.py, the writers' pools, "
             "Backend.cast): one int, already resolved by the plan (Plan.jobs)",
 }
