@@ -610,8 +610,8 @@ def _open_crossings(part: Mesh, engine, sub, axis: int, jobs: int):
     return hits, crossing_signs(closed, hits, axis) * flip
 
 
-def label_fractions(mesh: Mesh, grid, lset: LabelSet, *, engine, axis: int, start: float,
-                    supersample: int = 4, jobs: int = 1, dtype: str = "uint8", within=None) -> np.ndarray:
+def label_fractions(mesh: Mesh, grid, lset: LabelSet, run, *, supersample: int = 4,
+                    dtype: str = "uint8") -> np.ndarray:
     """Each label's coverage fraction per voxel, overlaps settled by ``lset.overlap``.
 
     From ``supersample`` x ``supersample`` rays per column (as
@@ -631,8 +631,9 @@ def label_fractions(mesh: Mesh, grid, lset: LabelSet, *, engine, axis: int, star
     part alone), so its fraction is the coverage of the voxels its label
     calls inside.
 
-    ``within`` = ``(whole grid, (z0, z1))``: ``grid`` is that z-block of
-    the whole grid. With rays along z the block's rays are the whole grid's
+    ``run`` (:class:`BlockRun`) gives the engine, the ray axis, the threads,
+    where the rays start and ``within`` = ``(whole grid, (z0, z1))``: ``grid``
+    is that z-block of the whole grid. With rays along z the block's rays are the whole grid's
     (the same crossings, depths from the whole grid's low face) and its
     coverage is carried in from below (``coverage(layers=...)``), so the
     block's fractions are the whole grid's, bit for bit; along x or y a
@@ -646,6 +647,7 @@ def label_fractions(mesh: Mesh, grid, lset: LabelSet, *, engine, axis: int, star
     from .density import coverage, sub_columns
     from .inside import consistent, crossing_signs
 
+    engine, axis, start, jobs, within = run.engine, run.axis, run.start, run.jobs, run.within
     n = len(lset.names)
     by_face = np.argsort(lset.face_label, kind="stable")
     cuts = np.searchsorted(lset.face_label[by_face], np.arange(n + 1))
@@ -814,9 +816,8 @@ class LabelStage:
         if self.fractions:
             step("fractions")
             t = time.perf_counter()
-            fracs = label_fractions(mesh, grid, self.set, engine=run.engine, axis=run.axis,
-                                    start=run.start, supersample=self.supersample,
-                                    jobs=run.jobs, dtype=self.dtype, within=run.within)
+            fracs = label_fractions(mesh, grid, self.set, run, supersample=self.supersample,
+                                    dtype=self.dtype)
             timings["fractions"] = time.perf_counter() - t
         return {"labels": lab, "label_table": table(self.set, lab, grid.spacing),
                 "contested": 0 if classified is None else classified.contested, "fractions": fracs}

@@ -100,15 +100,18 @@ class Format:
 
     __slots__ = ("name", "extensions", "description", "libraries", "can", "_parts")
 
-    def __init__(self, name, extensions, writer, description="", *, reader=None, check=None,
-                 slab_writer=None, sniff=None, libraries=(), can=None):
+    def __init__(self, name, extensions, writer, description="", *, libraries=(), can=None,
+                 **parts):
+        unknown = set(parts) - set(_PARTS)
+        if unknown:
+            raise TypeError(f"unknown part of a format: {', '.join(sorted(unknown))}")
         self.name = name
         self.extensions = tuple(e.lower() for e in extensions)
         self.description = description
         self.libraries = tuple(libraries)
         self.can = can if can is not None else Abilities()
-        self._parts = dict(writer=writer, reader=reader, check=check, slab_writer=slab_writer,
-                           sniff=sniff)
+        self._parts = {key: parts.get(key) for key in _PARTS}
+        self._parts["writer"] = writer
 
     def _part(self, key):
         ref = self._parts[key]
