@@ -144,7 +144,8 @@ def render(volume, panel: int = PANEL):
     inside = int(np.count_nonzero(volume.occupancy))
     total = nx * ny * nz
     text = (f"grid {nx} x {ny} x {nz}   voxel {dx:.4g} x {dy:.4g} x {dz:.4g}   "
-            f"inside {inside:,} ({100.0 * inside / total:.1f}%)"
+            f"{getattr(volume, 'occupied_word', 'inside')} {inside:,} "
+            f"({100.0 * inside / total:.1f}%)"
             + (f"   {len(legend_table) - 1:,} labels" if legend_table
                else "   colour" if volume.colors is not None else ""))
     draw.text((pad, height - footer + 6), text, fill=(255, 255, 255), font=font)

@@ -102,6 +102,14 @@ class Volume:
     def inside_count(self) -> int:
         return int(np.count_nonzero(self.occupancy))
 
+    @property
+    def occupied_word(self) -> str:
+        """What an occupied voxel is, as a summary says it: ``"inside"`` (the solid),
+        ``"surface"`` (surface voxels alone) or ``"occupied"`` (both)."""
+        if self.counts is None:
+            return "inside"
+        return "surface" if "inside" not in self.counts else "occupied"
+
 
 @dataclass(frozen=True)
 class Progress:
