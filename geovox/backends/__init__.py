@@ -12,7 +12,7 @@ first imports trimesh and embreex (0.3-0.8 s in a fresh process), builds a
 scene and checks for coplanar overlapping triangles, and even warm is no
 faster than NumPy on these rays. Measured over every corpus model at
 64³-1024³, first call in a fresh process (``benchmarks/bench_cli.py --only
-auto-rule``, table in ``benchmarks/results/history.md``), Embree took 1.5-35× as
+auto-rule``; the decision in ``benchmarks/results/history.md``), Embree took 1.5-35× as
 long as NumPy, so ``auto`` picks NumPy whenever it imports; ``embree``
 stays available by name and gives identical volumes.
 """
