@@ -212,3 +212,13 @@ def test_every_format_geovox_formats_prints_is_on_the_formats_page(capsys):
     assert len(starts) == 1, lines  # the extensions start in one column
     for line in lines:
         assert f"`{line.split()[0]}`" in page, line
+
+
+def test_the_layers_picture_is_the_contract_s():
+    """docs/img/layers.svg is what docs/layers.py draws of pyproject.toml's contract."""
+    sys.path.insert(0, os.path.join(ROOT, "docs"))
+    try:
+        import layers
+    finally:
+        sys.path.pop(0)
+    assert layers.main(["--check"]) == 0, "run python docs/layers.py"
