@@ -41,6 +41,9 @@ LOCAL_ZARR_SLAB = 256
 WHOLE_STREAM_VOXELS = 1 << 27
 #: Memory one slab task may take on a cluster worker (its occupancy and working arrays).
 WORKER_SLAB_BUDGET = 1 << 30
+#: Bits one slab of surface voxels written as points may take (:attr:`Plan.surface_points`):
+#: 1024³ in four 256-layer slabs, 2048³ in 64-layer ones, reused from slab to slab.
+POINTS_SLAB_BUDGET = 1 << 25
 
 
 class Route(enum.StrEnum):
@@ -113,6 +116,11 @@ class Plan:
     surface_bits : int or None
         With surface voxels: the whole mesh's snapping scale
         (:func:`geovox.surface.snap_bits`), the same for every block.
+    surface_points : bool
+        Surface voxels alone, slab by slab into a point cloud (a format
+        that ``can.points``): each block's voxels are made as bits and
+        handed to the writer as indices (:func:`geovox.surface.surface_points`);
+        no byte per voxel is made, filled or scanned.
     """
 
     options: Options
@@ -138,6 +146,7 @@ class Plan:
     reuse_buffers: bool = False
     occupancy: Occupancy = Occupancy.SOLID
     surface_bits: int | None = None
+    surface_points: bool = False
 
     def mesh_for(self, mesh):
         """The mesh the blocks run on: ``mesh``, or with ``like`` the copy moved into the
@@ -409,7 +418,7 @@ def _plan(mesh, o: Options, path, fmt, how: _Request, grid=None) -> Plan:
         from .surface import snap_bits
 
         # One snapping scale for the whole mesh: every block's surface voxels are the whole grid's.
-        base["surface_bits"] = snap_bits(m.triangles, grid, jobs=base["jobs"])
+        base["surface_bits"] = snap_bits(m.vertices, grid, faces=m.faces, jobs=base["jobs"])
     stage = _label_stage(m, o, f)
     stream = how.stream
     extra = 0.0  # the labels' and fractions' bytes per voxel
@@ -426,8 +435,12 @@ def _plan(mesh, o: Options, path, fmt, how: _Request, grid=None) -> Plan:
         base["density_inside"] = _chosen_quietly(inside_tests, m, o.inside) \
             if stage is not None and stage.by_parts else \
             None if solid else Inside(inside_tests.choose(m, o.inside))
+    # Surface voxels alone into a point cloud: slabs of bits, written as points, at any size.
+    points = (f is not None and f.can.points and occupancy == Occupancy.SURFACE
+              and stage is None and not (colour or o.density or o.sdf) and stream is not False)
     if stream is None:
-        stream = f is not None and streams(grid, f, o, extra=extra)
+        stream = f is not None and (points or streams(grid, f, o, extra=extra))
+    base["surface_points"] = points and bool(stream) and not how.cluster
     if not stream or f is None:
         # By parts, each part takes its own inside test (geovox.labels.classify).
         method = (Inside(o.inside) if stage is not None and stage.by_parts
@@ -529,6 +542,8 @@ def _streamed_plan(m, base: dict, how: _Request, *, extra=0.0) -> Plan:
         method, working = None, 0.0  # surface voxels alone: no inside test
     per = bytes_per_voxel(o) + working + extra
     budget = slab_budget() if how.budget is None else how.budget
+    if base["surface_points"]:
+        per, budget = 1 / 8, min(budget, POINTS_SLAB_BUDGET)  # a bit a voxel
     blocks = slab_plan(grid, per, budget)
     nx, ny, nz = grid.shape
     thick = None
@@ -594,6 +609,6 @@ def _chunk_thick(f, grid: Grid, per: float, blocks: list, how: _Request) -> int:
     return check_thick(slab)
 
 
-__all__ = ["LOCAL_ZARR_SLAB", "Plan", "Route", "SLAB_BUDGET", "WHOLE_STREAM_VOXELS",
-           "WORKER_SLAB_BUDGET", "as_options", "cluster_thick", "grid_of", "load", "plan",
+__all__ = ["LOCAL_ZARR_SLAB", "POINTS_SLAB_BUDGET", "Plan", "Route", "SLAB_BUDGET",
+           "WHOLE_STREAM_VOXELS", "WORKER_SLAB_BUDGET", "as_options", "cluster_thick", "grid_of", "load", "plan",
            "slab_budget", "slab_plan", "streams", "streams_whole"]
