@@ -64,6 +64,11 @@ cdef extern from *:
     }
     static inline unsigned long long geovox_fetch_or(unsigned long long *p,
                                                      unsigned long long bit) {
+        /* A plain load first: most voxels are met by several triangles, and a
+           bit already set needs no locked read-modify-write. */
+        unsigned long long old = __atomic_load_n(p, __ATOMIC_RELAXED);
+        if (old & bit)
+            return old;
         return __atomic_fetch_or(p, bit, __ATOMIC_RELAXED);
     }
     """
@@ -773,9 +778,10 @@ def surface(const double[:, ::1] V, const int64_t[:, ::1] faces, const double[::
     (nx, ny, z1 - z0) uint8, Fortran order, or None; else ``words``: the
     block's voxels as bits, voxel ``f = i + nx * (j + ny * (k - z0))`` bit
     ``f % 64`` of word ``f // 64`` (at least ``ceil(nx * ny * (z1 - z0) / 64)``
-    words). ``s`` is :func:`geovox.surface.snap_bits`'s; ``zero``: clear the
-    output first (a fresh calloc'd buffer need not be); ``jobs``: OpenMP
-    threads (already through :func:`geovox.kernels.openmp_threads`).
+    words, all zero: :func:`points` clears them as it reads them). ``s`` is
+    :func:`geovox.surface.snap_bits`'s; ``zero``: clear ``out`` first;
+    ``jobs``: OpenMP threads (already through
+    :func:`geovox.kernels.openmp_threads`).
 
     Returns ``(on, m)``: with ``words`` the number of voxels on (0 with
     ``out``), and the largest |index-space coordinate| of the triangles that
@@ -797,12 +803,11 @@ def surface(const double[:, ::1] V, const int64_t[:, ::1] faces, const double[::
         size, chunk = F.nxy * nz, F.nxy
     else:
         F.words = &words[0]
-        size = (F.nxy * nz + 63) // 64 * 8
-        chunk = 1 << 20
+        zero = False
     if nt == 1:
         with nogil:
             if zero:
-                memset(F.out if F.out != NULL else <uint8_t *>F.words, 0, size)
+                memset(F.out, 0, size)
             for t in range(ntri):
                 total += triangle(&F, t, &m)
         return total, m
@@ -812,9 +817,8 @@ def surface(const double[:, ::1] V, const int64_t[:, ::1] faces, const double[::
         raise MemoryError()
     with nogil:
         if zero:
-            for k in prange((size + chunk - 1) // chunk, num_threads=nt, schedule="static"):
-                memset((F.out if F.out != NULL else <uint8_t *>F.words) + chunk * k, 0,
-                       imin(chunk, size - chunk * k))
+            for k in prange(nz, num_threads=nt, schedule="static"):
+                memset(F.out + chunk * k, 0, chunk)
         for t in prange(ntri, num_threads=nt, schedule="dynamic", chunksize=256):
             tid = threadid()
             total += triangle(&F, t, &part[8 * tid])
@@ -824,14 +828,15 @@ def surface(const double[:, ::1] V, const int64_t[:, ::1] faces, const double[::
     return total, m
 
 
-def points(const uint64_t[::1] words, int64_t nx, int64_t ny, int64_t nz, int64_t z0,
+def points(uint64_t[::1] words, int64_t nx, int64_t ny, int64_t nz, int64_t z0,
            int32_t[:, ::1] ijk):
     """The voxels on in ``words`` (:func:`surface`'s bits of layers z0 .. z0 + nz - 1), in order.
 
     Fills ``ijk`` ((count, 3) int32: ``i, j, k``, ``k`` counted in the
     whole grid) in the grid's memory order, x fastest; returns how many it
     found (at most ``ijk``'s rows). Rows are followed as the bits are: no
-    division per voxel.
+    division per voxel. Every word read is cleared, so the buffer is all
+    zero again for the next block (no clearing pass over it).
     """
     cdef Py_ssize_t w, nw = (nx * ny * nz + 63) // 64, found = 0, cap = ijk.shape[0]
     cdef int64_t f, row = 0, j = 0, k = z0
@@ -839,6 +844,8 @@ def points(const uint64_t[::1] words, int64_t nx, int64_t ny, int64_t nz, int64_
     with nogil:
         for w in range(nw):
             bits = words[w]
+            if bits:
+                words[w] = 0
             while bits:
                 f = 64 * w + ctz(bits)
                 bits &= bits - 1

@@ -117,12 +117,13 @@ _MARGIN = 4.0
 # Limbs of the normal's exact test (see _normal_meets).
 _LIMB = 31
 _LIMB_MASK = (1 << _LIMB) - 1
-# Threads (compiled kernel) only where the work is worth them: below these,
-# one thread is as fast on two idle cores and slower on busy ones, where a
-# parallel region waits a scheduler slice (~8 ms) for its last thread. The
-# dragon (100,000 triangles) at 256^3 takes 25 ms on one thread; at 1024^3
-# 415 ms on one, 240 ms on two.
-_THREADS_TRIANGLES = 1 << 18
+# Threads (compiled kernel) only where the work is worth them. A parallel
+# region costs ~0.1 ms on idle cores, but on busy ones it can wait a
+# scheduler slice (~10 ms) for its last thread: measured on two shared
+# cores, the dragon (100,000 triangles) at 256^3 took 25 ms on one thread
+# and 14 on two when the other core was free, 25-45 when it was not; the
+# snapping scale's pass (1 ms per 100,000 triangles) never gains.
+_THREADS_TRIANGLES = 1 << 16
 _THREADS_SIDE = 512
 _EXTENT_THREADS_TRIANGLES = 1 << 21
 
@@ -220,18 +221,18 @@ def surface_voxels(triangles, grid: Grid, block=None, *, faces=None, jobs: int =
     _check_grid(grid)
     z0, z1 = _check_block(block, grid)
     shape = (int(grid.shape[0]), int(grid.shape[1]), z1 - z0)
-    fresh = out is None
-    if fresh:
-        # calloc'd: pages the surface never reaches are never touched.
-        out = np.zeros(shape, dtype=bool, order="F")
+    if out is None:
+        # Not calloc'd: np.empty asks for huge pages (numpy madvises large
+        # allocations; calloc's fresh pages fault in 4 KiB at a time), and
+        # the kernel clears it. 16 MiB (256³) faulted in 25 ms, cleared in 3.
+        out = np.empty(shape, dtype=bool, order="F")
     else:
         _check_out(out, shape)
     run = _Run(verts, faces, count, grid, (z0, z1), jobs, bits)
     if run.kernel is not None:
-        run.compiled(out=out.view(np.uint8), zero=not fresh)
+        run.compiled(out=out.view(np.uint8), zero=True)
     else:
-        if not fresh:
-            out[...] = False
+        out[...] = False
         _numpy_surface(verts, faces, run.lo, run.h, run.n, run.s, z0, z1, out)
     return out
 
@@ -251,8 +252,9 @@ def surface_points(triangles, grid: Grid, block=None, *, faces=None, jobs: int =
         As :func:`surface_voxels`.
     words : (w,) uint64 array, optional
         A buffer for the block's bits, at least :func:`word_count` of the
-        block's shape (its contents are overwritten), e.g. reused across
-        slabs. Default: a fresh one.
+        block's shape, all zero; it is left all zero (the bits are cleared
+        as they are read back), so one buffer serves every slab with no
+        clearing pass. Default: a fresh one.
 
     Returns
     -------
@@ -273,9 +275,9 @@ def surface_points(triangles, grid: Grid, block=None, *, faces=None, jobs: int =
     z0, z1 = _check_block(block, grid)
     nx, ny = int(grid.shape[0]), int(grid.shape[1])
     need = word_count((nx, ny, z1 - z0))
-    fresh = words is None
-    if fresh:
-        words = np.zeros(need, dtype=np.uint64)
+    if words is None:
+        words = np.empty(need, dtype=np.uint64)  # huge pages, as surface_voxels' out
+        words.fill(0)
     elif (not isinstance(words, np.ndarray) or words.dtype != np.uint64 or words.ndim != 1
           or not words.flags.c_contiguous or not words.flags.writeable or len(words) < need):
         got = (f"{words.dtype} {words.shape}" if isinstance(words, np.ndarray)
@@ -289,7 +291,11 @@ def surface_points(triangles, grid: Grid, block=None, *, faces=None, jobs: int =
         flat = np.flatnonzero(occ.reshape(-1, order="F"))
         ijk = np.stack([flat % nx, (flat // nx) % ny, flat // (nx * ny) + z0], axis=1)
         return ijk.astype(np.int32)
-    on = run.compiled(words=words, zero=not fresh)
+    try:
+        on = run.compiled(words=words)
+    except ParameterError:
+        words[:need] = 0  # left all zero, as promised
+        raise
     ijk = np.empty((on, 3), dtype=np.int32)
     run.kernel.points(words, nx, ny, z1 - z0, z0, ijk)
     return ijk
@@ -326,7 +332,7 @@ class _Run:
         else:
             self.s = _bits(_extent(verts, faces, grid, self.kernel, self.threads), grid)
 
-    def compiled(self, *, out=None, words=None, zero=False) -> int:
+    def compiled(self, *, out=None, words=None, zero=True) -> int:
         """Run the compiled kernel into ``out`` (bytes) or ``words`` (bits); the voxels on (bits)."""
         z0, z1 = self.block
         on, m = self.kernel.surface(self.verts, self.faces, self.lo, self.h, self.n, self.s, z0,
