@@ -35,9 +35,8 @@ class SlabArrays:
         if p.surface_points:
             from ..surface import word_count
 
-            words = np.empty(word_count((nx, ny, p.thick)), dtype=np.uint64)
-            words.fill(0)  # all zero, and left so by every slab (surface_points)
-            self.arrays["words"] = [words]
+            # All zero, and left so by every slab (surface_points).
+            self.arrays["words"] = [np.zeros(word_count((nx, ny, p.thick)), dtype=np.uint64)]
             return
         turns = 2 if p.write_behind else 1
         self.arrays["out"] = [np.empty((nx, ny, p.thick), dtype=bool, order="F")
