@@ -264,6 +264,26 @@ def extent(const double[:, ::1] V, const int64_t[:, ::1] faces, const double[::1
     return best
 
 
+def vertex_extent(const double[:, ::1] V, const double[::1] lo, const double[::1] h):
+    """The largest ``|(x - lo) / h|`` over the finite vertices (0 if none): a bound of :func:`extent`.
+
+    Every triangle that :func:`extent` looks at has its vertices among these,
+    computed the same way, so this is never below its value.
+    """
+    cdef Py_ssize_t v, nv = V.shape[0]
+    cdef int a
+    cdef double f, best = 0.0
+    with nogil:
+        for v in range(nv):
+            for a in range(3):
+                f = (V[v, a] - lo[a]) / h[a]
+                if isfinite(f):
+                    f = f if f >= 0 else -f
+                    if f > best:
+                        best = f
+    return best
+
+
 cdef inline int64_t mark(const Frame *F, const int64_t *idx) noexcept nogil:
     """Turn voxel idx on; 1 if it was off (bits only: bytes count 0)."""
     return mark_at(F, idx[0] + F.nx * idx[1] + F.nxy * (idx[2] - F.z0))

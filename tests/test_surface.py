@@ -463,6 +463,17 @@ def test_faces_give_the_voxels_of_their_triangles(kernel):
     assert whole.any() and np.array_equal(got, whole)
 
 
+def test_a_far_vertex_no_reaching_triangle_uses_changes_no_scale(kernel):
+    # The scale's quick bound takes every vertex; one that only far or unused triangles
+    # touch must not lower it (the pass over the reaching triangles decides then).
+    grid = Grid(lo=np.zeros(3), hi=np.ones(3), shape=(256, 256, 256))
+    verts = np.array([(0.1, 0.2, 0.3), (0.4, 0.2, 0.3), (0.1, 0.6, 0.3), (1e9, 0, 0),
+                      (1e9 + 1, 0, 0), (1e9, 1, 0), (400.0, 0.5, 0.5)])
+    with chosen(kernel):
+        assert snap_bits(verts, grid, faces=np.array([[0, 1, 2], [3, 4, 5]])) == 20
+        assert snap_bits(verts, grid, faces=np.array([[0, 1, 2], [0, 1, 6]])) == 29 - 17
+
+
 def test_bad_faces_are_refused():
     grid = dyadic_grid()
     verts = world([(1, 1, 1), (2, 1, 1), (1, 2, 1)])
