@@ -848,6 +848,46 @@ def surface(const double[:, ::1] V, const int64_t[:, ::1] faces, const double[::
     return total, m
 
 
+ctypedef fused real:
+    float
+    double
+
+
+def values_at(uint64_t[::1] words, int64_t nx, int64_t ny, int64_t nz, int64_t z0,
+              const real[::1] vx, const real[::1] vy, const real[::1] vz, real[:, ::1] out):
+    """:func:`points`, each voxel given as ``(vx[i], vy[j], vz[k])`` instead of ``(i, j, k)``.
+
+    Per-axis values of the whole grid's indices (a point cloud's centre
+    coordinates, say), looked up as the bits are read: no pass over indices.
+    """
+    cdef Py_ssize_t w, nw = (nx * ny * nz + 63) // 64, found = 0, cap = out.shape[0]
+    cdef int64_t f, row = 0, j = 0, k = z0
+    cdef uint64_t bits
+    cdef real y = vy[0], z = vz[z0]
+    with nogil:
+        for w in range(nw):
+            bits = words[w]
+            if bits:
+                words[w] = 0
+            while bits:
+                f = 64 * w + ctz(bits)
+                bits &= bits - 1
+                if f >= row + nx:
+                    while f >= row + nx:
+                        row += nx
+                        j += 1
+                        if j == ny:
+                            j = 0
+                            k += 1
+                    y, z = vy[j], vz[k]
+                if found < cap:
+                    out[found, 0] = vx[f - row]
+                    out[found, 1] = y
+                    out[found, 2] = z
+                found += 1
+    return found
+
+
 def points(uint64_t[::1] words, int64_t nx, int64_t ny, int64_t nz, int64_t z0,
            int32_t[:, ::1] ijk):
     """The voxels on in ``words`` (:func:`surface`'s bits of layers z0 .. z0 + nz - 1), in order.

@@ -64,6 +64,10 @@ class BlockBuffers:
         (:func:`geovox.surface.surface_points`); ``occupancy`` is then None.
     words : (w,) uint64 or None
         With ``points``: the bits the block's voxels are made in (reused).
+    point_values : three 1-D arrays or None
+        With ``points``: per axis, a value for each index (the writer's
+        centre coordinates): the voxels are handed over as those values
+        (:func:`geovox.surface.surface_points`' ``values``), not as indices.
     """
 
     out: np.ndarray | None = None
@@ -75,6 +79,7 @@ class BlockBuffers:
     surface_out: np.ndarray | None = None
     points: object = None
     words: np.ndarray | None = None
+    point_values: list | None = None
 
     def step(self, stage: str) -> None:
         """Say that ``stage`` starts (to :attr:`progress`, where there is one)."""
@@ -258,17 +263,18 @@ def _with_surface(m, plan: Plan, block, solid, method, classified, timings, buff
 
     By parts the labels' classification has joined each part's already.
     Into a point cloud (``buffers.points``) the voxels go to the writer as
-    indices, and the occupancy is None.
+    points (indices, or the writer's values), and the occupancy is None.
     """
     t = time.perf_counter()
     if buffers.points is not None:
         from .surface import surface_points
 
-        ijk = surface_points(m.vertices, plan.grid, block, faces=m.faces, jobs=plan.jobs,
-                             bits=plan.surface_bits, words=buffers.words)
+        points = surface_points(m.vertices, plan.grid, block, faces=m.faces, jobs=plan.jobs,
+                                bits=plan.surface_bits, words=buffers.words,
+                                values=buffers.point_values)
         timings["surface"] = time.perf_counter() - t
-        buffers.points(ijk)
-        return None, "surface", {"surface": len(ijk)}
+        buffers.points(points)
+        return None, "surface", {"surface": len(points)}
     if classified is not None:
         occ = solid  # the parts' solids and surfaces, joined by classify
         surface = occ if plan.occupancy == Occupancy.SURFACE else _surface(m, plan, block)

@@ -239,7 +239,7 @@ def surface_voxels(triangles, grid: Grid, block=None, *, faces=None, jobs: int =
 
 
 def surface_points(triangles, grid: Grid, block=None, *, faces=None, jobs: int = 1, bits=None,
-                   words=None) -> np.ndarray:
+                   words=None, values=None) -> np.ndarray:
     """The indices of :func:`surface_voxels`' voxels, in the grid's memory order.
 
     The same voxels, for a sparse output: no byte per voxel is made or
@@ -256,14 +256,20 @@ def surface_points(triangles, grid: Grid, block=None, *, faces=None, jobs: int =
         block's shape, all zero; it is left all zero (the bits are cleared
         as they are read back), so one buffer serves every slab with no
         clearing pass. Default: a fresh one.
+    values : three 1-D arrays, optional
+        Per axis, a value for each index of the whole grid (``nx``, ``ny``
+        and ``nz`` of them), one dtype, float32 or float64: e.g. the voxel
+        centres' coordinates. Given, each voxel comes back as ``(values[0][i],
+        values[1][j], values[2][k])``, looked up as its bit is read: a point
+        cloud with no pass over the indices.
 
     Returns
     -------
-    (m, 3) int32
+    (m, 3) int32, or (m, 3) of the values' dtype
         ``[i, j, k]`` of each voxel on (``k`` a layer of the whole grid,
-        ``z0 <= k < z1``), x fastest, then y, then z: the order of
-        ``np.argwhere`` on the Fortran-ordered volume's transpose, as the
-        ``.ply`` and sparse ``.npz`` list them.
+        ``z0 <= k < z1``), or its values, x fastest, then y, then z: the
+        order of ``np.argwhere`` on the Fortran-ordered volume's transpose,
+        as the ``.ply`` and sparse ``.npz`` list them.
 
     Raises
     ------
@@ -284,21 +290,43 @@ def surface_points(triangles, grid: Grid, block=None, *, faces=None, jobs: int =
                else type(words).__name__)
         raise ParameterError(f"`words` must be a writeable contiguous uint64 array of at least "
                              f"{need} words, got {got}")
+    if values is not None:
+        values = _check_values(values, grid.shape)
     run = _Run(verts, faces, count, grid, (z0, z1), jobs, bits)
     if run.kernel is None:
         occ = np.zeros((nx, ny, z1 - z0), dtype=bool, order="F")
         _numpy_surface(verts, faces, run.lo, run.h, run.n, run.s, z0, z1, occ)
         flat = np.flatnonzero(occ.reshape(-1, order="F"))
         ijk = np.stack([flat % nx, (flat // nx) % ny, flat // (nx * ny) + z0], axis=1)
+        if values is not None:
+            return np.stack([v[ijk[:, a]] for a, v in enumerate(values)], axis=1)
         return ijk.astype(np.int32)
     try:
         on = run.compiled(words=words)
     except ParameterError:
         words[:need] = 0  # left all zero, as promised
         raise
+    if values is not None:
+        out = np.empty((on, 3), dtype=values[0].dtype)
+        run.kernel.values_at(words, nx, ny, z1 - z0, z0, *values, out)
+        return out
     ijk = np.empty((on, 3), dtype=np.int32)
     run.kernel.points(words, nx, ny, z1 - z0, z0, ijk)
     return ijk
+
+
+def _check_values(values, shape):
+    """The per-axis values of :func:`surface_points`, checked: three contiguous 1-D arrays."""
+    try:
+        vals = [np.ascontiguousarray(v) for v in values]
+    except TypeError:
+        vals = []
+    if (len(vals) != 3 or any(v.ndim != 1 or len(v) != n for v, n in zip(vals, shape))
+            or vals[0].dtype not in (np.float32, np.float64)
+            or any(v.dtype != vals[0].dtype for v in vals)):
+        raise ParameterError(f"`values` must be three 1-D float32 or float64 arrays of one dtype "
+                             f"and lengths {tuple(int(n) for n in shape)}, got {values!r:.80}")
+    return vals
 
 
 def word_count(shape) -> int:

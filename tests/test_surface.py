@@ -534,6 +534,25 @@ def test_the_answer_does_not_depend_on_threads_in_any_mode(threads_always):
             assert snap_bits(mesh.triangles, grid, jobs=jobs) == snap_bits(mesh.triangles, grid)
 
 
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_points_as_values(kernel, threads_always, dtype):
+    # Per-axis values looked up as the bits are read: the values of the indices.
+    mesh = geovox.load_mesh(SPOT)
+    grid = make_grid(mesh.bounds, shape=(30, 26, 40))
+    values = [(np.arange(n) * 0.37 - a).astype(dtype) for a, n in enumerate(grid.shape)]
+    ijk = points(mesh.triangles, grid, kernel, jobs=2)
+    for block in (None, (7, 29)):
+        got = points(mesh.triangles, grid, kernel, jobs=2, block=block, values=values)
+        want = ijk if block is None else ijk[(ijk[:, 2] >= 7) & (ijk[:, 2] < 29)]
+        assert got.dtype == dtype and len(got) > 100
+        assert np.array_equal(got, np.stack([values[a][want[:, a]] for a in range(3)], axis=1))
+    for bad in ([values[0], values[1]], [values[0], values[1], values[2][:-1]],
+                [values[0], values[1], values[2].astype(np.int32)],
+                [values[0], values[1], values[2].astype(np.float16)]):
+        with pytest.raises(ParameterError, match="values"):
+            points(mesh.triangles, grid, kernel, values=bad)
+
+
 def test_bad_words_and_bits_are_refused(kernel):
     mesh = geovox.load_mesh(SPOT)
     grid = make_grid(mesh.bounds, resolution=16)

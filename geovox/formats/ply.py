@@ -87,6 +87,13 @@ class PlyWriter(SlabWriter):
     (:meth:`write_points`). The records are held in memory up to
     :data:`HOLD_BYTES` and spill to a temporary file beside the target
     beyond it.
+
+    Attributes
+    ----------
+    centres : list of three 1-D arrays, or None
+        Per axis, the centre coordinate of each of the grid's indices in the
+        file's type (float32 or float64); None on an oblique (reference)
+        grid, whose centres mix the axes.
     """
 
     def __init__(self, path, meta, jobs: int = 1):
@@ -122,7 +129,7 @@ class PlyWriter(SlabWriter):
         return np.dtype(fields)
 
     def _centres_per_axis(self, meta):
-        """Per axis, the centre coordinate of every index; None on an oblique (reference) grid.
+        """:attr:`centres`: per axis, every index's centre coordinate; None on an oblique grid.
 
         On an axis-aligned grid a centre's coordinate along an axis depends on
         that axis's index alone: ``origin + i * spacing`` in float64, then the
@@ -147,22 +154,30 @@ class PlyWriter(SlabWriter):
                 self._append(self._points(vol, idx, nx, ny, z0))
         self.next = z0 + nz
 
-    def write_points(self, z0: int, nz: int, ijk) -> None:
-        """Append the voxels ``ijk`` ((m, 3) int, ``k`` a layer of the whole grid) of the next slab.
+    def write_points(self, z0: int, nz: int, points) -> None:
+        """Append the voxels of the next slab, layers ``z0 .. z0 + nz - 1``, as points.
 
-        The slab is layers ``z0 .. z0 + nz - 1``, its voxels in the grid's
-        memory order (:func:`geovox.surface.surface_points`); coordinates
-        only (the surface voxels alone carry no other field).
+        ``points``: (m, 3) in the grid's memory order
+        (:func:`geovox.surface.surface_points`), either int indices ``(i, j,
+        k)`` (``k`` a layer of the whole grid) or already the voxels' centres
+        looked up in :attr:`centres` (``surface_points(values=writer.centres)``),
+        which are the records as they are. Coordinates only: the surface
+        voxels alone carry no other field.
         """
         self._in_order(z0)
         if self.dtype.names != ("x", "y", "z"):
             raise ValueError("write_points takes coordinates alone; this .ply carries "
                              + ", ".join(self.dtype.names[3:]))
-        for start in range(0, len(ijk), CHUNK_POINTS):
-            part = ijk[start:start + CHUNK_POINTS]
-            out = np.empty(len(part), dtype=self.dtype)
-            self._coordinates(out, part[:, 0], part[:, 1], part[:, 2])
-            self._append(out)
+        if points.dtype.kind == "f":
+            if points.dtype != self.dtype["x"]:
+                raise ValueError(f"points must be {self.dtype['x']} centres, got {points.dtype}")
+            self._append(np.ascontiguousarray(points).view(self.dtype).reshape(-1))
+        else:
+            for start in range(0, len(points), CHUNK_POINTS):
+                part = points[start:start + CHUNK_POINTS]
+                out = np.empty(len(part), dtype=self.dtype)
+                self._coordinates(out, part[:, 0], part[:, 1], part[:, 2])
+                self._append(out)
         self.next = z0 + nz
 
     def _in_order(self, z0):

@@ -80,6 +80,7 @@ def run_blocks(m, p: Plan, writer, reuse, timings, progress, tally) -> int:
                 buffers.crossings = reuse
             if p.surface_points:
                 buffers.points = _points_into(writer, z0, z1, timings)
+                buffers.point_values = writer.centres
             with collect_warnings(drop=True):  # said once, by run_slabs
                 vol = voxelize_block(m, p, (z0, z1), buffers=buffers)
             tb = time.perf_counter()
