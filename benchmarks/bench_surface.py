@@ -383,8 +383,8 @@ def inprocess_worker(engine, res):
 
 
 def in_process(res=1024):
-    ours = run_worker(__file__, "inprocess", "geovox", res, 0)
-    theirs = run_worker(__file__, "inprocess", "open3d", res, 0)
+    ours = run_worker(__file__, "geovox", "inprocess", res, 0)
+    theirs = run_worker(__file__, "open3d", "inprocess", res, 0)
     row = [f"dragon, {res}³", f"{ours['time']:.3f}", f"{theirs['time']:.3f}",
            f"{theirs['time'] / ours['time']:.1f}×", f"{ours['count']:,}", f"{theirs['count']:,}"]
     print(f"| {' | '.join(row)} |", flush=True)

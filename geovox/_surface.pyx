@@ -44,10 +44,20 @@ projections: GCC and Clang; elsewhere this module does not build and geovox
 uses the NumPy twin).
 
 Threads share the triangles (dynamic schedule) and write the one output
-with relaxed atomic byte stores of 1: each voxel is the OR of a pure
-function of (triangle, voxel), so the answer does not depend on the threads,
-and atomic stores make the concurrent writes race-free with no per-thread
-copy of the output.
+with relaxed atomic byte stores of 1, or bits with an atomic OR (a plain
+load first: most voxels are met by several triangles): each voxel is the OR
+of a pure function of (triangle, voxel), so the answer does not depend on
+the threads, and atomic writes make the concurrent writes race-free with no
+per-thread copy of the output. Every path returns the bits it newly set, so
+the count of a block's voxels comes with them; :func:`points` and
+:func:`values_at` read them back.
+
+Measured after the walks (one thread, 2 shared cores): the six edge x u and
+edge x v tests of a column's boundary cells precomputed as coefficients and
+run branch-free instead of through ``edge_separates``, and ``box`` decoding
+its bits through a table of offsets instead of three divisions a voxel: the
+dragon at 256³ 27.2 -> 23.6 ms (median of 15, the same run), at 1024³ about
+200 -> 166-170 ms (runs minutes apart).
 """
 
 from cython.parallel cimport prange, parallel, threadid
@@ -102,7 +112,7 @@ cdef struct Frame:
     int64_t nx
     int64_t nxy
     uint8_t *out         # bytes, Fortran order (or NULL)
-    uint64_t *words      # or bits: voxel f = i + nx * (j + ny * (k - z0)) is bit f % 64 of word f // 64
+    uint64_t *words      # or bits: voxel f = i + nx * (j + ny * (k - z0)), bit f % 64 of word f / 64
     bint shared          # several threads write the output
 
 
@@ -161,7 +171,7 @@ cdef inline const double *vertex(const Frame *F, Py_ssize_t t, int v) noexcept n
 
 
 cdef inline bint reach(const Frame *F, Py_ssize_t t, double *f) noexcept nogil:
-    """Index-space coordinates of triangle t into f; whether it reaches the grid (surface._reaching).
+    """Index-space coordinates of triangle t into f; whether it reaches the grid (_reaching).
 
     z first, against the block's layers widened by one: a triangle that
     misses them cannot meet the block once snapped (rint moves a coordinate

@@ -617,5 +617,5 @@ def _chunk_thick(f, grid: Grid, per: float, blocks: list, how: _Request) -> int:
 
 
 __all__ = ["LOCAL_ZARR_SLAB", "POINTS_SLAB_BUDGET", "Plan", "Route", "SLAB_BUDGET",
-           "WHOLE_STREAM_VOXELS", "WORKER_SLAB_BUDGET", "as_options", "cluster_thick", "grid_of", "load", "plan",
-           "slab_budget", "slab_plan", "streams", "streams_whole"]
+           "WHOLE_STREAM_VOXELS", "WORKER_SLAB_BUDGET", "as_options", "cluster_thick", "grid_of",
+           "load", "plan", "slab_budget", "slab_plan", "streams", "streams_whole"]

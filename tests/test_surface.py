@@ -562,8 +562,8 @@ def test_bad_words_and_bits_are_refused(kernel):
         with pytest.raises(ParameterError, match="words"):
             points(mesh.triangles, grid, kernel, words=words)
     # A scale above the triangles' (a far vertex lowers it): refused, the words left all zero.
-    far = grid.lo + np.array([[(0.1, 0.1, 0.1), (5000.0, 0.2, 0.1), (0.1, 0.3, 0.2)]]) * grid.spacing
-    tris = np.concatenate([mesh.triangles, far])
+    far = np.array([[(0.1, 0.1, 0.1), (5000.0, 0.2, 0.1), (0.1, 0.3, 0.2)]])
+    tris = np.concatenate([mesh.triangles, grid.lo + far * grid.spacing])
     words = np.zeros(need, np.uint64)
     with pytest.raises(ParameterError, match="bits"):
         points(tris, grid, kernel, bits=MAX_SUB_BITS, words=words)

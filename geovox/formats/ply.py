@@ -211,7 +211,7 @@ class PlyWriter(SlabWriter):
         out["x"], out["y"], out["z"] = centres[:, 0], centres[:, 1], centres[:, 2]
 
     def _append(self, records) -> None:
-        """Hold ``records``, or spill them (and all held) to the temporary body beyond HOLD_BYTES."""
+        """Hold ``records``, or spill them (and all held) to a temporary body past HOLD_BYTES."""
         self.count += len(records)
         if self.body is None and self.held_bytes + records.nbytes <= HOLD_BYTES:
             self.held.append(records)

@@ -119,7 +119,7 @@ def run_blocks(m, p: Plan, writer, reuse, timings, progress, tally) -> int:
 
 
 def _points_into(writer, z0, z1, timings):
-    """The block's ``points`` hand-off: its voxels written as they come, the time counted as writing."""
+    """The block's ``points`` hand-off: its voxels written as they come, timed as writing."""
     def points(ijk):
         t = time.perf_counter()
         writer.write_points(z0, z1 - z0, ijk)
