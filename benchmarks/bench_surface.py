@@ -27,8 +27,34 @@ Models: ``spot`` (data/spot), ``bunny105k`` (benchmarks/common.py),
 stands in where it is missing, and the table says so), and ``bunny1.6m`` and
 ``dragon1.6m`` (subdivided twice with trimesh, 16x the triangles).
 
+Whole process (``--whole``): the user's command, ``geovox convert MODEL -o OUT -r N --cube
+--occupancy surface`` with default options (its threads included), in a fresh process each time,
+against a fresh process that imports Open3D, reads the same file and calls
+``create_from_triangle_mesh_within_bounds`` on the same grid (it writes nothing); the two run in
+turn, A B A B ..., ``--rounds`` times, and the table gives medians and the median of the pairs'
+ratios. Peak memory is the process's own (``wait4``'s ``ru_maxrss``). Start-up floors are timed
+the same way: ``python -c pass``, ``python -c "import numpy"`` (and with
+``OPENBLAS_NUM_THREADS=1``: OpenBLAS starts its threads at import) and a 16³ conversion of spot.
+The 1.6M-triangle dragon is written to a temporary binary PLY first (trimesh, subdivided twice).
+
+In process (``--inprocess``): ``geovox.convert_to`` of the dragon into ``.ply`` (plan, surface
+voxels, writing) in a process that has converted once already, against Open3D's
+``create_from_triangle_mesh_within_bounds`` alone, on the same grid.
+
+A data set (``--dataset DIR`` or ``--dataset-git GIT_DIR``, e.g. trimesh's ``models/``): the
+files geovox loads (probed in separate processes, as ``bench_dataset.py`` does) through one
+fresh ``geovox convert MESHES -o OUT -r N --cube --occupancy surface --format ply`` (default
+options: a pool of one process per core), against Open3D's ``create_from_triangle_mesh`` with
+voxel size = the longest side of its own loaded mesh / N, one process, each model under a
+time-out (``bench_dataset.py``'s worker: its time is its start and imports plus the models it
+converted). Models per second = models converted / time.
+
+``--results FILE`` writes what ran as a result file for ``benchmarks/tables.py``.
+
 Usage: python benchmarks/bench_surface.py [--models dragon spot bunny105k bunny1.6m]
            [--res 256 1024] [--jobs 1 2] [--dragon PATH] [--no-open3d] [--agreement 128]
+           [--whole] [--rounds 7] [--inprocess] [--dataset DIR | --dataset-git GIT_DIR]
+           [--dataset-res 64] [--no-kernel] [--results benchmarks/results/surface.json]
 """
 
 from __future__ import annotations
@@ -37,6 +63,7 @@ import argparse
 import datetime
 import json
 import os
+import subprocess
 import sys
 import time
 
@@ -205,6 +232,215 @@ def loadavg():
         return " ".join(f.read().split()[:3])
 
 
+# ---- whole process ---------------------------------------------------------------
+
+OPEN3D_SCRIPT = """
+import sys
+import numpy as np
+import open3d as o3d
+o3d.utility.set_verbosity_level(o3d.utility.VerbosityLevel.Error)
+path, h = sys.argv[1], float(sys.argv[2])
+lo, hi = np.array(sys.argv[3:6], float), np.array(sys.argv[6:9], float)
+mesh = o3d.io.read_triangle_mesh(path)
+vg = o3d.geometry.VoxelGrid.create_from_triangle_mesh_within_bounds(mesh, h, lo, hi)
+print(len(vg.get_voxels()))
+"""
+
+
+def timed(cmd, env=None):
+    """``(wall seconds, peak MiB)`` of one fresh process (its output dropped).
+
+    The peak is GNU time's (``%M``): a child's own ``ru_maxrss`` counts this process's memory
+    too, for Linux keeps the high-water mark of the forked copy across ``exec``.
+    """
+    import tempfile
+
+    with tempfile.NamedTemporaryFile("r", suffix=".time") as peak:
+        t0 = time.perf_counter()
+        proc = subprocess.run(["/usr/bin/time", "-f", "%M", "-o", peak.name, *cmd],
+                              stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env,
+                              cwd=ROOT, check=False)
+        wall = time.perf_counter() - t0
+        if proc.returncode:
+            tail = proc.stderr.decode(errors="replace").strip().splitlines()[-1:]
+            raise RuntimeError(f"{' '.join(cmd[:6])} ... exited {proc.returncode}: {tail}")
+        return wall, int(peak.read().split()[-1]) / 1024
+
+
+def median(values):
+    v = sorted(values)
+    return v[len(v) // 2] if len(v) % 2 else 0.5 * (v[len(v) // 2 - 1] + v[len(v) // 2])
+
+
+def dragon_file(name, tmp):
+    """A model file for the command line: the dragon, or it subdivided twice (1.6M triangles)."""
+    if name == "dragon":
+        path = dragon_path()
+        if path is None:
+            raise SystemExit("--whole needs the dragon (--dragon PATH or $GEOVOX_DRAGON)")
+        return path
+    import trimesh
+
+    mesh, _ = load(name)
+    path = os.path.join(tmp, f"{name}.ply")
+    trimesh.Trimesh(mesh.vertices, mesh.faces, process=False).export(path)
+    return path
+
+
+def whole_process(rounds, have_o3d, tmp):
+    """The whole-process rows: geovox's command against an Open3D process, in turn."""
+    import geovox
+    from geovox.grid import make_grid
+
+    py = sys.executable
+    gv = [py, "-m", "geovox", "convert"]
+    rows, floors = [], []
+    base = dict(os.environ, PYTHONPATH=ROOT + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    for label, cmd, env in (("`python -c pass`", [py, "-c", "pass"], None),
+                            ("`python -c \"import numpy\"`", [py, "-c", "import numpy"], None),
+                            ("the same, `OPENBLAS_NUM_THREADS=1`", [py, "-c", "import numpy"],
+                             dict(os.environ, OPENBLAS_NUM_THREADS="1")),
+                            ("`geovox convert spot.obj -r 16 --occupancy surface -o s.ply`",
+                             gv + [os.path.join(ROOT, "data", "spot", "spot.obj"), "-r", "16",
+                                   "--occupancy", "surface", "-o", os.path.join(tmp, "s.ply"),
+                                   "-q"], base)):
+            walls = [timed(cmd, env)[0] for _ in range(rounds)]
+            floors.append([label, f"{median(walls):.3f}", f"{min(walls):.3f}-{max(walls):.3f}"])
+            print(f"| {' | '.join(floors[-1])} |", flush=True)
+    cases = [("dragon", 256, "raw", True), ("dragon", 256, "ply", True),
+             ("dragon", 1024, "ply", True), ("dragon1.6m", 256, "ply", True),
+             ("dragon", 2048, "ply", False), ("dragon", 2048, "h5", False)]
+    files = {}
+    for model, res, ext, with_o3d in cases:
+        if model not in files:
+            files[model] = dragon_file(model, tmp)
+        path = files[model]
+        mesh = geovox.load_mesh(path)
+        grid = make_grid(mesh.bounds, resolution=res, fit="cube")
+        out = os.path.join(tmp, f"out.{ext}")
+        ours = gv + [path, "-o", out, "-r", str(res), "--cube", "--occupancy", "surface", "-q"]
+        theirs = [py, "-c", OPEN3D_SCRIPT, path, repr(float(grid.spacing[0])),
+                  *map(repr, map(float, grid.lo)), *map(repr, map(float, grid.hi))]
+        peer = have_o3d and with_o3d
+        n = rounds if res < 2048 else max(1, rounds // 3)
+        a, b = [], []
+        for _ in range(n):
+            a.append(timed(ours, base))
+            if peer:
+                b.append(timed(theirs))
+        wall, peak = median([x[0] for x in a]), max(x[1] for x in a)
+        row = [f"{model} ({len(mesh.faces):,} triangles)", f"{res}³", f".{ext}", f"{wall:.3f}",
+               f"{min(x[0] for x in a):.3f}-{max(x[0] for x in a):.3f}", f"{peak:.0f}"]
+        if peer:
+            ratio = median([y[0] / x[0] for x, y in zip(a, b)])
+            row += [f"{median([y[0] for y in b]):.3f}", f"{max(y[1] for y in b):.0f}",
+                    f"{ratio:.1f}×"]
+        else:
+            row += ["", "", ""]
+        rows.append(row)
+        print(f"| {' | '.join(row)} |", flush=True)
+    return [
+        {"caption": f"Start-up floors: fresh processes, median of {rounds}",
+         "columns": ["command", "wall (s)", "range (s)"], "rows": floors},
+        {"caption": f"Whole process, geovox's command (default options, `--cube --occupancy "
+                    f"surface`) and an Open3D process on the same grid run in turn, median of "
+                    f"{rounds} (2048³: {max(1, rounds // 3)})",
+         "columns": ["model", "grid", "output", "geovox wall (s)", "range (s)",
+                     "geovox peak (MiB)", "Open3D wall (s)", "Open3D peak (MiB)",
+                     "Open3D / geovox (median of pairs)"],
+         "rows": rows},
+    ]
+
+
+def inprocess_worker(engine, res):
+    """One engine's in-process time on the dragon (a fresh process, warmed up first)."""
+    import tempfile
+
+    import numpy as np
+
+    import geovox
+
+    mesh, _ = load("dragon")
+    grid = grid_for(mesh, res)
+    if engine == "open3d":
+        import open3d as o3d
+
+        m = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(mesh.vertices),
+                                      o3d.utility.Vector3iVector(mesh.faces.astype(np.int32)))
+        t0 = time.perf_counter()
+        vg = o3d.geometry.VoxelGrid.create_from_triangle_mesh_within_bounds(
+            m, float(grid.spacing[0]), grid.lo, grid.hi)
+        return {"time": time.perf_counter() - t0, "count": len(vg.get_voxels())}
+    with tempfile.TemporaryDirectory() as tmp:
+        out = os.path.join(tmp, "d.ply")
+        geovox.convert_to(mesh, out, resolution=64, fit="cube", occupancy="surface")  # warm
+        times = []
+        for _ in range(3):
+            t0 = time.perf_counter()
+            info = geovox.convert_to(mesh, out, resolution=res, fit="cube", occupancy="surface")
+            times.append(time.perf_counter() - t0)
+        return {"time": median(times), "count": info.counts["surface"]}
+
+
+def in_process(res=1024):
+    ours = run_worker(__file__, "geovox", "inprocess", res, 0)
+    theirs = run_worker(__file__, "open3d", "inprocess", res, 0)
+    row = [f"dragon, {res}³", f"{ours['time']:.3f}", f"{theirs['time']:.3f}",
+           f"{theirs['time'] / ours['time']:.1f}×", f"{ours['count']:,}", f"{theirs['count']:,}"]
+    print(f"| {' | '.join(row)} |", flush=True)
+    return {"caption": "In process: `geovox.convert_to(mesh, 'd.ply', occupancy='surface')` "
+                       "(plan, surface voxels and writing; median of 3 after a warm-up) against "
+                       "Open3D's `create_from_triangle_mesh_within_bounds` alone, same grid",
+            "columns": ["model, grid", "geovox (s)", "Open3D (s)", "Open3D / geovox",
+                        "geovox voxels", "Open3D voxels"],
+            "rows": [row]}
+
+
+# ---- a data set ------------------------------------------------------------------
+
+def dataset(folder, res, timeout, have_o3d, tmp):
+    """The data-set row: every mesh of ``folder`` through geovox's command and through Open3D."""
+    import bench_dataset as bd
+
+    files = bd.gather([folder])
+    probed, _, _ = bd.run_items("probe", [(f,) for f in files], tmp, timeout)
+    meshes = [f for f, r in zip(files, probed) if r["status"] == "ok"]
+    out = os.path.join(tmp, "dataset-out")
+    os.makedirs(out, exist_ok=True)
+    manifest = os.path.join(tmp, "dataset.jsonl")
+    cmd = [sys.executable, "-m", "geovox", "convert", *meshes, "-o", out, "-r", str(res),
+           "--cube", "--occupancy", "surface", "--format", "ply", "--manifest", manifest, "-q"]
+    load0 = loadavg()
+    t0 = time.perf_counter()
+    proc = subprocess.run(cmd, env=bd.env(), cwd=ROOT, capture_output=True, text=True)
+    wall = time.perf_counter() - t0
+    with open(manifest, encoding="utf-8") as f:
+        records = [json.loads(line) for line in f if line.strip()]
+    ok = sum(r["status"] == "ok" for r in records)
+    rows = [[f"geovox `convert MESHES -r {res} --cube --occupancy surface --format ply` "
+             f"(default: a process per core)", str(len(meshes)), str(ok),
+             str(len(meshes) - ok), f"{wall:.1f}", f"{ok / wall:.1f}", load0]]
+    print(f"| {' | '.join(rows[-1])} | exit {proc.returncode}", flush=True)
+    if have_o3d:
+        load0 = loadavg()
+        t0 = time.perf_counter()
+        recs, startup, _ = bd.run_items("open3d", [(f, res) for f in meshes], tmp, timeout)
+        run_wall = time.perf_counter() - t0
+        done = [r for r in recs if r["status"] == "ok"]
+        spent = startup + sum(r["seconds"] for r in done)
+        rows.append([f"Open3D `create_from_triangle_mesh` (one process; its start and imports "
+                     f"+ the models it converted; whole run {run_wall:.1f} s)", str(len(meshes)),
+                     str(len(done)), str(len(meshes) - len(done)), f"{spent:.1f}",
+                     f"{len(done) / spent:.1f}", load0])
+        print(f"| {' | '.join(rows[-1])} |", flush=True)
+    return {"caption": f"A data set: {len(meshes)} meshes geovox loads of {len(files)} files in "
+                       f"{os.path.basename(folder.rstrip('/'))}/, {res}³ surface voxels, "
+                       f"models per second",
+            "columns": ["tool", "meshes", "converted", "not converted", "time (s)", "models/s",
+                        "load before"],
+            "rows": rows}
+
+
 def main():
     p = argparse.ArgumentParser()
     p.add_argument("--worker", nargs=4)
@@ -215,12 +451,23 @@ def main():
     p.add_argument("--no-open3d", action="store_true")
     p.add_argument("--agreement", type=int, nargs="*", default=[128],
                    help="grids on which to compare the voxels with Open3D's (none: skip)")
-    p.add_argument("--json", default=None, help="also write the results here")
+    p.add_argument("--no-kernel", action="store_true", help="skip the kernel table")
+    p.add_argument("--whole", action="store_true", help="whole-process timings")
+    p.add_argument("--rounds", type=int, default=7)
+    p.add_argument("--inprocess", action="store_true", help="convert_to against Open3D, 1024³")
+    p.add_argument("--dataset", default=None, help="a folder of models (trimesh's models/)")
+    p.add_argument("--dataset-git", default=None, help="models/ of a clone's HEAD")
+    p.add_argument("--dataset-res", type=int, default=64)
+    p.add_argument("--timeout", type=float, default=60.0)
+    p.add_argument("--results", default=None, help="write a result file for tables.py")
     args = p.parse_args()
     if args.dragon:
         os.environ["GEOVOX_DRAGON"] = os.path.abspath(args.dragon)
     if args.worker:
         engine, model, res, jobs = args.worker
+        if model == "inprocess":
+            print(json.dumps(inprocess_worker(engine, int(res))))
+            return
         print(json.dumps(worker(engine, model, int(res), int(jobs))))
         return
     try:
@@ -229,10 +476,38 @@ def main():
         have_o3d = not args.no_open3d
     except ImportError:
         have_o3d = False
-    print(f"# bench_surface {datetime.date.today()}: load average {loadavg()} (before), "
+    start, load_before = datetime.datetime.now(datetime.UTC), loadavg()
+    print(f"# bench_surface {start:%Y-%m-%d %H:%M} UTC: load average {load_before} (before), "
           f"{os.cpu_count()} CPUs, Open3D {'yes' if have_o3d else 'no'}, "
           f"dragon {dragon_path() or 'missing: bunny105k stands in'}")
     print()
+    tables, models = [], []
+    if not args.no_kernel:
+        tables += kernel_tables(args, have_o3d)
+        models += [f"{m}" for m in args.models]
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as tmp:
+        if args.whole:
+            tables += whole_process(args.rounds, have_o3d, tmp)
+        if args.inprocess and have_o3d:
+            tables.append(in_process())
+        folder = args.dataset
+        if args.dataset_git:
+            import bench_dataset as bd
+
+            folder, commit = bd.extract_git(args.dataset_git, tmp)
+            models.append(f"the data set: trimesh's models/ at {commit[:12]}")
+        if folder:
+            tables.append(dataset(folder, args.dataset_res, args.timeout, have_o3d, tmp))
+    print()
+    print(f"load average {loadavg()} (after)")
+    if args.results:
+        write_results(args, tables, models, start, load_before, have_o3d)
+
+
+def kernel_tables(args, have_o3d):
+    """The kernel against Open3D in process, and where their voxels differ."""
     print("| model | triangles | grid | engine | jobs | first (s) | best (s) | vs Open3D "
           "| peak rise (MiB) | output (MiB) | voxels |")
     print("|---|---|---|---|---|---|---|---|---|---|---|")
@@ -242,7 +517,8 @@ def main():
             if model.endswith("1.6m") and res > 256:
                 continue  # the issue's target for 1.6M triangles is at 256³
             o3d = run_worker(__file__, "open3d", model, res, 1) if have_o3d else {}
-            results = [("geovox", j, run_worker(__file__, "geovox", model, res, j)) for j in args.jobs]
+            results = [("geovox", j, run_worker(__file__, "geovox", model, res, j))
+                       for j in args.jobs]
             if have_o3d:
                 results.append(("open3d", 1, o3d))
             for engine, jobs, r in results:
@@ -253,31 +529,77 @@ def main():
                 ratio = (f"{o3d['time'] / r['time']:.1f}× faster"
                          if engine == "geovox" and "time" in o3d else "")
                 first = f"{r['first']:.3f}" if "first" in r else ""
-                print(f"| {r['what']} | {r['tris']:,} | {res}³ | {engine} | {jobs} | {first} | "
-                      f"{r['time']:.3f} | {ratio} | {r['peak'] / 2**20:.0f} | {res**3 / 2**20:.0f} | "
-                      f"{r['count']:,} |", flush=True)
-                rows.append({"model": model, "res": res, "engine": engine, "jobs": jobs, **r})
+                row = [r["what"], f"{r['tris']:,}", f"{res}³", engine, str(jobs), first,
+                       f"{r['time']:.3f}", ratio, f"{r['peak'] / 2**20:.0f}",
+                       f"{res**3 / 2**20:.0f}", f"{r['count']:,}"]
+                print(f"| {' | '.join(row)} |", flush=True)
+                rows.append(row)
+    tables = [{"caption": "The kernel in process (`surface_voxels`, the mesh loaded before the "
+                          "clock): first call (a fresh output) and best of several on a reused "
+                          "one, against Open3D's `create_from_triangle_mesh_within_bounds`",
+               "columns": ["model", "triangles", "grid", "engine", "jobs", "first (s)",
+                           "best (s)", "vs Open3D", "peak rise (MiB)", "output (MiB)", "voxels"],
+               "rows": rows}]
     if have_o3d and args.agreement:
         print()
         print("| model | grid | geovox voxels | Open3D voxels (outside the grid) | only geovox "
               "| only Open3D | of which ties | differing, not ties |")
         print("|---|---|---|---|---|---|---|---|")
+        agree = []
         for model in args.models:
             if model.endswith("1.6m"):
                 continue
             for res in args.agreement:
                 a = agreement(model, res)
                 rest = a["only_ours"] + a["only_theirs"] - a["ties"]
-                print(f"| {a['what']} | {res}³ | {a['ours']:,} | {a['theirs']:,} ({a['outside']:,}) | "
-                      f"{a['only_ours']:,} | {a['only_theirs']:,} | {'~' * a['sampled']}{a['ties']:,} | "
-                      f"{rest:,} "
-                      f"({100 * rest / max(a['ours'], 1):.3f} %) |", flush=True)
-                rows.append({"model": model, "res": res, "agreement": a})
-    print()
-    print(f"load average {loadavg()} (after)")
-    if args.json:
-        with open(args.json, "w") as f:
-            json.dump(rows, f, indent=1)
+                row = [a["what"], f"{res}³", f"{a['ours']:,}",
+                       f"{a['theirs']:,} ({a['outside']:,})", f"{a['only_ours']:,}",
+                       f"{a['only_theirs']:,}", f"{'~' * a['sampled']}{a['ties']:,}",
+                       f"{rest:,} ({100 * rest / max(a['ours'], 1):.3f} %)"]
+                print(f"| {' | '.join(row)} |", flush=True)
+                agree.append(row)
+        tables.append({"caption": "The same voxels as Open3D's, inside the grid, but at ties",
+                       "columns": ["model", "grid", "geovox voxels",
+                                   "Open3D voxels (outside the grid)", "only geovox",
+                                   "only Open3D", "of which ties", "differing, not ties"],
+                       "rows": agree})
+    return tables
+
+
+def write_results(args, tables, models, start, load_before, have_o3d):
+    """The result file ``benchmarks/tables.py`` renders (the figures of this run)."""
+    import numpy
+
+    argv = " ".join(a if " " not in a else repr(a) for a in sys.argv[1:])
+    versions = f"numpy {numpy.__version__}"
+    if have_o3d:
+        import open3d
+
+        versions += f", Open3D {open3d.__version__}"
+    result = {
+        "benchmark": "surface",
+        "title": "Surface voxels against Open3D",
+        "script": "benchmarks/bench_surface.py",
+        "command": f"python benchmarks/bench_surface.py {argv}",
+        "date": f"{start:%Y-%m-%d, %H:%M}-{datetime.datetime.now(datetime.UTC):%H:%M} UTC",
+        "machine": f"the project machine: {os.cpu_count()} cores shared with other users, "
+                   f"Python {sys.version_info.major}.{sys.version_info.minor}, {versions}; load "
+                   f"average {load_before} before, {loadavg()} after",
+        "models": models,
+        "notes": NOTES,
+        "tables": tables,
+    }
+    with open(args.results, "w", encoding="utf-8") as f:
+        json.dump(result, f, indent=1, ensure_ascii=False)
+        f.write("\n")
+
+
+#: What every result file of this script says about its figures.
+NOTES = ("geovox's surface voxels (every voxel whose half-open box the surface meets, issue 35) "
+         "and Open3D's on the same grid: a cube of N³ cubic voxels over the model's longest side "
+         "(`-r N --cube`), Open3D given the same voxel size and bounds. Whole-process figures "
+         "start the interpreter; Python and NumPy's start alone is the first table. The machine "
+         "is shared: compare within a table, and pairs within a row.")
 
 
 if __name__ == "__main__":

@@ -55,6 +55,19 @@ class BlockBuffers:
         then None, and no block-sized array is ever allocated.
     progress : callable or None
         ``progress(Progress(stage))`` as each stage starts.
+    surface_out : (nx, ny, nz_block) bool, Fortran order, or None
+        Array the surface voxels are made in (reused, as ``out``).
+    points : callable or None
+        Surface voxels alone into a point cloud (:attr:`Plan.surface_points
+        <geovox.planner.Plan.surface_points>`): ``points(ijk)`` is handed the
+        block's voxels as (m, 3) int32 indices in the grid's memory order
+        (:func:`geovox.surface.surface_points`); ``occupancy`` is then None.
+    words : (w,) uint64 or None
+        With ``points``: the bits the block's voxels are made in (reused).
+    point_values : three 1-D arrays or None
+        With ``points``: per axis, a value for each index (the writer's
+        centre coordinates): the voxels are handed over as those values
+        (:func:`geovox.surface.surface_points`' ``values``), not as indices.
     """
 
     out: np.ndarray | None = None
@@ -63,6 +76,10 @@ class BlockBuffers:
     crossings: dict | None = None
     slices: object = None
     progress: object = None
+    surface_out: np.ndarray | None = None
+    points: object = None
+    words: np.ndarray | None = None
+    point_values: list | None = None
 
     def step(self, stage: str) -> None:
         """Say that ``stage`` starts (to :attr:`progress`, where there is one)."""
@@ -158,7 +175,7 @@ def voxelize_block(mesh, plan: Plan, block=None, *, buffers: BlockBuffers | None
     m = load(mesh, plan.options)
     o = plan.options
     grid = block_grid(plan.grid, block)
-    if buffers.slices is None:
+    if buffers.slices is None and buffers.points is None:  # points: a bit a voxel, planned so
         check_memory(grid, bytes_per_voxel(o) + (0.0 if plan.labels is None
                                                  else plan.labels.working_bytes()))
     textures = None
@@ -199,7 +216,8 @@ def voxelize_block(mesh, plan: Plan, block=None, *, buffers: BlockBuffers | None
     if plan.occupancy != Occupancy.SOLID:
         if o.sdf:  # the distance describes the solid: signed by it, before the surface joins
             dist, timings["sdf"] = _sdf(m, plan, grid, occ)
-        occ, method, counts = _with_surface(m, plan, block, occ, method, classified, timings)
+        occ, method, counts = _with_surface(m, plan, block, occ, method, classified, timings,
+                                            buffers)
     if plan.colour:
         buffers.step("colour")
         if textures is not None:
@@ -232,20 +250,31 @@ def _sdf(m, plan: Plan, grid: Grid, solid):
     return dist, time.perf_counter() - t
 
 
-def _surface(mesh, plan: Plan, block):
+def _surface(mesh, plan: Plan, block, out=None):
     """The block's surface voxels of ``mesh`` (the whole model, or one part of it)."""
     from .surface import surface_voxels
 
-    return surface_voxels(mesh.triangles, plan.grid, block, jobs=plan.jobs,
-                          bits=plan.surface_bits)
+    return surface_voxels(mesh.vertices, plan.grid, block, faces=mesh.faces, jobs=plan.jobs,
+                          bits=plan.surface_bits, out=out)
 
 
-def _with_surface(m, plan: Plan, block, solid, method, classified, timings):
+def _with_surface(m, plan: Plan, block, solid, method, classified, timings, buffers):
     """``(occupancy, what ran, counts)`` with the surface voxels: alone, or joined to the solid.
 
     By parts the labels' classification has joined each part's already.
+    Into a point cloud (``buffers.points``) the voxels go to the writer as
+    points (indices, or the writer's values), and the occupancy is None.
     """
     t = time.perf_counter()
+    if buffers.points is not None:
+        from .surface import surface_points
+
+        points = surface_points(m.vertices, plan.grid, block, faces=m.faces, jobs=plan.jobs,
+                                bits=plan.surface_bits, words=buffers.words,
+                                values=buffers.point_values)
+        timings["surface"] = time.perf_counter() - t
+        buffers.points(points)
+        return None, "surface", {"surface": len(points)}
     if classified is not None:
         occ = solid  # the parts' solids and surfaces, joined by classify
         surface = occ if plan.occupancy == Occupancy.SURFACE else _surface(m, plan, block)
@@ -253,7 +282,7 @@ def _with_surface(m, plan: Plan, block, solid, method, classified, timings):
         if classified.inside is not None:
             counts["inside"] = classified.inside
     else:
-        surface = occ = _surface(m, plan, block)
+        surface = occ = _surface(m, plan, block, buffers.surface_out)
         counts = {"surface": int(np.count_nonzero(surface))}
         if plan.occupancy == Occupancy.BOTH:
             counts["inside"] = int(np.count_nonzero(solid))

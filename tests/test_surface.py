@@ -28,7 +28,8 @@ from conftest import SPOT, corpus
 from geovox.errors import MeshError, ParameterError
 from geovox.grid import Grid, make_grid
 from geovox.kernels import chosen, compiled
-from geovox.surface import MAX_SUB_BITS, snap_bits, surface_voxels
+import geovox.surface as surface_module
+from geovox.surface import MAX_SUB_BITS, snap_bits, surface_points, surface_voxels, word_count
 from surface_reference import reference_index_voxels, reference_voxels
 
 COMPILED = compiled("_surface", "surface-voxel", "auto") is not None
@@ -39,6 +40,14 @@ needs_compiled = pytest.mark.skipif(not COMPILED, reason="the compiled surface k
 @pytest.fixture(params=KERNELS)
 def kernel(request):
     return request.param
+
+
+@pytest.fixture
+def threads_always(monkeypatch):
+    """The compiled kernel runs the threads asked for, however small the work (its own
+    rule keeps small meshes on one thread), so that tests of thread counts run threads."""
+    monkeypatch.setattr(surface_module, "_THREADS_TRIANGLES", 0)
+    monkeypatch.setattr(surface_module, "_THREADS_SIDE", 0)
 
 
 def voxels(tris, grid, kernel, **kw):
@@ -313,7 +322,7 @@ def test_compiled_and_numpy_agree_on_random_meshes():
 # ---- invariances ------------------------------------------------------------------
 
 @needs_compiled
-def test_the_answer_does_not_depend_on_jobs():
+def test_the_answer_does_not_depend_on_jobs(threads_always):
     mesh = geovox.load_mesh(corpus("bunny_watertight", "bunny_oded.obj"))
     grid = make_grid(mesh.bounds, resolution=80)
     one = voxels(mesh.triangles, grid, "compiled", jobs=1)
@@ -419,3 +428,145 @@ def test_bad_arguments_are_refused():
             surface_voxels(tri, grid, out=out)
     with pytest.raises(ParameterError, match="jobs"):
         surface_voxels(tri, grid, jobs=-1)
+
+
+# ---- a mesh's faces, and the voxels as points (bits) ---------------------------------
+
+def in_memory_order(dense):
+    """(m, 3) [i, j, k] of a volume's voxels, x fastest, then y, then z (the file order)."""
+    return np.argwhere(dense.transpose(2, 1, 0))[:, ::-1]
+
+
+def points(tris, grid, kernel, **kw):
+    with chosen(kernel):
+        return surface_points(np.asarray(tris, dtype=np.float64), grid, **kw)
+
+
+def random_mesh(seed=3, count=600):
+    """Triangles of every size, far outside and degenerate, on a non-dyadic grid."""
+    rng = np.random.default_rng(seed)
+    grid = Grid(lo=np.array([-1.3, 0.7, 2.1]), hi=np.array([2.9, 3.1, 5.3]), shape=(37, 29, 41))
+    size = rng.choice([0.01, 0.1, 1.0, 6.0], size=(count, 1, 1))
+    tris = rng.uniform(-2, 6, size=(count, 1, 3)) + size * rng.normal(size=(count, 3, 3))
+    tris[::17, 2] = tris[::17, 1]
+    tris[5::23, 2] = (tris[5::23, 0] + tris[5::23, 1]) / 2
+    return tris, grid
+
+
+def test_faces_give_the_voxels_of_their_triangles(kernel):
+    mesh = geovox.load_mesh(SPOT)
+    grid = make_grid(mesh.bounds, resolution=48)
+    whole = voxels(mesh.triangles, grid, kernel)
+    with chosen(kernel):
+        got = surface_voxels(mesh.vertices, grid, faces=mesh.faces)
+        assert snap_bits(mesh.vertices, grid, faces=mesh.faces) == snap_bits(mesh.triangles, grid)
+    assert whole.any() and np.array_equal(got, whole)
+
+
+def test_a_far_vertex_no_reaching_triangle_uses_changes_no_scale(kernel):
+    # The scale's quick bound takes every vertex; one that only far or unused triangles
+    # touch must not lower it (the pass over the reaching triangles decides then).
+    grid = Grid(lo=np.zeros(3), hi=np.ones(3), shape=(256, 256, 256))
+    verts = np.array([(0.1, 0.2, 0.3), (0.4, 0.2, 0.3), (0.1, 0.6, 0.3), (1e9, 0, 0),
+                      (1e9 + 1, 0, 0), (1e9, 1, 0), (400.0, 0.5, 0.5)])
+    with chosen(kernel):
+        assert snap_bits(verts, grid, faces=np.array([[0, 1, 2], [3, 4, 5]])) == 20
+        assert snap_bits(verts, grid, faces=np.array([[0, 1, 2], [0, 1, 6]])) == 29 - 17
+
+
+def test_bad_faces_are_refused():
+    grid = dyadic_grid()
+    verts = world([(1, 1, 1), (2, 1, 1), (1, 2, 1)])
+    with pytest.raises(MeshError, match="faces"):
+        surface_voxels(verts, grid, faces=np.array([[0, 1, 3]]))
+    with pytest.raises(MeshError, match="faces"):
+        surface_voxels(verts, grid, faces=np.array([0, 1, 2]))
+    with pytest.raises(MeshError, match="triangles"):
+        surface_voxels(verts.reshape(1, 3, 3), grid, faces=np.array([[0, 1, 2]]))
+
+
+@pytest.mark.parametrize("model", ["spot", "random"])
+def test_points_are_the_voxels_in_memory_order(kernel, model):
+    if model == "spot":
+        mesh = geovox.load_mesh(SPOT)
+        tris, grid = mesh.triangles, make_grid(mesh.bounds, resolution=40)
+    else:
+        tris, grid = random_mesh()
+    got = points(tris, grid, kernel)
+    assert got.dtype == np.int32 and got.shape[1] == 3 and len(got) > 100
+    assert np.array_equal(got, in_memory_order(voxels(tris, grid, "numpy")))
+
+
+@needs_compiled
+def test_compiled_points_are_the_numpy_twins(threads_always):
+    tris, grid = random_mesh(seed=5, count=900)
+    twin = points(tris, grid, "numpy")
+    for jobs in (1, 2, 3):
+        assert np.array_equal(points(tris, grid, "compiled", jobs=jobs), twin)
+
+
+def test_points_of_slabs_are_the_whole_grids(kernel, threads_always):
+    # One buffer of bits for every slab, handed back all zero each time.
+    mesh = geovox.load_mesh(SPOT)
+    grid = make_grid(mesh.bounds, shape=(30, 26, 40))
+    whole = points(mesh.triangles, grid, kernel, jobs=2)
+    bits = snap_bits(mesh.triangles, grid)
+    words = np.zeros(word_count((30, 26, 13)), dtype=np.uint64)
+    parts = []
+    for z0, z1 in ((0, 13), (13, 14), (14, 27), (27, 40)):
+        parts.append(points(mesh.vertices, grid, kernel, faces=mesh.faces, block=(z0, z1),
+                            jobs=2, bits=bits, words=words))
+        assert not words.any()
+        assert ((parts[-1][:, 2] >= z0) & (parts[-1][:, 2] < z1)).all()
+    assert np.array_equal(np.concatenate(parts), whole)
+
+
+@needs_compiled
+def test_the_answer_does_not_depend_on_threads_in_any_mode(threads_always):
+    mesh = geovox.load_mesh(corpus("bunny_watertight", "bunny_oded.obj"))
+    grid = make_grid(mesh.bounds, resolution=70)
+    one = voxels(mesh.triangles, grid, "compiled", jobs=1)
+    order = in_memory_order(one)
+    for jobs in (2, 4):
+        assert np.array_equal(voxels(mesh.triangles, grid, "compiled", jobs=jobs), one)
+        assert np.array_equal(points(mesh.triangles, grid, "compiled", jobs=jobs), order)
+        with chosen("compiled"):
+            assert snap_bits(mesh.triangles, grid, jobs=jobs) == snap_bits(mesh.triangles, grid)
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_points_as_values(kernel, threads_always, dtype):
+    # Per-axis values looked up as the bits are read: the values of the indices.
+    mesh = geovox.load_mesh(SPOT)
+    grid = make_grid(mesh.bounds, shape=(30, 26, 40))
+    values = [(np.arange(n) * 0.37 - a).astype(dtype) for a, n in enumerate(grid.shape)]
+    ijk = points(mesh.triangles, grid, kernel, jobs=2)
+    for block in (None, (7, 29)):
+        got = points(mesh.triangles, grid, kernel, jobs=2, block=block, values=values)
+        want = ijk if block is None else ijk[(ijk[:, 2] >= 7) & (ijk[:, 2] < 29)]
+        assert got.dtype == dtype and len(got) > 100
+        assert np.array_equal(got, np.stack([values[a][want[:, a]] for a in range(3)], axis=1))
+    for bad in ([values[0], values[1]], [values[0], values[1], values[2][:-1]],
+                [values[0], values[1], values[2].astype(np.int32)],
+                [values[0], values[1], values[2].astype(np.float16)]):
+        with pytest.raises(ParameterError, match="values"):
+            points(mesh.triangles, grid, kernel, values=bad)
+
+
+def test_bad_words_and_bits_are_refused(kernel):
+    mesh = geovox.load_mesh(SPOT)
+    grid = make_grid(mesh.bounds, resolution=16)
+    need = word_count(grid.shape)
+    for words in (np.zeros(need - 1, np.uint64), np.zeros(need, np.int64),
+                  np.zeros((need, 1), np.uint64), [0] * need):
+        with pytest.raises(ParameterError, match="words"):
+            points(mesh.triangles, grid, kernel, words=words)
+    # A scale above the triangles' (a far vertex lowers it): refused, the words left all zero.
+    far = np.array([[(0.1, 0.1, 0.1), (5000.0, 0.2, 0.1), (0.1, 0.3, 0.2)]])
+    tris = np.concatenate([mesh.triangles, grid.lo + far * grid.spacing])
+    words = np.zeros(need, np.uint64)
+    with pytest.raises(ParameterError, match="bits"):
+        points(tris, grid, kernel, bits=MAX_SUB_BITS, words=words)
+    assert not words.any()
+    with pytest.raises(ParameterError, match="bits"):
+        points(tris, grid, kernel, bits=0)

@@ -92,6 +92,50 @@ def test_threads_and_slabs_change_nothing(tmp_path):
                                       whole.colors[whole.occupancy])
 
 
+def test_surface_alone_into_a_point_cloud_goes_as_bits(tmp_path, monkeypatch):
+    # Slabs of bits handed to the writer as points: the same file as the volume
+    # written whole, in one slab or several.
+    import geovox.planner as planner
+
+    opts = dict(shape=(40, 36, 150), occupancy="surface")
+    whole = geovox.voxelize(SPOT, **opts)
+    formats.write(whole, tmp_path / "whole.ply")
+    expected = (tmp_path / "whole.ply").read_bytes()
+    p = planner.plan(geovox.load_mesh(SPOT), opts, tmp_path / "s.ply")
+    assert p.surface_points and p.route == planner.Route.SLABS and len(p.blocks) == 1
+    assert not planner.plan(geovox.load_mesh(SPOT), dict(opts, occupancy="both"),
+                            tmp_path / "s.ply").surface_points
+    assert not planner.plan(geovox.load_mesh(SPOT), opts, tmp_path / "s.ply",
+                            stream=False).surface_points
+    assert not planner.plan(geovox.load_mesh(SPOT), opts, tmp_path / "s.h5").surface_points
+    for budget, slabs in ((planner.POINTS_SLAB_BUDGET, 1), (40 * 36 * 64 // 8, 3)):
+        monkeypatch.setattr(planner, "POINTS_SLAB_BUDGET", budget)
+        info = geovox.convert_to(SPOT, tmp_path / "s.ply", **opts)
+        assert info.slabs == slabs and info.counts == whole.counts
+        assert info.inside_test == "surface"
+        assert (tmp_path / "s.ply").read_bytes() == expected
+    assert main(["convert", SPOT, "-o", str(tmp_path / "c.ply"), "--shape", "40", "36", "150",
+                 "--occupancy", "surface", "-q"]) == 0
+    assert (tmp_path / "c.ply").read_bytes() == expected
+
+
+@pytest.mark.parametrize("color", [False, True])
+def test_surface_alone_in_reused_slabs(tmp_path, color):
+    # Dense outputs: the surface arrays serve every slab (SlabArrays' surface_out;
+    # two in turn where exact colour writes a slab while the next is made).
+    opts = dict(shape=(20, 18, 150), occupancy="surface", color=color)
+    whole = geovox.voxelize(SPOT, **opts)
+    per = 22 if color else 2
+    for ext in ("h5", "raw"):
+        info = geovox.convert_to(SPOT, tmp_path / f"s.{ext}", budget=20 * 18 * 64 * per, **opts)
+        assert info.slabs == 3 and info.counts == whole.counts
+        back = formats.read_volume(tmp_path / f"s.{ext}")
+        np.testing.assert_array_equal(back.occupancy, whole.occupancy)
+        if color:
+            np.testing.assert_array_equal(back.colors[whole.occupancy],
+                                          whole.colors[whole.occupancy])
+
+
 def test_a_surface_voxels_colour_is_the_solid_runs(tmp_path):
     solid = geovox.voxelize(SPOT, resolution=48, color=True)
     both = geovox.voxelize(SPOT, resolution=48, color=True, occupancy="both")
@@ -142,6 +186,19 @@ def test_like_works_in_index_space():
                             occupancy="surface")
     assert truth.inside_count > 500
     np.testing.assert_array_equal(vol.occupancy, truth.occupancy)
+
+
+def test_a_point_cloud_onto_an_oblique_grid(tmp_path):
+    # Its centres mix the axes (no per-axis lookup): the slabs hand the writer indices.
+    c, s = np.cos(0.5), np.sin(0.5)
+    affine = np.eye(4)
+    affine[:3, :3] = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]]) * [0.04, 0.05, 0.06]
+    affine[:3, 3] = [-0.6, -0.4, -0.7]
+    opts = dict(like=(affine, (30, 34, 30)), occupancy="surface")
+    formats.write(geovox.voxelize(SPOT, **opts), tmp_path / "whole.ply")
+    info = geovox.convert_to(SPOT, tmp_path / "s.ply", **opts)
+    assert info.counts["surface"] > 500
+    assert (tmp_path / "s.ply").read_bytes() == (tmp_path / "whole.ply").read_bytes()
 
 
 @pytest.mark.parametrize("fmt", [f.name for f in formats.formats()])

@@ -38,6 +38,11 @@ MARK = "comment geovox voxel centres"
 #: Points converted and written at a time (bounds the extra memory of a write).
 CHUNK_POINTS = 1 << 20
 
+#: Records held in memory before they spill to a temporary file (the count
+#: that heads the file is known only at the end): 1024³'s dragon, 2.7M
+#: points, is 32 MB.
+HOLD_BYTES = 1 << 26
+
 
 def is_geovox_ply(path) -> bool:
     """Whether ``path`` is a PLY geovox wrote (its header carries :data:`MARK`)."""
@@ -77,24 +82,34 @@ class PlyWriter(SlabWriter):
     """Writes the occupied voxels' centres as a binary PLY, whole or one z-slab at a time, in order.
 
     ``meta`` is the :class:`~geovox.formats.base.Meta` of the whole volume
-    (or the volume itself, written whole).
+    (or the volume itself, written whole). A slab comes as a volume
+    (:meth:`write`) or, surface voxels alone, as the indices of its voxels
+    (:meth:`write_points`). The records are held in memory up to
+    :data:`HOLD_BYTES` and spill to a temporary file beside the target
+    beyond it.
+
+    Attributes
+    ----------
+    centres : list of three 1-D arrays, or None
+        Per axis, the centre coordinate of each of the grid's indices in the
+        file's type (float32 or float64); None on an oblique (reference)
+        grid, whose centres mix the axes.
     """
 
     def __init__(self, path, meta, jobs: int = 1):
-        import tempfile
-
         meta = as_meta(meta)
         self.path, self.meta = os.fspath(path), meta
         self.origin, self.axes = _frame(meta)
         self.xyz = _coordinate_type(meta, self.origin, self.axes)
         self.dtype = self._record(meta)
+        self.centres = self._centres_per_axis(meta)
         self.count = 0
         self.next = 0
-        self._ctx = atomic_outputs()
+        self.held, self.held_bytes = [], 0
         self.body = None
+        self._ctx = atomic_outputs()
         try:
             self.target = self._ctx.__enter__().add(self.path)
-            self.body = tempfile.TemporaryFile(dir=os.path.dirname(os.path.abspath(self.path)))
         except BaseException:
             self.abort()
             raise
@@ -113,28 +128,69 @@ class PlyWriter(SlabWriter):
             fields.append(("sdf", "<f4"))
         return np.dtype(fields)
 
+    def _centres_per_axis(self, meta):
+        """:attr:`centres`: per axis, every index's centre coordinate; None on an oblique grid.
+
+        On an axis-aligned grid a centre's coordinate along an axis depends on
+        that axis's index alone: ``origin + i * spacing`` in float64, then the
+        file's type -- the numbers the general ``origin + axes @ (i, j, k)``
+        gives (the other terms are exact zeros), looked up instead of computed
+        per voxel.
+        """
+        if np.count_nonzero(self.axes - np.diag(np.diag(self.axes))):
+            return None
+        kind = self.dtype["x"]
+        return [(self.origin[a] + np.arange(n, dtype=np.float64) * self.axes[a, a]).astype(kind)
+                for a, n in enumerate(meta.shape)]
+
     def write(self, z0: int, vol) -> None:
         """Append the occupied voxels of ``vol`` (the next slab in z: layers z0 .. z0 + its depth)."""
-        if z0 != self.next:
-            raise ValueError(f"a .ply takes its slabs in order: layer {self.next} next, got {z0}")
+        self._in_order(z0)
         nx, ny, nz = vol.occupancy.shape
         flat = vol.occupancy.reshape(-1, order="F")  # x fastest: the file's order
         for start in range(0, flat.size, CHUNK_POINTS * 8):
             idx = np.flatnonzero(flat[start:start + CHUNK_POINTS * 8]) + start
             if len(idx):
-                self.body.write(self._points(vol, idx, nx, ny, z0).tobytes())
-                self.count += len(idx)
+                self._append(self._points(vol, idx, nx, ny, z0))
         self.next = z0 + nz
+
+    def write_points(self, z0: int, nz: int, points) -> None:
+        """Append the voxels of the next slab, layers ``z0 .. z0 + nz - 1``, as points.
+
+        ``points``: (m, 3) in the grid's memory order
+        (:func:`geovox.surface.surface_points`), either int indices ``(i, j,
+        k)`` (``k`` a layer of the whole grid) or already the voxels' centres
+        looked up in :attr:`centres` (``surface_points(values=writer.centres)``),
+        which are the records as they are. Coordinates only: the surface
+        voxels alone carry no other field.
+        """
+        self._in_order(z0)
+        if self.dtype.names != ("x", "y", "z"):
+            raise ValueError("write_points takes coordinates alone; this .ply carries "
+                             + ", ".join(self.dtype.names[3:]))
+        if points.dtype.kind == "f":
+            if points.dtype != self.dtype["x"]:
+                raise ValueError(f"points must be {self.dtype['x']} centres, got {points.dtype}")
+            self._append(np.ascontiguousarray(points).view(self.dtype).reshape(-1))
+        else:
+            for start in range(0, len(points), CHUNK_POINTS):
+                part = points[start:start + CHUNK_POINTS]
+                out = np.empty(len(part), dtype=self.dtype)
+                self._coordinates(out, part[:, 0], part[:, 1], part[:, 2])
+                self._append(out)
+        self.next = z0 + nz
+
+    def _in_order(self, z0):
+        if z0 != self.next:
+            raise ValueError(f"a .ply takes its slabs in order: layer {self.next} next, got {z0}")
 
     def _points(self, vol, idx, nx, ny, z0) -> np.ndarray:
         """The records of the voxels ``idx`` (F-order indices in ``vol``, layers from ``z0``)."""
         i = idx % nx
         j = (idx // nx) % ny
         k = idx // (nx * ny)
-        ijk = np.stack([i, j, k + z0], axis=1).astype(np.float64)
         out = np.empty(len(idx), dtype=self.dtype)
-        centres = self.origin + ijk @ self.axes.T
-        out["x"], out["y"], out["z"] = centres[:, 0], centres[:, 1], centres[:, 2]
+        self._coordinates(out, i, j, k + z0)
         if "red" in self.dtype.names:
             rgba = vol.colors.reshape(-1, 4, order="F")[idx] if vol.colors.flags.f_contiguous \
                 else vol.colors[i, j, k]
@@ -143,6 +199,32 @@ class PlyWriter(SlabWriter):
             if field in self.dtype.names:
                 out[field] = getattr(vol, name).reshape(-1, order="F")[idx]
         return out
+
+    def _coordinates(self, out, i, j, k) -> None:
+        """``out``'s x, y, z: the centres of voxels ``(i, j, k)`` (indices in the whole grid)."""
+        if self.centres is not None:
+            for name, lut, index in zip("xyz", self.centres, (i, j, k)):
+                out[name] = lut[index]
+            return
+        ijk = np.stack([i, j, k], axis=1).astype(np.float64)
+        centres = self.origin + ijk @ self.axes.T
+        out["x"], out["y"], out["z"] = centres[:, 0], centres[:, 1], centres[:, 2]
+
+    def _append(self, records) -> None:
+        """Hold ``records``, or spill them (and all held) to a temporary body past HOLD_BYTES."""
+        self.count += len(records)
+        if self.body is None and self.held_bytes + records.nbytes <= HOLD_BYTES:
+            self.held.append(records)
+            self.held_bytes += records.nbytes
+            return
+        if self.body is None:
+            import tempfile
+
+            self.body = tempfile.TemporaryFile(dir=os.path.dirname(os.path.abspath(self.path)))
+            for held in self.held:
+                self.body.write(memoryview(held).cast("B"))
+            self.held, self.held_bytes = [], 0
+        self.body.write(memoryview(records).cast("B"))
 
     def _header(self) -> bytes:
         meta = self.meta
@@ -165,19 +247,40 @@ class PlyWriter(SlabWriter):
         return ("\n".join(lines) + "\n").encode("utf-8")
 
     def _finish(self) -> list:
-        import shutil
-
-        self.body.seek(0)
         with open(self.target, "wb") as f:
             f.write(self._header())
-            shutil.copyfileobj(self.body, f, 1 << 24)
-        self.body.close()
+            for held in self.held:
+                f.write(memoryview(held).cast("B"))
+            if self.body is not None:
+                f.flush()
+                _copy_body(self.body, f)
+        self.held = []
+        self._release()
         self._ctx.__exit__(None, None, None)
         return [self.path]
 
     def _release(self) -> None:
+        self.held = []
         if self.body is not None:
             self.body.close()
+            self.body = None
+
+
+def _copy_body(body, f) -> None:
+    """Append the temporary ``body`` to ``f`` (flushed): in the kernel where the OS can."""
+    body.flush()
+    if hasattr(os, "sendfile"):
+        offset, size = 0, os.fstat(body.fileno()).st_size
+        while offset < size:
+            sent = os.sendfile(f.fileno(), body.fileno(), offset, size - offset)
+            if not sent:
+                raise OSError(f"could not copy the points into {f.name}")
+            offset += sent
+        return
+    import shutil
+
+    body.seek(0)
+    shutil.copyfileobj(body, f, 1 << 24)
 
 
 def _one_line(text) -> str:

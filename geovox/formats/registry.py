@@ -42,6 +42,10 @@ class Abilities:
     colour_chunks : bool
         Its slab writer takes fast colour chunk by chunk, from the colour
         step's threads (``write_colours``), so no slab of colours is held.
+    points : bool
+        It lists the occupied voxels (a point cloud), and its slab writer
+        takes a slab as their indices (``write_points``): surface voxels
+        alone are then made as bits, never as a byte per voxel.
     """
 
     labels: bool = True
@@ -52,6 +56,7 @@ class Abilities:
     always_streams: bool = False
     cluster: bool = False
     colour_chunks: bool = False
+    points: bool = False
 
 
 #: The parts of a format a :class:`Format` looks up in its module on first use.
@@ -266,7 +271,7 @@ register_format("ply", (".ply",), "ply:write_ply",
                 "binary PLY point cloud: each occupied voxel's centre in model units, with "
                 "red/green/blue and label (Open3D, trimesh, MeshLab, CloudCompare)",
                 reader="ply:read_ply", slab_writer=_slabs("ply:PlyWriter"),
-                sniff="ply:is_geovox_ply")
+                sniff="ply:is_geovox_ply", can=Abilities(points=True))
 register_format("nifti", (".nii.gz", ".nii"), "nifti:write_nifti",
                 "NIfTI-1 for 3D Slicer, ITK-SNAP, FSL, nibabel: uint8 mask, sform = qform = the "
                 "grid's RAS affine (needs nibabel: the nifti extra)",

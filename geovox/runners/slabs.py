@@ -10,7 +10,7 @@ from ..block import BlockBuffers, voxelize_block
 from ..errors import collect_warnings
 from ..grid import Grid
 from ..labels import LabelTally
-from ..options import Colour
+from ..options import Colour, Occupancy
 from ..planner import Plan
 from ..volume import Progress, Volume
 
@@ -18,11 +18,13 @@ from ..volume import Progress, Volume
 class SlabArrays:
     """The arrays every slab of a run reuses, handed out in turn (the plan says which exist).
 
-    One occupancy (two where a slab is written while the next is made) and
-    one colour array (two), reused by every slab: faulting a slab's worth of
-    fresh memory in for each one cost more system time than filling it
-    (exact colour's arrays are 4 bytes a voxel: spot at 1024³ faulted 4 GiB
-    in). A slab's write is finished before its arrays are handed out again.
+    One occupancy (two where a slab is written while the next is made), one
+    surface array (two where it is the occupancy so written), one colour
+    array (two), or with surface voxels written as points one buffer of
+    bits, reused by every slab: faulting a slab's worth of fresh memory in
+    for each one cost more system time than filling it (exact colour's
+    arrays are 4 bytes a voxel: spot at 1024³ faulted 4 GiB in). A slab's
+    write is finished before its arrays are handed out again.
     """
 
     def __init__(self, p: Plan):
@@ -30,9 +32,20 @@ class SlabArrays:
         if not p.reuse_buffers:
             return
         nx, ny, _ = p.grid.shape
+        if p.surface_points:
+            from ..surface import word_count
+
+            # All zero, and left so by every slab (surface_points).
+            self.arrays["words"] = [np.zeros(word_count((nx, ny, p.thick)), dtype=np.uint64)]
+            return
         turns = 2 if p.write_behind else 1
         self.arrays["out"] = [np.empty((nx, ny, p.thick), dtype=bool, order="F")
                               for _ in range(turns)]
+        if p.occupancy != Occupancy.SOLID and (p.labels is None or not p.labels.by_parts):
+            # Surface alone is the occupancy written (behind, with exact colour); both, ORed in.
+            surface_turns = turns if p.occupancy == Occupancy.SURFACE else 1
+            self.arrays["surface_out"] = [np.empty((nx, ny, p.thick), dtype=bool, order="F")
+                                          for _ in range(surface_turns)]
         if p.colour == Colour.EXACT or (p.colour == Colour.FAST and not p.colour_sink):
             colour_turns = turns if p.colour == Colour.EXACT else 1
             self.arrays["colour_out"] = [np.empty((p.thick, ny, nx, 4), dtype=np.uint8)
@@ -41,9 +54,12 @@ class SlabArrays:
     def buffers(self, n: int, depth: int) -> BlockBuffers:
         """The arrays of the ``n``-th slab, ``depth`` layers thick."""
         b = BlockBuffers()
-        if "out" in self.arrays:
-            outs = self.arrays["out"]
-            b.out = outs[n % len(outs)][:, :, :depth]
+        for name in ("out", "surface_out"):
+            if name in self.arrays:
+                outs = self.arrays[name]
+                setattr(b, name, outs[n % len(outs)][:, :, :depth])
+        if "words" in self.arrays:
+            b.words = self.arrays["words"][0]
         if "colour_out" in self.arrays:
             cols = self.arrays["colour_out"]
             b.colour_out = cols[n % len(cols)][:depth]
@@ -62,10 +78,15 @@ def run_blocks(m, p: Plan, writer, reuse, timings, progress, tally) -> int:
                 buffers.colour_sink = lambda z, rgba, z0=z0: writer.write_colours(z0 + z, rgba)
             if reuse:
                 buffers.crossings = reuse
+            if p.surface_points:
+                buffers.points = _points_into(writer, z0, z1, timings)
+                buffers.point_values = writer.centres
             with collect_warnings(drop=True):  # said once, by run_slabs
                 vol = voxelize_block(m, p, (z0, z1), buffers=buffers)
             tb = time.perf_counter()
-            if p.write_behind:
+            if vol.occupancy is None:
+                pass  # its points are written
+            elif p.write_behind:
                 if pending is not None:
                     pending.result()  # the slab before: done (and its error raised)
                 if pool is None:
@@ -78,7 +99,9 @@ def run_blocks(m, p: Plan, writer, reuse, timings, progress, tally) -> int:
             for key, value in vol.timings.items():
                 timings[key] = timings.get(key, 0.0) + value
             timings["write"] += time.perf_counter() - tb
-            inside += vol.inside_count
+            inside += vol.counts["surface"] if vol.occupancy is None else vol.inside_count
+            if p.occupancy != Occupancy.SOLID and p.labels is None:
+                tally.inside = tally.inside or vol.inside  # what ran, for the summary
             tally.add(LabelTally.of(vol))
             tally.add_counts(vol.counts)
             tally.approximate += vol.approximate
@@ -93,6 +116,16 @@ def run_blocks(m, p: Plan, writer, reuse, timings, progress, tally) -> int:
         if pool is not None:
             pool.shutdown(wait=True)  # no write may still run into the files abort removes
     return inside
+
+
+def _points_into(writer, z0, z1, timings):
+    """The block's ``points`` hand-off: its voxels written as they come, timed as writing."""
+    def points(ijk):
+        t = time.perf_counter()
+        writer.write_points(z0, z1 - z0, ijk)
+        timings["write"] += time.perf_counter() - t
+
+    return points
 
 
 def run_fill(m, p: Plan, writer, timings, progress) -> int:
