@@ -189,6 +189,40 @@ CASES = {
                         "--sdf", "--density", "coverage"], {}, False),
     "like_stream_raw": (["convert", "M/bunny_oded.obj", "--like", "M/ref_big.mhd", "-o",
                          "O/bunny.raw", "--fast-color"], {}, True),
+    # surface voxels (issue 35): alone and with the solid, dense and sparse, streamed
+    "surface_raw": (["convert", "M/bunny_oded.obj", "-o", "O/b.raw", "-r", "96",
+                     "--occupancy", "surface"], {}, False),
+    "surface_cube_raw_j1": (["convert", "M/bunny_oded.obj", "-o", "O/b.raw", "-r", "96", "--cube",
+                             "-j", "1", "--occupancy", "surface"], {}, False),
+    "surface_ply": (["convert", "M/bunny_oded.obj", "-o", "O/b.ply", "-r", "128",
+                     "--occupancy", "surface"], {}, False),
+    "surface_h5_stream": (["convert", "M/bunny_oded.obj", "-o", "O/b.h5", "-r", "192",
+                           "--occupancy", "surface"], {}, True),
+    "surface_ply_stream": (["convert", "M/bunny_oded.obj", "-o", "O/b.ply", "-r", "192",
+                            "--occupancy", "surface"], {}, True),
+    "surface_npz_sparse_colour": (["convert", "M/spot.obj", "-o", "O/s.npz", "-r", "96",
+                                   "--occupancy", "surface", "--sparse", "--color"], {}, False),
+    "surface_ply_colour_stream": (["convert", "M/spot.obj", "-o", "O/s.ply", "-r", "192",
+                                   "--occupancy", "surface", "--color"], {}, True),
+    "both_raw_colour": (["convert", "M/spot.obj", "-o", "O/s.raw", "-r", "96",
+                         "--occupancy", "both", "--fast-color"], {}, False),
+    "both_ply_stream": (["convert", "M/spot.obj", "-o", "O/s.ply", "-r", "192",
+                         "--occupancy", "both"], {}, True),
+    "surface_labels_ply": (["convert", "M/cornell_box.obj", "-o", "O/c.ply", "-r", "64",
+                            "--occupancy", "surface", "--labels", "part"], {}, False),
+    "both_labels_material_colour": (["convert", "M/cornell_box.obj", "-o", "O/c.h5", "-r", "64",
+                                     "--occupancy", "both", "--labels", "material", "--color"],
+                                    {}, False),
+    "surface_numpy_kernel": (["convert", "M/wallhole.obj", "-o", "O/w.ply", "-r", "48",
+                              "--occupancy", "surface"], {"GEOVOX_KERNEL": "numpy"}, False),
+    "surface_like_ply": (["convert", "M/spot.obj", "--like", "M/ref.mhd", "-o", "O/s.ply",
+                          "--occupancy", "surface"], {}, False),
+    "surface_sdf_ply": (["convert", "M/spot.obj", "-o", "O/s.ply", "-r", "64",
+                         "--occupancy", "surface", "--sdf"], {}, False),
+    "surface_zarr": (["convert", "M/bunny_oded.obj", "-o", "O/b.zarr", "-r", "128",
+                      "--occupancy", "surface"], {}, False),
+    "surface_info": (["info", "M/bunny_oded.obj", "-r", "128", "--occupancy", "surface"], {},
+                     False),
     # what geovox info says (its plan and route)
     "info": (["info", "M/cornell_box.obj", "-r", "96"], {}, False),
     "info_like": (["info", "M/spot.obj", "--like", "M/ref.mhd"], {}, False),
@@ -329,6 +363,12 @@ def hash_file(path) -> dict:
     lower = path.lower()
     if lower.endswith((".h5", ".hdf5", ".vtkhdf", ".hdf")):
         return hash_hdf5(path)
+    if lower.endswith(".ply"):
+        # A PLY's header names the source path; the rest is its bytes.
+        with open(path, "rb") as f:
+            data = f.read()
+        head, sep, body = data.partition(b"end_header\n")
+        return {"header": _sha(head), "data": _sha(body)}
     if lower.endswith(".npz"):
         return hash_npz(path)
     if lower.endswith(".nrrd"):

@@ -48,6 +48,7 @@ from ..block import BlockBuffers, empty_reason, overlaps, voxelize_block
 from ..errors import warn
 from ..kernels import follows_plan
 from ..labels import LabelTally
+from ..options import Occupancy
 from ..planner import Plan, Route
 from ..volume import Report
 from .slabs import run_blocks, run_fill, z_once
@@ -156,9 +157,16 @@ def run_slabs(m, p: Plan, *, progress=None, client=None) -> Report:
         labelled = dict(label_table=meta.label_table, contested=tally.contested,
                         lines=p.labels.lines(meta.label_table, tally.contested))
     return Report(source=m.source, grid=grid, backend=p.backend.name,
-                  inside_test=tally.inside or str(p.inside), inside=inside, route=str(p.route),
+                  inside_test=tally.inside or _what_ran(p), inside=inside, route=str(p.route),
                   slabs=len(p.blocks), files=files, timings=timings, mesh_space=p.mesh_space,
                   approximate=tally.approximate, counts=tally.counts_of_surface, **labelled)
+
+
+def _what_ran(p: Plan) -> str:
+    """The inside test (and the surface voxels) the plan's blocks run, as a Report says it."""
+    if p.inside is None:
+        return "surface"
+    return f"{p.inside}+surface" if p.occupancy == Occupancy.BOTH else str(p.inside)
 
 
 def _meta(m, p: Plan):
