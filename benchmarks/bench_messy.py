@@ -72,7 +72,7 @@ def brute_force(path, res, idx):
         grid = geovox.voxelize(m, resolution=res, inside="parity").grid
         tris = inside.target(m)[0].triangles
     p = np.stack([grid.centres(a)[idx[:, a]] for a in range(3)], axis=1)
-    return np.array([inside._triangle_angles(tris, np.repeat(q[None], len(tris), 0)).sum() > 0.5
+    return np.array([inside.captree.triangle_angles(tris, np.repeat(q[None], len(tris), 0)).sum() > 0.5
                      for q in p], bool)
 
 

@@ -33,7 +33,6 @@ MOVED = {
 }
 #: module that became a package -> the module whose names the package shows
 PACKAGES = {
-    "geovox.inside": "geovox.inside.winding",
     "geovox.colour": "geovox.colour.shading",
     "geovox.cli": "geovox.cli.commands",
 }
@@ -93,7 +92,6 @@ def test_a_package_shows_its_modules_names(package, module):
 def test_old_names_of_the_packages():
     from geovox.cli import build_parser, main, main_exit
     from geovox.colour import colour_volume, exact_colours, relevant_crossings, shade
-    from geovox.inside import boundary_edges, cap_winding, choose, winding_occupancy
 
     assert main is geovox.cli.commands.main and main_exit is geovox.cli.commands.main_exit
     assert build_parser is geovox.cli.commands.build_parser
@@ -101,25 +99,9 @@ def test_old_names_of_the_packages():
     assert (exact_colours, relevant_crossings, shade) == (
         geovox.colour.shading.exact_colours, geovox.colour.shading.relevant_crossings,
         geovox.colour.shading.shade)
-    assert (boundary_edges, cap_winding, choose, winding_occupancy) == (
-        geovox.inside.winding.boundary_edges, geovox.inside.winding.cap_winding,
-        geovox.inside.winding.choose, geovox.inside.winding.winding_occupancy)
 
 
-def test_a_patch_of_the_module_is_what_the_package_shows(monkeypatch):
-    import geovox.inside
-
-    def fake(*a, **k):
-        raise AssertionError("not called")
-
-    monkeypatch.setattr(geovox.inside.winding, "choose", fake)
-    assert geovox.inside.choose is fake  # pipeline reads it there: it sees the patch
-    monkeypatch.undo()
-    assert geovox.inside.choose is geovox.inside.winding.choose is not fake
-
-
-@pytest.mark.parametrize("package, name", [("geovox.inside", "WORK_SECONDS"),
-                                           ("geovox.colour", "CHUNK_VOXELS"),
+@pytest.mark.parametrize("package, name", [("geovox.colour", "CHUNK_VOXELS"),
                                            ("geovox.cli", "main")])
 def test_a_patch_of_the_package_is_refused_with_where_to_set_it(monkeypatch, package, name):
     pkg = importlib.import_module(package)

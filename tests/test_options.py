@@ -370,7 +370,7 @@ def test_no_hand_copied_signature_of_voxelize():
 
 
 def test_convert_to_loads_plans_and_chooses_once(tmp_path, monkeypatch):
-    import geovox.inside.winding
+    import geovox.inside
     import geovox.io.load
     import geovox.pipeline
 
@@ -387,7 +387,7 @@ def test_convert_to_loads_plans_and_chooses_once(tmp_path, monkeypatch):
 
     monkeypatch.setattr(geovox.io.load, "load_mesh", counting("load", geovox.io.load.load_mesh))
     monkeypatch.setattr(geovox.stream, "plan", counting("plan", geovox.stream.plan))
-    monkeypatch.setattr(geovox.inside.winding, "choose", counting("choose", geovox.inside.winding.choose))
+    monkeypatch.setattr(geovox.inside, "choose", counting("choose", geovox.inside.choose))
     monkeypatch.setattr(geovox.pipeline, "make_grid", counting("grid", geovox.pipeline.make_grid))
     r = geovox.convert_to(SPOT, tmp_path / "v.raw", shape=(8, 8, 150), color="fast",
                           budget=8 * 8 * 64 * 25)

@@ -3,7 +3,7 @@
 ``geovox._lattice`` computes :func:`geovox.inside.repair.repair`'s steps (the
 positions' lexicographic numbers, the weld's close pairs, duplicate groups,
 the edge table and the spanning forest with its flips) and
-:func:`geovox.inside.winding.boundary_edges` of an open mesh in linear time;
+:func:`geovox.inside.edges.boundary_edges` of an open mesh in linear time;
 the NumPy code stays as the fallback under ``GEOVOX_KERNEL=numpy``. Both must
 give the same repaired mesh, array for array (face order, vertex ids, flips),
 so every occupancy is unchanged. The meshes are made to break every step.
@@ -18,8 +18,8 @@ import pytest
 import trimesh
 
 import geovox
+from geovox.inside import edges as E
 from geovox.inside import repair as R
-from geovox.inside import winding as W
 from geovox.kernels import chosen
 from geovox.mesh import Mesh, build_mesh
 
@@ -140,12 +140,12 @@ def _everything(v, f, kernel):
     """Every array the repair and the checks give, on a fresh mesh, under ``kernel``."""
     mesh = build_mesh(v, f, "case")
     with chosen(kernel):
-        out = {"boundary": W.boundary_edges(mesh), "counts": np.array(W.edge_counts(mesh)),
-               "consistent": np.array(W.consistent(mesh))}
+        out = {"boundary": E.boundary_edges(mesh), "counts": np.array(E.edge_counts(mesh)),
+               "consistent": np.array(E.consistent(mesh))}
         rep = R.repair(mesh)
         out.update({k: np.asarray(getattr(rep, k)) for k in FIELDS})
         out["vertices"], out["faces"] = rep.mesh.vertices, rep.mesh.faces
-        out["boundary_after"] = W.boundary_edges(rep.mesh)
+        out["boundary_after"] = E.boundary_edges(rep.mesh)
         out["seeded"] = rep.mesh.geometric_faces
     return out
 
@@ -172,7 +172,7 @@ def test_what_the_repair_caches_on_its_copy_is_what_the_checks_would_find(case, 
         rep = R.repair(build_mesh(v, f, "case"))
         fresh = Mesh(rep.mesh.vertices, rep.mesh.faces)
         assert np.array_equal(fresh.geometric_faces, rep.mesh.faces)
-        for check in (W.boundary_edges, W.edge_counts, W._non_manifold, W.consistent):
+        for check in (E.boundary_edges, E.edge_counts, E.non_manifold, E.consistent):
             seeded, again = check(rep.mesh), check(fresh)
             assert np.asarray(seeded).dtype == np.asarray(again).dtype
             assert np.array_equal(seeded, again), check.__name__
@@ -183,7 +183,7 @@ def test_the_cases_break_what_they_are_meant_to():
     with chosen("compiled"):
         mesh = build_mesh(v, f, "messy")
         rep = R.repair(mesh)
-        n_open, n_nonmanifold = W.edge_counts(mesh)
+        n_open, n_nonmanifold = E.edge_counts(mesh)
     assert n_open and n_nonmanifold
     assert rep.welded and rep.degenerate and rep.duplicates and rep.opposite and rep.inner
     assert rep.flipped and rep.outward and rep.pieces > 5
@@ -191,8 +191,8 @@ def test_the_cases_break_what_they_are_meant_to():
     # faces after the flips (no choice of flips can avoid one).
     mv, mf = _moebius()
     rep = R.repair(build_mesh(mv, mf, "moebius"))
-    edge, count, forward = R.edge_table(rep.mesh.faces, len(rep.mesh.vertices))
-    pairs = R.manifold_pairs(edge, count)
+    edge, count, forward = E.edge_table(rep.mesh.faces, len(rep.mesh.vertices))
+    pairs = E.manifold_pairs(edge, count)
     assert np.any(forward[pairs[:, 0]] == forward[pairs[:, 1]])
 
 
@@ -206,9 +206,9 @@ def test_compiled_components_follow_the_same_forest(seed):
     a, b = rng.integers(0, n, e), rng.integers(0, n, e)
     odd = rng.random(e) < 0.5
     with chosen("numpy"):
-        want = R.components(n, a, b, odd)
+        want = E.components(n, a, b, odd)
     with chosen("compiled"):
-        got = R.components(n, a, b, odd)
+        got = E.components(n, a, b, odd)
     assert want[0] == got[0]
     assert np.array_equal(want[1], got[1]) and np.array_equal(want[2], got[2])
 
@@ -222,9 +222,9 @@ def test_compiled_edge_table_and_close_pairs_match_numpy(seed):
     faces[:60, 0] = 0  # one vertex on many edges: the merging sort
     faces = faces[(faces[:, 1] != 0) & (faces[:, 2] != 0) | (np.arange(len(faces)) >= 60)]
     with chosen("numpy"):
-        want = R.sorted_edges(faces, 40)
+        want = E.sorted_edges(faces, 40)
     with chosen("compiled"):
-        got = R.sorted_edges(faces, 40)
+        got = E.sorted_edges(faces, 40)
     for x, y in zip(want, got):
         assert np.array_equal(x, y)
     # Points on a lattice of exactly the tolerance, and jittered copies.

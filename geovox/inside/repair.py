@@ -46,8 +46,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..backends.base import Hits
 from ..kernels import lattice
 from ..mesh import Mesh
+from .edges import components, manifold_pairs, merged_faces, sorted_edges
 
 
 @dataclass
@@ -141,163 +143,9 @@ class Repair:
             The same crossings, ``triangle`` indexing the original faces and
             ``bary`` the original vertices 1 and 2.
         """
-        from ..backends.base import Hits
-
         swap = self.swapped[hits.triangle]
         bary = np.where(swap[:, None], hits.bary[:, ::-1], hits.bary)
         return Hits(hits.ray, hits.depth, self.face[hits.triangle], bary)
-
-
-def edge_table(faces: np.ndarray, nv: int):
-    """Undirected edges of ``faces`` and who uses them.
-
-    Parameters
-    ----------
-    faces : (k, 3) int64
-        Faces over merged vertex ids ``< nv``, no repeated vertex in a face.
-
-    Returns
-    -------
-    edge : (3k,) int64
-        Undirected edge id of edge ``j`` (from vertex ``j`` to ``j + 1``) of
-        face ``f``, at position ``3 f + j``.
-    count : (e,) int64
-        Faces using each undirected edge.
-    forward : (3k,) bool
-        The face runs the edge from its lower to its higher vertex id.
-    """
-    return sorted_edges(faces, nv)[:3]
-
-
-def sorted_edges(faces: np.ndarray, nv: int):
-    """:func:`edge_table`, and the slots sorted by edge (then slot).
-
-    Edges are numbered in order of their ``(lower, higher)`` vertex ids
-    either way: by ``np.unique`` of the keys, or by the compiled kernel's
-    counting sort (:func:`geovox._lattice.edge_sort`, linear), which gives
-    the same arrays.
-
-    Returns
-    -------
-    edge, count, forward
-        As :func:`edge_table`.
-    order : (3k,) int64
-        ``np.argsort(edge, kind="stable")``.
-    """
-    a = faces.reshape(-1)
-    b = faces[:, [1, 2, 0]].reshape(-1)
-    kernel = lattice()
-    if kernel is not None:
-        order, edge, _, _, count, _ = kernel.edge_sort(faces)
-        return edge, count, a < b, order
-    key = np.minimum(a, b) * np.int64(nv) + np.maximum(a, b)
-    _, edge, count = np.unique(key, return_inverse=True, return_counts=True)
-    edge = edge.reshape(-1)
-    return edge, count, a < b, np.argsort(edge, kind="stable")
-
-
-def manifold_pairs(edge: np.ndarray, count: np.ndarray, order: np.ndarray | None = None):
-    """The two face-edge slots of every edge used by exactly two faces.
-
-    Parameters
-    ----------
-    edge, count
-        As :func:`edge_table` gives them.
-    order : (3k,) int64, optional
-        The slots sorted by edge (:func:`sorted_edges`); sorted here when absent.
-
-    Returns
-    -------
-    (p, 2) int64
-        Slots ``3 f + j`` (see :func:`edge_table`), one row per manifold edge.
-    """
-    if order is None:
-        order = np.argsort(edge, kind="stable")
-    e = edge[order]
-    two = count[e] == 2
-    slots = order[two]
-    # Sorted by edge, the two slots of each manifold edge are adjacent.
-    return slots.reshape(-1, 2)
-
-
-def face_pieces(nf: int, pairs: np.ndarray):
-    """Connected pieces of faces joined through the given manifold edges.
-
-    Returns
-    -------
-    count : int
-    label : (nf,) int64
-        Numbered in the order of each piece's first face.
-    """
-    f = pairs // 3
-    n, label, _ = components(nf, f[:, 0], f[:, 1])
-    return n, label
-
-
-def components(n: int, a: np.ndarray, b: np.ndarray, odd: np.ndarray | None = None):
-    """Connected components of a graph, in NumPy (no scipy: importing it costs 0.2-0.4 s).
-
-    Union by hooking each root to the smallest root it has an edge to, then
-    pointer jumping to the roots, in whole-array rounds until no edge joins
-    two roots. With ``odd``, each edge also carries a parity (its two ends
-    disagree), and each node gets its parity relative to its component's
-    root along the forest that the hooking builds; an edge whose ends
-    already share a root is not used, so where the parities contradict (a
-    Moebius band) the forest's choice stands.
-
-    Parameters
-    ----------
-    n : int
-        Nodes ``0 .. n - 1``.
-    a, b : (e,) int64
-        Edges.
-    odd : (e,) bool, optional
-
-    Returns
-    -------
-    count : int
-    label : (n,) int64
-        Component of each node, numbered in the order of their smallest node
-        (as ``scipy.sparse.csgraph.connected_components`` numbers them).
-    parity : (n,) bool
-        Each node's parity relative to the smallest node of its component
-        (all False without ``odd``).
-
-    Notes
-    -----
-    The compiled kernel (:func:`geovox._lattice.components`) runs the same
-    rounds in loops, so it gives the same arrays, parities included.
-    """
-    kernel = lattice()
-    if kernel is not None:
-        return kernel.components(int(n), a, b, odd)
-    root = np.arange(n, dtype=np.int64)
-    x = np.zeros(n, dtype=bool)
-    a, b = np.asarray(a, np.int64), np.asarray(b, np.int64)
-    odd = np.zeros(len(a), dtype=bool) if odd is None else np.asarray(odd, bool)
-    while len(a):
-        ra, rb = root[a], root[b]
-        live = ra != rb
-        a, b, odd, ra, rb = a[live], b[live], odd[live], ra[live], rb[live]
-        if len(a) == 0:
-            break
-        lo, hi = np.minimum(ra, rb), np.maximum(ra, rb)
-        # One edge per hooked root: the one to its smallest neighbouring root.
-        # Roots only ever point to smaller ones, so no cycle can form.
-        order = np.lexsort((lo, hi))
-        first = order[np.r_[True, hi[order][1:] != hi[order][:-1]]]
-        x[hi[first]] = x[a[first]] ^ x[b[first]] ^ odd[first]
-        root[hi[first]] = lo[first]
-        # Every node to its root, carrying the parity along (a root points to
-        # itself with parity False: a fixed point).
-        while True:
-            up = root[root]
-            if np.array_equal(up, root):
-                break
-            x ^= x[root]
-            root = up
-    uniq, label = np.unique(root, return_inverse=True)
-    return len(uniq), label.reshape(-1).astype(np.int64), x
 
 
 #: Vertices closer than this fraction of the model's size are one vertex: seams
@@ -446,54 +294,6 @@ def _inner_walls(faces: np.ndarray, both: np.ndarray, nv: int) -> np.ndarray:
     rim = np.bincount(w_of_slot, weights=o >= 2, minlength=n) > 0
     drop[idx] = (rim & ~bad)[wall]
     return drop
-
-
-def merged_faces(mesh: Mesh):
-    """The faces over the vertices they use, merged by position, in lexicographic order.
-
-    ``np.unique(mesh.geometric_faces, return_inverse=True)``, cached on the
-    mesh: with the compiled kernel, the positions are merged by a hash
-    (:func:`geovox._lattice.merge_positions`) and only the distinct ones a
-    face uses are sorted; without it, :attr:`Mesh.geometric_faces` is
-    renumbered by a count (no second sort).
-
-    Returns
-    -------
-    n : int
-        Distinct positions the faces use.
-    faces : (m, 3) int64
-        Each corner's position, numbered ``0 .. n - 1`` in lexicographic
-        order of ``(x, y, z)``.
-    vertex : (n,) int64
-        At each position, the vertex of the last corner there (vertices at
-        one position differ at most in the sign of a zero).
-    """
-    if "merged_faces" not in mesh._cache:
-        kernel = lattice()
-        sorted_ids = kernel is None or "geometric_faces" in mesh._cache
-        if sorted_ids:  # already lexicographic: renumbered by a count
-            ids, nid = mesh.geometric_faces, len(mesh.vertices)
-        else:
-            from .winding import _position_faces
-
-            ids = _position_faces(mesh, kernel)
-            nid = int(ids.max()) + 1
-        flat = ids.reshape(-1)
-        used = np.zeros(nid, dtype=bool)
-        used[flat] = True
-        one = np.zeros(nid, dtype=np.int64)
-        one[flat] = mesh.faces.reshape(-1)  # the last corner at each position
-        where = np.flatnonzero(used)
-        if sorted_ids:
-            rank = np.cumsum(used) - 1
-        else:
-            v = mesh.vertices[one[where]]
-            rank = np.empty(nid, dtype=np.int64)
-            rank[where[np.lexsort((v[:, 2], v[:, 1], v[:, 0]))]] = np.arange(len(where))
-        vertex = np.empty(len(where), dtype=np.int64)
-        vertex[rank[where]] = one[where]
-        mesh._cache["merged_faces"] = (len(where), rank[ids], vertex)
-    return mesh._cache["merged_faces"]
 
 
 def _proper(pos: np.ndarray, g: np.ndarray) -> np.ndarray:
