@@ -69,8 +69,13 @@ def _fan(n=300):
     return v + np.array([0, 4.0, 0]), f
 
 
-def _messy(seed):
-    """Many kinds of damage in one mesh of several components."""
+def _messy(seed, moebius=True):
+    """Many kinds of damage in one mesh of several components.
+
+    With ``moebius``, a band whose flips contradict: the compiled repair then
+    runs the rounds of :func:`geovox.inside.edges.components` (the forest
+    decides); without, its union-find must give the same flips.
+    """
     rng = np.random.default_rng(seed)
     parts = []
     # Open spheres with holes, faces flipped at random, one turned inside out.
@@ -97,7 +102,7 @@ def _messy(seed):
     # Degenerate faces: a repeated vertex, and three collinear points.
     v = np.array([[0, 0, 0], [1, 1, 1], [2, 2, 2], [0, 1, 0]], float)
     parts.append((v - 6, np.array([[0, 1, 2], [0, 0, 3], [3, 1, 1], [0, 1, 3]], np.int64)))
-    parts += [_moebius(), _fan()]
+    parts += [_moebius(), _fan()] if moebius else [_fan()]
     v, f = _join(parts)
     # Vertices split at equal positions (UV seams), some closer than the weld
     # distance, and signed zeros.
@@ -126,6 +131,7 @@ def _loaded(name):
 
 
 CASES = {f"messy{s}": (lambda s=s: _messy(s)) for s in range(4)}
+CASES.update({f"orientable{s}": (lambda s=s: _messy(s, moebius=False)) for s in range(4)})
 CASES.update({"moebius": _moebius, "fan": _fan,
               "truck": lambda: _loaded("wild/truck.obj"),
               "pyramids": lambda: _loaded("wild/pyramids.3mf"),

@@ -135,7 +135,8 @@ def min_area_triangles(poly: np.ndarray) -> np.ndarray:
     return found[:, 1:].reshape(m, n - 2, 3)
 
 
-def loop_caps(pos: np.ndarray, edges: np.ndarray, vid: np.ndarray, piece: np.ndarray):
+def loop_caps(pos: np.ndarray, edges: np.ndarray, vid: np.ndarray, piece: np.ndarray,
+              rank: np.ndarray | None = None):
     """Cap triangles over the boundary: a minimum-area triangulation per loop, else a fan.
 
     Parameters
@@ -148,6 +149,9 @@ def loop_caps(pos: np.ndarray, edges: np.ndarray, vid: np.ndarray, piece: np.nda
         The same edges as position ids.
     piece : (k,) int64
         Each edge's loop (see :func:`loop_order`).
+    rank : (k,) int64, optional
+        :func:`loop_order` of them, where it is known (the compiled
+        :func:`geovox._lattice.boundary_loops` gives both).
 
     Returns
     -------
@@ -161,7 +165,8 @@ def loop_caps(pos: np.ndarray, edges: np.ndarray, vid: np.ndarray, piece: np.nda
     module = winding_kernel()
     # The compiled programme gives the same triangles (about 12 times faster).
     triangulate = min_area_triangles if module is None else module.min_area_triangles
-    rank = loop_order(vid, piece)
+    if rank is None:
+        rank = loop_order(vid, piece)
     npieces = int(piece.max()) + 1
     size = np.bincount(piece, minlength=npieces)
     tri = np.ones(npieces, bool)
@@ -178,8 +183,13 @@ def loop_caps(pos: np.ndarray, edges: np.ndarray, vid: np.ndarray, piece: np.nda
         parts.append(np.stack([centroid[piece[e]], pos[edges[e, 1]], pos[edges[e, 0]]], axis=1))
         labels.append(piece[e])
     # Each loop's edges by place: the polygon of their starting vertices.
-    e = np.flatnonzero(~fan)
-    e = e[np.lexsort((rank[e], piece[e]))]
+    if rank.min() >= 0:  # every (loop, place) once: placed, not sorted
+        e = np.empty(len(piece), np.int64)
+        e[(np.cumsum(size) - size)[piece] + rank] = np.arange(len(piece))
+        e = e[~fan[e]]
+    else:
+        e = np.flatnonzero(~fan)
+        e = e[np.lexsort((rank[e], piece[e]))]
     for n in np.unique(size[tri]):
         if n < 3:  # a loop a -> b -> a bounds nothing
             continue

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..kernels import lattice
 from ..mesh import Mesh
 from .bridge import loop_caps
 from .edges import boundary_edges, components
@@ -36,19 +37,42 @@ def caps(mesh: Mesh, edges: np.ndarray, small: bool = False) -> np.ndarray:
     if len(edges) == 0:
         return np.zeros((0, 3, 3)), np.zeros(0, np.int64)
     pos = mesh.vertices
-    # Pieces are connected through shared positions, not vertex indices.
-    _, vid = np.unique(pos[edges.reshape(-1)], axis=0, return_inverse=True)
-    vid = vid.reshape(-1, 2)
+    vid = _position_ids(mesh, edges)
     nv = int(vid.max()) + 1
-    _, label, _ = components(nv, vid[:, 0], vid[:, 1])
-    piece = loops(vid, label[vid[:, 0]])
+    kernel = lattice()
+    found = None if kernel is None else kernel.boundary_loops(vid, nv)
+    if found is None:  # NumPy, or a position where loops do not balance
+        _, label, _ = components(nv, vid[:, 0], vid[:, 1])
+        piece, rank = loops(vid, label[vid[:, 0]]), None
+    else:
+        piece, rank = found
     if small:
-        return loop_caps(pos, edges, vid, piece)
+        return loop_caps(pos, edges, vid, piece, rank)
     npieces = int(piece.max()) + 1
     mid = (pos[edges[:, 0]] + pos[edges[:, 1]]) / 2
     centroid = np.stack([np.bincount(piece, weights=mid[:, k], minlength=npieces)
                          for k in range(3)], axis=1) / np.bincount(piece, minlength=npieces)[:, None]
     return np.stack([centroid[piece], pos[edges[:, 1]], pos[edges[:, 0]]], axis=1), piece
+
+
+def _position_ids(mesh: Mesh, edges: np.ndarray) -> np.ndarray:
+    """(k, 2) int64: the edges' ends numbered by position, in lexicographic order.
+
+    Pieces are connected through shared positions, not vertex indices:
+    ``np.unique`` of the ends' positions numbers them. Where the mesh knows
+    its faces over positions in that order (:attr:`Mesh.geometric_faces`;
+    the repaired copy's are its own faces), the ends' numbers there, made
+    dense, are the same, without sorting coordinates.
+    """
+    if "geometric_faces" not in mesh._cache:
+        _, vid = np.unique(mesh.vertices[edges.reshape(-1)], axis=0, return_inverse=True)
+        return vid.reshape(-1, 2)
+    geo = np.empty(len(mesh.vertices), np.int64)
+    geo[mesh.faces.reshape(-1)] = mesh.geometric_faces.reshape(-1)
+    at = geo[edges]
+    used = np.zeros(int(at.max()) + 1, bool)
+    used[at.reshape(-1)] = True
+    return (np.cumsum(used) - 1)[at]
 
 
 def loops(vid: np.ndarray, piece: np.ndarray) -> np.ndarray:

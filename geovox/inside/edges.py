@@ -42,10 +42,8 @@ def boundary_edges(mesh: Mesh) -> np.ndarray:
         return np.zeros((0, 2), dtype=np.int64)
     kernel = lattice()
     if kernel is not None:
-        # The common case first, in linear time (no sort): closed exactly
-        # when every undirected edge is run as often one way as the other.
-        closed, mesh._cache["non_manifold"] = kernel.edge_checks(position_faces(mesh, kernel))
-        if closed:
+        # The common case first, in linear time (no sort).
+        if is_closed(mesh):
             out = np.zeros((0, 2), dtype=np.int64)
             mesh._cache["boundary"] = out
             return out
@@ -81,6 +79,26 @@ def boundary_edges(mesh: Mesh) -> np.ndarray:
     out = rep[out]
     mesh._cache["boundary"] = out
     return out
+
+
+def is_closed(mesh: Mesh) -> bool:
+    """Whether every edge is run as often one way as the other (:func:`boundary_edges` empty).
+
+    With the compiled kernel, one linear pass over the faces merged by
+    position (:func:`geovox._lattice.edge_checks`: no sort, no list of
+    edges) answers it and counts the open and non-manifold edges on the way
+    (:func:`edge_counts`, :func:`non_manifold`); without it, the list.
+    Cached on the mesh.
+    """
+    if "closed" not in mesh._cache:
+        kernel = lattice()
+        if "boundary" in mesh._cache or kernel is None or len(mesh.faces) == 0:
+            mesh._cache["closed"] = len(boundary_edges(mesh)) == 0
+        else:
+            closed, non_manifold, n_open, n_many = kernel.edge_checks(position_faces(mesh, kernel))
+            mesh._cache.update(closed=closed, non_manifold=non_manifold,
+                               edge_counts=(n_open, n_many))
+    return mesh._cache["closed"]
 
 
 def _compiled_boundary(mesh: Mesh, module) -> np.ndarray:
@@ -137,16 +155,12 @@ def _closed(e, lo, hi, n) -> bool:
 def edge_counts(mesh: Mesh):
     """``(open, non_manifold)``: edges used by one face, and edges used by more than two.
 
-    Counted with :func:`boundary_edges` by the compiled kernel where the
-    mesh is open (cached on the mesh).
+    Counted by the compiled kernel's edge checks (:func:`is_closed`), cached on the mesh.
     """
     if "edge_counts" in mesh._cache:
         return mesh._cache["edge_counts"]
-    kernel = lattice()
-    if kernel is not None:
-        count = kernel.edge_sort(position_faces(mesh, kernel))[4]
-        mesh._cache["edge_counts"] = (int(np.count_nonzero(count == 1)),
-                                      int(np.count_nonzero(count > 2)))
+    if lattice() is not None:
+        is_closed(mesh)  # counts them
         return mesh._cache["edge_counts"]
     f = mesh.geometric_faces
     e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
@@ -166,7 +180,7 @@ def consistent(mesh: Mesh) -> bool:
     twice under parity and cancels under the winding number.
     """
     if "consistent" not in mesh._cache:
-        ok = len(boundary_edges(mesh)) == 0
+        ok = is_closed(mesh)
         kernel = lattice()
         if ok and kernel is not None:
             ok = not kernel.duplicate_faces(position_faces(mesh, kernel))  # linear, no sort
@@ -269,9 +283,8 @@ def vertex_connected(faces: np.ndarray) -> bool:
 def non_manifold(mesh: Mesh) -> bool:
     """Whether some edge is used by more than two faces (cached by boundary_edges when it can)."""
     if "non_manifold" not in mesh._cache:
-        kernel = lattice()
-        if kernel is not None:
-            mesh._cache["non_manifold"] = kernel.edge_checks(position_faces(mesh, kernel))[1]
+        if lattice() is not None:
+            is_closed(mesh)  # finds it
             return mesh._cache["non_manifold"]
         f = mesh.geometric_faces
         e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
@@ -469,23 +482,21 @@ def merged_faces(mesh: Mesh):
     if "merged_faces" not in mesh._cache:
         kernel = lattice()
         sorted_ids = kernel is None or "geometric_faces" in mesh._cache
-        if sorted_ids:  # already lexicographic: renumbered by a count
-            ids, nid = mesh.geometric_faces, len(mesh.vertices)
-        else:
+        if not sorted_ids:  # a hash's numbers: the used positions sorted (a radix sort)
             ids = position_faces(mesh, kernel)
-            nid = int(ids.max()) + 1
+            mesh._cache["merged_faces"] = kernel.lex_faces(
+                np.ascontiguousarray(ids), np.ascontiguousarray(mesh.faces, dtype=np.int64),
+                np.ascontiguousarray(mesh.vertices, dtype=np.float64), int(ids.max()) + 1)
+            return mesh._cache["merged_faces"]
+        # Already lexicographic: renumbered by a count.
+        ids, nid = mesh.geometric_faces, len(mesh.vertices)
         flat = ids.reshape(-1)
         used = np.zeros(nid, dtype=bool)
         used[flat] = True
         one = np.zeros(nid, dtype=np.int64)
         one[flat] = mesh.faces.reshape(-1)  # the last corner at each position
         where = np.flatnonzero(used)
-        if sorted_ids:
-            rank = np.cumsum(used) - 1
-        else:
-            v = mesh.vertices[one[where]]
-            rank = np.empty(nid, dtype=np.int64)
-            rank[where[np.lexsort((v[:, 2], v[:, 1], v[:, 0]))]] = np.arange(len(where))
+        rank = np.cumsum(used) - 1
         vertex = np.empty(len(where), dtype=np.int64)
         vertex[rank[where]] = one[where]
         mesh._cache["merged_faces"] = (len(where), rank[ids], vertex)

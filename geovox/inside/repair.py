@@ -153,7 +153,7 @@ class Repair:
 WELD = 1e-6
 
 
-def close_pairs(pos: np.ndarray, tol: float) -> np.ndarray:
+def close_pairs(pos: np.ndarray, tol: float, lex_sorted: bool = False) -> np.ndarray:
     """Pairs of points at most ``tol`` apart, each once (as scipy's ``query_pairs``).
 
     A hash grid of cells ``tol`` wide, in NumPy: two such points lie in the
@@ -164,6 +164,10 @@ def close_pairs(pos: np.ndarray, tol: float) -> np.ndarray:
     ----------
     pos : (n, 3) float64
     tol : float, > 0
+    lex_sorted : bool
+        The points are in lexicographic order (the repair's positions): the
+        compiled kernel then finds the candidates by a sweep along x
+        (:func:`geovox._lattice.sweep_pairs`), with no table.
 
     Returns
     -------
@@ -189,7 +193,10 @@ def close_pairs(pos: np.ndarray, tol: float) -> np.ndarray:
     if kernel is not None:
         # Candidates through a hash table of coarser cells (no sort): a
         # superset of the pairs that pass the tests below.
-        pairs = kernel.near_pairs(np.ascontiguousarray(pos, dtype=np.float64), low, tol, 16 * tol)
+        pos = np.ascontiguousarray(pos, dtype=np.float64)
+        pairs = kernel.sweep_pairs(pos, tol, 16 * n + 1024) if lex_sorted else None
+        if pairs is None:
+            pairs = kernel.near_pairs(pos, low, tol, 16 * tol)
         # Of those, the pairs in neighbouring cells of this grid, as below.
         near = np.abs(cells(pos[pairs[:, 0]]) - cells(pos[pairs[:, 1]])) <= 1
         return _within(pos, pairs[np.all(near, axis=1)], tol)
@@ -226,7 +233,7 @@ def _within(pos, pairs, tol):
 
 
 def _weld(g, pos, tol):
-    """Merge vertices within ``tol`` of each other (transitively).
+    """Merge vertices within ``tol`` of each other (transitively); ``pos`` in lexicographic order.
 
     Returns
     -------
@@ -235,7 +242,7 @@ def _weld(g, pos, tol):
     welded : int
         Vertices merged away.
     """
-    pairs = close_pairs(pos, tol)
+    pairs = close_pairs(pos, tol, lex_sorted=True)
     if len(pairs) == 0:
         return g, pos, 0
     n = len(pos)
@@ -342,6 +349,109 @@ def _face_groups(w: np.ndarray, nv: int):
     return first[order], renumber[inverse.reshape(-1)], nxt < prv
 
 
+def _orient(f: np.ndarray, nv: int, pos: np.ndarray, centre: np.ndarray):
+    """Orient the faces ``f`` (turned in place) across manifold edges and each piece outward.
+
+    The NumPy steps of :func:`repair` after the duplicates (the compiled
+    kernel's :func:`geovox._lattice.repair_edges` gives the same arrays):
+    the edge table, the spanning forest's flips (:func:`components`), then
+    each piece's signed volume about the centroid of its open edges'
+    midpoints (each open slot's vertex and the next one round its face, as
+    flipped), or of its faces' centroids where it has none, from ``centre``.
+
+    Returns
+    -------
+    label : (nf,) int64
+    swapped : (nf,) bool
+    pieces, closed_pieces, outward : int
+    boundary : (k, 2) int64
+        The copy's open edges.
+    open, non_manifold_edges : int
+    """
+    edge, count, forward, slots = sorted_edges(f, nv)
+    pairs = manifold_pairs(edge, count, slots)
+    # Two faces agree across an edge when they run it in opposite directions.
+    fp = pairs // 3
+    npieces, label, flip = components(len(f), fp[:, 0], fp[:, 1],
+                                      forward[pairs[:, 0]] == forward[pairs[:, 1]])
+    ends = _edge_ends(f, count, slots)
+    f[flip, 1], f[flip, 2] = f[flip, 2], f[flip, 1]
+    turn, closed_piece = _outward(f, pos, centre, edge, count, label, npieces)
+    t = turn[label]
+    f[t, 1], f[t, 2] = f[t, 2], f[t, 1]
+    swapped = flip ^ t
+    boundary = _open_edges(edge, count, forward ^ np.repeat(swapped, 3), ends)
+    return (label, swapped, npieces, int(np.count_nonzero(closed_piece)),
+            int(np.count_nonzero(turn)), boundary, int(np.count_nonzero(count == 1)),
+            int(np.count_nonzero(count > 2)))
+
+
+def _outward(f, pos, centre, edge, count, label, npieces):
+    """``(turn, closed)`` per piece: its signed volume is negative; no edge of it is open or
+    non-manifold (see :func:`_orient`)."""
+    nf = len(f)
+    open_slot = count[edge] == 1
+    bad_slot = count[edge] != 2
+    slot_face = np.repeat(np.arange(nf), 3)
+    closed_piece = np.bincount(label[slot_face[bad_slot]], minlength=npieces) == 0
+    o = np.flatnonzero(open_slot)  # each open slot's vertex and the next one round its face
+    a, b = f.reshape(-1)[o], f.reshape(-1)[o - o % 3 + (o % 3 + 1) % 3]
+    mid = (pos[a] + pos[b]) / 2 - centre
+    lab_open = label[slot_face[open_slot]]
+    n_open = np.bincount(lab_open, minlength=npieces)
+    c = np.stack([np.bincount(lab_open, weights=mid[:, k], minlength=npieces) for k in range(3)], 1)
+    vt = pos[f] - centre
+    fc = vt.mean(axis=1)
+    n_face = np.bincount(label, minlength=npieces)
+    c_all = np.stack([np.bincount(label, weights=fc[:, k], minlength=npieces) for k in range(3)], 1)
+    c = np.where((n_open > 0)[:, None], c / np.maximum(n_open, 1)[:, None],
+                 c_all / np.maximum(n_face, 1)[:, None])
+    rel = vt - c[label][:, None, :]
+    det = np.einsum("ij,ij->i", rel[:, 0], np.cross(rel[:, 1], rel[:, 2]))
+    volume = np.bincount(label, weights=det, minlength=npieces)
+    return volume < 0, closed_piece
+
+
+#: How ``np.einsum("ij,ij->i")`` associates a three-term dot product here
+#: (found once, see :func:`_einsum_order`).
+_EINSUM_ORDER: list = []
+
+
+def _einsum_order() -> int:
+    """How NumPy's arithmetic in :func:`_outward` goes here, for the compiled kernel to follow.
+
+    ``np.einsum("ij,ij->i")`` sums a row's three products in an order of its
+    own (SIMD lanes: ``(p0 + p2) + p1`` on this machine's NumPy 2.4); the
+    compiled :func:`geovox._lattice.repair_edges` follows it so that the
+    pieces' volumes, and the turns of the flat pieces whose volume is only
+    rounding, are NumPy's bit for bit. Rows where the three associations
+    differ tell which it is (0: ``(p0 + p1) + p2``, 1: ``(p0 + p2) + p1``,
+    2: ``p0 + (p1 + p2)``); random rows then check it, with ``np.cross``
+    and ``mean(axis=1)`` against their formulas. -1 where anything differs:
+    the NumPy steps run instead.
+    """
+    if not _EINSUM_ORDER:
+        big = 1e16
+        probe = np.einsum("ij,ij->i", np.array([[big, 1.0, -big], [1.0, big, -big]]), np.ones((2, 3)))
+        order = {(1.0, 0.0): 1, (0.0, 1.0): 2, (0.0, 0.0): 0}.get(tuple(probe.tolist()), -1)
+        rng = np.random.default_rng(37)
+        a = rng.normal(size=(257, 3)) * 10.0 ** rng.integers(-8, 8, size=(257, 3))
+        b = rng.normal(size=(257, 3, 3))
+        p = a * b[:, 0]
+        sums = ((p[:, 0] + p[:, 1]) + p[:, 2], (p[:, 0] + p[:, 2]) + p[:, 1],
+                p[:, 0] + (p[:, 1] + p[:, 2]))
+        cross = np.stack([a[:, 1] * b[:, 1, 2] - a[:, 2] * b[:, 1, 1],
+                          a[:, 2] * b[:, 1, 0] - a[:, 0] * b[:, 1, 2],
+                          a[:, 0] * b[:, 1, 1] - a[:, 1] * b[:, 1, 0]], 1)
+        mean = (((0.0 + b[:, 0]) + b[:, 1]) + b[:, 2]) / 3
+        if order < 0 or not (np.array_equal(np.einsum("ij,ij->i", a, b[:, 0]), sums[order])
+                             and np.array_equal(np.cross(a, b[:, 1]), cross)
+                             and np.array_equal(b.mean(axis=1), mean)):
+            order = -1
+        _EINSUM_ORDER.append(order)
+    return _EINSUM_ORDER[0]
+
+
 def _edge_ends(f: np.ndarray, count: np.ndarray, slots: np.ndarray) -> np.ndarray:
     """(2, e) int64: each edge's lower and higher vertex, from its first slot (see :func:`sorted_edges`)."""
     s = slots[np.cumsum(count) - count]
@@ -350,22 +460,21 @@ def _edge_ends(f: np.ndarray, count: np.ndarray, slots: np.ndarray) -> np.ndarra
     return np.stack([np.minimum(a, b), np.maximum(a, b)])
 
 
-def _known_edges(out: Mesh, edge, count, forward, ends) -> None:
-    """Cache on the repaired copy what ``boundary_edges`` and ``edge_counts`` would find.
+def _open_edges(edge, count, forward, ends) -> np.ndarray:
+    """(k, 2) int64: the open edges of faces with this edge table, run as the faces run them.
 
-    The copy's edges are the edge table's (turning faces over changes only
-    the directions they run their edges), so its open edges and counts need
-    no second table: the same arrays as
-    :func:`geovox.inside.winding.boundary_edges` of the copy (its vertices
-    are its merged positions, numbered in order).
+    The same arrays as :func:`geovox.inside.edges.boundary_edges` of the
+    repaired copy (its vertices are its merged positions, numbered in
+    order; turning faces over changes only the directions they run their
+    edges, so the copy needs no second table).
 
     Parameters
     ----------
     edge, count
-        As :func:`edge_table` gives them for the copy's faces.
+        As :func:`geovox.inside.edges.edge_table` gives them.
     forward : (3k,) bool
-        Each slot's edge is run from its lower to its higher vertex by the
-        copy's face (after the flips).
+        Each slot's edge is run from its lower to its higher vertex by its
+        face (as turned).
     ends : (2, e) int64
         :func:`_edge_ends`.
     """
@@ -376,9 +485,7 @@ def _known_edges(out: Mesh, edge, count, forward, ends) -> None:
     src = np.where(m > 0, ends[0, k], ends[1, k])
     dst = np.where(m > 0, ends[1, k], ends[0, k])
     reps = np.abs(m)
-    out._cache["boundary"] = np.stack([np.repeat(src, reps), np.repeat(dst, reps)], axis=1)
-    out._cache["non_manifold"] = bool(len(count) and count.max() > 2)
-    out._cache["edge_counts"] = (int(np.count_nonzero(count == 1)), int(np.count_nonzero(count > 2)))
+    return np.stack([np.repeat(src, reps), np.repeat(dst, reps)], axis=1)
 
 
 def repair(mesh: Mesh) -> Repair:
@@ -422,51 +529,22 @@ def repair(mesh: Mesh) -> Repair:
     first = first[~wall]
     face = keep[first]
     f = g[face]
-    nf = len(f)
 
-    edge, count, forward, slots = sorted_edges(f, nv)
-    pairs = manifold_pairs(edge, count, slots)
-    # Two faces agree across an edge when they run it in opposite directions.
-    fp = pairs // 3
-    npieces, label, flip = components(nf, fp[:, 0], fp[:, 1],
-                                      forward[pairs[:, 0]] == forward[pairs[:, 1]])
-    ends = _edge_ends(f, count, slots)
-    f[flip, 1], f[flip, 2] = f[flip, 2], f[flip, 1]
-
-    # Outward: signed volume about the centroid of each piece's boundary
-    # (open edges' midpoints), or of its vertices when it has none.
-    open_slot = count[edge] == 1
-    bad_slot = count[edge] != 2
-    slot_face = np.repeat(np.arange(nf), 3)
-    closed_piece = np.bincount(label[slot_face[bad_slot]], minlength=npieces) == 0
-    o = np.flatnonzero(open_slot)  # each open slot's vertex and the next one round its face
-    a, b = f.reshape(-1)[o], f.reshape(-1)[o - o % 3 + (o % 3 + 1) % 3]
-    centre = pos.mean(axis=0) if nv else np.zeros(3)
-    mid = (pos[a] + pos[b]) / 2 - centre
-    lab_open = label[slot_face[open_slot]]
-    n_open = np.bincount(lab_open, minlength=npieces)
-    c = np.stack([np.bincount(lab_open, weights=mid[:, k], minlength=npieces) for k in range(3)], 1)
-    vt = pos[f] - centre
-    fc = vt.mean(axis=1)
-    n_face = np.bincount(label, minlength=npieces)
-    c_all = np.stack([np.bincount(label, weights=fc[:, k], minlength=npieces) for k in range(3)], 1)
-    c = np.where((n_open > 0)[:, None], c / np.maximum(n_open, 1)[:, None],
-                 c_all / np.maximum(n_face, 1)[:, None])
-    rel = vt - c[label][:, None, :]
-    det = np.einsum("ij,ij->i", rel[:, 0], np.cross(rel[:, 1], rel[:, 2]))
-    volume = np.bincount(label, weights=det, minlength=npieces)
-    turn = volume < 0
-    t = turn[label]
-    f[t, 1], f[t, 2] = f[t, 2], f[t, 1]
-    swapped = flip ^ turn[label]
+    kernel = lattice()
+    order = _einsum_order() if kernel is not None else -1
+    centre = pos.mean(axis=0)
+    done = None if order < 0 else kernel.repair_edges(f, nv, pos, centre, order)
+    if done is None:  # NumPy, or a Moebius band: the rounds' forest decides its flips
+        done = _orient(f, nv, pos, centre)
+    label, swapped, npieces, closed_pieces, outward, boundary, n_open, n_many = done
     out = Mesh(pos, f, source=mesh.source)
     # Its vertices are distinct and in lexicographic order (the first of
     # each merged group, in order): merging them by position numbers them
-    # as they are, so the lexicographic sort of that is not needed.
-    out._cache["geometric_faces"] = f
-    _known_edges(out, edge, count, forward ^ np.repeat(swapped, 3), ends)
-    return Repair(mesh=out, face=face, swapped=swapped, piece=label, merged_vertices=int(merged), welded=int(welded),
-                  degenerate=int(degenerate), duplicates=duplicates, opposite=opposite, inner=inner,
-                  flipped=int(np.count_nonzero(swapped)), pieces=npieces,
-                  closed_pieces=int(np.count_nonzero(closed_piece)),
-                  outward=int(np.count_nonzero(turn)))
+    # as they are, so the lexicographic sort of that is not needed; its
+    # edges are the table's, turned (see _orient).
+    out._cache.update(geometric_faces=f, boundary=boundary, non_manifold=n_many > 0,
+                      edge_counts=(n_open, n_many))
+    return Repair(mesh=out, face=face, swapped=swapped, piece=label, merged_vertices=int(merged),
+                  welded=int(welded), degenerate=int(degenerate), duplicates=duplicates,
+                  opposite=opposite, inner=inner, flipped=int(np.count_nonzero(swapped)),
+                  pieces=npieces, closed_pieces=closed_pieces, outward=outward)
