@@ -62,8 +62,10 @@ RES = 20
 #: Voxels the compiled first pass leaves undecided on MESH at RES (see the tests below):
 #: (0.4, 1e-4) with the moment- and segment-aware bounds of geovox/_winding.pyx and
 #: a single triangle's bound from its edges (78 with the face's bound alone; a
-#: first pass of (0.2, 1e-4) with the bound ``3 A (r + rb)^2 / (4 pi d^4)`` left 22).
-ESTIMATED_AT_ZERO = 70
+#: first pass of (0.2, 1e-4) with the bound ``3 A (r + rb)^2 / (4 pi d^4)`` left 22)
+#: left 70; MESH's caps are small next to its voxels, so ``captree.SCAN_PASS``
+#: (0.7, 1e-3) runs first and leaves 281 (the later passes decide the rest).
+ESTIMATED_AT_ZERO = 281
 
 
 def brute_winding_number(mesh, grid):
