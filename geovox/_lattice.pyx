@@ -561,10 +561,10 @@ def merge_positions(vertices):
     (not :attr:`geovox.mesh.Mesh.geometric_faces`' lexicographic order: this
     numbering serves questions that do not depend on it).
 
-    The table holds one 32-bit entry per distinct position and grows as they
-    come (at half full): a triangle soup (an STL file) has six corners at
-    each position, and a table sized for every vertex was 134 MB at
-    4.8 million vertices, most of this step's time in cache misses.
+    The table holds a 32-bit vertex index per distinct position, sized for
+    half the vertices and doubled when half full: a triangle soup (an STL
+    file) has six corners at each position, and a 64-bit table sized for
+    every vertex was 134 MB at 4.8 million vertices (2 GB at 77 million).
 
     Parameters
     ----------
@@ -584,38 +584,30 @@ def merge_positions(vertices):
     cdef int64_t[::1] out = out_a
     cdef const double *p = &v[0, 0]
     cdef uint64_t size = 1024, mask, h, s
-    while size < <uint64_t>n // 4:
+    while size < <uint64_t>n // 2:
         size *= 2
-    # The table holds position numbers; their coordinates sit in ``rep``, in
-    # number order (a compact array: far fewer cache misses than reading
-    # the representative vertex, and its number, where they lie).
     cdef int32_t *table = <int32_t *>malloc(size * sizeof(int32_t))
-    cdef double *rep = <double *>malloc(3 * n * sizeof(double))
     cdef int32_t *grown = NULL
     cdef int32_t k
     cdef int64_t count = 0
     cdef bint failed = False
-    cdef double x, y, z
-    if table == NULL or rep == NULL:
-        free(table)
-        free(rep)
+    if table == NULL:
         raise MemoryError()
     memset(table, 0xFF, size * sizeof(int32_t))  # -1 everywhere
     mask = size - 1
     with nogil:
         for i in range(n):
-            x, y, z = p[3 * i], p[3 * i + 1], p[3 * i + 2]
-            h = _position_hash(x, y, z) & mask
+            h = _position_hash(p[3 * i], p[3 * i + 1], p[3 * i + 2]) & mask
             while True:
                 k = table[h]
                 if k < 0:
-                    table[h] = <int32_t>count
-                    rep[3 * count], rep[3 * count + 1], rep[3 * count + 2] = x, y, z
+                    table[h] = <int32_t>i
                     out[i] = count
                     count += 1
                     break
-                if rep[3 * k] == x and rep[3 * k + 1] == y and rep[3 * k + 2] == z:
-                    out[i] = k
+                if p[3 * k] == p[3 * i] and p[3 * k + 1] == p[3 * i + 1] \
+                        and p[3 * k + 2] == p[3 * i + 2]:
+                    out[i] = out[k]
                     break
                 h = (h + 1) & mask
             if 2 * <uint64_t>count > size:  # half full: twice the size, every entry again
@@ -627,7 +619,7 @@ def merge_positions(vertices):
                 for s in range(size):
                     k = table[s]
                     if k >= 0:
-                        h = _position_hash(rep[3 * k], rep[3 * k + 1], rep[3 * k + 2]) \
+                        h = _position_hash(p[3 * k], p[3 * k + 1], p[3 * k + 2]) \
                             & (2 * size - 1)
                         while grown[h] >= 0:
                             h = (h + 1) & (2 * size - 1)
@@ -636,7 +628,6 @@ def merge_positions(vertices):
                 table = grown
                 size *= 2
                 mask = size - 1
-    free(rep)
     free(table)
     if failed:
         raise MemoryError()
@@ -916,19 +907,23 @@ def face_groups(faces):
     cdef Py_ssize_t k = fv.shape[0], f, e, e2
     cdef int64_t n = int(np.max(faces)) + 1 if k else 1
     start_a = np.zeros(n + 1, np.int64)
-    member_a = np.empty(k, np.int64)
-    rep_a = np.empty(k, np.int64)
+    if k >= 2147483647:
+        raise ValueError(f"face_groups: {k} faces, at most 2^31 - 1")
+    member_a = np.empty(k, np.int32)
+    rep_a = np.empty(k, np.int32)
     parity_a = np.empty(k, np.uint8)
-    cdef int64_t[::1] start = start_a, member = member_a, rep = rep_a
+    cdef int64_t[::1] start = start_a
+    cdef int32_t[::1] member = member_a, rep = rep_a
     cdef uint8_t[::1] parity = parity_a
     cdef int64_t a, b, c, a2, b2, c2, v, g, mark = 0
     cdef int rot
     cdef const int64_t *F = &fv[0, 0] if k else NULL
-    head_a = np.full(n, -1, np.int64)
-    nxt_a = np.empty(k, np.int64)
+    head_a = np.full(n, -1, np.int32)
+    nxt_a = np.empty(k, np.int32)
     stamp_a = np.full(n, -1, np.int64)
-    firstof_a = np.empty(n, np.int64)
-    cdef int64_t[::1] head = head_a, nxt = nxt_a, stamp = stamp_a, firstof = firstof_a
+    firstof_a = np.empty(n, np.int32)
+    cdef int32_t[::1] head = head_a, nxt = nxt_a, firstof = firstof_a
+    cdef int64_t[::1] stamp = stamp_a
     with nogil:
         for f in range(k):
             _sorted3(F + 3 * f, &a, &b, &c)
@@ -940,7 +935,7 @@ def face_groups(faces):
             start[v + 1] += start[v]
         for f in range(k):  # in face order: each bucket ascending
             _sorted3(F + 3 * f, &a, &b, &c)
-            member[start[a]] = f
+            member[start[a]] = <int32_t>f
             start[a] += 1
         for v in range(n - 1, -1, -1):  # back to the buckets' starts
             start[v + 1] = start[v]
@@ -949,7 +944,7 @@ def face_groups(faces):
             if start[v + 1] - start[v] <= SMALL:
                 for e in range(start[v], start[v + 1]):
                     f = member[e]
-                    rep[f] = f
+                    rep[f] = <int32_t>f
                     _sorted3(F + 3 * f, &a, &b, &c)
                     for e2 in range(start[v], e):
                         g = member[e2]
@@ -962,7 +957,7 @@ def face_groups(faces):
                 f = member[e]
                 _sorted3(F + 3 * f, &a, &b, &c)
                 nxt[f] = head[b]
-                head[b] = f
+                head[b] = <int32_t>f
             for e in range(start[v], start[v + 1]):
                 _sorted3(F + 3 * member[e], &a, &b, &c)
                 g = head[b]
@@ -973,7 +968,7 @@ def face_groups(faces):
                     _sorted3(F + 3 * g, &a2, &b2, &c2)
                     if stamp[c2] != mark:
                         stamp[c2] = mark
-                        firstof[c2] = g
+                        firstof[c2] = <int32_t>g
                     rep[g] = firstof[c2]
                     g = nxt[g]
                 mark += 1

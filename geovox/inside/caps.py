@@ -132,7 +132,8 @@ def capped(mesh: Mesh, small: bool = False):
     -------
     closed : Mesh
         ``mesh`` itself when it has no boundary; else its faces followed by
-        the cap triangles.
+        the cap triangles (for a repaired copy, in the room its arrays have
+        after them: the first closed mesh made of it shares them).
     cap_tris : (k, 3, 3) float64
     piece : (k,) int64
     """
@@ -142,9 +143,17 @@ def capped(mesh: Mesh, small: bool = False):
     cap_tris, piece = caps(mesh, boundary_edges(mesh), small)
     closed = mesh
     if len(cap_tris):
-        verts = np.concatenate([mesh.vertices, cap_tris.reshape(-1, 3)])
-        cap_faces = len(mesh.vertices) + np.arange(3 * len(cap_tris)).reshape(-1, 3)
-        closed = Mesh(verts, np.concatenate([mesh.faces, cap_faces]), source=mesh.source)
+        nv, nf, k = len(mesh.vertices), len(mesh.faces), len(cap_tris)
+        cap_faces = nv + np.arange(3 * k).reshape(-1, 3)
+        room = mesh._cache.pop("room", None)  # a repaired copy's (see geovox.inside.repair)
+        if room is not None and mesh.vertices.base is room[0] and mesh.faces.base is room[1] \
+                and len(room[0]) >= nv + 3 * k and len(room[1]) >= nf + k:
+            room[0][nv:nv + 3 * k], room[1][nf:nf + k] = cap_tris.reshape(-1, 3), cap_faces
+            verts, faces = room[0][:nv + 3 * k], room[1][:nf + k]
+        else:
+            verts = np.concatenate([mesh.vertices, cap_tris.reshape(-1, 3)])
+            faces = np.concatenate([mesh.faces, cap_faces])
+        closed = Mesh(verts, faces, source=mesh.source)
     mesh._cache[key] = (closed, cap_tris, piece)
     return mesh._cache[key]
 

@@ -349,6 +349,32 @@ def _face_groups(w: np.ndarray, nv: int):
     return first[order], renumber[inverse.reshape(-1)], nxt < prv
 
 
+def _unique_faces(g: np.ndarray, keep: np.ndarray, nv: int):
+    """The faces of ``g[keep]`` that stay: duplicates collapsed to the first, inner walls dropped.
+
+    Duplicates have the same vertex set; the first face of each set stays.
+    Vertex sets stored both ways round keep one side, unless they make up an
+    inner wall (see :func:`_inner_walls`), which goes on both sides.
+
+    Returns
+    -------
+    face : (k,) int64
+        Indices into ``g`` of the faces that stay, increasing.
+    duplicates, opposite, inner : int
+        Faces dropped as exact duplicates, as reversed sides, as inner walls.
+    """
+    first, inverse, parity = _face_groups(g if len(keep) == len(g) else g[keep], nv)
+    dropped = np.ones(len(keep), dtype=bool)
+    dropped[first] = False
+    same = parity == parity[first[inverse]]
+    duplicates = int(np.count_nonzero(dropped & same))
+    opposite = int(np.count_nonzero(dropped & ~same))
+    both = np.zeros(len(first), dtype=bool)
+    both[inverse[~same]] = True
+    wall = _inner_walls(g[keep[first]], both, nv) if both.any() else np.zeros(len(first), bool)
+    return keep[first[~wall]], duplicates, opposite, int(np.count_nonzero(wall))
+
+
 def _orient(f: np.ndarray, nv: int, pos: np.ndarray, centre: np.ndarray):
     """Orient the faces ``f`` (turned in place) across manifold edges and each piece outward.
 
@@ -504,7 +530,10 @@ def repair(mesh: Mesh) -> Repair:
     g, pos, welded = _weld(g, pos, WELD * mesh.scale)
     nv = len(pos)
     # Every merged vertex is used (pos holds only those): a count, not a sort.
-    merged = int(np.count_nonzero(np.bincount(mesh.faces.reshape(-1)))) - nv
+    used = np.zeros(len(mesh.vertices), bool)
+    used[mesh.faces.reshape(-1)] = True
+    merged = int(np.count_nonzero(used)) - nv
+    del used
 
     keep = np.flatnonzero(_proper(pos, g))
     degenerate = len(g) - len(keep)
@@ -513,22 +542,14 @@ def repair(mesh: Mesh) -> Repair:
                       face=keep, swapped=np.zeros(0, bool), piece=np.zeros(0, np.int64),
                       merged_vertices=int(merged), welded=int(welded), degenerate=int(degenerate))
 
-    # Duplicates: the same vertex set; the first face of each set stays.
-    first, inverse, parity = _face_groups(g[keep], nv)
-    dropped = np.ones(len(keep), dtype=bool)
-    dropped[first] = False
-    same = parity == parity[first[inverse]]
-    duplicates = int(np.count_nonzero(dropped & same))
-    opposite = int(np.count_nonzero(dropped & ~same))
-    # Vertex sets stored both ways round: one side kept, unless they make up
-    # an inner wall (see _inner_walls), which goes on both sides.
-    both = np.zeros(len(first), dtype=bool)
-    both[inverse[~same]] = True
-    wall = _inner_walls(g[keep[first]], both, nv)
-    inner = int(np.count_nonzero(wall))
-    first = first[~wall]
-    face = keep[first]
+    face, duplicates, opposite, inner = _unique_faces(g, keep, nv)
     f = g[face]
+    # The faces over merged positions served the checks and this repair (two
+    # arrays the size of the faces): the copy is what the winding number
+    # needs from here. Asked again, they are made again.
+    del g, keep
+    mesh._cache.pop("merged_faces", None)
+    mesh._cache.pop("position_faces", None)
 
     kernel = lattice()
     order = _einsum_order() if kernel is not None else -1
@@ -537,13 +558,20 @@ def repair(mesh: Mesh) -> Repair:
     if done is None:  # NumPy, or a Moebius band: the rounds' forest decides its flips
         done = _orient(f, nv, pos, centre)
     label, swapped, npieces, closed_pieces, outward, boundary, n_open, n_many = done
+    # The copy's arrays with room after them for its caps (at most one cap
+    # triangle an open edge, three vertices each): the mesh closed by them
+    # (geovox.inside.caps.capped) is then the copy's arrays and a few rows
+    # more, not a second copy of every face (untouched room costs nothing).
+    room = (np.empty((nv + 3 * len(boundary), 3)), np.empty((len(f) + len(boundary), 3), np.int64))
+    room[0][:nv], room[1][:len(f)] = pos, f
+    pos, f = room[0][:nv], room[1][:len(f)]
     out = Mesh(pos, f, source=mesh.source)
     # Its vertices are distinct and in lexicographic order (the first of
     # each merged group, in order): merging them by position numbers them
     # as they are, so the lexicographic sort of that is not needed; its
     # edges are the table's, turned (see _orient).
     out._cache.update(geometric_faces=f, boundary=boundary, non_manifold=n_many > 0,
-                      edge_counts=(n_open, n_many))
+                      edge_counts=(n_open, n_many), room=room)
     return Repair(mesh=out, face=face, swapped=swapped, piece=label, merged_vertices=int(merged),
                   welded=int(welded), degenerate=int(degenerate), duplicates=duplicates,
                   opposite=opposite, inner=inner, flipped=int(np.count_nonzero(swapped)),
