@@ -1316,6 +1316,11 @@ cdef inline double _dot3(double p0, double p1, double p2, int order) noexcept no
     return p0 + (p1 + p2)
 
 
+#: repair_edges' answers where it leaves the work to its caller.
+DUPLICATES = 1
+CONTRADICTION = 2
+
+
 def repair_edges(int64_t[:, ::1] f, int64_t nv, const double[:, ::1] pos,
                  const double[::1] centre, int order):
     """The repair's steps after the duplicates, over the kept faces, in one pass each.
@@ -1328,7 +1333,7 @@ def repair_edges(int64_t[:, ::1] f, int64_t nv, const double[:, ::1] pos,
     edges (the root of a piece is its lowest face, so the parities and the
     pieces' numbers are those of :func:`components`' rounds wherever the
     parities agree; where they contradict, a Moebius band, the forest's
-    choice decides, and this returns None for the caller to run the rounds);
+    choice decides, and this returns ``CONTRADICTION`` for the caller to run the rounds);
     each piece turned outward by its signed volume about the centroid of its
     open edges' midpoints (or of its faces), with NumPy's arithmetic
     operation for operation: the sums in face order (``np.bincount``),
@@ -1337,12 +1342,18 @@ def repair_edges(int64_t[:, ::1] f, int64_t nv, const double[:, ::1] pos,
     ``(p0 + p2) + p1``, 2: ``p0 + (p1 + p2)``; the caller finds out); and
     the copy's open edges with their final directions.
 
+    Two faces with the same vertex set (a duplicate, or the other side of a
+    double-sided face) share every edge and its third vertex: where some do,
+    this returns ``DUPLICATES`` before it turns any face, for the caller to
+    collapse them first (:func:`face_groups`) and call again; a scan has
+    none, and needs no pass of its own to find that out.
+
     Parameters
     ----------
     f : (nf, 3) int64, written
-        Faces over vertex ids ``< nv`` (lexicographic), no repeated vertex,
-        no two with the same vertex set. Turned in place (vertices 1 and 2
-        swapped) where the repair turns them.
+        Faces over vertex ids ``< nv`` (lexicographic), no repeated vertex.
+        Turned in place (vertices 1 and 2 swapped) where the repair turns
+        them (not where this returns a code).
     nv : int
     pos : (nv, 3) float64
     centre : (3,) float64
@@ -1351,7 +1362,8 @@ def repair_edges(int64_t[:, ::1] f, int64_t nv, const double[:, ::1] pos,
 
     Returns
     -------
-    None, or a tuple:
+    ``DUPLICATES``, ``CONTRADICTION`` (the flips contradict: a Moebius band),
+    or a tuple:
     label : (nf,) int64
         Each face's piece, numbered by their lowest face.
     swapped : (nf,) bool
@@ -1396,8 +1408,9 @@ def repair_edges(int64_t[:, ::1] f, int64_t nv, const double[:, ::1] pos,
     cdef uint8_t[::1] par = par_a, flags = flags_a
     cdef int32_t ra, rb, fa, fb
     cdef uint8_t pa, pb, odd
-    cdef bint contradiction = False
+    cdef bint contradiction = False, duplicates = False
     cdef int64_t n_open = 0, n_many = 0
+    cdef Py_ssize_t q2, j2
     with nogil:
         for i in range(3 * nf):  # in slot order: every bucket starts sorted by slot
             a, b = F[i], F[i - i % 3 + (i % 3 + 1) % 3]
@@ -1415,6 +1428,12 @@ def repair_edges(int64_t[:, ::1] f, int64_t nv, const double[:, ::1] pos,
                 while e1 < start[v + 1] and hi[e1] == hi[e0]:
                     e1 += 1
                 run = e1 - e0
+                for t in range(e0, e1 - 1):  # faces on this edge with the same third vertex: one vertex set
+                    i = slot[t] >> 1
+                    for q2 in range(t + 1, e1):
+                        j2 = slot[q2] >> 1
+                        if F[i - i % 3 + (i % 3 + 2) % 3] == F[j2 - j2 % 3 + (j2 % 3 + 2) % 3]:
+                            duplicates = True
                 if run == 2:
                     fa, fb = <int32_t>((slot[e0] >> 1) // 3), <int32_t>((slot[e0 + 1] >> 1) // 3)
                     odd = (slot[e0] & 1) == (slot[e0 + 1] & 1)
@@ -1436,8 +1455,10 @@ def repair_edges(int64_t[:, ::1] f, int64_t nv, const double[:, ::1] pos,
                         if run == 1:
                             flags[fa] |= 1 << ((slot[t] >> 1) % 3)
                 e0 = e1
+    if duplicates:
+        return DUPLICATES
     if contradiction:
-        return None
+        return CONTRADICTION
     label_a = np.empty(nf, np.int64)
     flip_a = np.empty(nf, np.uint8)
     cdef int64_t[::1] label = label_a
