@@ -428,8 +428,23 @@ def edge_checks(faces):
     return bool(closed), bool(n_many > 0), int(n_open), int(n_many)
 
 
+cdef inline void _sorted3(const int64_t *f, int64_t *p0, int64_t *p1, int64_t *p2) noexcept nogil:
+    cdef int64_t a = f[0], b = f[1], c = f[2]
+    if a > b:
+        a, b = b, a
+    if b > c:
+        b, c = c, b
+    if a > b:
+        a, b = b, a
+    p0[0], p1[0], p2[0] = a, b, c
+
+
 def duplicate_faces(faces):
     """Whether two faces use the same three vertices (in any order), in linear time.
+
+    Consecutive faces first (no memory: a file of one triangle repeated
+    answers at its second face), then faces bucketed by their lowest
+    vertex, chained by their middle one, and a stamp per highest vertex.
 
     Parameters
     ----------
@@ -437,60 +452,67 @@ def duplicate_faces(faces):
     """
     cdef const int64_t[:, ::1] fv = np.ascontiguousarray(faces, dtype=np.int64)
     cdef Py_ssize_t f, m = fv.shape[0]
-    cdef int64_t n = int(np.max(faces)) + 1 if m else 1
-    s_a = np.empty((m, 3), np.int64)
-    cdef int64_t[:, ::1] s = s_a
-    cdef int64_t p, q, r
-    for f in range(m):  # each row sorted ascending
-        p, q, r = fv[f, 0], fv[f, 1], fv[f, 2]
-        if p > q:
-            p, q = q, p
-        if q > r:
-            q, r = r, q
-        if p > q:
-            p, q = q, p
-        s[f, 0], s[f, 1], s[f, 2] = p, q, r
+    if m >= 2147483647:
+        raise ValueError(f"duplicate_faces: {m} faces, at most 2^31 - 1")
+    if m < 2:
+        return False
+    cdef const int64_t *F = &fv[0, 0]
+    cdef int64_t p, q, r, p2, q2, r2
+    _sorted3(F, &p2, &q2, &r2)
+    for f in range(1, m):
+        _sorted3(F + 3 * f, &p, &q, &r)
+        if p == p2 and q == q2 and r == r2:
+            return True
+        p2, q2, r2 = p, q, r
+    cdef int64_t n = int(np.max(faces)) + 1
     start_a = np.zeros(n + 1, np.int64)
     cdef int64_t[::1] start = start_a
     for f in range(m):
-        start[s[f, 0] + 1] += 1
+        _sorted3(F + 3 * f, &p, &q, &r)
+        start[p + 1] += 1
     cdef int64_t v, e, g, x
     for v in range(n):
         start[v + 1] += start[v]
-    member_a = np.empty(m, np.int64)
+    member_a = np.empty(m, np.int32)
     pos_a = start_a[:n].copy()
-    cdef int64_t[::1] member = member_a, pos = pos_a
+    cdef int32_t[::1] member = member_a
+    cdef int64_t[::1] pos = pos_a
     for f in range(m):
-        member[pos[s[f, 0]]] = f
-        pos[s[f, 0]] += 1
+        _sorted3(F + 3 * f, &p, &q, &r)
+        member[pos[p]] = <int32_t>f
+        pos[p] += 1
+    del pos_a
     # Within a bucket (same lowest vertex): faces chained by middle vertex,
     # then a stamp per highest vertex finds a repeat.
-    head_a = np.full(n, -1, np.int64)
-    nxt_a = np.empty(m, np.int64)
+    head_a = np.full(n, -1, np.int32)
+    nxt_a = np.empty(m, np.int32)
     stamp_a = np.full(n, -1, np.int64)
-    cdef int64_t[::1] head = head_a, nxt = nxt_a, stamp = stamp_a
+    cdef int32_t[::1] head = head_a, nxt = nxt_a
+    cdef int64_t[::1] stamp = stamp_a
     cdef int64_t mark = 0, a, b, e2
     for v in range(n):
         a, b = start[v], start[v + 1]
         if b - a <= SMALL:
             for e in range(a, b):
-                f = member[e]
+                _sorted3(F + 3 * member[e], &p, &q, &r)
                 for e2 in range(e + 1, b):
-                    g = member[e2]
-                    if s[f, 1] == s[g, 1] and s[f, 2] == s[g, 2]:
+                    _sorted3(F + 3 * member[e2], &p2, &q2, &r2)
+                    if q == q2 and r == r2:
                         return True
             continue
         for e in range(a, b):
             f = member[e]
-            nxt[f] = head[s[f, 1]]
-            head[s[f, 1]] = f
+            _sorted3(F + 3 * f, &p, &q, &r)
+            nxt[f] = head[q]
+            head[q] = <int32_t>f
         for e in range(start[v], start[v + 1]):
-            g = head[s[member[e], 1]]
+            _sorted3(F + 3 * member[e], &p, &q, &r)
+            g = head[q]
             if g < 0:
                 continue
-            head[s[member[e], 1]] = -1
+            head[q] = -1
             while g >= 0:
-                x = s[g, 2]
+                _sorted3(F + 3 * g, &p2, &q2, &x)
                 if stamp[x] == mark:
                     return True
                 stamp[x] = mark
@@ -865,17 +887,6 @@ cdef inline uint64_t _mix3(uint64_t x, uint64_t y, uint64_t z) noexcept nogil:
     h = (h ^ (h >> 29) ^ y) * 0xBF58476D1CE4E5B9ULL
     h = (h ^ (h >> 32) ^ z) * 0x94D049BB133111EBULL
     return h ^ (h >> 31)
-
-
-cdef inline void _sorted3(const int64_t *f, int64_t *p0, int64_t *p1, int64_t *p2) noexcept nogil:
-    cdef int64_t a = f[0], b = f[1], c = f[2]
-    if a > b:
-        a, b = b, a
-    if b > c:
-        b, c = c, b
-    if a > b:
-        a, b = b, a
-    p0[0], p1[0], p2[0] = a, b, c
 
 
 def face_groups(faces):

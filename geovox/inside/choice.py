@@ -18,6 +18,7 @@ from __future__ import annotations
 import os
 
 from ..errors import ParameterError, warn
+from ..memory import check_mesh_memory
 from ..mesh import Mesh
 from ..options import Inside
 from .edges import boundary_edges, consistent, edge_counts, overlapping_pieces
@@ -42,9 +43,37 @@ def target(mesh: Mesh):
         if consistent(mesh):
             mesh._cache["target"] = (mesh, None)
         else:
+            n_open = edge_counts(mesh)[0]
+            name = os.path.basename(mesh.source) if isinstance(mesh.source, str) and mesh.source \
+                else "the mesh"
+            check_mesh_memory(
+                working_memory(len(mesh.faces), mesh._cache.get("positions", len(mesh.vertices)),
+                               n_open),
+                f"{name}: the winding number of a repaired copy ({len(mesh.faces):,} triangles, "
+                f"{n_open:,} open edges)",
+                "use --inside parity or vote (no repair), or a machine with more memory")
             rep = repair(mesh)
             mesh._cache["target"] = (rep.mesh, rep)
     return mesh._cache["target"]
+
+
+def working_memory(faces: int, positions: int, open_edges: int) -> float:
+    """Bytes the winding number of an open or broken mesh needs beside the mesh, at its peak.
+
+    From counts known before the work (the closedness check gives them):
+    the repair (the faces over merged positions, their edge table and the
+    copy, about 120 bytes a face and 64 a position, measured at its peak on
+    the scans of ``benchmarks/bench_triangles.py``), then the copy closed by
+    its caps and the rays cast through it (about 150 bytes a face), and the
+    caps with their tree (about 600 bytes an open edge, with room to spare).
+    The grid's own arrays are checked apart (:func:`geovox.memory.check_memory`).
+
+    Parameters
+    ----------
+    faces, positions, open_edges : int
+        The mesh's triangles, distinct vertex positions and open edges.
+    """
+    return 150.0 * faces + 64.0 * positions + 600.0 * open_edges
 
 
 def choose(mesh: Mesh, method: str) -> Inside:

@@ -136,7 +136,9 @@ def position_faces(mesh: Mesh, module) -> np.ndarray:
         if "geometric_faces" in mesh._cache:
             mesh._cache["position_faces"] = mesh.geometric_faces
         else:
-            mesh._cache["position_faces"] = module.merge_positions(mesh.vertices)[mesh.faces]
+            ids = module.merge_positions(mesh.vertices)
+            mesh._cache["position_faces"] = ids[mesh.faces]
+            mesh._cache["positions"] = int(ids.max()) + 1 if len(ids) else 0
     return mesh._cache["position_faces"]
 
 

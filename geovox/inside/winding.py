@@ -97,9 +97,14 @@ def winding_occupancy(mesh: Mesh, grid, cast, axis: int, jobs: int = 1):
         every voxel is proven or summed exactly.
     """
     tmesh, rep = target(mesh)
-    if len(tmesh.faces) == 0:  # every face degenerate: no crossings, nothing inside
-        hits, columns = cast(mesh, axis)
-        return np.zeros(grid.shape, dtype=bool, order="F"), hits, columns, 0
+    if len(tmesh.faces) == 0:  # every face degenerate: nothing inside
+        # The columns are the whole mesh's (its bounds); the rays are cast
+        # through one of its faces, not every degenerate one (a file of 40
+        # million zero-area triangles cast them all, for no crossing).
+        stand_in = Mesh(mesh.vertices, mesh.faces[:1], source=mesh.source)
+        stand_in._cache["bounds"] = mesh.bounds
+        hits, columns = cast(stand_in, axis)
+        return np.zeros(grid.shape, dtype=bool, order="F"), hits.take(hits.triangle < 0), columns, 0
     closed, cap_tris, _ = bridged(tmesh)
     nf = len(tmesh.faces)
     check_memory(grid, 1.0 + working_bytes(mesh, "winding"))
