@@ -1275,19 +1275,20 @@ cdef inline int32_t _find(int32_t *parent, uint8_t *par, int32_t x, uint8_t *px)
     return r
 
 
-cdef void _sort_hi(int32_t *hi, uint32_t *slot, int32_t *th, uint32_t *ts, Py_ssize_t n) noexcept nogil:
-    """Stable sort of ``hi[:n]`` carrying ``slot``: insertion for a few, else merging."""
+cdef void _sort_entries(int32_t *hi, uint32_t *slot, int32_t *third, int32_t *th, uint32_t *ts,
+                        int32_t *tt, Py_ssize_t n) noexcept nogil:
+    """Stable sort of ``hi[:n]`` carrying ``slot`` and ``third``: insertion for a few, else merging."""
     cdef Py_ssize_t i, j, w, lo, mid, end, p, q, o
-    cdef int32_t h
+    cdef int32_t h, x
     cdef uint32_t s
     if n <= SMALL:
         for i in range(1, n):
-            h, s = hi[i], slot[i]
+            h, s, x = hi[i], slot[i], third[i]
             j = i - 1
             while j >= 0 and hi[j] > h:
-                hi[j + 1], slot[j + 1] = hi[j], slot[j]
+                hi[j + 1], slot[j + 1], third[j + 1] = hi[j], slot[j], third[j]
                 j -= 1
-            hi[j + 1], slot[j + 1] = h, s
+            hi[j + 1], slot[j + 1], third[j + 1] = h, s, x
         return
     w = 1
     while w < n:
@@ -1298,23 +1299,23 @@ cdef void _sort_hi(int32_t *hi, uint32_t *slot, int32_t *th, uint32_t *ts, Py_ss
             p, q, o = lo, mid, lo
             while p < mid and q < end:
                 if hi[q] < hi[p]:
-                    th[o], ts[o] = hi[q], slot[q]
+                    th[o], ts[o], tt[o] = hi[q], slot[q], third[q]
                     q += 1
                 else:
-                    th[o], ts[o] = hi[p], slot[p]
+                    th[o], ts[o], tt[o] = hi[p], slot[p], third[p]
                     p += 1
                 o += 1
             while p < mid:
-                th[o], ts[o] = hi[p], slot[p]
+                th[o], ts[o], tt[o] = hi[p], slot[p], third[p]
                 p += 1
                 o += 1
             while q < end:
-                th[o], ts[o] = hi[q], slot[q]
+                th[o], ts[o], tt[o] = hi[q], slot[q], third[q]
                 q += 1
                 o += 1
             lo = end
         for i in range(n):
-            hi[i], slot[i] = th[i], ts[i]
+            hi[i], slot[i], third[i] = th[i], ts[i], tt[i]
         w *= 2
 
 
@@ -1385,10 +1386,10 @@ def repair_edges(int64_t[:, ::1] f, int64_t nv, const double[:, ::1] pos,
     open, non_manifold_edges : int
         Edges used once, and more than twice.
     """
-    cdef Py_ssize_t nf = f.shape[0], i, t
+    cdef Py_ssize_t nf = f.shape[0], i, t, q2, j2
     if nf >= (1 << 30) or nv >= 2147483647:
         raise ValueError(f"repair_edges: {nf} faces over {nv} vertices, too many for its tables")
-    cdef int k, j
+    cdef int j
     cdef int64_t a, b, lo, v, e0, e1, run, big = 0
     start_a = np.zeros(nv + 1, np.int64)
     cdef int64_t[::1] start = start_a
@@ -1402,15 +1403,18 @@ def repair_edges(int64_t[:, ::1] f, int64_t nv, const double[:, ::1] pos,
                 big = start[v + 1]
             start[v + 1] += start[v]
     cdef Py_ssize_t q = start[nv]
+    # Per entry of a bucket: the higher vertex, the slot (2 (3 face + j) +
+    # whether the face runs the edge from low to high) and the face's third
+    # vertex (two faces on an edge with the same third one are duplicates).
     hi_a = np.empty(q, np.int32)
-    slot_a = np.empty(q, np.uint32)  # 2 (3 face + j) + (the face runs it from low to high)
-    at_a = start_a[:nv].copy()
-    cdef int32_t[::1] hi = hi_a
+    slot_a = np.empty(q, np.uint32)
+    third_a = np.empty(q, np.int32)
+    cdef int32_t[::1] hi = hi_a, third = third_a
     cdef uint32_t[::1] slot = slot_a
-    cdef int64_t[::1] at = at_a
     th_a = np.empty(big if big > SMALL else 1, np.int32)
     ts_a = np.empty(big if big > SMALL else 1, np.uint32)
-    cdef int32_t[::1] th = th_a
+    tt_a = np.empty(big if big > SMALL else 1, np.int32)
+    cdef int32_t[::1] th = th_a, tt = tt_a
     cdef uint32_t[::1] ts = ts_a
     parent_a = np.arange(nf, dtype=np.int32)
     par_a = np.zeros(nf, np.uint8)
@@ -1421,17 +1425,22 @@ def repair_edges(int64_t[:, ::1] f, int64_t nv, const double[:, ::1] pos,
     cdef uint8_t pa, pb, odd
     cdef bint contradiction = False, duplicates = False
     cdef int64_t n_open = 0, n_many = 0
-    cdef Py_ssize_t q2, j2
     with nogil:
         for i in range(3 * nf):  # in slot order: every bucket starts sorted by slot
             a, b = F[i], F[i - i % 3 + (i % 3 + 1) % 3]
             lo = a if a < b else b
-            hi[at[lo]] = <int32_t>(b if a < b else a)
-            slot[at[lo]] = <uint32_t>(2 * i + (a < b))
-            at[lo] += 1
+            e0 = start[lo]  # the bucket's next entry (start moves on; set back below)
+            hi[e0] = <int32_t>(b if a < b else a)
+            slot[e0] = <uint32_t>(2 * i + (a < b))
+            third[e0] = <int32_t>F[i - i % 3 + (i % 3 + 2) % 3]
+            start[lo] = e0 + 1
+        for v in range(nv - 1, -1, -1):  # each bucket's start back
+            start[v + 1] = start[v]
+        start[0] = 0
         for v in range(nv):
             if start[v + 1] - start[v] > 1:
-                _sort_hi(&hi[start[v]], &slot[start[v]], &th[0], &ts[0], start[v + 1] - start[v])
+                _sort_entries(&hi[start[v]], &slot[start[v]], &third[start[v]], &th[0], &ts[0],
+                              &tt[0], start[v + 1] - start[v])
         for v in range(nv):
             e0 = start[v]
             while e0 < start[v + 1]:
@@ -1439,11 +1448,9 @@ def repair_edges(int64_t[:, ::1] f, int64_t nv, const double[:, ::1] pos,
                 while e1 < start[v + 1] and hi[e1] == hi[e0]:
                     e1 += 1
                 run = e1 - e0
-                for t in range(e0, e1 - 1):  # faces on this edge with the same third vertex: one vertex set
-                    i = slot[t] >> 1
+                for t in range(e0, e1 - 1):  # one third vertex twice: one vertex set
                     for q2 in range(t + 1, e1):
-                        j2 = slot[q2] >> 1
-                        if F[i - i % 3 + (i % 3 + 2) % 3] == F[j2 - j2 % 3 + (j2 % 3 + 2) % 3]:
+                        if third[t] == third[q2]:
                             duplicates = True
                 if run == 2:
                     fa, fb = <int32_t>((slot[e0] >> 1) // 3), <int32_t>((slot[e0 + 1] >> 1) // 3)
@@ -1466,15 +1473,29 @@ def repair_edges(int64_t[:, ::1] f, int64_t nv, const double[:, ::1] pos,
                         if run == 1:
                             flags[fa] |= 1 << ((slot[t] >> 1) % 3)
                 e0 = e1
+    del third_a, tt_a
     if duplicates:
         return DUPLICATES
     if contradiction:
         return CONTRADICTION
+    # Outward (repair's NumPy step): per piece, the centroid c of its open
+    # edges' midpoints (each open slot's vertex and the next one round the
+    # face, as turned), else of its faces' centroids, then the signed volume
+    # of its faces about c. Every sum runs in face order, as np.bincount's.
     label_a = np.empty(nf, np.int64)
     flip_a = np.empty(nf, np.uint8)
     cdef int64_t[::1] label = label_a
     cdef uint8_t[::1] flip = flip_a
     cdef int64_t npieces = 0
+    sums_a = np.zeros((nf if nf else 1, 3), np.float64)  # per piece (at most nf); trimmed below
+    nopen_a = np.zeros(nf if nf else 1, np.int64)
+    bad_a = np.zeros(nf if nf else 1, np.uint8)
+    cdef double[:, ::1] sums = sums_a
+    cdef int64_t[::1] nopen = nopen_a
+    cdef uint8_t[::1] bad = bad_a
+    cdef const double *P = &pos[0, 0]
+    cdef double c0 = centre[0], c1 = centre[1], c2 = centre[2]
+    cdef int64_t l, u0, u1, u2
     with nogil:
         for i in range(nf):  # roots are their pieces' lowest faces: numbered in order
             ra = _find(&parent[0], &par[0], <int32_t>i, &pa)
@@ -1486,27 +1507,6 @@ def repair_edges(int64_t[:, ::1] f, int64_t nv, const double[:, ::1] pos,
                 label[i] = label[ra]
             if pa:
                 F[3 * i + 1], F[3 * i + 2] = F[3 * i + 2], F[3 * i + 1]
-    # Outward (repair's NumPy step): per piece, the centroid c of its open
-    # edges' midpoints (each open slot's vertex and the next one round the
-    # face, as turned), else of its faces' centroids, then the signed volume
-    # of its faces about c.
-    sums_a = np.zeros((npieces, 3), np.float64)
-    all_a = np.zeros((npieces, 3), np.float64)
-    nopen_a = np.zeros(npieces, np.int64)
-    nface_a = np.zeros(npieces, np.int64)
-    vol_a = np.zeros(npieces, np.float64)
-    bad_a = np.zeros(npieces, np.uint8)
-    cdef double[:, ::1] sums = sums_a, alls = all_a
-    cdef int64_t[::1] nopen = nopen_a, nface = nface_a
-    cdef double[::1] vol = vol_a
-    cdef uint8_t[::1] bad = bad_a
-    cdef const double *P = &pos[0, 0]
-    cdef double c0 = centre[0], c1 = centre[1], c2 = centre[2]
-    cdef double r[9]
-    cdef double fc0, fc1, fc2, x0, x1, x2
-    cdef int64_t l, u0, u1, u2
-    with nogil:
-        for i in range(nf):
             l = label[i]
             if flags[i] & 8:
                 bad[l] = 1
@@ -1517,6 +1517,20 @@ def repair_edges(int64_t[:, ::1] f, int64_t nv, const double[:, ::1] pos,
                     sums[l, 1] += (P[3 * a + 1] + P[3 * b + 1]) / 2 - c1
                     sums[l, 2] += (P[3 * a + 2] + P[3 * b + 2]) / 2 - c2
                     nopen[l] += 1
+    del parent_a, par_a
+    all_a = np.zeros((npieces, 3), np.float64)
+    nface_a = np.zeros(npieces, np.int64)
+    vol_a = np.zeros(npieces, np.float64)
+    cdef double[:, ::1] alls = all_a
+    cdef int64_t[::1] nface = nface_a
+    cdef double[::1] vol = vol_a
+    cdef double r[9]
+    cdef double x0, x1, x2
+    with nogil:
+        for i in range(nf):  # faces' centroids: only a piece without open edges uses them
+            l = label[i]
+            if nopen[l] > 0:
+                continue
             u0, u1, u2 = F[3 * i], F[3 * i + 1], F[3 * i + 2]
             # vt.mean(axis=1): a sum from 0.0, in order, over 3
             alls[l, 0] += (((0.0 + (P[3 * u0] - c0)) + (P[3 * u1] - c0)) + (P[3 * u2] - c0)) / 3
@@ -1582,7 +1596,7 @@ def repair_edges(int64_t[:, ::1] f, int64_t nv, const double[:, ::1] pos,
                     boundary[nb, 1] = hi[e0] if net > 0 else v
                     nb += 1
                 e0 = e1
-    closed = int(npieces - np.count_nonzero(bad_a))
+    closed = int(npieces - np.count_nonzero(bad_a[:npieces]))
     return (label_a, swapped_a.view(bool), int(npieces), closed,
             int(np.count_nonzero(turn_a)), boundary_a, int(n_open), int(n_many))
 
