@@ -137,6 +137,18 @@ def exact_sums(tris, points):
     return wk.reshape(k, -1).sum(axis=1)
 
 
+def _morton_sorted(tris):
+    """(k, 3, 3) float64: the cap triangles in Morton order of their centroids (10 bits an axis), stably."""
+    cen = tris.mean(axis=1)
+    lo, hi = cen.min(axis=0), cen.max(axis=0)
+    q = ((cen - lo) / max(float((hi - lo).max()), 1e-300) * 1023).astype(np.int64)
+    code = np.zeros(len(tris), dtype=np.int64)
+    for bit in range(10):
+        for k in range(3):
+            code |= ((q[:, k] >> bit) & 1) << (3 * bit + k)
+    return tris[np.argsort(code, kind="stable")]
+
+
 def _cap_tree(tris):
     """A binary tree over the cap triangles, in Morton order, as flat arrays.
 
@@ -153,14 +165,7 @@ def _cap_tree(tris):
     offset : list of int
         Index of each level's first node in the flat arrays; ``size`` per level.
     """
-    cen = tris.mean(axis=1)
-    lo, hi = cen.min(axis=0), cen.max(axis=0)
-    q = ((cen - lo) / max(float((hi - lo).max()), 1e-300) * 1023).astype(np.int64)
-    code = np.zeros(len(tris), dtype=np.int64)
-    for bit in range(10):
-        for k in range(3):
-            code |= ((q[:, k] >> bit) & 1) << (3 * bit + k)
-    tris = tris[np.argsort(code, kind="stable")]
+    tris = _morton_sorted(tris)
     S = 0.5 * np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
     A = np.linalg.norm(S, axis=1)
     blo, bhi = tris.min(axis=1), tris.max(axis=1)
@@ -722,8 +727,8 @@ def _compiled_caps(module, occ, w, grid, cap_tris, jobs) -> None:
     """:func:`correct_caps` in the compiled kernel (``geovox/_winding.pyx``).
 
     The first pass over bricks, as :func:`cap_winding`'s but to second order
-    (``COMPILED_PASSES[0]``, after ``SCAN_PASS`` where the caps are small), then tighter ones over the bricks that hold
-    the voxels left undecided (``COMPILED_BRICKS`` in all); each voxel still
+    (``COMPILED_PASSES[0]``, after ``SCAN_PASS`` where the caps are small),
+    then tighter ones over the bricks that hold the voxels left undecided (``COMPILED_BRICKS`` in all); each voxel still
     undecided is refined alone at once by the voxels' passes, then summed
     exactly over every cap triangle. Only past ``WORK_SECONDS`` of processor
     time per thread is an undecided voxel left to its estimate.
@@ -733,63 +738,24 @@ def _compiled_caps(module, occ, w, grid, cap_tris, jobs) -> None:
     (nx, ny, nz) bool or None
         The voxels left to their estimates, or None.
     """
-    tris, nodes, offset, size = _cap_tree(cap_tris)
+    # The tree of _cap_tree with the moments of the second-order expansion, in loops.
+    tris = np.ascontiguousarray(_morton_sorted(cap_tris).reshape(-1, 9))
+    S, A, C, H, R, Q, M, offset, size = module.cap_tree(tris)
     shape = np.asarray(grid.shape)
     top = max(0, int(np.ceil(np.log2(max(1, int(shape.max()) / TOP_VOXELS)))))
     passes, bricks = COMPILED_PASSES, COMPILED_BRICKS
-    if np.sqrt(np.median(nodes["A"][:len(tris)])) < SCAN_CAPS * np.linalg.norm(grid.spacing):
+    if np.sqrt(np.median(A[:len(tris)])) < SCAN_CAPS * np.linalg.norm(grid.spacing):
         passes, bricks = (SCAN_PASS,) + tuple(passes), bricks + 1
     jobs = openmp_threads(jobs)  # GNU OpenMP is not fork-safe (see geovox.kernels)
     flat = occ.reshape(-1, order="F").view(np.uint8)  # a view: occ is Fortran-ordered
     estimated = np.zeros(grid.size, np.uint8)
-    c3 = np.ascontiguousarray
     counts = module.cap_occupancy(
-        c3(tris.reshape(-1, 9)), c3(nodes["S"]), _first_moments(tris, nodes, size), c3(nodes["A"]), c3(nodes["c"]), c3(nodes["h"]),
-        c3(nodes["r"]), _second_moments(tris, nodes, size), c3(offset, np.int64),
-        c3(size, np.int64), w.reshape(-1, order="F"), flat,
-        estimated, tuple(int(n) for n in grid.shape), tuple(float(x) for x in grid.lo),
+        tris, S, Q, A, C, H, R, M, offset, size, w.reshape(-1, order="F"), flat, estimated,
+        tuple(int(n) for n in grid.shape), tuple(float(x) for x in grid.lo),
         tuple(float(x) for x in grid.spacing), top,
-        c3(np.asarray(passes, float).reshape(-1, 2)), bricks, COMPILED_FEW,
+        np.ascontiguousarray(np.asarray(passes, float).reshape(-1, 2)), bricks, COMPILED_FEW,
         WORK_SECONDS, max(1, int(jobs)))
     STATS.update(zip(("refined", "exact", "estimated"), counts), caps=len(tris))
     if estimated.any():
         return estimated.view(bool).reshape(grid.shape, order="F")
     return None
-
-
-def _first_moments(tris, nodes, size):
-    """(n, 9) float64: per node of :func:`_cap_tree`, ``sum_t S_t (x) (centroid_t - c)`` row-major.
-
-    The first moment of the node's area-weighted normals about its centre
-    ``c``: the second term of the compiled kernel's far-field expansion.
-    """
-    S = 0.5 * np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
-    m = (S[:, :, None] * tris.mean(axis=1)[:, None, :]).reshape(-1, 9)
-    levels = [m]
-    while len(levels[-1]) > 1:
-        levels.append(np.add.reduceat(levels[-1], np.arange(0, len(levels[-1]), 2), axis=0))
-    m = np.concatenate(levels)
-    assert len(m) == int(np.sum(size))
-    return np.ascontiguousarray(m - (nodes["S"][:, :, None] * nodes["c"][:, None, :]).reshape(-1, 9))
-
-
-def _second_moments(tris, nodes, size):
-    """(n,) float64: per node of :func:`_cap_tree`, ``sqrt(sum_t int_t |x - c|^2 dA)``.
-
-    The root of the second moment of the node's area about its box centre
-    ``c``, for the compiled kernel's far-field bound (``A r^2`` bounds the
-    moment, often three times too high). Per triangle,
-    ``int |x - c|^2 dA = A (|g - c|^2 + (|a - g|^2 + |b - g|^2 + |c' - g|^2) / 12)``
-    (``g`` its centroid), summed over each node's triangles directly, never
-    as a difference (which could round below the truth).
-    """
-    g = tris.mean(axis=1)
-    own = ((tris - g[:, None]) ** 2).sum(axis=(1, 2)) / 12
-    area = nodes["A"][: len(tris)]
-    starts = np.r_[0, np.cumsum(size)[:-1]]
-    out = []
-    for level, (first, n) in enumerate(zip(starts, size)):
-        c = nodes["c"][first:first + n][np.arange(len(tris)) >> level]
-        d = np.einsum("ij,ij->i", g - c, g - c)
-        out.append(np.add.reduceat(area * (d + own), np.arange(0, len(tris), 1 << level)))
-    return np.sqrt(np.concatenate(out))
