@@ -350,8 +350,8 @@ def _face_groups(w: np.ndarray, nv: int):
     return first[order], renumber[inverse.reshape(-1)], nxt < prv
 
 
-def _unique_faces(g: np.ndarray, keep: np.ndarray, nv: int):
-    """The faces of ``g[keep]`` that stay: duplicates collapsed to the first, inner walls dropped.
+def _unique_faces(g: np.ndarray, nv: int):
+    """The faces of ``g`` that stay: duplicates collapsed to the first, inner walls dropped.
 
     Duplicates have the same vertex set; the first face of each set stays.
     Vertex sets stored both ways round keep one side, unless they make up an
@@ -364,16 +364,16 @@ def _unique_faces(g: np.ndarray, keep: np.ndarray, nv: int):
     duplicates, opposite, inner : int
         Faces dropped as exact duplicates, as reversed sides, as inner walls.
     """
-    first, inverse, parity = _face_groups(g if len(keep) == len(g) else g[keep], nv)
-    dropped = np.ones(len(keep), dtype=bool)
+    first, inverse, parity = _face_groups(g, nv)
+    dropped = np.ones(len(g), dtype=bool)
     dropped[first] = False
     same = parity == parity[first[inverse]]
     duplicates = int(np.count_nonzero(dropped & same))
     opposite = int(np.count_nonzero(dropped & ~same))
     both = np.zeros(len(first), dtype=bool)
     both[inverse[~same]] = True
-    wall = _inner_walls(g[keep[first]], both, nv) if both.any() else np.zeros(len(first), bool)
-    return keep[first[~wall]], duplicates, opposite, int(np.count_nonzero(wall))
+    wall = _inner_walls(g[first], both, nv) if both.any() else np.zeros(len(first), bool)
+    return first[~wall], duplicates, opposite, int(np.count_nonzero(wall))
 
 
 def _orient(f: np.ndarray, nv: int, pos: np.ndarray, centre: np.ndarray):
@@ -527,6 +527,12 @@ def repair(mesh: Mesh) -> Repair:
     Repair
     """
     _, g, vertex = merged_faces(mesh)
+    # From here the repair alone holds the faces over merged positions: they
+    # and the checks' hashed ones leave the mesh's cache (two arrays the size
+    # of the faces; asked again, they are made again), and where no face is
+    # dropped, these rows are the ones the repair turns.
+    mesh._cache.pop("merged_faces", None)
+    mesh._cache.pop("position_faces", None)
     pos = mesh.vertices[vertex]
     g, pos, welded = _weld(g, pos, WELD * mesh.scale)
     nv = len(pos)
@@ -542,26 +548,21 @@ def repair(mesh: Mesh) -> Repair:
         return Repair(mesh=Mesh(pos, np.zeros((0, 3), np.int64), source=mesh.source),
                       face=keep, swapped=np.zeros(0, bool), piece=np.zeros(0, np.int64),
                       merged_vertices=int(merged), welded=int(welded), degenerate=int(degenerate))
+    f = g if degenerate == 0 else g[keep]
+    del g
 
     kernel = lattice()
     order = _einsum_order() if kernel is not None else -1
     centre = pos.mean(axis=0)
     # Compiled, the edge table finds duplicates on its way (faces sharing an
-    # edge and its third vertex): only then are they collapsed and the table
-    # made again; a scan has none and pays no pass for them.
+    # edge and its third vertex; it then turns no face): only then are they
+    # collapsed and the table made again; a scan has none and pays no pass for them.
     face, duplicates, opposite, inner = keep, 0, 0, 0
-    f = g[keep]
     done = None if order < 0 else kernel.repair_edges(f, nv, pos, centre, order)
     if done is None or (isinstance(done, int) and done == kernel.DUPLICATES):
-        face, duplicates, opposite, inner = _unique_faces(g, keep, nv)
-        f = g[face]
+        stay, duplicates, opposite, inner = _unique_faces(f, nv)
+        face, f = keep[stay], f[stay]
         done = None if order < 0 else kernel.repair_edges(f, nv, pos, centre, order)
-    # The faces over merged positions served the checks and this repair (two
-    # arrays the size of the faces): the copy is what the winding number
-    # needs from here. Asked again, they are made again.
-    del g, keep
-    mesh._cache.pop("merged_faces", None)
-    mesh._cache.pop("position_faces", None)
     if not isinstance(done, tuple):  # NumPy, or a Moebius band: the rounds' forest decides its flips
         done = _orient(f, nv, pos, centre)
     label, swapped, npieces, closed_pieces, outward, boundary, n_open, n_many = done
