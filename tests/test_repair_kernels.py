@@ -253,3 +253,162 @@ def test_the_occupancy_of_a_messy_model_is_the_same_under_both_kernels(case):
     vols = [geovox.voxelize(build_mesh(v, f, "case"), resolution=24, kernel=k).occupancy
             for k in ("numpy", "compiled")]
     assert vols[0].any() and np.array_equal(vols[0], vols[1])
+
+
+# --- the kernels of issue 37's scans, each against the NumPy it stands for ---------
+
+
+def _rows(rng, n, kind):
+    if kind == "normal":
+        return rng.normal(size=(n, 3))
+    v = rng.integers(-2, 3, (n, 3)).astype(float)  # ties on x, y and z
+    v[rng.random(v.shape) < 0.3] *= -0.0  # signed zeros: one position
+    return v
+
+
+@pytest.mark.parametrize("kind", ["normal", "ties"])
+def test_lex_order_is_lexsort(kind):
+    from geovox import _lattice
+
+    rng = np.random.default_rng(3)
+    for n in (0, 1, 2, 17, 5000):
+        v = _rows(rng, n, kind)
+        assert np.array_equal(_lattice.lex_order(np.ascontiguousarray(v)),
+                              np.lexsort((v[:, 2], v[:, 1], v[:, 0])))
+
+
+def test_merge_positions_numbers_by_first_appearance():
+    from geovox import _lattice
+
+    rng = np.random.default_rng(4)
+    for n in (1, 5, 3000, 70000):  # 70000: the table grows several times
+        v = _rows(rng, n, "ties") + rng.integers(0, 30, (n, 1))
+        got = _lattice.merge_positions(v)
+        _, first, inverse = np.unique(v + 0.0, axis=0, return_index=True, return_inverse=True)
+        rank = np.empty(len(first), np.int64)
+        rank[np.argsort(first)] = np.arange(len(first))
+        assert np.array_equal(got, rank[inverse.reshape(-1)])
+
+
+def test_face_groups_and_duplicate_faces_match_numpy():
+    from geovox import _lattice
+
+    rng = np.random.default_rng(5)
+    for trial in range(60):
+        n = int(rng.integers(3, 40))
+        f = rng.integers(0, n, (int(rng.integers(1, 300)), 3))
+        f = f[(f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 0] != f[:, 2])]
+        if trial % 3 == 0 and len(f):
+            f[: len(f) // 2, 0] = 0  # a fan's apex: one big bucket
+            f = f[(f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 0] != f[:, 2])]
+        if trial % 2:
+            f = np.concatenate([f, f[::7][:, [1, 2, 0]], f[::11][:, ::-1]])[rng.permutation(len(f) + len(f[::7]) + len(f[::11]))]
+        if len(f) == 0:
+            continue
+        with chosen("numpy"):
+            want = R._face_groups(f, n)
+        got = _lattice.face_groups(f)
+        for x, y in zip(want, got):
+            assert np.array_equal(x, y)
+        assert _lattice.duplicate_faces(f) == (len(want[0]) < len(f))
+
+
+def test_edge_checks_count_what_edge_counts_counts():
+    from geovox import _lattice
+
+    for case in ("messy0", "orientable1", "fan", "truck", "wallhole"):
+        v, f = CASES[case]()
+        mesh = build_mesh(v, f, case)
+        with chosen("numpy"):
+            counts = E.edge_counts(mesh)
+            closed = len(E.boundary_edges(build_mesh(v, f, case))) == 0
+        got = _lattice.edge_checks(mesh.geometric_faces)
+        assert got[0] == closed and got[2:] == counts and got[1] == (counts[1] > 0)
+
+
+def test_boundary_loops_are_loops_and_loop_order():
+    from geovox import _lattice
+    from geovox.inside import bridge, caps
+
+    for case in ("messy0", "orientable2", "truck", "wallhole", "fan"):
+        v, f = CASES[case]()
+        with chosen("compiled"):
+            tm = R.repair(build_mesh(v, f, case)).mesh
+        edges = E.boundary_edges(tm)
+        if len(edges) == 0:
+            continue
+        vid = np.unique(edges, return_inverse=True)[1].reshape(-1, 2)
+        nv = int(vid.max()) + 1
+        found = _lattice.boundary_loops(vid, nv)
+        _, label, _ = E.components(nv, vid[:, 0], vid[:, 1])
+        piece = caps.loops(vid, label[vid[:, 0]])
+        if found is None:  # a position that does not balance: NumPy decides
+            assert (bridge.loop_order(vid, piece) < 0).any()
+            continue
+        assert np.array_equal(found[0], piece)
+        assert np.array_equal(found[1], bridge.loop_order(vid, piece))
+
+
+def test_sweep_pairs_finds_every_close_pair_of_sorted_points():
+    from geovox import _lattice
+
+    rng = np.random.default_rng(6)
+    p = np.concatenate([np.indices((6, 6, 6)).reshape(3, -1).T * 0.5, rng.uniform(0, 3, (400, 3))])
+    p = np.concatenate([p, p[::3] + rng.normal(0, 0.2, (len(p[::3]), 3))])
+    p = p[np.lexsort((p[:, 2], p[:, 1], p[:, 0]))]
+    for tol in (0.5, 0.21, 1e-3):
+        with chosen("numpy"):
+            want = R.close_pairs(p, tol)
+        got = _lattice.sweep_pairs(np.ascontiguousarray(p), tol, 10 ** 9)
+        assert set(map(tuple, want.tolist())) <= set(map(tuple, got.tolist()))
+        with chosen("compiled"):
+            again = R.close_pairs(p, tol, lex_sorted=True)
+        assert set(map(tuple, want.tolist())) == set(map(tuple, again.tolist()))
+    assert _lattice.sweep_pairs(np.zeros((100, 3)), 1.0, 50) is None  # past its budget: give up
+
+
+def test_repair_edges_leaves_duplicates_and_contradictions_to_its_caller():
+    from geovox import _lattice
+
+    v, f = _moebius()
+    with chosen("compiled"):
+        rep = R.repair(build_mesh(v, f, "moebius"))
+    pos, g = rep.mesh.vertices, rep.mesh.faces.copy()
+    c = pos.mean(axis=0)
+    order = R._einsum_order()
+    assert order in (0, 1, 2)  # NumPy's dot product, as the kernel follows it here
+    assert _lattice.repair_edges(g.copy(), len(pos), pos, c, order) == _lattice.CONTRADICTION
+    twice = np.concatenate([g, g[:3, ::-1]])
+    before = twice.copy()
+    assert _lattice.repair_edges(twice, len(pos), pos, c, order) == _lattice.DUPLICATES
+    assert np.array_equal(twice, before)  # no face turned
+
+
+def test_compiled_cap_tree_is_the_numpy_tree():
+    from geovox import _winding
+    from geovox.inside import captree
+
+    rng = np.random.default_rng(8)
+    for k in (1, 2, 3, 7, 100, 1001):
+        tris = captree._morton_sorted(rng.normal(size=(k, 3, 3)))
+        st, nodes, offset, size = captree._cap_tree(tris)
+        assert np.array_equal(st, tris)
+        S, A, C, H, Rr, Q, M, off, sz = _winding.cap_tree(np.ascontiguousarray(tris.reshape(-1, 9)))
+        assert np.array_equal(off, offset) and np.array_equal(sz, size)
+        for got, want in ((S, nodes["S"]), (A, nodes["A"]), (C, nodes["c"]), (H, nodes["h"]),
+                          (Rr, nodes["r"])):
+            np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-14)
+        # The moments, as NumPy sums them: S_t (x) centroid_t about c; sqrt of sum A_t (|g - c|^2 + own).
+        Sl = 0.5 * np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
+        g = tris.mean(axis=1)
+        own = ((tris - g[:, None]) ** 2).sum(axis=(1, 2)) / 12
+        for lv, (first, n) in enumerate(zip(offset, size)):
+            node = np.arange(k) >> lv
+            c = nodes["c"][first + node]
+            q = np.zeros((n, 3, 3))
+            np.add.at(q, node, Sl[:, :, None] * (g - c)[:, None, :])
+            np.testing.assert_allclose(Q[first:first + n].reshape(-1, 3, 3), q, rtol=1e-9,
+                                       atol=1e-12)
+            m2 = np.bincount(node, weights=np.linalg.norm(Sl, axis=1)
+                             * (((g - c) ** 2).sum(axis=1) + own), minlength=n)
+            np.testing.assert_allclose(M[first:first + n], np.sqrt(m2), rtol=1e-12, atol=1e-14)
