@@ -195,7 +195,9 @@ def close_pairs(pos: np.ndarray, tol: float, lex_sorted: bool = False) -> np.nda
         # Candidates through a hash table of coarser cells (no sort): a
         # superset of the pairs that pass the tests below.
         pos = np.ascontiguousarray(pos, dtype=np.float64)
-        pairs = kernel.sweep_pairs(pos, tol, 16 * n + 1024) if lex_sorted else None
+        # A sweep of float32 coordinates (an STL) meets a few dozen points a
+        # window; past 64 a point it gives up (a CAD model's flat side) for the table.
+        pairs = kernel.sweep_pairs(pos, tol, 64 * n + 1024) if lex_sorted else None
         if pairs is None:
             pairs = kernel.near_pairs(pos, low, tol, 16 * tol)
         # Of those, the pairs in neighbouring cells of this grid, as below.
