@@ -1,18 +1,17 @@
 """Inside/outside tests: the automatic choice, parity, vote and winding, repair.
 
-The modules, each importing only those listed below it:
+The modules, top to bottom; each imports only modules below it (counting
+imports inside functions; ``tests/test_inside_layout.py`` keeps it so):
 
 | module | holds |
 |---|---|
-| :mod:`geovox.inside.choice` | ``choose`` (the inside test to run) and ``target`` (the mesh it runs on) |
 | :mod:`geovox.inside.winding` | the winding number: signed crossings, the caps' correction, ties |
+| :mod:`geovox.inside.choice` | ``choose`` (the inside test to run), ``target`` (the mesh it runs on) and the memory check |
 | :mod:`geovox.inside.caps` | the caps over an open mesh's holes, and the mesh they close |
 | :mod:`geovox.inside.bridge` | minimum-area triangulations of the holes' loops |
 | :mod:`geovox.inside.captree` | the caps' winding number, summed over a tree of them |
 | :mod:`geovox.inside.repair` | the repaired copy a winding test of a broken mesh works on |
 | :mod:`geovox.inside.edges` | merged positions, the edge table, the holes, components |
-
-(``repair`` sits beside ``captree``: ``choice`` uses it; neither uses the other.)
 """
 
 from . import bridge, captree, caps, choice, edges, repair, winding
