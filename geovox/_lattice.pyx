@@ -1275,20 +1275,34 @@ cdef inline int32_t _find(int32_t *parent, uint8_t *par, int32_t x, uint8_t *px)
     return r
 
 
-cdef void _sort_entries(int32_t *hi, uint32_t *slot, int32_t *third, int32_t *th, uint32_t *ts,
-                        int32_t *tt, Py_ssize_t n) noexcept nogil:
-    """Stable sort of ``hi[:n]`` carrying ``slot`` and ``third``: insertion for a few, else merging."""
+cdef inline void _enter(int64_t *start, uint32_t *ent, int64_t a, int64_t b, int64_t c,
+                        int64_t s) noexcept nogil:
+    """Slot ``s`` (edge a -> b of a face whose third vertex is c) into its lower vertex's bucket.
+
+    A record: the higher vertex, 2 s + (the face runs the edge from low to
+    high), the third vertex.
+    """
+    cdef int64_t lo = a if a < b else b
+    cdef int64_t e = 3 * start[lo]  # the bucket's next entry (start moves on; set back after)
+    ent[e] = <uint32_t>(b if a < b else a)
+    ent[e + 1] = <uint32_t>(2 * s + (a < b))
+    ent[e + 2] = <uint32_t>c
+    start[lo] += 1
+
+
+cdef void _sort_entries(uint32_t *ent, uint32_t *tmp, Py_ssize_t n) noexcept nogil:
+    """Stable sort of ``n`` records (three words each) by their first word: insertion for a few,
+    else merging through ``tmp``."""
     cdef Py_ssize_t i, j, w, lo, mid, end, p, q, o
-    cdef int32_t h, x
-    cdef uint32_t s
+    cdef uint32_t h, s, x
     if n <= SMALL:
         for i in range(1, n):
-            h, s, x = hi[i], slot[i], third[i]
+            h, s, x = ent[3 * i], ent[3 * i + 1], ent[3 * i + 2]
             j = i - 1
-            while j >= 0 and hi[j] > h:
-                hi[j + 1], slot[j + 1], third[j + 1] = hi[j], slot[j], third[j]
+            while j >= 0 and ent[3 * j] > h:
+                ent[3 * j + 3], ent[3 * j + 4], ent[3 * j + 5] = ent[3 * j], ent[3 * j + 1], ent[3 * j + 2]
                 j -= 1
-            hi[j + 1], slot[j + 1], third[j + 1] = h, s, x
+            ent[3 * j + 3], ent[3 * j + 4], ent[3 * j + 5] = h, s, x
         return
     w = 1
     while w < n:
@@ -1298,24 +1312,24 @@ cdef void _sort_entries(int32_t *hi, uint32_t *slot, int32_t *third, int32_t *th
             end = lo + 2 * w if lo + 2 * w < n else n
             p, q, o = lo, mid, lo
             while p < mid and q < end:
-                if hi[q] < hi[p]:
-                    th[o], ts[o], tt[o] = hi[q], slot[q], third[q]
+                if ent[3 * q] < ent[3 * p]:
+                    tmp[3 * o], tmp[3 * o + 1], tmp[3 * o + 2] = ent[3 * q], ent[3 * q + 1], ent[3 * q + 2]
                     q += 1
                 else:
-                    th[o], ts[o], tt[o] = hi[p], slot[p], third[p]
+                    tmp[3 * o], tmp[3 * o + 1], tmp[3 * o + 2] = ent[3 * p], ent[3 * p + 1], ent[3 * p + 2]
                     p += 1
                 o += 1
             while p < mid:
-                th[o], ts[o], tt[o] = hi[p], slot[p], third[p]
+                tmp[3 * o], tmp[3 * o + 1], tmp[3 * o + 2] = ent[3 * p], ent[3 * p + 1], ent[3 * p + 2]
                 p += 1
                 o += 1
             while q < end:
-                th[o], ts[o], tt[o] = hi[q], slot[q], third[q]
+                tmp[3 * o], tmp[3 * o + 1], tmp[3 * o + 2] = ent[3 * q], ent[3 * q + 1], ent[3 * q + 2]
                 q += 1
                 o += 1
             lo = end
-        for i in range(n):
-            hi[i], slot[i], third[i] = th[i], ts[i], tt[i]
+        for i in range(3 * n):
+            ent[i] = tmp[i]
         w *= 2
 
 
@@ -1394,10 +1408,13 @@ def repair_edges(int64_t[:, ::1] f, int64_t nv, const double[:, ::1] pos,
     start_a = np.zeros(nv + 1, np.int64)
     cdef int64_t[::1] start = start_a
     cdef int64_t *F = &f[0, 0]
+    cdef int64_t u0, u1, u2
     with nogil:
-        for i in range(3 * nf):
-            a, b = F[i], F[i - i % 3 + (i % 3 + 1) % 3]
-            start[(a if a < b else b) + 1] += 1
+        for i in range(nf):  # each face's three edges, by their lower vertex
+            u0, u1, u2 = F[3 * i], F[3 * i + 1], F[3 * i + 2]
+            start[(u0 if u0 < u1 else u1) + 1] += 1
+            start[(u1 if u1 < u2 else u2) + 1] += 1
+            start[(u2 if u2 < u0 else u0) + 1] += 1
         for v in range(nv):
             if start[v + 1] > big:
                 big = start[v + 1]
@@ -1406,16 +1423,12 @@ def repair_edges(int64_t[:, ::1] f, int64_t nv, const double[:, ::1] pos,
     # Per entry of a bucket: the higher vertex, the slot (2 (3 face + j) +
     # whether the face runs the edge from low to high) and the face's third
     # vertex (two faces on an edge with the same third one are duplicates).
-    hi_a = np.empty(q, np.int32)
-    slot_a = np.empty(q, np.uint32)
-    third_a = np.empty(q, np.int32)
-    cdef int32_t[::1] hi = hi_a, third = third_a
-    cdef uint32_t[::1] slot = slot_a
-    th_a = np.empty(big if big > SMALL else 1, np.int32)
-    ts_a = np.empty(big if big > SMALL else 1, np.uint32)
-    tt_a = np.empty(big if big > SMALL else 1, np.int32)
-    cdef int32_t[::1] th = th_a, tt = tt_a
-    cdef uint32_t[::1] ts = ts_a
+    # One record of three 32-bit words an entry, so that filling a bucket
+    # touches one cache line, not three.
+    ent_a = np.empty((q if q else 1, 3), np.uint32)
+    cdef uint32_t[:, ::1] ent = ent_a
+    tmp_a = np.empty((big if big > SMALL else 1, 3), np.uint32)
+    cdef uint32_t[:, ::1] tmp = tmp_a
     parent_a = np.arange(nf, dtype=np.int32)
     par_a = np.zeros(nf, np.uint8)
     flags_a = np.zeros(nf, np.uint8)  # bits 0-2: slot j is open (one face); bit 3: a slot not on two
@@ -1426,35 +1439,31 @@ def repair_edges(int64_t[:, ::1] f, int64_t nv, const double[:, ::1] pos,
     cdef bint contradiction = False, duplicates = False
     cdef int64_t n_open = 0, n_many = 0
     with nogil:
-        for i in range(3 * nf):  # in slot order: every bucket starts sorted by slot
-            a, b = F[i], F[i - i % 3 + (i % 3 + 1) % 3]
-            lo = a if a < b else b
-            e0 = start[lo]  # the bucket's next entry (start moves on; set back below)
-            hi[e0] = <int32_t>(b if a < b else a)
-            slot[e0] = <uint32_t>(2 * i + (a < b))
-            third[e0] = <int32_t>F[i - i % 3 + (i % 3 + 2) % 3]
-            start[lo] = e0 + 1
+        for i in range(nf):  # in slot order: every bucket starts sorted by slot
+            u0, u1, u2 = F[3 * i], F[3 * i + 1], F[3 * i + 2]
+            _enter(&start[0], &ent[0, 0], u0, u1, u2, 3 * i)
+            _enter(&start[0], &ent[0, 0], u1, u2, u0, 3 * i + 1)
+            _enter(&start[0], &ent[0, 0], u2, u0, u1, 3 * i + 2)
         for v in range(nv - 1, -1, -1):  # each bucket's start back
             start[v + 1] = start[v]
         start[0] = 0
         for v in range(nv):
             if start[v + 1] - start[v] > 1:
-                _sort_entries(&hi[start[v]], &slot[start[v]], &third[start[v]], &th[0], &ts[0],
-                              &tt[0], start[v + 1] - start[v])
+                _sort_entries(&ent[start[v], 0], &tmp[0, 0], start[v + 1] - start[v])
         for v in range(nv):
             e0 = start[v]
             while e0 < start[v + 1]:
                 e1 = e0 + 1
-                while e1 < start[v + 1] and hi[e1] == hi[e0]:
+                while e1 < start[v + 1] and ent[e1, 0] == ent[e0, 0]:
                     e1 += 1
                 run = e1 - e0
                 for t in range(e0, e1 - 1):  # one third vertex twice: one vertex set
                     for q2 in range(t + 1, e1):
-                        if third[t] == third[q2]:
+                        if ent[t, 2] == ent[q2, 2]:
                             duplicates = True
                 if run == 2:
-                    fa, fb = <int32_t>((slot[e0] >> 1) // 3), <int32_t>((slot[e0 + 1] >> 1) // 3)
-                    odd = (slot[e0] & 1) == (slot[e0 + 1] & 1)
+                    fa, fb = <int32_t>((ent[e0, 1] >> 1) // 3), <int32_t>((ent[e0 + 1, 1] >> 1) // 3)
+                    odd = (ent[e0, 1] & 1) == (ent[e0 + 1, 1] & 1)
                     ra = _find(&parent[0], &par[0], fa, &pa)
                     rb = _find(&parent[0], &par[0], fb, &pb)
                     if ra == rb:
@@ -1468,12 +1477,12 @@ def repair_edges(int64_t[:, ::1] f, int64_t nv, const double[:, ::1] pos,
                     n_open += run == 1
                     n_many += run > 2
                     for t in range(e0, e1):
-                        fa = <int32_t>((slot[t] >> 1) // 3)
+                        fa = <int32_t>((ent[t, 1] >> 1) // 3)
                         flags[fa] |= 8
                         if run == 1:
-                            flags[fa] |= 1 << ((slot[t] >> 1) % 3)
+                            flags[fa] |= 1 << ((ent[t, 1] >> 1) % 3)
                 e0 = e1
-    del third_a, tt_a
+    del tmp_a
     if duplicates:
         return DUPLICATES
     if contradiction:
@@ -1495,7 +1504,7 @@ def repair_edges(int64_t[:, ::1] f, int64_t nv, const double[:, ::1] pos,
     cdef uint8_t[::1] bad = bad_a
     cdef const double *P = &pos[0, 0]
     cdef double c0 = centre[0], c1 = centre[1], c2 = centre[2]
-    cdef int64_t l, u0, u1, u2
+    cdef int64_t l
     with nogil:
         for i in range(nf):  # roots are their pieces' lowest faces: numbered in order
             ra = _find(&parent[0], &par[0], <int32_t>i, &pa)
@@ -1572,9 +1581,9 @@ def repair_edges(int64_t[:, ::1] f, int64_t nv, const double[:, ::1] pos,
             e0 = start[v]
             while e0 < start[v + 1]:
                 e1 = e0 + 1
-                net = (1 if (slot[e0] & 1) ^ swapped[(slot[e0] >> 1) // 3] else -1)
-                while e1 < start[v + 1] and hi[e1] == hi[e0]:
-                    net += 1 if (slot[e1] & 1) ^ swapped[(slot[e1] >> 1) // 3] else -1
+                net = (1 if (ent[e0, 1] & 1) ^ swapped[(ent[e0, 1] >> 1) // 3] else -1)
+                while e1 < start[v + 1] and ent[e1, 0] == ent[e0, 0]:
+                    net += 1 if (ent[e1, 1] & 1) ^ swapped[(ent[e1, 1] >> 1) // 3] else -1
                     e1 += 1
                 nb += net if net > 0 else -net
                 e0 = e1
@@ -1586,14 +1595,14 @@ def repair_edges(int64_t[:, ::1] f, int64_t nv, const double[:, ::1] pos,
             e0 = start[v]
             while e0 < start[v + 1]:
                 e1 = e0 + 1
-                net = (1 if (slot[e0] & 1) ^ swapped[(slot[e0] >> 1) // 3] else -1)
-                while e1 < start[v + 1] and hi[e1] == hi[e0]:
-                    net += 1 if (slot[e1] & 1) ^ swapped[(slot[e1] >> 1) // 3] else -1
+                net = (1 if (ent[e0, 1] & 1) ^ swapped[(ent[e0, 1] >> 1) // 3] else -1)
+                while e1 < start[v + 1] and ent[e1, 0] == ent[e0, 0]:
+                    net += 1 if (ent[e1, 1] & 1) ^ swapped[(ent[e1, 1] >> 1) // 3] else -1
                     e1 += 1
                 # net > 0: low -> high left over; net < 0: high -> low.
                 for m in range(net if net > 0 else -net):
-                    boundary[nb, 0] = v if net > 0 else hi[e0]
-                    boundary[nb, 1] = hi[e0] if net > 0 else v
+                    boundary[nb, 0] = v if net > 0 else <int64_t>ent[e0, 0]
+                    boundary[nb, 1] = <int64_t>ent[e0, 0] if net > 0 else v
                     nb += 1
                 e0 = e1
     closed = int(npieces - np.count_nonzero(bad_a[:npieces]))
