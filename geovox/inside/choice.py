@@ -62,10 +62,12 @@ def working_memory(faces: int, positions: int, open_edges: int) -> float:
 
     From counts known before the work (the closedness check gives them):
     the repair (the faces over merged positions, their edge table and the
-    copy, about 120 bytes a face and 64 a position, measured at its peak on
-    the scans of ``benchmarks/bench_triangles.py``), then the copy closed by
-    its caps and the rays cast through it (about 150 bytes a face), and the
-    caps with their tree (about 600 bytes an open edge, with room to spare).
+    copy: about 120 bytes a face and 64 a position at its peak), then the
+    copy closed by its caps and the rays cast through it (about 150 bytes a
+    face), and the caps with their tree (a cap triangle for every two or
+    three open edges, some 300 bytes an open edge in all). Measured on the
+    scans of ``benchmarks/bench_triangles.py`` (1.6 to 25.7 million triangles
+    with 5 % of them removed) the peak stays a quarter to a third below this.
     The grid's own arrays are checked apart (:func:`geovox.memory.check_memory`).
 
     Parameters
@@ -73,7 +75,7 @@ def working_memory(faces: int, positions: int, open_edges: int) -> float:
     faces, positions, open_edges : int
         The mesh's triangles, distinct vertex positions and open edges.
     """
-    return 150.0 * faces + 64.0 * positions + 600.0 * open_edges
+    return 150.0 * faces + 64.0 * positions + 300.0 * open_edges
 
 
 def choose(mesh: Mesh, method: str) -> Inside:
