@@ -29,6 +29,14 @@ lower vertex, then a few entries per bucket), the spanning forest's rounds
 as the NumPy rounds run them (the same flips, even on a Moebius band),
 duplicate faces and close vertices by hash tables. The repaired copy is the
 NumPy path's, array for array.
+
+The scans of issue 37 (millions of triangles, thousands of small holes) take
+the later kernels: :func:`lex_faces` (the positions' lexicographic numbers
+by the radix sort :func:`lex_order`), :func:`sweep_pairs` (the weld's
+candidates along x), :func:`repair_edges` (edge table, duplicates, flips by
+a union-find, the pieces' outward turns and the copy's open edges, with
+32-bit tables) and :func:`boundary_loops` (the holes' loops); each gives the
+arrays of the steps it replaces.
 """
 
 import numpy as np
