@@ -41,9 +41,8 @@ CHILD = r"""
 import json, sys, time, warnings
 import geovox
 from geovox.errors import GeovoxError, GeovoxWarning
-from geovox.inside import winding
-from geovox.planner import as_options, load, plan
-from geovox.runners import run
+from geovox.inside import captree, winding
+from geovox.pipeline import as_options, load, plan, run
 
 path, res = sys.argv[1], [int(r) for r in sys.argv[2].split(",")]
 out = {"rows": []}
@@ -62,12 +61,12 @@ for n in res:
                   and len(winding.bridged(winding.target(mesh)[0])[1]) > 0)
         row["caps"] = int(len(winding.bridged(winding.target(mesh)[0])[1])) if capped else 0
         if capped:
-            winding.STATS.clear()
+            captree.STATS.clear()
             t, c = time.perf_counter(), time.process_time()
             report = run(mesh, p)
             row.update(wall=time.perf_counter() - t, cpu=time.process_time() - c,
                        approximate=report.approximate, voxels=int(report.grid.size),
-                       refined=winding.STATS.get("refined"), exact=winding.STATS.get("exact"))
+                       refined=captree.STATS.get("refined"), exact=captree.STATS.get("exact"))
     except GeovoxError as exc:
         row["error"] = str(exc).splitlines()[0][:120]
     out["rows"].append(row)

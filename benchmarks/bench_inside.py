@@ -59,7 +59,7 @@ def brute_inside(mesh, points, block=1 << 20):
         for t0 in range(0, len(tris), block):
             t = tris[t0:t0 + block]
             k = len(p)
-            a = inside._triangle_angles(np.tile(t, (k, 1, 1)), np.repeat(p, len(t), axis=0))
+            a = inside.captree.triangle_angles(np.tile(t, (k, 1, 1)), np.repeat(p, len(t), axis=0))
             out[s:s + per] += a.reshape(k, -1).sum(axis=1)
     return out > 0.5
 

@@ -17,9 +17,16 @@ number). Where they differ, the brute-force winding number of the repaired
 mesh (every triangle's solid angle summed exactly at the voxel centre)
 says which is right.
 
+``--hashes`` (issue 37): instead, every messy model of the corpus and the
+tests (``HASH_MODELS``: open, double-sided, non-manifold, inner walls, the
+truck) at every grid of ``--grids`` (64, 128, 256), converted once by each
+side, and the SHA-256 of the two outputs compared; where they differ, the
+differing voxels are counted and decided by the brute force as above.
+
 Usage: python benchmarks/bench_messy.py --baseline /path/to/main [--runs 3]
        [--cases truck.obj:64,truck.obj:128,...] [--write benchmarks/results/messy.json]
        [--igl-max 128]  (libigl only up to 128³: at 256³ it takes minutes a run)
+       python benchmarks/bench_messy.py --baseline /path/to/main --hashes [--grids 64,128,256]
 """
 
 from __future__ import annotations
@@ -43,6 +50,16 @@ ROOT = os.path.dirname(HERE)
 DATA = os.path.join(ROOT, "tests", "data")
 CASES = ["wild/truck.obj:64", "wild/truck.obj:128", "suzanne/suzanne.obj:128",
          "cornell_box/cornell_box.obj:128"]
+#: The shared corpus (stanford_bunny/bunny.obj, the open scan, is there only).
+CORPUS = os.path.join(ROOT, "..", "shared", "corpus")
+#: --hashes: messy models (under tests/data, or the corpus where marked), each
+#: decided by the winding number of a repaired copy (or, the cornell box, of
+#: overlapping closed parts).
+HASH_MODELS = ["suzanne/suzanne.obj", "corpus:stanford_bunny/bunny.obj",
+               "trimesh_edge_cases/wallhole.obj", "cornell_box/cornell_box.obj",
+               "trimesh_edge_cases/rabbit.obj", "wild/truck.obj", "wild/pyramids.3mf",
+               "trimesh_edge_cases/quadknot.obj", "trimesh_edge_cases/joined_tetrahedra.obj",
+               "trimesh_edge_cases/two_objects.obj", "trimesh_edge_cases/box.obj"]
 
 
 def timed(cmd, cwd):
@@ -72,7 +89,7 @@ def brute_force(path, res, idx):
         grid = geovox.voxelize(m, resolution=res, inside="parity").grid
         tris = inside.target(m)[0].triangles
     p = np.stack([grid.centres(a)[idx[:, a]] for a in range(3)], axis=1)
-    return np.array([inside._triangle_angles(tris, np.repeat(q[None], len(tris), 0)).sum() > 0.5
+    return np.array([inside.captree.triangle_angles(tris, np.repeat(q[None], len(tris), 0)).sum() > 0.5
                      for q in p], bool)
 
 
@@ -117,6 +134,34 @@ def case(path, res, baseline, runs, tmp, igl_max=None):
     return row
 
 
+def hashes(baseline, grids, tmp):
+    """``--hashes``: every HASH_MODELS model at every grid, once by each side; rows of the comparison."""
+    import hashlib
+
+    rows = []
+    py = sys.executable
+    for rel in HASH_MODELS:
+        path = os.path.join(CORPUS, rel[7:]) if rel.startswith("corpus:") else os.path.join(DATA, rel)
+        for res in grids:
+            outs = {k: os.path.join(tmp, f"{k}.npy") for k in ("a", "b")}
+            said = {}
+            for k, cwd in (("a", ROOT), ("b", baseline)):
+                said[k] = timed([py, "-m", "geovox", "convert", path, "-r", str(res), "-o", outs[k]],
+                                cwd)[2]
+            digest = {k: hashlib.sha256(open(outs[k], "rb").read()).hexdigest() for k in outs}
+            a, b = np.load(outs["a"]), np.load(outs["b"])
+            row = {"model": rel, "grid": res, "same": digest["a"] == digest["b"],
+                   "inside": int(a.sum()), "approximate": ["approximate" in said[k] for k in "ab"]}
+            idx = np.argwhere(a != b)
+            if len(idx):
+                bf = brute_force(path, res, idx)
+                row.update(differ=len(idx), a_agrees=int(np.sum(a[tuple(idx.T)] == bf)),
+                           b_agrees=int(np.sum(b[tuple(idx.T)] == bf)))
+            rows.append(row)
+            print(json.dumps(row), flush=True)
+    return rows
+
+
 def table(rows):
     """The result file's table: one row per case."""
     out = []
@@ -140,7 +185,19 @@ def main(argv=None):
     p.add_argument("--cases", default=",".join(CASES), help="MODEL:N,... (MODEL under tests/data)")
     p.add_argument("--write", help="write the result file here")
     p.add_argument("--igl-max", type=int, help="run libigl only up to this grid (default: every grid)")
+    p.add_argument("--hashes", action="store_true",
+                   help="compare the outputs' SHA-256 over HASH_MODELS at --grids instead")
+    p.add_argument("--grids", default="64,128,256")
     args = p.parse_args(argv)
+    if args.hashes:
+        print(f"load average before: {os.getloadavg()}")
+        with tempfile.TemporaryDirectory(prefix="bench_messy_") as tmp:
+            rows = hashes(os.path.abspath(args.baseline), [int(g) for g in args.grids.split(",")],
+                          tmp)
+        same = sum(r["same"] for r in rows)
+        print(f"{same} of {len(rows)} outputs byte-identical to the baseline's; "
+              f"approximate voxels in {sum(any(r['approximate']) for r in rows)}")
+        return
     rows = []
     load0 = os.getloadavg()[0]
     started = datetime.datetime.now(datetime.timezone.utc)

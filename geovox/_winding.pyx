@@ -88,6 +88,8 @@ are marked. Every other decision is proven by a bound (a margin of 1e-4, far abo
 rounding of these sums) or taken on the exact sum.
 """
 
+import numpy as np
+
 from cython.parallel cimport prange, parallel
 from libc.stdlib cimport malloc, free
 from libc.string cimport memset
@@ -857,3 +859,101 @@ def triangle_bounds(const double[::1] t, const double[::1] p, double rb):
     val = tri_angle_gradient(&t[0], p[0], p[1], p[2], grad)
     return (val, (grad[0], grad[1], grad[2]), single_bound(area, rb, g0),
             edge_bound(&t[0], p[0], p[1], p[2], rb))
+
+
+def cap_tree(const double[:, ::1] T):
+    """The nodes of the caps' tree over triangles ``T`` in their tree order, in one pass a level.
+
+    What geovox.inside.captree's ``_cap_tree`` (after its Morton sort),
+    ``_first_moments`` and ``_second_moments`` compute with NumPy, level by
+    level in loops: node ``j`` of level ``l + 1`` sums nodes ``2j`` and
+    ``2j + 1`` of level ``l`` (area vector ``S``, area ``A``, box ``lo``/``hi``,
+    the first moment's sum of ``S_t (x) centroid_t``); the box gives the centre
+    ``c``, half sizes ``h`` and radius ``r``; the first moment is taken about
+    ``c``, and the second moment's root ``M`` sums each node's triangles
+    directly (never a difference, which could round below the truth).
+
+    Parameters
+    ----------
+    T : (k, 9) float64, k >= 1
+
+    Returns
+    -------
+    S (n, 3), A (n,), C (n, 3), H (n, 3), R (n,), Q (n, 9), M (n,) : float64
+    offset, size : (levels,) int64
+    """
+    cdef Py_ssize_t k = T.shape[0], n = 0, i, j, l, nl, a, b, first, c0
+    cdef int x
+    sizes = [k]
+    while sizes[len(sizes) - 1] > 1:
+        sizes.append((sizes[len(sizes) - 1] + 1) // 2)
+    for s_ in sizes:
+        n += s_
+    size_a = np.asarray(sizes, np.int64)
+    offset_a = np.zeros(len(sizes), np.int64)
+    offset_a[1:] = np.cumsum(size_a)[:-1]
+    S_a = np.empty((n, 3)); A_a = np.empty(n); lo_a = np.empty((n, 3)); hi_a = np.empty((n, 3))
+    C_a = np.empty((n, 3)); H_a = np.empty((n, 3)); R_a = np.empty(n); Q_a = np.empty((n, 9))
+    M_a = np.zeros(n); g_a = np.empty((k, 3)); own_a = np.empty(k)
+    cdef double[:, ::1] S = S_a, lo = lo_a, hi = hi_a, C = C_a, H = H_a, Q = Q_a, g = g_a
+    cdef double[::1] A = A_a, R = R_a, M = M_a, own = own_a
+    cdef int64_t[::1] offset = offset_a, size = size_a
+    cdef double ux, uy, uz, wx, wy, wz, d, e
+    cdef int nlev = len(sizes)
+    with nogil:
+        for i in range(k):
+            ux, uy, uz = T[i, 3] - T[i, 0], T[i, 4] - T[i, 1], T[i, 5] - T[i, 2]
+            wx, wy, wz = T[i, 6] - T[i, 0], T[i, 7] - T[i, 1], T[i, 8] - T[i, 2]
+            S[i, 0] = 0.5 * (uy * wz - uz * wy)
+            S[i, 1] = 0.5 * (uz * wx - ux * wz)
+            S[i, 2] = 0.5 * (ux * wy - uy * wx)
+            A[i] = sqrt(S[i, 0] * S[i, 0] + S[i, 1] * S[i, 1] + S[i, 2] * S[i, 2])
+            for x in range(3):
+                lo[i, x] = min(min(T[i, x], T[i, 3 + x]), T[i, 6 + x])
+                hi[i, x] = max(max(T[i, x], T[i, 3 + x]), T[i, 6 + x])
+                g[i, x] = (T[i, x] + T[i, 3 + x] + T[i, 6 + x]) / 3
+            e = 0
+            for j in range(3):
+                for x in range(3):
+                    d = T[i, 3 * j + x] - g[i, x]
+                    e += d * d
+            own[i] = e / 12
+            for a in range(3):
+                for b in range(3):
+                    Q[i, 3 * a + b] = S[i, a] * g[i, b]
+        for l in range(1, nlev):
+            first, nl = offset[l], size[l]
+            c0 = offset[l - 1]
+            for j in range(nl):
+                a = c0 + 2 * j
+                b = a + 1 if 2 * j + 1 < size[l - 1] else -1
+                A[first + j] = A[a] + (A[b] if b >= 0 else 0.0)
+                for x in range(3):
+                    S[first + j, x] = S[a, x] + (S[b, x] if b >= 0 else 0.0)
+                    lo[first + j, x] = min(lo[a, x], lo[b, x]) if b >= 0 else lo[a, x]
+                    hi[first + j, x] = max(hi[a, x], hi[b, x]) if b >= 0 else hi[a, x]
+                for x in range(9):
+                    Q[first + j, x] = Q[a, x] + (Q[b, x] if b >= 0 else 0.0)
+        for i in range(n):
+            e = 0
+            for x in range(3):
+                C[i, x] = (lo[i, x] + hi[i, x]) / 2
+                H[i, x] = (hi[i, x] - lo[i, x]) / 2
+                d = hi[i, x] - lo[i, x]
+                e += d * d
+            R[i] = sqrt(e) / 2
+            for a in range(3):
+                for b in range(3):
+                    Q[i, 3 * a + b] -= S[i, a] * C[i, b]
+        for l in range(nlev):
+            first = offset[l]
+            for i in range(k):
+                j = first + (i >> l)
+                e = 0
+                for x in range(3):
+                    d = g[i, x] - C[j, x]
+                    e += d * d
+                M[j] += A[i] * (e + own[i])
+        for i in range(n):
+            M[i] = sqrt(M[i])
+    return S_a, A_a, C_a, H_a, R_a, Q_a, M_a, offset_a, size_a

@@ -42,6 +42,10 @@ class GridTooLargeError(GeovoxError, MemoryError):
     """The requested grid would not fit in memory; raised before allocating."""
 
 
+class MeshTooLargeError(GridTooLargeError):
+    """The mesh's inside test (the repair of an open mesh) would not fit in memory; raised before it."""
+
+
 class GeovoxWarning(UserWarning):
     """Something was missing or had to be guessed; the conversion went on."""
 

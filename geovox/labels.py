@@ -379,7 +379,7 @@ def part_meshes(mesh: Mesh, lset: LabelSet) -> list:
     alone (linear in the part), cheaper than searching the whole mesh's
     components first.
     """
-    from .inside import winding
+    from .inside import non_manifold
 
     n = len(lset.names)
     by_face = np.argsort(lset.face_label, kind="stable")
@@ -391,7 +391,7 @@ def part_meshes(mesh: Mesh, lset: LabelSet) -> list:
         faces = by_face[cuts[k]:cuts[k + 1]]
         part = part_mesh(mesh, faces, lset.names[k]) if len(faces) else None
         if part is not None and comp is not None and comp_size[comp[faces[0]]] == len(faces) \
-                and not winding._non_manifold(part):
+                and not non_manifold(part):
             part._cache["overlap"] = False
         parts.append(part)
     return parts

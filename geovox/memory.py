@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from .errors import GridTooLargeError
+from .errors import GridTooLargeError, MeshTooLargeError
 
 if TYPE_CHECKING:  # the type alone: the command line's --help imports this, without NumPy
     from .grid import Grid
@@ -63,3 +63,28 @@ def check_memory(grid: Grid, bytes_per_voxel: float = 1.0) -> None:
             f"write it slab by slab to .h5 or .raw (geovox convert does; in Python, "
             f"geovox.convert_to)"
         )
+
+
+def check_mesh_memory(need: float, what: str, instead: str) -> None:
+    """Refuse, before the work, a step on the mesh whose working memory would not fit.
+
+    Parameters
+    ----------
+    need : float
+        Bytes the step needs beside what is allocated already (the mesh).
+    what : str
+        The step and its mesh, e.g. ``"bunny.stl: the winding number of a
+        repaired copy (25,600,000 triangles, 3,900,000 open edges)"``.
+    instead : str
+        What the user can do instead.
+
+    Raises
+    ------
+    MeshTooLargeError
+        ``need`` exceeds ``MEMORY_FRACTION`` of the available memory.
+    """
+    avail = _available_memory()
+    if avail is not None and need > MEMORY_FRACTION * avail:
+        raise MeshTooLargeError(
+            f"{what} needs about {need / 2**30:.1f} GiB of working memory but only "
+            f"{avail / 2**30:.1f} GiB is available; {instead}")

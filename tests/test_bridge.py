@@ -18,7 +18,8 @@ import trimesh
 
 import geovox
 from geovox.inside import bridge
-from geovox.inside import winding as inside
+from geovox import inside
+from geovox.inside import caps, winding
 from geovox.errors import GeovoxWarning
 from geovox.kernels import chosen
 
@@ -106,7 +107,7 @@ def test_loop_order_runs_each_loop_edge_after_edge():
     vid = np.array([[0, 1], [1, 2], [2, 3], [3, 0],      # loop A
                     [0, 4], [4, 5], [5, 6], [6, 0],      # loop B, through corner 0
                     [7, 8], [8, 9]])                     # an open path: no loop
-    piece = inside._loops(vid, np.array([0] * 8 + [1] * 2))
+    piece = caps.loops(vid, np.array([0] * 8 + [1] * 2))
     rank = bridge.loop_order(vid, piece)
     path = piece[8]
     assert np.all(rank[piece == path] == -1)
@@ -262,7 +263,7 @@ def test_fans_and_small_caps_decide_the_same(case, monkeypatch, kernel):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", GeovoxWarning)
         small = geovox.voxelize(mesh, resolution=18, bounds=bounds, inside="winding").occupancy
-        monkeypatch.setattr(inside, "bridged", inside.capped)
+        monkeypatch.setattr(winding, "bridged", inside.capped)
         fans = geovox.voxelize(mesh, resolution=18, bounds=bounds, inside="winding").occupancy
     np.testing.assert_array_equal(small, fans)
 
@@ -322,18 +323,18 @@ ON_A_CAP = {
 @pytest.mark.parametrize("name", list(ON_A_CAP))
 def test_a_voxel_centre_on_a_cap(monkeypatch, name, kernel):
     # Each term of w_M = w_{M+K} - w_K must see the centre on the same side
-    # of the cap: the rays' side (inside.settle_ties). Before, these cases
+    # of the cap: the rays' side (winding.settle_ties). Before, these cases
     # decided 3, 2 and 2 voxels against the brute force.
     make, shape, bounds, fans = ON_A_CAP[name]
     mesh = make()
     monkeypatch.setenv("GEOVOX_KERNEL", kernel)
     if fans:
-        monkeypatch.setattr(inside, "bridged", inside.capped)
+        monkeypatch.setattr(winding, "bridged", inside.capped)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", GeovoxWarning)
         vol = geovox.voxelize(mesh, shape=shape, bounds=bounds, inside="winding")
     grid = vol.grid
-    tris = inside.bridged(inside.target(mesh)[0])[1]
+    tris = winding.bridged(inside.target(mesh)[0])[1]  # as patched
     # Some centre lies exactly on a cap triangle: in its plane, within it.
     c = np.stack(np.meshgrid(*[grid.centres(a) for a in range(3)], indexing="ij"), -1)
     a, b, t = tris[:, 0], tris[:, 1], tris[:, 2]

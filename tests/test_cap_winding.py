@@ -2,7 +2,7 @@
 
 Models like the libigl truck (50 parts, 1,388 open edges) put most of the
 winding path's work in the caps' winding number ``w_K`` (see
-``geovox.inside._correct_caps``). These tests hold every voxel that the
+``geovox.inside.captree.correct_caps``). These tests hold every voxel that the
 path decides by a proven bound to the brute-force generalised winding
 number of the repaired mesh (every triangle summed exactly at every voxel
 centre), and pin how many voxels are left to the estimate: a loosened
@@ -19,7 +19,8 @@ import trimesh
 
 import geovox
 from geovox.errors import GeovoxWarning
-from geovox.inside import winding as inside
+from geovox import inside
+from geovox.inside import captree, caps, winding
 from geovox.kernels import chosen
 
 
@@ -61,8 +62,10 @@ RES = 20
 #: Voxels the compiled first pass leaves undecided on MESH at RES (see the tests below):
 #: (0.4, 1e-4) with the moment- and segment-aware bounds of geovox/_winding.pyx and
 #: a single triangle's bound from its edges (78 with the face's bound alone; a
-#: first pass of (0.2, 1e-4) with the bound ``3 A (r + rb)^2 / (4 pi d^4)`` left 22).
-ESTIMATED_AT_ZERO = 70
+#: first pass of (0.2, 1e-4) with the bound ``3 A (r + rb)^2 / (4 pi d^4)`` left 22)
+#: left 70; MESH's caps are small next to its voxels, so ``captree.SCAN_PASS``
+#: (0.7, 1e-3) runs first and leaves 281 (the later passes decide the rest).
+ESTIMATED_AT_ZERO = 281
 
 
 def brute_winding_number(mesh, grid):
@@ -75,7 +78,7 @@ def brute_winding_number(mesh, grid):
     for s in range(0, len(p), block):
         q = p[s:s + block]
         k = len(q)
-        a = inside._triangle_angles(np.tile(tris, (k, 1, 1)), np.repeat(q, len(tris), axis=0))
+        a = captree.triangle_angles(np.tile(tris, (k, 1, 1)), np.repeat(q, len(tris), axis=0))
         out[s:s + block] = a.reshape(k, -1).sum(axis=1)
     return out.reshape(grid.shape)
 
@@ -89,8 +92,8 @@ def reference():
 def run_winding(monkeypatch):
     """The volume and the mask of the voxels left to the estimate (all False where none)."""
     seen = []
-    real = inside._estimated
-    monkeypatch.setattr(inside, "_estimated", lambda unsure, grid: seen.append(unsure.copy())
+    real = winding._estimated
+    monkeypatch.setattr(winding, "_estimated", lambda unsure, grid: seen.append(unsure.copy())
                         or real(unsure, grid))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", GeovoxWarning)
@@ -134,9 +137,9 @@ def test_past_a_small_budget_proven_voxels_are_the_brute_force(reference, monkey
     # decides, whatever the machine's speed.
     grid, w = reference
     monkeypatch.setenv("GEOVOX_KERNEL", "numpy")
-    monkeypatch.setattr(inside, "WORK_SECONDS", 0.0)
+    monkeypatch.setattr(captree, "WORK_SECONDS", 0.0)
     if not direct:
-        monkeypatch.setattr(inside, "DIRECT", 0)
+        monkeypatch.setattr(captree, "DIRECT", 0)
     vol, estimated = run_winding(monkeypatch)
     proven = ~estimated
     np.testing.assert_array_equal(vol.occupancy[proven], (w > 0.5)[proven])
@@ -152,11 +155,11 @@ def test_compiled_past_its_time_the_proven_voxels_are_the_brute_force(reference,
     # (0.8, 1e-3) leaves 406).
     grid, w = reference
     monkeypatch.setenv("GEOVOX_KERNEL", "compiled")
-    monkeypatch.setattr(inside, "WORK_SECONDS", 0.0)
+    monkeypatch.setattr(captree, "WORK_SECONDS", 0.0)
     vol, estimated = run_winding(monkeypatch)
     proven = ~estimated
     np.testing.assert_array_equal(vol.occupancy[proven], (w > 0.5)[proven])
-    assert np.count_nonzero(estimated) == inside.STATS["estimated"] == ESTIMATED_AT_ZERO
+    assert np.count_nonzero(estimated) == captree.STATS["estimated"] == ESTIMATED_AT_ZERO
 
 
 @pytest.mark.skipif(_compiled_winding() is None, reason="the compiled winding kernel is not built")
@@ -170,12 +173,12 @@ def test_compiled_passes_change_the_work_not_the_answer(reference, monkeypatch, 
     # however loose the first, every voxel is the brute force's.
     grid, w = reference
     monkeypatch.setenv("GEOVOX_KERNEL", "compiled")
-    monkeypatch.setattr(inside, "COMPILED_PASSES", passes)
-    monkeypatch.setattr(inside, "COMPILED_BRICKS", bricks)
+    monkeypatch.setattr(captree, "COMPILED_PASSES", passes)
+    monkeypatch.setattr(captree, "COMPILED_BRICKS", bricks)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", GeovoxWarning)
         vol = geovox.voxelize(MESH, resolution=RES, inside="winding")
-    assert inside.STATS["estimated"] == 0 and inside.STATS["refined"] > 0
+    assert captree.STATS["estimated"] == 0 and captree.STATS["refined"] > 0
     np.testing.assert_array_equal(vol.occupancy, w > 0.5)
 
 
@@ -189,7 +192,7 @@ def test_compiled_refines_every_voxel_alone_and_agrees(reference, monkeypatch, j
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", GeovoxWarning)
         vol = geovox.voxelize(MESH, resolution=RES, inside="winding", jobs=jobs)
-    assert inside.STATS["refined"] == ESTIMATED_AT_ZERO and inside.STATS["estimated"] == 0
+    assert captree.STATS["refined"] == ESTIMATED_AT_ZERO and captree.STATS["estimated"] == 0
     np.testing.assert_array_equal(vol.occupancy, w > 0.5)
 
 
@@ -207,7 +210,7 @@ def test_boundary_pieces_split_into_closed_loops():
                     [0, 4], [4, 5], [5, 6], [6, 0],      # square B, through corner 0
                     [7, 8], [8, 9]])                     # an open path
     piece = np.array([0] * 8 + [1] * 2)
-    lab = inside._loops(vid, piece)
+    lab = caps.loops(vid, piece)
     assert len(np.unique(lab)) == 3
     assert len(np.unique(lab[8:])) == 1 and not set(lab[8:]) & set(lab[:8])
     for k in np.unique(lab[:8]):  # each loop closed: every position arrives as often as it leaves
@@ -245,8 +248,8 @@ def test_the_numpy_budget_is_time_and_only_its_end_depends_on_it(reference, monk
     # is the brute force's; with time to spare nothing depends on the clock.
     grid, w = reference
     monkeypatch.setenv("GEOVOX_KERNEL", "numpy")
-    monkeypatch.setattr(inside, "time", _Clock())
-    monkeypatch.setattr(inside, "WORK_SECONDS", seconds)
+    monkeypatch.setattr(captree, "time", _Clock())
+    monkeypatch.setattr(captree, "WORK_SECONDS", seconds)
     vol, estimated = run_winding(monkeypatch)
     proven = ~estimated
     np.testing.assert_array_equal(vol.occupancy[proven], (w > 0.5)[proven])
@@ -272,10 +275,10 @@ def test_the_report_counts_the_approximate_voxels(reference, monkeypatch, kernel
 
     grid, w = reference
     monkeypatch.setenv("GEOVOX_KERNEL", kernel)
-    monkeypatch.setattr(inside, "WORK_SECONDS", 0.0)
+    monkeypatch.setattr(captree, "WORK_SECONDS", 0.0)
     seen = []
-    real = inside._estimated
-    monkeypatch.setattr(inside, "_estimated", lambda unsure, grid: seen.append(unsure.copy())
+    real = winding._estimated
+    monkeypatch.setattr(winding, "_estimated", lambda unsure, grid: seen.append(unsure.copy())
                         or real(unsure, grid))
     with pytest.warns(GeovoxWarning) as record:
         report = run(MESH, plan(MESH, as_options(resolution=RES, inside="winding")))
@@ -288,14 +291,14 @@ def test_the_report_counts_the_approximate_voxels(reference, monkeypatch, kernel
     wrong = report.volume.occupancy != (w > 0.5)
     assert np.all(mask[wrong])
     if kernel == "compiled":
-        assert n == inside.STATS["estimated"] == ESTIMATED_AT_ZERO
+        assert n == captree.STATS["estimated"] == ESTIMATED_AT_ZERO
     (line,) = [x for x in report.summary(1.0) if x.startswith("approximate ")]
     share = 100 * n / 8000
     assert line == (f"approximate {n:,} voxels ({share:.1f}%): " if share >= 1 else
                     f"approximate {n:,} voxels ({share:.2g}%): ") + (
         "decided by an estimate of the winding number (its work budget ran out)")
     # With time: none, and the summary has no such line.
-    monkeypatch.setattr(inside, "WORK_SECONDS", 10.0)
+    monkeypatch.setattr(captree, "WORK_SECONDS", 10.0)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", GeovoxWarning)
         report = run(MESH, plan(MESH, as_options(resolution=RES, inside="winding")))
@@ -309,10 +312,10 @@ def test_slabs_sum_their_approximate_voxels_and_say_it_once(tmp_path, monkeypatc
     import re
 
     monkeypatch.setenv("GEOVOX_KERNEL", "numpy")
-    monkeypatch.setattr(inside, "WORK_SECONDS", 0.0)
+    monkeypatch.setattr(captree, "WORK_SECONDS", 0.0)
     seen = []
-    real = inside._estimated
-    monkeypatch.setattr(inside, "_estimated", lambda unsure, grid: seen.append(
+    real = winding._estimated
+    monkeypatch.setattr(winding, "_estimated", lambda unsure, grid: seen.append(
         int(np.count_nonzero(unsure))) or real(unsure, grid))
     with pytest.warns(GeovoxWarning) as record:
         report = geovox.convert_to(MESH, tmp_path / "m.h5", shape=(16, 16, 150), inside="winding",
@@ -327,7 +330,7 @@ def test_slabs_sum_their_approximate_voxels_and_say_it_once(tmp_path, monkeypatc
 def test_a_batch_records_the_approximate_voxels(tmp_path, monkeypatch):
     import json
 
-    monkeypatch.setattr(inside, "WORK_SECONDS", 0.0)
+    monkeypatch.setattr(captree, "WORK_SECONDS", 0.0)
     path = tmp_path / "cap_heavy.off"
     v, f = MESH.vertices, MESH.faces
     path.write_text("OFF\n%d %d 0\n" % (len(v), len(f))

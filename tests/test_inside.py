@@ -10,7 +10,7 @@ import trimesh
 
 import geovox
 from geovox.errors import GeovoxWarning, ParameterError
-from geovox.inside import boundary_edges, solid_angles
+from geovox.inside import boundary_edges, captree, solid_angles
 
 from conftest import SPOT, box_mesh, corpus, from_tm
 
@@ -51,7 +51,7 @@ OPEN = [("holed_sphere", holed_sphere(), 20), ("big_hole", holed_sphere(0.0), 20
 def test_winding_equals_brute_force_generalised_winding_number(name, mesh, res, backend, direct,
                                                                monkeypatch):
     if not direct:  # every refining pass runs, no shortcut to the exact sum
-        monkeypatch.setattr(geovox.inside.winding, "DIRECT", 0)
+        monkeypatch.setattr(geovox.inside.captree, "DIRECT", 0)
     assert len(boundary_edges(mesh)) > 0
     vol = geovox.voxelize(mesh, resolution=res, inside="winding", backend=backend,
                           bounds=np.r_[mesh.bounds[0] - 0.13, mesh.bounds[1] + 0.11])
@@ -151,16 +151,14 @@ def test_info_command(capsys):
 
 
 def test_triangle_angles_componentwise_match_the_vector_formula():
-    # _triangle_angles is written component by component for speed; it must
+    # triangle_angles is written component by component for speed; it must
     # give what the einsum/np.cross form of the same formula gives,
     # including at a triangle's own vertices and in its plane.
-    from geovox.inside.winding import _triangle_angles
-
     rng = np.random.default_rng(5)
     tris = rng.normal(size=(300, 3, 3))
     pts = np.concatenate([rng.normal(size=(297, 3)), tris[:3, 0]])
     pts[:4] = tris[:4].mean(axis=1)  # centroids: in the plane, on the triangle
-    got = _triangle_angles(tris, pts)
+    got = captree.triangle_angles(tris, pts)
     ref = np.array([solid_angles(t[None], p[None])[0] for t, p in zip(tris, pts)])
     np.testing.assert_allclose(got, ref, rtol=0, atol=1e-12)
 
@@ -180,29 +178,25 @@ def test_winding_of_a_triangle_soup_matches_brute_force():
 
 
 def test_argwhere_helper_matches_numpy():
-    from geovox.inside.winding import _argwhere
-
     rng = np.random.default_rng(2)
     for shape in [(1, 1, 1), (5, 7, 3), (16, 9, 33)]:
         for m in (rng.random(shape) < 0.1, np.zeros(shape, bool), np.ones(shape, bool)):
             for a in (m, np.asfortranarray(m)):
-                np.testing.assert_array_equal(_argwhere(a), np.argwhere(a))
+                np.testing.assert_array_equal(captree._argwhere(a), np.argwhere(a))
 
 
 def test_voxel_sums_merged_in_many_parts_give_the_same_volume(monkeypatch):
     # The voxel-level sums of the caps' winding number are kept sparse and
     # merged whenever MERGE_AT pairs are pending; merging after every few
     # must change nothing, and both must match the brute force.
-    from geovox.inside import winding as inside
-
     mesh = many_holes()
     kw = dict(resolution=26, inside="winding", bounds=np.r_[mesh.bounds[0] - 0.1, mesh.bounds[1] + 0.1])
     once = geovox.voxelize(mesh, **kw)
-    monkeypatch.setattr(inside, "MERGE_AT", 7)
+    monkeypatch.setattr(captree, "MERGE_AT", 7)
     parts = geovox.voxelize(mesh, **kw)
     np.testing.assert_array_equal(parts.occupancy, once.occupancy)
     np.testing.assert_array_equal(once.occupancy, brute_winding(mesh, once.grid))
-    merged = inside._merge([(np.array([5, 2, 5]), np.array([1.0, 2.0, 3.0]), np.zeros(3),
+    merged = captree._merge([(np.array([5, 2, 5]), np.array([1.0, 2.0, 3.0]), np.zeros(3),
                              np.array([0.0, 0.5, 0.25]), None),
                             (np.array([2]), np.array([0.5]), np.ones(1), np.ones(1), np.array([4]))])
     for got, ref in zip(merged, ([2, 5], [2.5, 4.0], [1.0, 0.0], [1.5, 0.25], [5, 2])):
@@ -213,8 +207,6 @@ def test_far_field_bounds_hold_the_exact_value():
     # _clamp narrows a dipole's interval with |w| <= A / (4 pi g²); the
     # narrowed interval must still hold the exact sum, also where the
     # dipole's own bound is loose (opening ratio near 1).
-    from geovox.inside.winding import _clamp, _triangle_angles
-
     rng = np.random.default_rng(7)
     for _ in range(200):
         tris = rng.normal(scale=0.3, size=(6, 3, 3)) + rng.normal(size=3)
@@ -226,12 +218,12 @@ def test_far_field_bounds_hold_the_exact_value():
             continue
         S = 0.5 * np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
         area = np.linalg.norm(S, axis=1).sum()
-        exact = _triangle_angles(tris, np.repeat(p[None], 6, axis=0)).sum()
+        exact = captree.triangle_angles(tris, np.repeat(p[None], 6, axis=0)).sum()
         vec = c - p
         val = S.sum(axis=0) @ vec / (4 * np.pi * np.linalg.norm(vec) ** 3)
         r = np.linalg.norm(h)
         bound = area * r / (2 * np.pi * gap ** 3)
-        below, above = _clamp(np.array([val]), np.array([bound]), np.array([area]), np.array([gap]))
+        below, above = captree._clamp(np.array([val]), np.array([bound]), np.array([area]), np.array([gap]))
         assert val - below[0] - 1e-12 <= exact <= val + above[0] + 1e-12
         assert below[0] + above[0] <= 2 * bound + 1e-12
 
@@ -239,14 +231,12 @@ def test_far_field_bounds_hold_the_exact_value():
 def test_brick_pyramid_is_the_same_dense_or_sparse():
     # _pyramid builds coarse levels from indices when the mask is sparse and
     # by any over 2³ blocks when it is dense: both must give the same levels.
-    from geovox.inside.winding import _pyramid
-
     rng = np.random.default_rng(0)
     for shape in [(5, 7, 3), (16, 9, 33), (40, 33, 17)]:
         for share in (0.001, 0.05, 0.5):
             m = rng.random(shape) < share
             idx = np.argwhere(m)
-            for k, level in enumerate(_pyramid(m, 4)):
+            for k, level in enumerate(captree._pyramid(m, 4)):
                 ref = np.zeros(tuple(-(-np.array(shape) // (1 << k))), bool)
                 ref[tuple((idx >> k).T)] = True
                 np.testing.assert_array_equal(level, ref)

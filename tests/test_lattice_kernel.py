@@ -155,8 +155,8 @@ def _numpy_answers(mesh, monkeypatch):
     m = Mesh(mesh.vertices, mesh.faces, source=mesh.source)
     g = m.geometric_faces
     g = g[(g[:, 0] != g[:, 1]) & (g[:, 1] != g[:, 2]) & (g[:, 2] != g[:, 0])]
-    out = (len(inside.boundary_edges(m)) == 0, inside._non_manifold(m), inside.consistent(m),
-           inside._vertex_connected(g) if len(g) else True, inside.overlapping_pieces(m),
+    out = (len(inside.boundary_edges(m)) == 0, inside.non_manifold(m), inside.consistent(m),
+           inside.edges.vertex_connected(g) if len(g) else True, inside.overlapping_pieces(m),
            inside.choose(m, "auto") if len(inside.boundary_edges(m)) == 0 else None)
     monkeypatch.delenv("GEOVOX_KERNEL")
     return out
@@ -168,7 +168,7 @@ def _compiled_answers(mesh, kernel, monkeypatch):
     pf = kernel.merge_positions(m.vertices)[m.faces]
     closed = len(inside.boundary_edges(m)) == 0
     g = pf[(pf[:, 0] != pf[:, 1]) & (pf[:, 1] != pf[:, 2]) & (pf[:, 2] != pf[:, 0])]
-    out = (closed, inside._non_manifold(m), inside.consistent(m),
+    out = (closed, inside.non_manifold(m), inside.consistent(m),
            kernel.vertex_connected(g) if len(g) else True, inside.overlapping_pieces(m),
            inside.choose(m, "auto") if closed else None)
     monkeypatch.delenv("GEOVOX_KERNEL")

@@ -372,7 +372,7 @@ def test_no_hand_copied_signature_of_voxelize():
 
 
 def test_convert_to_loads_plans_and_chooses_once(tmp_path, monkeypatch):
-    import geovox.inside.winding
+    import geovox.inside
     import geovox.io.load
     import geovox.planner
 

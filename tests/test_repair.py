@@ -11,10 +11,11 @@ import trimesh
 from scipy import ndimage
 
 import geovox
-from geovox.inside import winding as inside
+from geovox import inside
+from geovox.inside import captree
 from geovox.errors import GeovoxWarning, GridTooLargeError
 from geovox.inside.repair import repair
-from geovox.block import ray_start
+from geovox.pipeline import ray_start
 
 from conftest import box_mesh, from_tm
 
@@ -179,7 +180,7 @@ def test_many_piece_open_assembly_matches_brute_force_of_the_repaired_copy(backe
                                                                            monkeypatch):
     # "passes": no shortcut to the exact sum, so every refining pass runs.
     if not direct:
-        monkeypatch.setattr(inside, "DIRECT", 0)
+        monkeypatch.setattr(captree, "DIRECT", 0)
     mesh = open_boxes(40)
     assert "40 pieces" in inside.target(mesh)[1].describe()  # what geovox info reports
     with pytest.warns(GeovoxWarning, match="not closed .* of a repaired copy"):
@@ -221,7 +222,7 @@ def test_winding_that_cannot_fit_says_so_before_allocating(monkeypatch):
     mesh = open_boxes(3)
     grid_voxels = 40 ** 3
     # Enough for the occupancy grid, not for the winding number's working arrays.
-    monkeypatch.setattr(memory, "available_memory", lambda: int(grid_voxels * 4))  # 16 needed
+    monkeypatch.setattr(memory, "_available_memory", lambda: int(grid_voxels * 4))  # 16 needed
     with pytest.warns(GeovoxWarning), pytest.raises(GridTooLargeError, match="needs"):
         geovox.voxelize(mesh, resolution=40, inside="auto")
 
@@ -240,7 +241,7 @@ def test_info_says_what_auto_repairs(tmp_path, capsys):
 
 def test_streamed_winding_of_a_repaired_copy_equals_the_volume_in_one_piece(tmp_path):
     import geovox.formats as F
-    from geovox.api import convert_to
+    from geovox.stream import convert_to
 
     mesh = open_boxes(12, seed=3)
     with pytest.warns(GeovoxWarning, match="of a repaired"):
@@ -258,7 +259,7 @@ def test_past_the_work_budget_the_estimate_decides_with_a_warning(monkeypatch):
     with pytest.warns(GeovoxWarning):
         exact = geovox.voxelize(mesh, resolution=22)
     assert exact.approximate == 0
-    monkeypatch.setattr(inside, "WORK_SECONDS", 0.0)
+    monkeypatch.setattr(captree, "WORK_SECONDS", 0.0)
     with pytest.warns(GeovoxWarning) as record:
         rough = geovox.voxelize(mesh, resolution=22)
     said = [re.search("([0-9,]+) of 10,648 voxels .* are approximate; the holes' caps passed the "
@@ -288,7 +289,7 @@ def test_vertex_connectivity_without_scipy_matches_csgraph(sub):
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
-    from geovox.inside.winding import _vertex_connected
+    from geovox.inside.edges import vertex_connected
 
     def one_component(g):
         nv = int(g.max()) + 1
@@ -302,7 +303,7 @@ def test_vertex_connectivity_without_scipy_matches_csgraph(sub):
     cases = [f, np.vstack([f, f + n]), f[rng.permutation(len(f))[: max(1, len(f) // 3)]],
              f[rng.permutation(len(f))], np.vstack([f, f[:1] + n])]
     for g in cases:
-        assert _vertex_connected(g) == one_component(g)
+        assert vertex_connected(g) == one_component(g)
 
 
 def test_a_refining_pass_sure_to_pass_the_budget_is_not_started(monkeypatch):
@@ -311,9 +312,9 @@ def test_a_refining_pass_sure_to_pass_the_budget_is_not_started(monkeypatch):
     monkeypatch.setenv("GEOVOX_KERNEL", "numpy")
     mesh = open_boxes(40)
     calls = []
-    real = inside.cap_winding
-    monkeypatch.setattr(inside, "cap_winding", lambda *a, **k: calls.append(k) or real(*a, **k))
-    monkeypatch.setattr(inside, "WORK_SECONDS", 0.0)
+    real = captree.cap_winding
+    monkeypatch.setattr(captree, "cap_winding", lambda *a, **k: calls.append(k) or real(*a, **k))
+    monkeypatch.setattr(captree, "WORK_SECONDS", 0.0)
     with pytest.warns(GeovoxWarning) as record:
         geovox.voxelize(mesh, resolution=22)
     assert len(calls) == 1
@@ -327,19 +328,19 @@ def test_the_next_pass_handles_at_least_the_work_bound(mesh, res, monkeypatch):
     # it handles more than its budget), and given the bound it may not.
     monkeypatch.setenv("GEOVOX_KERNEL", "numpy")
     seen = []
-    real = inside._sure_work
-    monkeypatch.setattr(inside, "_sure_work", lambda *a: seen.append((real(*a), a[3])) or 0.0)
-    monkeypatch.setattr(inside, "PASSES", inside.PASSES[:2])  # stop after the second pass
-    monkeypatch.setattr(inside, "DIRECT", 0)  # no shortcut to the exact sum
+    real = captree._sure_work
+    monkeypatch.setattr(captree, "_sure_work", lambda *a: seen.append((real(*a), a[3])) or 0.0)
+    monkeypatch.setattr(captree, "PASSES", captree.PASSES[:2])  # stop after the second pass
+    monkeypatch.setattr(captree, "DIRECT", 0)  # no shortcut to the exact sum
     calls = []
-    real_cw = inside.cap_winding
-    monkeypatch.setattr(inside, "cap_winding", lambda *a, **k: calls.append(a) or real_cw(*a, **k))
+    real_cw = captree.cap_winding
+    monkeypatch.setattr(captree, "cap_winding", lambda *a, **k: calls.append(a) or real_cw(*a, **k))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         geovox.voxelize(mesh, resolution=res)
     bound, active = seen[0]
     grid, tris = calls[0][0], calls[0][1]
-    theta, eps = inside.PASSES[1]
+    theta, eps = captree.PASSES[1]
     assert bound > 1000  # the bound says something
     assert real_cw(grid, tris, active, theta=theta, eps=eps, budget=int(np.ceil(bound)) - 1) is None
     assert real_cw(grid, tris, active, theta=theta, eps=eps, budget=None) is not None
@@ -353,7 +354,7 @@ def test_components_and_parities_without_scipy_match_csgraph(seed):
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
-    from geovox.inside.repair import components
+    from geovox.inside.edges import components
 
     rng = np.random.default_rng(seed)
     n = int(rng.integers(1, 400))
@@ -465,7 +466,7 @@ def test_coverage_of_overlapping_parts_follows_the_winding_number(backend):
     assert vol.occupancy[i, j, k] and vol.density[i, j, k] >= 1 - 1e-5
     # Parity along the rays (the signs left out) has it empty.
     from geovox.density import coverage, sub_columns
-    from geovox.block import ray_start
+    from geovox.pipeline import ray_start
 
     sub = sub_columns(g.columns(2, start=ray_start(mesh, g, 2)), 2)
     hits = geovox.backends.get_backend(backend).cast(mesh, sub)

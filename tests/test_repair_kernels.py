@@ -3,7 +3,7 @@
 ``geovox._lattice`` computes :func:`geovox.inside.repair.repair`'s steps (the
 positions' lexicographic numbers, the weld's close pairs, duplicate groups,
 the edge table and the spanning forest with its flips) and
-:func:`geovox.inside.winding.boundary_edges` of an open mesh in linear time;
+:func:`geovox.inside.edges.boundary_edges` of an open mesh in linear time;
 the NumPy code stays as the fallback under ``GEOVOX_KERNEL=numpy``. Both must
 give the same repaired mesh, array for array (face order, vertex ids, flips),
 so every occupancy is unchanged. The meshes are made to break every step.
@@ -18,8 +18,8 @@ import pytest
 import trimesh
 
 import geovox
+from geovox.inside import edges as E
 from geovox.inside import repair as R
-from geovox.inside import winding as W
 from geovox.kernels import chosen
 from geovox.mesh import Mesh, build_mesh
 
@@ -69,8 +69,13 @@ def _fan(n=300):
     return v + np.array([0, 4.0, 0]), f
 
 
-def _messy(seed):
-    """Many kinds of damage in one mesh of several components."""
+def _messy(seed, moebius=True):
+    """Many kinds of damage in one mesh of several components.
+
+    With ``moebius``, a band whose flips contradict: the compiled repair then
+    runs the rounds of :func:`geovox.inside.edges.components` (the forest
+    decides); without, its union-find must give the same flips.
+    """
     rng = np.random.default_rng(seed)
     parts = []
     # Open spheres with holes, faces flipped at random, one turned inside out.
@@ -97,7 +102,7 @@ def _messy(seed):
     # Degenerate faces: a repeated vertex, and three collinear points.
     v = np.array([[0, 0, 0], [1, 1, 1], [2, 2, 2], [0, 1, 0]], float)
     parts.append((v - 6, np.array([[0, 1, 2], [0, 0, 3], [3, 1, 1], [0, 1, 3]], np.int64)))
-    parts += [_moebius(), _fan()]
+    parts += [_moebius(), _fan()] if moebius else [_fan()]
     v, f = _join(parts)
     # Vertices split at equal positions (UV seams), some closer than the weld
     # distance, and signed zeros.
@@ -126,6 +131,7 @@ def _loaded(name):
 
 
 CASES = {f"messy{s}": (lambda s=s: _messy(s)) for s in range(4)}
+CASES.update({f"orientable{s}": (lambda s=s: _messy(s, moebius=False)) for s in range(4)})
 CASES.update({"moebius": _moebius, "fan": _fan,
               "truck": lambda: _loaded("wild/truck.obj"),
               "pyramids": lambda: _loaded("wild/pyramids.3mf"),
@@ -140,12 +146,12 @@ def _everything(v, f, kernel):
     """Every array the repair and the checks give, on a fresh mesh, under ``kernel``."""
     mesh = build_mesh(v, f, "case")
     with chosen(kernel):
-        out = {"boundary": W.boundary_edges(mesh), "counts": np.array(W.edge_counts(mesh)),
-               "consistent": np.array(W.consistent(mesh))}
+        out = {"boundary": E.boundary_edges(mesh), "counts": np.array(E.edge_counts(mesh)),
+               "consistent": np.array(E.consistent(mesh))}
         rep = R.repair(mesh)
         out.update({k: np.asarray(getattr(rep, k)) for k in FIELDS})
         out["vertices"], out["faces"] = rep.mesh.vertices, rep.mesh.faces
-        out["boundary_after"] = W.boundary_edges(rep.mesh)
+        out["boundary_after"] = E.boundary_edges(rep.mesh)
         out["seeded"] = rep.mesh.geometric_faces
     return out
 
@@ -172,7 +178,7 @@ def test_what_the_repair_caches_on_its_copy_is_what_the_checks_would_find(case, 
         rep = R.repair(build_mesh(v, f, "case"))
         fresh = Mesh(rep.mesh.vertices, rep.mesh.faces)
         assert np.array_equal(fresh.geometric_faces, rep.mesh.faces)
-        for check in (W.boundary_edges, W.edge_counts, W._non_manifold, W.consistent):
+        for check in (E.boundary_edges, E.edge_counts, E.non_manifold, E.consistent):
             seeded, again = check(rep.mesh), check(fresh)
             assert np.asarray(seeded).dtype == np.asarray(again).dtype
             assert np.array_equal(seeded, again), check.__name__
@@ -183,7 +189,7 @@ def test_the_cases_break_what_they_are_meant_to():
     with chosen("compiled"):
         mesh = build_mesh(v, f, "messy")
         rep = R.repair(mesh)
-        n_open, n_nonmanifold = W.edge_counts(mesh)
+        n_open, n_nonmanifold = E.edge_counts(mesh)
     assert n_open and n_nonmanifold
     assert rep.welded and rep.degenerate and rep.duplicates and rep.opposite and rep.inner
     assert rep.flipped and rep.outward and rep.pieces > 5
@@ -191,8 +197,8 @@ def test_the_cases_break_what_they_are_meant_to():
     # faces after the flips (no choice of flips can avoid one).
     mv, mf = _moebius()
     rep = R.repair(build_mesh(mv, mf, "moebius"))
-    edge, count, forward = R.edge_table(rep.mesh.faces, len(rep.mesh.vertices))
-    pairs = R.manifold_pairs(edge, count)
+    edge, count, forward = E.edge_table(rep.mesh.faces, len(rep.mesh.vertices))
+    pairs = E.manifold_pairs(edge, count)
     assert np.any(forward[pairs[:, 0]] == forward[pairs[:, 1]])
 
 
@@ -206,9 +212,9 @@ def test_compiled_components_follow_the_same_forest(seed):
     a, b = rng.integers(0, n, e), rng.integers(0, n, e)
     odd = rng.random(e) < 0.5
     with chosen("numpy"):
-        want = R.components(n, a, b, odd)
+        want = E.components(n, a, b, odd)
     with chosen("compiled"):
-        got = R.components(n, a, b, odd)
+        got = E.components(n, a, b, odd)
     assert want[0] == got[0]
     assert np.array_equal(want[1], got[1]) and np.array_equal(want[2], got[2])
 
@@ -222,9 +228,9 @@ def test_compiled_edge_table_and_close_pairs_match_numpy(seed):
     faces[:60, 0] = 0  # one vertex on many edges: the merging sort
     faces = faces[(faces[:, 1] != 0) & (faces[:, 2] != 0) | (np.arange(len(faces)) >= 60)]
     with chosen("numpy"):
-        want = R.sorted_edges(faces, 40)
+        want = E.sorted_edges(faces, 40)
     with chosen("compiled"):
-        got = R.sorted_edges(faces, 40)
+        got = E.sorted_edges(faces, 40)
     for x, y in zip(want, got):
         assert np.array_equal(x, y)
     # Points on a lattice of exactly the tolerance, and jittered copies.
@@ -247,3 +253,162 @@ def test_the_occupancy_of_a_messy_model_is_the_same_under_both_kernels(case):
     vols = [geovox.voxelize(build_mesh(v, f, "case"), resolution=24, kernel=k).occupancy
             for k in ("numpy", "compiled")]
     assert vols[0].any() and np.array_equal(vols[0], vols[1])
+
+
+# --- the kernels of issue 37's scans, each against the NumPy it stands for ---------
+
+
+def _rows(rng, n, kind):
+    if kind == "normal":
+        return rng.normal(size=(n, 3))
+    v = rng.integers(-2, 3, (n, 3)).astype(float)  # ties on x, y and z
+    v[rng.random(v.shape) < 0.3] *= -0.0  # signed zeros: one position
+    return v
+
+
+@pytest.mark.parametrize("kind", ["normal", "ties"])
+def test_lex_order_is_lexsort(kind):
+    from geovox import _lattice
+
+    rng = np.random.default_rng(3)
+    for n in (0, 1, 2, 17, 5000):
+        v = _rows(rng, n, kind)
+        assert np.array_equal(_lattice.lex_order(np.ascontiguousarray(v)),
+                              np.lexsort((v[:, 2], v[:, 1], v[:, 0])))
+
+
+def test_merge_positions_numbers_by_first_appearance():
+    from geovox import _lattice
+
+    rng = np.random.default_rng(4)
+    for n in (1, 5, 3000, 70000):  # 70000: the table grows several times
+        v = _rows(rng, n, "ties") + rng.integers(0, 30, (n, 1))
+        got = _lattice.merge_positions(v)
+        _, first, inverse = np.unique(v + 0.0, axis=0, return_index=True, return_inverse=True)
+        rank = np.empty(len(first), np.int64)
+        rank[np.argsort(first)] = np.arange(len(first))
+        assert np.array_equal(got, rank[inverse.reshape(-1)])
+
+
+def test_face_groups_and_duplicate_faces_match_numpy():
+    from geovox import _lattice
+
+    rng = np.random.default_rng(5)
+    for trial in range(60):
+        n = int(rng.integers(3, 40))
+        f = rng.integers(0, n, (int(rng.integers(1, 300)), 3))
+        f = f[(f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 0] != f[:, 2])]
+        if trial % 3 == 0 and len(f):
+            f[: len(f) // 2, 0] = 0  # a fan's apex: one big bucket
+            f = f[(f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 0] != f[:, 2])]
+        if trial % 2:
+            f = np.concatenate([f, f[::7][:, [1, 2, 0]], f[::11][:, ::-1]])[rng.permutation(len(f) + len(f[::7]) + len(f[::11]))]
+        if len(f) == 0:
+            continue
+        with chosen("numpy"):
+            want = R._face_groups(f, n)
+        got = _lattice.face_groups(f)
+        for x, y in zip(want, got):
+            assert np.array_equal(x, y)
+        assert _lattice.duplicate_faces(f) == (len(want[0]) < len(f))
+
+
+def test_edge_checks_count_what_edge_counts_counts():
+    from geovox import _lattice
+
+    for case in ("messy0", "orientable1", "fan", "truck", "wallhole"):
+        v, f = CASES[case]()
+        mesh = build_mesh(v, f, case)
+        with chosen("numpy"):
+            counts = E.edge_counts(mesh)
+            closed = len(E.boundary_edges(build_mesh(v, f, case))) == 0
+        got = _lattice.edge_checks(mesh.geometric_faces)
+        assert got[0] == closed and got[2:] == counts and got[1] == (counts[1] > 0)
+
+
+def test_boundary_loops_are_loops_and_loop_order():
+    from geovox import _lattice
+    from geovox.inside import bridge, caps
+
+    for case in ("messy0", "orientable2", "truck", "wallhole", "fan"):
+        v, f = CASES[case]()
+        with chosen("compiled"):
+            tm = R.repair(build_mesh(v, f, case)).mesh
+        edges = E.boundary_edges(tm)
+        if len(edges) == 0:
+            continue
+        vid = np.unique(edges, return_inverse=True)[1].reshape(-1, 2)
+        nv = int(vid.max()) + 1
+        found = _lattice.boundary_loops(vid, nv)
+        _, label, _ = E.components(nv, vid[:, 0], vid[:, 1])
+        piece = caps.loops(vid, label[vid[:, 0]])
+        if found is None:  # a position that does not balance: NumPy decides
+            assert (bridge.loop_order(vid, piece) < 0).any()
+            continue
+        assert np.array_equal(found[0], piece)
+        assert np.array_equal(found[1], bridge.loop_order(vid, piece))
+
+
+def test_sweep_pairs_finds_every_close_pair_of_sorted_points():
+    from geovox import _lattice
+
+    rng = np.random.default_rng(6)
+    p = np.concatenate([np.indices((6, 6, 6)).reshape(3, -1).T * 0.5, rng.uniform(0, 3, (400, 3))])
+    p = np.concatenate([p, p[::3] + rng.normal(0, 0.2, (len(p[::3]), 3))])
+    p = p[np.lexsort((p[:, 2], p[:, 1], p[:, 0]))]
+    for tol in (0.5, 0.21, 1e-3):
+        with chosen("numpy"):
+            want = R.close_pairs(p, tol)
+        got = _lattice.sweep_pairs(np.ascontiguousarray(p), tol, 10 ** 9)
+        assert set(map(tuple, want.tolist())) <= set(map(tuple, got.tolist()))
+        with chosen("compiled"):
+            again = R.close_pairs(p, tol, lex_sorted=True)
+        assert set(map(tuple, want.tolist())) == set(map(tuple, again.tolist()))
+    assert _lattice.sweep_pairs(np.zeros((100, 3)), 1.0, 50) is None  # past its budget: give up
+
+
+def test_repair_edges_leaves_duplicates_and_contradictions_to_its_caller():
+    from geovox import _lattice
+
+    v, f = _moebius()
+    with chosen("compiled"):
+        rep = R.repair(build_mesh(v, f, "moebius"))
+    pos, g = rep.mesh.vertices, rep.mesh.faces.copy()
+    c = pos.mean(axis=0)
+    order = R._einsum_order()
+    assert order in (0, 1, 2)  # NumPy's dot product, as the kernel follows it here
+    assert _lattice.repair_edges(g.copy(), len(pos), pos, c, order) == _lattice.CONTRADICTION
+    twice = np.concatenate([g, g[:3, ::-1]])
+    before = twice.copy()
+    assert _lattice.repair_edges(twice, len(pos), pos, c, order) == _lattice.DUPLICATES
+    assert np.array_equal(twice, before)  # no face turned
+
+
+def test_compiled_cap_tree_is_the_numpy_tree():
+    from geovox import _winding
+    from geovox.inside import captree
+
+    rng = np.random.default_rng(8)
+    for k in (1, 2, 3, 7, 100, 1001):
+        tris = captree._morton_sorted(rng.normal(size=(k, 3, 3)))
+        st, nodes, offset, size = captree._cap_tree(tris)
+        assert np.array_equal(st, tris)
+        S, A, C, H, Rr, Q, M, off, sz = _winding.cap_tree(np.ascontiguousarray(tris.reshape(-1, 9)))
+        assert np.array_equal(off, offset) and np.array_equal(sz, size)
+        for got, want in ((S, nodes["S"]), (A, nodes["A"]), (C, nodes["c"]), (H, nodes["h"]),
+                          (Rr, nodes["r"])):
+            np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-14)
+        # The moments, as NumPy sums them: S_t (x) centroid_t about c; sqrt of sum A_t (|g - c|^2 + own).
+        Sl = 0.5 * np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
+        g = tris.mean(axis=1)
+        own = ((tris - g[:, None]) ** 2).sum(axis=(1, 2)) / 12
+        for lv, (first, n) in enumerate(zip(offset, size)):
+            node = np.arange(k) >> lv
+            c = nodes["c"][first + node]
+            q = np.zeros((n, 3, 3))
+            np.add.at(q, node, Sl[:, :, None] * (g - c)[:, None, :])
+            np.testing.assert_allclose(Q[first:first + n].reshape(-1, 3, 3), q, rtol=1e-9,
+                                       atol=1e-12)
+            m2 = np.bincount(node, weights=np.linalg.norm(Sl, axis=1)
+                             * (((g - c) ** 2).sum(axis=1) + own), minlength=n)
+            np.testing.assert_allclose(M[first:first + n], np.sqrt(m2), rtol=1e-12, atol=1e-14)

@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 
 import geovox
-from geovox.inside import winding as inside
 from geovox.cli import main
 from geovox.errors import GeovoxWarning
+from geovox.inside import captree
 
 from conftest import DATA, SPOT
 
@@ -48,7 +48,7 @@ def test_the_truck_gets_one_short_line_pointing_to_info(tmp_path, capsys):
 def test_approximate_voxels_are_the_second_line(tmp_path, capsys, monkeypatch):
     # No time for the caps (the work budget of either traversal, processor seconds): the
     # estimate decides.
-    monkeypatch.setattr(inside, "WORK_SECONDS", 0.0)
+    monkeypatch.setattr(captree, "WORK_SECONDS", 0.0)
     assert main(["convert", TRUCK, "-o", str(tmp_path / "t.raw"), "-r", "12", "-q"]) == 0
     lines = _warnings(capsys.readouterr().err)
     assert len(lines) == 2 and all(len(x) <= SHORT for x in lines), lines
@@ -77,7 +77,7 @@ def test_a_closed_copy_says_exact_and_an_unnamed_mesh_no_command():
 def test_batch_summary_gives_the_warning_one_short_cell(tmp_path, monkeypatch):
     from geovox.batch import CELL, summary_table
 
-    monkeypatch.setattr(inside, "WORK_SECONDS", 0.0)  # either traversal's budget, of time
+    monkeypatch.setattr(captree, "WORK_SECONDS", 0.0)  # either traversal's budget, of time
     results = geovox.convert_many([TRUCK, SPOT], tmp_path / "out", resolution=12)
     truck, spot = results
     assert truck.status == spot.status == "ok"

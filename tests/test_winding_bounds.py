@@ -25,7 +25,8 @@ from hypothesis import strategies as st
 
 import geovox
 from geovox.errors import GeovoxWarning
-from geovox.inside import winding as inside
+from geovox import inside
+from geovox.inside import captree, winding
 from geovox.kernels import chosen
 from test_cap_winding import brute_winding_number
 
@@ -68,7 +69,7 @@ def _remainders(t, c, rb, rng, n=400):
     h *= rb * rng.uniform(0, 1, n)[:, None] ** (1 / 6)
     h[:3] = rb * np.eye(3)
     x = c + h
-    w = inside._triangle_angles(np.repeat(t[None], n, axis=0), x)
+    w = captree.triangle_angles(np.repeat(t[None], n, axis=0), x)
     return np.abs(w - val - h @ np.asarray(grad)).max(), face, edges
 
 
@@ -184,12 +185,12 @@ def test_compiled_every_soup_voxel_is_the_brute_force(soup_reference, monkeypatc
     grid, w = soup_reference
     vol = _winding(monkeypatch, "compiled")
     assert vol.grid.shape == grid.shape
-    assert vol.approximate == 0 and inside.STATS["estimated"] == 0
-    assert inside.STATS["caps"] == len(SOUP.faces)
+    assert vol.approximate == 0 and captree.STATS["estimated"] == 0
+    assert captree.STATS["caps"] == len(SOUP.faces)
     # The brute force is itself a float64 sum: stay clear of ties with 1/2.
     assert np.abs(w - 0.5).min() > 1e-6
     np.testing.assert_array_equal(vol.occupancy, w > 0.5)
-    assert inside.STATS["refined"] == SOUP_REFINED
+    assert captree.STATS["refined"] == SOUP_REFINED
 
 
 @needs_kernel
@@ -200,10 +201,10 @@ def test_compiled_soup_past_its_time_the_proven_voxels_are_the_brute_force(soup_
     # the brute force's.
     grid, w = soup_reference
     seen = []
-    real = inside._estimated
-    monkeypatch.setattr(inside, "_estimated", lambda unsure, grid: seen.append(unsure.copy())
+    real = winding._estimated
+    monkeypatch.setattr(winding, "_estimated", lambda unsure, grid: seen.append(unsure.copy())
                         or real(unsure, grid))
-    monkeypatch.setattr(inside, "WORK_SECONDS", 0.0)
+    monkeypatch.setattr(captree, "WORK_SECONDS", 0.0)
     vol = _winding(monkeypatch, "compiled")
     estimated = seen[0]
     assert vol.approximate == np.count_nonzero(estimated) == SOUP_REFINED

@@ -1,7 +1,7 @@
 """Small caps for the winding number of an open mesh: minimum-area triangulations of its holes.
 
 The winding number of an open mesh M does not depend on the caps K that
-:mod:`geovox.inside` closes it with (``w_M = w_{M+K} - w_K`` for any K whose
+:mod:`geovox.inside.caps` closes it with (``w_M = w_{M+K} - w_K`` for any K whose
 boundary is M's, reversed), but the cost of summing ``w_K`` does. A fan from
 a loop's centroid spans a slit-like or twisted loop with far more area than
 it needs (the libigl truck: 3.4 units of fan area over loops whose net area
@@ -21,6 +21,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .captree import winding_kernel
+
 #: Loops up to this many edges are capped by a minimum-area triangulation;
 #: longer ones by a fan (the programme is n³/6 steps: 1.3 million at 200).
 TRIANGULATE_UP_TO = 200
@@ -32,7 +34,7 @@ TABLE_ENTRIES = 1 << 21
 def loop_order(vid: np.ndarray, piece: np.ndarray):
     """Each closed loop's edges in the order they run, where the piece is one.
 
-    ``piece`` labels from :func:`geovox.inside._loops`: each label whose
+    ``piece`` labels from :func:`geovox.inside.caps.loops`: each label whose
     edges balance at every position (as many arrive as leave) is one cycle
     of the successor map "the k-th edge arriving at a position continues
     with the k-th edge leaving it" (the map that split the pieces into
@@ -133,7 +135,8 @@ def min_area_triangles(poly: np.ndarray) -> np.ndarray:
     return found[:, 1:].reshape(m, n - 2, 3)
 
 
-def loop_caps(pos: np.ndarray, edges: np.ndarray, vid: np.ndarray, piece: np.ndarray):
+def loop_caps(pos: np.ndarray, edges: np.ndarray, vid: np.ndarray, piece: np.ndarray,
+              rank: np.ndarray | None = None):
     """Cap triangles over the boundary: a minimum-area triangulation per loop, else a fan.
 
     Parameters
@@ -146,6 +149,9 @@ def loop_caps(pos: np.ndarray, edges: np.ndarray, vid: np.ndarray, piece: np.nda
         The same edges as position ids.
     piece : (k,) int64
         Each edge's loop (see :func:`loop_order`).
+    rank : (k,) int64, optional
+        :func:`loop_order` of them, where it is known (the compiled
+        :func:`geovox._lattice.boundary_loops` gives both).
 
     Returns
     -------
@@ -156,12 +162,11 @@ def loop_caps(pos: np.ndarray, edges: np.ndarray, vid: np.ndarray, piece: np.nda
     tri_piece : (t,) int64
         The loop each belongs to.
     """
-    from .winding import winding_kernel
-
     module = winding_kernel()
     # The compiled programme gives the same triangles (about 12 times faster).
     triangulate = min_area_triangles if module is None else module.min_area_triangles
-    rank = loop_order(vid, piece)
+    if rank is None:
+        rank = loop_order(vid, piece)
     npieces = int(piece.max()) + 1
     size = np.bincount(piece, minlength=npieces)
     tri = np.ones(npieces, bool)
@@ -178,8 +183,13 @@ def loop_caps(pos: np.ndarray, edges: np.ndarray, vid: np.ndarray, piece: np.nda
         parts.append(np.stack([centroid[piece[e]], pos[edges[e, 1]], pos[edges[e, 0]]], axis=1))
         labels.append(piece[e])
     # Each loop's edges by place: the polygon of their starting vertices.
-    e = np.flatnonzero(~fan)
-    e = e[np.lexsort((rank[e], piece[e]))]
+    if rank.min() >= 0:  # every (loop, place) once: placed, not sorted
+        e = np.empty(len(piece), np.int64)
+        e[(np.cumsum(size) - size)[piece] + rank] = np.arange(len(piece))
+        e = e[~fan[e]]
+    else:
+        e = np.flatnonzero(~fan)
+        e = e[np.lexsort((rank[e], piece[e]))]
     for n in np.unique(size[tri]):
         if n < 3:  # a loop a -> b -> a bounds nothing
             continue

@@ -46,8 +46,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..backends.base import Hits
 from ..kernels import lattice
 from ..mesh import Mesh
+from .edges import components, manifold_pairs, merged_faces, sorted_edges
 
 
 @dataclass
@@ -141,163 +143,9 @@ class Repair:
             The same crossings, ``triangle`` indexing the original faces and
             ``bary`` the original vertices 1 and 2.
         """
-        from ..backends.base import Hits
-
         swap = self.swapped[hits.triangle]
         bary = np.where(swap[:, None], hits.bary[:, ::-1], hits.bary)
         return Hits(hits.ray, hits.depth, self.face[hits.triangle], bary)
-
-
-def edge_table(faces: np.ndarray, nv: int):
-    """Undirected edges of ``faces`` and who uses them.
-
-    Parameters
-    ----------
-    faces : (k, 3) int64
-        Faces over merged vertex ids ``< nv``, no repeated vertex in a face.
-
-    Returns
-    -------
-    edge : (3k,) int64
-        Undirected edge id of edge ``j`` (from vertex ``j`` to ``j + 1``) of
-        face ``f``, at position ``3 f + j``.
-    count : (e,) int64
-        Faces using each undirected edge.
-    forward : (3k,) bool
-        The face runs the edge from its lower to its higher vertex id.
-    """
-    return sorted_edges(faces, nv)[:3]
-
-
-def sorted_edges(faces: np.ndarray, nv: int):
-    """:func:`edge_table`, and the slots sorted by edge (then slot).
-
-    Edges are numbered in order of their ``(lower, higher)`` vertex ids
-    either way: by ``np.unique`` of the keys, or by the compiled kernel's
-    counting sort (:func:`geovox._lattice.edge_sort`, linear), which gives
-    the same arrays.
-
-    Returns
-    -------
-    edge, count, forward
-        As :func:`edge_table`.
-    order : (3k,) int64
-        ``np.argsort(edge, kind="stable")``.
-    """
-    a = faces.reshape(-1)
-    b = faces[:, [1, 2, 0]].reshape(-1)
-    kernel = lattice()
-    if kernel is not None:
-        order, edge, _, _, count, _ = kernel.edge_sort(faces)
-        return edge, count, a < b, order
-    key = np.minimum(a, b) * np.int64(nv) + np.maximum(a, b)
-    _, edge, count = np.unique(key, return_inverse=True, return_counts=True)
-    edge = edge.reshape(-1)
-    return edge, count, a < b, np.argsort(edge, kind="stable")
-
-
-def manifold_pairs(edge: np.ndarray, count: np.ndarray, order: np.ndarray | None = None):
-    """The two face-edge slots of every edge used by exactly two faces.
-
-    Parameters
-    ----------
-    edge, count
-        As :func:`edge_table` gives them.
-    order : (3k,) int64, optional
-        The slots sorted by edge (:func:`sorted_edges`); sorted here when absent.
-
-    Returns
-    -------
-    (p, 2) int64
-        Slots ``3 f + j`` (see :func:`edge_table`), one row per manifold edge.
-    """
-    if order is None:
-        order = np.argsort(edge, kind="stable")
-    e = edge[order]
-    two = count[e] == 2
-    slots = order[two]
-    # Sorted by edge, the two slots of each manifold edge are adjacent.
-    return slots.reshape(-1, 2)
-
-
-def face_pieces(nf: int, pairs: np.ndarray):
-    """Connected pieces of faces joined through the given manifold edges.
-
-    Returns
-    -------
-    count : int
-    label : (nf,) int64
-        Numbered in the order of each piece's first face.
-    """
-    f = pairs // 3
-    n, label, _ = components(nf, f[:, 0], f[:, 1])
-    return n, label
-
-
-def components(n: int, a: np.ndarray, b: np.ndarray, odd: np.ndarray | None = None):
-    """Connected components of a graph, in NumPy (no scipy: importing it costs 0.2-0.4 s).
-
-    Union by hooking each root to the smallest root it has an edge to, then
-    pointer jumping to the roots, in whole-array rounds until no edge joins
-    two roots. With ``odd``, each edge also carries a parity (its two ends
-    disagree), and each node gets its parity relative to its component's
-    root along the forest that the hooking builds; an edge whose ends
-    already share a root is not used, so where the parities contradict (a
-    Moebius band) the forest's choice stands.
-
-    Parameters
-    ----------
-    n : int
-        Nodes ``0 .. n - 1``.
-    a, b : (e,) int64
-        Edges.
-    odd : (e,) bool, optional
-
-    Returns
-    -------
-    count : int
-    label : (n,) int64
-        Component of each node, numbered in the order of their smallest node
-        (as ``scipy.sparse.csgraph.connected_components`` numbers them).
-    parity : (n,) bool
-        Each node's parity relative to the smallest node of its component
-        (all False without ``odd``).
-
-    Notes
-    -----
-    The compiled kernel (:func:`geovox._lattice.components`) runs the same
-    rounds in loops, so it gives the same arrays, parities included.
-    """
-    kernel = lattice()
-    if kernel is not None:
-        return kernel.components(int(n), a, b, odd)
-    root = np.arange(n, dtype=np.int64)
-    x = np.zeros(n, dtype=bool)
-    a, b = np.asarray(a, np.int64), np.asarray(b, np.int64)
-    odd = np.zeros(len(a), dtype=bool) if odd is None else np.asarray(odd, bool)
-    while len(a):
-        ra, rb = root[a], root[b]
-        live = ra != rb
-        a, b, odd, ra, rb = a[live], b[live], odd[live], ra[live], rb[live]
-        if len(a) == 0:
-            break
-        lo, hi = np.minimum(ra, rb), np.maximum(ra, rb)
-        # One edge per hooked root: the one to its smallest neighbouring root.
-        # Roots only ever point to smaller ones, so no cycle can form.
-        order = np.lexsort((lo, hi))
-        first = order[np.r_[True, hi[order][1:] != hi[order][:-1]]]
-        x[hi[first]] = x[a[first]] ^ x[b[first]] ^ odd[first]
-        root[hi[first]] = lo[first]
-        # Every node to its root, carrying the parity along (a root points to
-        # itself with parity False: a fixed point).
-        while True:
-            up = root[root]
-            if np.array_equal(up, root):
-                break
-            x ^= x[root]
-            root = up
-    uniq, label = np.unique(root, return_inverse=True)
-    return len(uniq), label.reshape(-1).astype(np.int64), x
 
 
 #: Vertices closer than this fraction of the model's size are one vertex: seams
@@ -305,7 +153,7 @@ def components(n: int, a: np.ndarray, b: np.ndarray, odd: np.ndarray | None = No
 WELD = 1e-6
 
 
-def close_pairs(pos: np.ndarray, tol: float) -> np.ndarray:
+def close_pairs(pos: np.ndarray, tol: float, lex_sorted: bool = False) -> np.ndarray:
     """Pairs of points at most ``tol`` apart, each once (as scipy's ``query_pairs``).
 
     A hash grid of cells ``tol`` wide, in NumPy: two such points lie in the
@@ -316,6 +164,10 @@ def close_pairs(pos: np.ndarray, tol: float) -> np.ndarray:
     ----------
     pos : (n, 3) float64
     tol : float, > 0
+    lex_sorted : bool
+        The points are in lexicographic order (the repair's positions): the
+        compiled kernel then finds the candidates by a sweep along x
+        (:func:`geovox._lattice.sweep_pairs`), with no table.
 
     Returns
     -------
@@ -327,12 +179,13 @@ def close_pairs(pos: np.ndarray, tol: float) -> np.ndarray:
     n = len(pos)
     if n < 2 or not tol > 0:
         return np.zeros((0, 2), np.int64)
-    low = pos.min(axis=0)
+    # Column by column: NumPy's axis-0 reduction of an (n, 3) array is ten times slower.
+    low = np.array([pos[:, k].min() for k in range(3)])
 
     def cells(p):  # >= 1: no wrap at -1
         return np.floor((p - low) / tol).astype(np.int64) + 1
 
-    dims = cells(pos.max(axis=0)) + 2  # the largest cells (each step is monotonic)
+    dims = cells(np.array([pos[:, k].max() for k in range(3)])) + 2  # the largest cells (monotonic)
     if float(dims[0]) * float(dims[1]) * float(dims[2]) >= 2.0 ** 62:  # one key would overflow
         from scipy.spatial import cKDTree
 
@@ -341,7 +194,12 @@ def close_pairs(pos: np.ndarray, tol: float) -> np.ndarray:
     if kernel is not None:
         # Candidates through a hash table of coarser cells (no sort): a
         # superset of the pairs that pass the tests below.
-        pairs = kernel.near_pairs(np.ascontiguousarray(pos, dtype=np.float64), low, tol, 16 * tol)
+        pos = np.ascontiguousarray(pos, dtype=np.float64)
+        # A sweep of float32 coordinates (an STL) meets a few dozen points a
+        # window; past 64 a point it gives up (a CAD model's flat side) for the table.
+        pairs = kernel.sweep_pairs(pos, tol, 64 * n + 1024) if lex_sorted else None
+        if pairs is None:
+            pairs = kernel.near_pairs(pos, low, tol, 16 * tol)
         # Of those, the pairs in neighbouring cells of this grid, as below.
         near = np.abs(cells(pos[pairs[:, 0]]) - cells(pos[pairs[:, 1]])) <= 1
         return _within(pos, pairs[np.all(near, axis=1)], tol)
@@ -378,7 +236,7 @@ def _within(pos, pairs, tol):
 
 
 def _weld(g, pos, tol):
-    """Merge vertices within ``tol`` of each other (transitively).
+    """Merge vertices within ``tol`` of each other (transitively); ``pos`` in lexicographic order.
 
     Returns
     -------
@@ -387,7 +245,7 @@ def _weld(g, pos, tol):
     welded : int
         Vertices merged away.
     """
-    pairs = close_pairs(pos, tol)
+    pairs = close_pairs(pos, tol, lex_sorted=True)
     if len(pairs) == 0:
         return g, pos, 0
     n = len(pos)
@@ -448,54 +306,6 @@ def _inner_walls(faces: np.ndarray, both: np.ndarray, nv: int) -> np.ndarray:
     return drop
 
 
-def merged_faces(mesh: Mesh):
-    """The faces over the vertices they use, merged by position, in lexicographic order.
-
-    ``np.unique(mesh.geometric_faces, return_inverse=True)``, cached on the
-    mesh: with the compiled kernel, the positions are merged by a hash
-    (:func:`geovox._lattice.merge_positions`) and only the distinct ones a
-    face uses are sorted; without it, :attr:`Mesh.geometric_faces` is
-    renumbered by a count (no second sort).
-
-    Returns
-    -------
-    n : int
-        Distinct positions the faces use.
-    faces : (m, 3) int64
-        Each corner's position, numbered ``0 .. n - 1`` in lexicographic
-        order of ``(x, y, z)``.
-    vertex : (n,) int64
-        At each position, the vertex of the last corner there (vertices at
-        one position differ at most in the sign of a zero).
-    """
-    if "merged_faces" not in mesh._cache:
-        kernel = lattice()
-        sorted_ids = kernel is None or "geometric_faces" in mesh._cache
-        if sorted_ids:  # already lexicographic: renumbered by a count
-            ids, nid = mesh.geometric_faces, len(mesh.vertices)
-        else:
-            from .winding import _position_faces
-
-            ids = _position_faces(mesh, kernel)
-            nid = int(ids.max()) + 1
-        flat = ids.reshape(-1)
-        used = np.zeros(nid, dtype=bool)
-        used[flat] = True
-        one = np.zeros(nid, dtype=np.int64)
-        one[flat] = mesh.faces.reshape(-1)  # the last corner at each position
-        where = np.flatnonzero(used)
-        if sorted_ids:
-            rank = np.cumsum(used) - 1
-        else:
-            v = mesh.vertices[one[where]]
-            rank = np.empty(nid, dtype=np.int64)
-            rank[where[np.lexsort((v[:, 2], v[:, 1], v[:, 0]))]] = np.arange(len(where))
-        vertex = np.empty(len(where), dtype=np.int64)
-        vertex[rank[where]] = one[where]
-        mesh._cache["merged_faces"] = (len(where), rank[ids], vertex)
-    return mesh._cache["merged_faces"]
-
-
 def _proper(pos: np.ndarray, g: np.ndarray) -> np.ndarray:
     """(k,) bool: the faces that are not degenerate (a repeated vertex, or a cross product exactly 0)."""
     kernel = lattice()
@@ -542,6 +352,137 @@ def _face_groups(w: np.ndarray, nv: int):
     return first[order], renumber[inverse.reshape(-1)], nxt < prv
 
 
+def _unique_faces(g: np.ndarray, nv: int):
+    """The faces of ``g`` that stay: duplicates collapsed to the first, inner walls dropped.
+
+    Duplicates have the same vertex set; the first face of each set stays.
+    Vertex sets stored both ways round keep one side, unless they make up an
+    inner wall (see :func:`_inner_walls`), which goes on both sides.
+
+    Returns
+    -------
+    face : (k,) int64
+        Indices into ``g`` of the faces that stay, increasing.
+    duplicates, opposite, inner : int
+        Faces dropped as exact duplicates, as reversed sides, as inner walls.
+    """
+    first, inverse, parity = _face_groups(g, nv)
+    dropped = np.ones(len(g), dtype=bool)
+    dropped[first] = False
+    same = parity == parity[first[inverse]]
+    duplicates = int(np.count_nonzero(dropped & same))
+    opposite = int(np.count_nonzero(dropped & ~same))
+    both = np.zeros(len(first), dtype=bool)
+    both[inverse[~same]] = True
+    wall = _inner_walls(g[first], both, nv) if both.any() else np.zeros(len(first), bool)
+    return first[~wall], duplicates, opposite, int(np.count_nonzero(wall))
+
+
+def _orient(f: np.ndarray, nv: int, pos: np.ndarray, centre: np.ndarray):
+    """Orient the faces ``f`` (turned in place) across manifold edges and each piece outward.
+
+    The NumPy steps of :func:`repair` after the duplicates (the compiled
+    kernel's :func:`geovox._lattice.repair_edges` gives the same arrays):
+    the edge table, the spanning forest's flips (:func:`components`), then
+    each piece's signed volume about the centroid of its open edges'
+    midpoints (each open slot's vertex and the next one round its face, as
+    flipped), or of its faces' centroids where it has none, from ``centre``.
+
+    Returns
+    -------
+    label : (nf,) int64
+    swapped : (nf,) bool
+    pieces, closed_pieces, outward : int
+    boundary : (k, 2) int64
+        The copy's open edges.
+    open, non_manifold_edges : int
+    """
+    edge, count, forward, slots = sorted_edges(f, nv)
+    pairs = manifold_pairs(edge, count, slots)
+    # Two faces agree across an edge when they run it in opposite directions.
+    fp = pairs // 3
+    npieces, label, flip = components(len(f), fp[:, 0], fp[:, 1],
+                                      forward[pairs[:, 0]] == forward[pairs[:, 1]])
+    ends = _edge_ends(f, count, slots)
+    f[flip, 1], f[flip, 2] = f[flip, 2], f[flip, 1]
+    turn, closed_piece = _outward(f, pos, centre, edge, count, label, npieces)
+    t = turn[label]
+    f[t, 1], f[t, 2] = f[t, 2], f[t, 1]
+    swapped = flip ^ t
+    boundary = _open_edges(edge, count, forward ^ np.repeat(swapped, 3), ends)
+    return (label, swapped, npieces, int(np.count_nonzero(closed_piece)),
+            int(np.count_nonzero(turn)), boundary, int(np.count_nonzero(count == 1)),
+            int(np.count_nonzero(count > 2)))
+
+
+def _outward(f, pos, centre, edge, count, label, npieces):
+    """``(turn, closed)`` per piece: its signed volume is negative; no edge of it is open or
+    non-manifold (see :func:`_orient`)."""
+    nf = len(f)
+    open_slot = count[edge] == 1
+    bad_slot = count[edge] != 2
+    slot_face = np.repeat(np.arange(nf), 3)
+    closed_piece = np.bincount(label[slot_face[bad_slot]], minlength=npieces) == 0
+    o = np.flatnonzero(open_slot)  # each open slot's vertex and the next one round its face
+    a, b = f.reshape(-1)[o], f.reshape(-1)[o - o % 3 + (o % 3 + 1) % 3]
+    mid = (pos[a] + pos[b]) / 2 - centre
+    lab_open = label[slot_face[open_slot]]
+    n_open = np.bincount(lab_open, minlength=npieces)
+    c = np.stack([np.bincount(lab_open, weights=mid[:, k], minlength=npieces) for k in range(3)], 1)
+    vt = pos[f] - centre
+    fc = vt.mean(axis=1)
+    n_face = np.bincount(label, minlength=npieces)
+    c_all = np.stack([np.bincount(label, weights=fc[:, k], minlength=npieces) for k in range(3)], 1)
+    c = np.where((n_open > 0)[:, None], c / np.maximum(n_open, 1)[:, None],
+                 c_all / np.maximum(n_face, 1)[:, None])
+    rel = vt - c[label][:, None, :]
+    det = np.einsum("ij,ij->i", rel[:, 0], np.cross(rel[:, 1], rel[:, 2]))
+    volume = np.bincount(label, weights=det, minlength=npieces)
+    return volume < 0, closed_piece
+
+
+#: How ``np.einsum("ij,ij->i")`` associates a three-term dot product here
+#: (found once, see :func:`_einsum_order`).
+_EINSUM_ORDER: list = []
+
+
+def _einsum_order() -> int:
+    """How NumPy's arithmetic in :func:`_outward` goes here, for the compiled kernel to follow.
+
+    ``np.einsum("ij,ij->i")`` sums a row's three products in an order of its
+    own (SIMD lanes: ``(p0 + p2) + p1`` on this machine's NumPy 2.4); the
+    compiled :func:`geovox._lattice.repair_edges` follows it so that the
+    pieces' volumes, and the turns of the flat pieces whose volume is only
+    rounding, are NumPy's bit for bit. Rows where the three associations
+    differ tell which it is (0: ``(p0 + p1) + p2``, 1: ``(p0 + p2) + p1``,
+    2: ``p0 + (p1 + p2)``); random rows then check it, with ``np.cross``
+    and ``mean(axis=1)`` against their formulas. -1 where anything differs:
+    the NumPy steps run instead.
+    """
+    if not _EINSUM_ORDER:
+        big = 1e16
+        probe = np.einsum("ij,ij->i", np.array([[big, 1.0, -big], [1.0, big, -big]]), np.ones((2, 3)))
+        order = {(1.0, 0.0): 1, (0.0, 1.0): 2, (0.0, 0.0): 0}.get(tuple(probe.tolist()), -1)
+        # Rows of every magnitude, from a fixed formula (importing numpy.random costs 15 ms).
+        x = np.sin(np.arange(257 * 12) * 12.9898) * 43758.5453
+        x -= np.floor(x) + 0.5
+        a = x[:771].reshape(257, 3) * 10.0 ** np.arange(-8, 8)[np.arange(771) % 16].reshape(257, 3)
+        b = x[771:].reshape(257, 3, 3)
+        p = a * b[:, 0]
+        sums = ((p[:, 0] + p[:, 1]) + p[:, 2], (p[:, 0] + p[:, 2]) + p[:, 1],
+                p[:, 0] + (p[:, 1] + p[:, 2]))
+        cross = np.stack([a[:, 1] * b[:, 1, 2] - a[:, 2] * b[:, 1, 1],
+                          a[:, 2] * b[:, 1, 0] - a[:, 0] * b[:, 1, 2],
+                          a[:, 0] * b[:, 1, 1] - a[:, 1] * b[:, 1, 0]], 1)
+        mean = (((0.0 + b[:, 0]) + b[:, 1]) + b[:, 2]) / 3
+        if order < 0 or not (np.array_equal(np.einsum("ij,ij->i", a, b[:, 0]), sums[order])
+                             and np.array_equal(np.cross(a, b[:, 1]), cross)
+                             and np.array_equal(b.mean(axis=1), mean)):
+            order = -1
+        _EINSUM_ORDER.append(order)
+    return _EINSUM_ORDER[0]
+
+
 def _edge_ends(f: np.ndarray, count: np.ndarray, slots: np.ndarray) -> np.ndarray:
     """(2, e) int64: each edge's lower and higher vertex, from its first slot (see :func:`sorted_edges`)."""
     s = slots[np.cumsum(count) - count]
@@ -550,22 +491,21 @@ def _edge_ends(f: np.ndarray, count: np.ndarray, slots: np.ndarray) -> np.ndarra
     return np.stack([np.minimum(a, b), np.maximum(a, b)])
 
 
-def _known_edges(out: Mesh, edge, count, forward, ends) -> None:
-    """Cache on the repaired copy what ``boundary_edges`` and ``edge_counts`` would find.
+def _open_edges(edge, count, forward, ends) -> np.ndarray:
+    """(k, 2) int64: the open edges of faces with this edge table, run as the faces run them.
 
-    The copy's edges are the edge table's (turning faces over changes only
-    the directions they run their edges), so its open edges and counts need
-    no second table: the same arrays as
-    :func:`geovox.inside.winding.boundary_edges` of the copy (its vertices
-    are its merged positions, numbered in order).
+    The same arrays as :func:`geovox.inside.edges.boundary_edges` of the
+    repaired copy (its vertices are its merged positions, numbered in
+    order; turning faces over changes only the directions they run their
+    edges, so the copy needs no second table).
 
     Parameters
     ----------
     edge, count
-        As :func:`edge_table` gives them for the copy's faces.
+        As :func:`geovox.inside.edges.edge_table` gives them.
     forward : (3k,) bool
-        Each slot's edge is run from its lower to its higher vertex by the
-        copy's face (after the flips).
+        Each slot's edge is run from its lower to its higher vertex by its
+        face (as turned).
     ends : (2, e) int64
         :func:`_edge_ends`.
     """
@@ -576,9 +516,7 @@ def _known_edges(out: Mesh, edge, count, forward, ends) -> None:
     src = np.where(m > 0, ends[0, k], ends[1, k])
     dst = np.where(m > 0, ends[1, k], ends[0, k])
     reps = np.abs(m)
-    out._cache["boundary"] = np.stack([np.repeat(src, reps), np.repeat(dst, reps)], axis=1)
-    out._cache["non_manifold"] = bool(len(count) and count.max() > 2)
-    out._cache["edge_counts"] = (int(np.count_nonzero(count == 1)), int(np.count_nonzero(count > 2)))
+    return np.stack([np.repeat(src, reps), np.repeat(dst, reps)], axis=1)
 
 
 def repair(mesh: Mesh) -> Repair:
@@ -593,11 +531,20 @@ def repair(mesh: Mesh) -> Repair:
     Repair
     """
     _, g, vertex = merged_faces(mesh)
+    # From here the repair alone holds the faces over merged positions: they
+    # and the checks' hashed ones leave the mesh's cache (two arrays the size
+    # of the faces; asked again, they are made again), and where no face is
+    # dropped, these rows are the ones the repair turns.
+    mesh._cache.pop("merged_faces", None)
+    mesh._cache.pop("position_faces", None)
     pos = mesh.vertices[vertex]
     g, pos, welded = _weld(g, pos, WELD * mesh.scale)
     nv = len(pos)
     # Every merged vertex is used (pos holds only those): a count, not a sort.
-    merged = int(np.count_nonzero(np.bincount(mesh.faces.reshape(-1)))) - nv
+    used = np.zeros(len(mesh.vertices), bool)
+    used[mesh.faces.reshape(-1)] = True
+    merged = int(np.count_nonzero(used)) - nv
+    del used
 
     keep = np.flatnonzero(_proper(pos, g))
     degenerate = len(g) - len(keep)
@@ -605,68 +552,39 @@ def repair(mesh: Mesh) -> Repair:
         return Repair(mesh=Mesh(pos, np.zeros((0, 3), np.int64), source=mesh.source),
                       face=keep, swapped=np.zeros(0, bool), piece=np.zeros(0, np.int64),
                       merged_vertices=int(merged), welded=int(welded), degenerate=int(degenerate))
+    f = g if degenerate == 0 else g[keep]
+    del g
 
-    # Duplicates: the same vertex set; the first face of each set stays.
-    first, inverse, parity = _face_groups(g[keep], nv)
-    dropped = np.ones(len(keep), dtype=bool)
-    dropped[first] = False
-    same = parity == parity[first[inverse]]
-    duplicates = int(np.count_nonzero(dropped & same))
-    opposite = int(np.count_nonzero(dropped & ~same))
-    # Vertex sets stored both ways round: one side kept, unless they make up
-    # an inner wall (see _inner_walls), which goes on both sides.
-    both = np.zeros(len(first), dtype=bool)
-    both[inverse[~same]] = True
-    wall = _inner_walls(g[keep[first]], both, nv)
-    inner = int(np.count_nonzero(wall))
-    first = first[~wall]
-    face = keep[first]
-    f = g[face]
-    nf = len(f)
-
-    edge, count, forward, slots = sorted_edges(f, nv)
-    pairs = manifold_pairs(edge, count, slots)
-    # Two faces agree across an edge when they run it in opposite directions.
-    fp = pairs // 3
-    npieces, label, flip = components(nf, fp[:, 0], fp[:, 1],
-                                      forward[pairs[:, 0]] == forward[pairs[:, 1]])
-    ends = _edge_ends(f, count, slots)
-    f[flip, 1], f[flip, 2] = f[flip, 2], f[flip, 1]
-
-    # Outward: signed volume about the centroid of each piece's boundary
-    # (open edges' midpoints), or of its vertices when it has none.
-    open_slot = count[edge] == 1
-    bad_slot = count[edge] != 2
-    slot_face = np.repeat(np.arange(nf), 3)
-    closed_piece = np.bincount(label[slot_face[bad_slot]], minlength=npieces) == 0
-    o = np.flatnonzero(open_slot)  # each open slot's vertex and the next one round its face
-    a, b = f.reshape(-1)[o], f.reshape(-1)[o - o % 3 + (o % 3 + 1) % 3]
-    centre = pos.mean(axis=0) if nv else np.zeros(3)
-    mid = (pos[a] + pos[b]) / 2 - centre
-    lab_open = label[slot_face[open_slot]]
-    n_open = np.bincount(lab_open, minlength=npieces)
-    c = np.stack([np.bincount(lab_open, weights=mid[:, k], minlength=npieces) for k in range(3)], 1)
-    vt = pos[f] - centre
-    fc = vt.mean(axis=1)
-    n_face = np.bincount(label, minlength=npieces)
-    c_all = np.stack([np.bincount(label, weights=fc[:, k], minlength=npieces) for k in range(3)], 1)
-    c = np.where((n_open > 0)[:, None], c / np.maximum(n_open, 1)[:, None],
-                 c_all / np.maximum(n_face, 1)[:, None])
-    rel = vt - c[label][:, None, :]
-    det = np.einsum("ij,ij->i", rel[:, 0], np.cross(rel[:, 1], rel[:, 2]))
-    volume = np.bincount(label, weights=det, minlength=npieces)
-    turn = volume < 0
-    t = turn[label]
-    f[t, 1], f[t, 2] = f[t, 2], f[t, 1]
-    swapped = flip ^ turn[label]
+    kernel = lattice()
+    order = _einsum_order() if kernel is not None else -1
+    centre = pos.mean(axis=0)
+    # Compiled, the edge table finds duplicates on its way (faces sharing an
+    # edge and its third vertex; it then turns no face): only then are they
+    # collapsed and the table made again; a scan has none and pays no pass for them.
+    face, duplicates, opposite, inner = keep, 0, 0, 0
+    done = None if order < 0 else kernel.repair_edges(f, nv, pos, centre, order)
+    if done is None or (isinstance(done, int) and done == kernel.DUPLICATES):
+        stay, duplicates, opposite, inner = _unique_faces(f, nv)
+        face, f = keep[stay], f[stay]
+        done = None if order < 0 else kernel.repair_edges(f, nv, pos, centre, order)
+    if not isinstance(done, tuple):  # NumPy, or a Moebius band: the rounds' forest decides its flips
+        done = _orient(f, nv, pos, centre)
+    label, swapped, npieces, closed_pieces, outward, boundary, n_open, n_many = done
+    # The copy's arrays with room after them for its caps (at most one cap
+    # triangle an open edge, three vertices each): the mesh closed by them
+    # (geovox.inside.caps.capped) is then the copy's arrays and a few rows
+    # more, not a second copy of every face (untouched room costs nothing).
+    room = (np.empty((nv + 3 * len(boundary), 3)), np.empty((len(f) + len(boundary), 3), np.int64))
+    room[0][:nv], room[1][:len(f)] = pos, f
+    pos, f = room[0][:nv], room[1][:len(f)]
     out = Mesh(pos, f, source=mesh.source)
     # Its vertices are distinct and in lexicographic order (the first of
     # each merged group, in order): merging them by position numbers them
-    # as they are, so the lexicographic sort of that is not needed.
-    out._cache["geometric_faces"] = f
-    _known_edges(out, edge, count, forward ^ np.repeat(swapped, 3), ends)
-    return Repair(mesh=out, face=face, swapped=swapped, piece=label, merged_vertices=int(merged), welded=int(welded),
-                  degenerate=int(degenerate), duplicates=duplicates, opposite=opposite, inner=inner,
-                  flipped=int(np.count_nonzero(swapped)), pieces=npieces,
-                  closed_pieces=int(np.count_nonzero(closed_piece)),
-                  outward=int(np.count_nonzero(turn)))
+    # as they are, so the lexicographic sort of that is not needed; its
+    # edges are the table's, turned (see _orient).
+    out._cache.update(geometric_faces=f, boundary=boundary, non_manifold=n_many > 0,
+                      edge_counts=(n_open, n_many), room=room)
+    return Repair(mesh=out, face=face, swapped=swapped, piece=label, merged_vertices=int(merged),
+                  welded=int(welded), degenerate=int(degenerate), duplicates=duplicates,
+                  opposite=opposite, inner=inner, flipped=int(np.count_nonzero(swapped)),
+                  pieces=npieces, closed_pieces=closed_pieces, outward=outward)
