@@ -16,6 +16,7 @@ from .errors import (
     GridTooLargeError,
     InputNotFoundError,
     MeshError,
+    MeshTooLargeError,
     OutputError,
     ParameterError,
 )
@@ -66,6 +67,7 @@ __all__ = [
     "ClusterError",
     "OutputError",
     "GridTooLargeError",
+    "MeshTooLargeError",
 ]
 
 

@@ -320,9 +320,10 @@ def _submit_local(tasks, workers, on_result):
 #: geovox modules every conversion may import on its way (loaders, inside
 #: tests, slab streaming, the manifest's version check).
 STACK = ("geovox.planner", "geovox.block", "geovox.runners", "geovox.io.load", "geovox.io.obj",
-         "geovox.io.references", "geovox.mesh", "geovox.inside", "geovox.inside.winding",
-         "geovox.inside.repair", "geovox.inside.bridge", "geovox.exact", "geovox.parity",
-         "geovox.formats.headers", "geovox.cluster", "geovox.batch")
+         "geovox.io.references", "geovox.mesh", "geovox.inside", "geovox.inside.choice",
+         "geovox.inside.winding", "geovox.inside.caps", "geovox.inside.captree",
+         "geovox.inside.edges", "geovox.inside.repair", "geovox.inside.bridge", "geovox.exact",
+         "geovox.parity", "geovox.formats.headers", "geovox.cluster", "geovox.batch")
 
 
 #: Compiled kernels (each optional: the NumPy twins run where one is missing).
