@@ -42,7 +42,8 @@ import json, sys, time, warnings
 import geovox
 from geovox.errors import GeovoxError, GeovoxWarning
 from geovox.inside import captree, winding
-from geovox.pipeline import as_options, load, plan, run
+from geovox.planner import as_options, load, plan  # noqa: E402
+from geovox.runners import run  # noqa: E402
 
 path, res = sys.argv[1], [int(r) for r in sys.argv[2].split(",")]
 out = {"rows": []}

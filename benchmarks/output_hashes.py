@@ -486,8 +486,10 @@ def main(argv=None) -> int:
         with open(args.compare) as f:
             before = json.load(f)
         before = {k: v for k, v in before.items() if k in result}
-        diff = compare(before, result)
-        print("\n".join(diff) if diff else f"all {len(result)} cases match")
+        new = sorted(set(result) - set(before))  # cases the earlier tree's file did not have
+        diff = compare(before, {k: v for k, v in result.items() if k in before})
+        print("\n".join(diff) if diff else f"all {len(before)} cases match"
+              + (f" ({len(new)} new, not in {os.path.basename(args.compare)})" if new else ""))
         return 1 if diff else 0
     return 0
 

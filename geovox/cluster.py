@@ -159,7 +159,7 @@ def check_versions(client) -> None:
     A different NumPy or geovox can change a voxel (a rounding, a fixed
     bug), so a cluster run would no longer give the files a local run gives.
     Workers that join later are checked by each task instead (see
-    :func:`geovox.batch._convert_one`).
+    :func:`geovox.batch.convert_one`).
 
     Raises
     ------

@@ -83,7 +83,7 @@ def check_mesh_memory(need: float, what: str, instead: str) -> None:
     MeshTooLargeError
         ``need`` exceeds ``MEMORY_FRACTION`` of the available memory.
     """
-    avail = _available_memory()
+    avail = available_memory()
     if avail is not None and need > MEMORY_FRACTION * avail:
         raise MeshTooLargeError(
             f"{what} needs about {need / 2**30:.1f} GiB of working memory but only "

@@ -20,7 +20,7 @@ import pytest
 import trimesh
 
 import geovox
-from geovox.inside import winding as inside
+import geovox.inside as inside
 from geovox.backends.numpy import rasterise
 from geovox.errors import ParameterError
 from geovox.exact import Projection

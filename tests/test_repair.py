@@ -15,7 +15,7 @@ from geovox import inside
 from geovox.inside import captree
 from geovox.errors import GeovoxWarning, GridTooLargeError
 from geovox.inside.repair import repair
-from geovox.pipeline import ray_start
+from geovox.block import ray_start
 
 from conftest import box_mesh, from_tm
 
@@ -222,7 +222,7 @@ def test_winding_that_cannot_fit_says_so_before_allocating(monkeypatch):
     mesh = open_boxes(3)
     grid_voxels = 40 ** 3
     # Enough for the occupancy grid, not for the winding number's working arrays.
-    monkeypatch.setattr(memory, "_available_memory", lambda: int(grid_voxels * 4))  # 16 needed
+    monkeypatch.setattr(memory, "available_memory", lambda: int(grid_voxels * 4))  # 16 needed
     with pytest.warns(GeovoxWarning), pytest.raises(GridTooLargeError, match="needs"):
         geovox.voxelize(mesh, resolution=40, inside="auto")
 
@@ -241,7 +241,7 @@ def test_info_says_what_auto_repairs(tmp_path, capsys):
 
 def test_streamed_winding_of_a_repaired_copy_equals_the_volume_in_one_piece(tmp_path):
     import geovox.formats as F
-    from geovox.stream import convert_to
+    from geovox.api import convert_to
 
     mesh = open_boxes(12, seed=3)
     with pytest.warns(GeovoxWarning, match="of a repaired"):
@@ -466,7 +466,7 @@ def test_coverage_of_overlapping_parts_follows_the_winding_number(backend):
     assert vol.occupancy[i, j, k] and vol.density[i, j, k] >= 1 - 1e-5
     # Parity along the rays (the signs left out) has it empty.
     from geovox.density import coverage, sub_columns
-    from geovox.pipeline import ray_start
+    from geovox.block import ray_start
 
     sub = sub_columns(g.columns(2, start=ray_start(mesh, g, 2)), 2)
     hits = geovox.backends.get_backend(backend).cast(mesh, sub)

@@ -125,7 +125,7 @@ def test_a_scan_that_would_not_fit_is_refused_before_its_repair(monkeypatch):
         raise AssertionError("repaired although it would not fit")
 
     monkeypatch.setattr(choice, "repair", no_repair)
-    monkeypatch.setattr(memory, "_available_memory", lambda: 1 << 16)  # 64 KiB
+    monkeypatch.setattr(memory, "available_memory", lambda: 1 << 16)  # 64 KiB
     with pytest.raises(MeshTooLargeError) as caught:
         _voxelize(mesh, resolution=8)
     assert isinstance(caught.value, GridTooLargeError) and isinstance(caught.value, MemoryError)
