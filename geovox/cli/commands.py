@@ -221,15 +221,23 @@ def add_grid_arguments(c, *, grid_only=False):
                    help="with --labels: each label's coverage fraction per voxel")
 
 
+def _size(text):
+    """argparse type: a size in bytes (``500M``, ``2G``; :func:`geovox.io.limits.parse_size`).
+
+    Imported when an argument is given, not when the parser is built: ``geovox --help`` reads
+    no reader's module.
+    """
+    from ..io.limits import parse_size
+
+    return parse_size(text)
+
+
 def _references_argument(c):
     c.add_argument("--references", choices=["anywhere", "folder"], default="anywhere",
                    help="files the model names (materials, textures, glTF buffers): read from "
                         "anywhere (default), or only from under the model's own folder, for "
                         "files you did not make; URLs are never fetched")
-    # issue 36 (readers): the input size limit, parsed by geovox.io.limits.parse_size
-    from ..io.limits import parse_size
-
-    c.add_argument("--max-input-size", type=parse_size, default=None, metavar="BYTES",
+    c.add_argument("--max-input-size", type=_size, default=None, metavar="BYTES",
                    help="refuse an input that holds more than this once read or inflated "
                         "(500M, 2G; default: 100 x its size, at most half the memory)")
 
