@@ -18,7 +18,7 @@ import numpy as np
 
 from ..errors import MeshError
 from ..mesh import Material, Mesh, build_mesh, texels
-from .gltf import unit_colours
+from .gltf import colours_or_white, unit_colours
 from .kinds import NOT_A_MESH, PIP_NAMES, kind, readable_extensions
 from .off import read_off
 from .references import Refused, resolver
@@ -192,21 +192,15 @@ def from_trimesh(obj, source: str = "<trimesh>") -> Mesh:
         uvs.append(uv if uv is not None else np.full((len(f), 3, 2), np.nan))
         vcs.append(vc)
         have_uv |= uv is not None
-    vertex_colors = None
-    if any(vc is not None for vc in vcs):
-        # White where a part has none: neutral under a material (glTF's
-        # COLOR_0 default). A part with neither colours nor a material
-        # states no colour: it gets geovox's default, not that white.
-        plain = None
-        for i, vc in enumerate(vcs):
-            if vc is None:
-                vcs[i] = np.ones((len(verts[i]), 3))
-                if np.any(fms[i] < 0):
-                    if plain is None:
-                        plain = len(materials)
-                        materials.append(Material(name="default"))
-                    fms[i] = np.where(fms[i] < 0, plain, fms[i])
-        vertex_colors = np.concatenate(vcs)
+    made = []  # the plain material's index, once one is needed
+
+    def plain() -> int:
+        if not made:
+            made.append(len(materials))
+            materials.append(Material(name="default"))
+        return made[0]
+
+    vertex_colors = colours_or_white(vcs, [len(v) for v in verts], fms, plain)
     mesh = build_mesh(
         np.concatenate(verts), np.concatenate(faces), source,
         face_material=np.concatenate(fms),

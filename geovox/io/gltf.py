@@ -104,6 +104,40 @@ def unit_colours(colours, n: int, problems=None):
     return np.clip(out, 0.0, 1.0)
 
 
+def colours_or_white(vcs: list, sizes: list, fms: list, plain):
+    """(n, 3) float64 vertex colours of several parts, white where a part has none; or None.
+
+    White is neutral under a material (glTF's ``COLOR_0`` default). A part
+    with neither colours nor a material states no colour: its faces get the
+    material ``plain()`` numbers (geovox's default), not that white.
+
+    Parameters
+    ----------
+    vcs : list of (n_i, 3) float64 or None
+        Each part's vertex colours; the Nones are replaced by white.
+    sizes : list of int
+        Each part's vertex count.
+    fms : list of (m_i,) int64
+        Each part's face materials (-1: none); replaced where a part without
+        colours has faces without a material.
+    plain : callable
+        ``plain() -> int``, the index of a plain material; called only when one is needed.
+
+    Returns
+    -------
+    (sum n_i, 3) float64 or None
+        None when no part has colours (nothing is changed then).
+    """
+    if all(vc is None for vc in vcs):
+        return None
+    for i, vc in enumerate(vcs):
+        if vc is None:
+            vcs[i] = np.ones((sizes[i], 3))
+            if np.any(fms[i] < 0):
+                fms[i] = np.where(fms[i] < 0, plain(), fms[i])
+    return np.concatenate(vcs)
+
+
 # --------------------------------------------------------------------- strips and fans
 
 
@@ -827,17 +861,7 @@ def _assemble(doc: Document, parts: list, materials):
         have_uv |= uv is not None
         vcs.append(unit_colours(p.colours, len(p.positions), doc.problems)
                    if index is not None else None)
-    vertex_colors = None
-    if any(vc is not None for vc in vcs):
-        plain = None
-        for i, vc in enumerate(vcs):
-            if vc is None:
-                vcs[i] = np.ones((len(verts[i]), 3))
-                if np.any(fms[i] < 0):
-                    if plain is None:
-                        plain = materials.plain()
-                    fms[i] = np.where(fms[i] < 0, plain, fms[i])
-        vertex_colors = np.concatenate(vcs)
+    vertex_colors = colours_or_white(vcs, [len(v) for v in verts], fms, materials.plain)
     sizes = [len(f) for f in faces]
     labels = [label for _, _, label in solid]
     problems = materials.problems() + doc.problems + [line for _, line in doc.refused]
