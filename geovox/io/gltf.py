@@ -50,7 +50,7 @@ from .kinds import kind
 from .names import unique_name
 from .references import data_uri, instead, locate, why_not_read
 
-__all__ = ["read_gltf", "Document", "Damaged", "read_primitive", "instances", "transform_points", "strip_faces", "fan_faces", "unit_colours", "unique_name", "READ",
+__all__ = ["read_gltf", "Document", "Damaged", "read_primitive", "instances", "transform_points", "strip_faces", "fan_faces", "unit_colours", "colours_or_white", "unique_name", "READ",
            "NOT_GEOMETRY", "COMPONENTS"]
 
 #: glTF component types: NumPy dtype (little-endian).
