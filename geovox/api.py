@@ -127,12 +127,13 @@ def voxelize(
         may be read from: anywhere (``../textures/x.png`` included), or only
         under the model's own folder, for files you did not make (see
         :mod:`geovox.io.references`). URLs are never fetched.
-    labels : {None, "part", "component", "material", "file"}
+    labels : {None, "part", "component", "material", "file", "feature"}
         Also fill ``Volume.labels`` and ``Volume.label_table`` (see
         :mod:`geovox.labels`): the model's own parts (OBJ objects or groups,
         scene nodes), its connected components, the material of each
-        voxel's exact nearest surface point, or the file each part came
-        from (``mesh`` a list of files, one scene on one grid). With parts,
+        voxel's exact nearest surface point, the file each part came
+        from (``mesh`` a list of files, one scene on one grid), or the
+        feature ID of glTF's ``EXT_mesh_features`` (3D Tiles, BIM). With parts,
         ``occupancy`` is the union of the parts, each by its own inside test.
     overlap : {"last", "first", "smallest"}
         Which part a voxel inside several takes: the later in file order,

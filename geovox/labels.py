@@ -1,4 +1,4 @@
-"""Labelled volumes: which part, component, material or file is in each voxel.
+"""Labelled volumes: which part, component, material, file or feature is in each voxel.
 
 A label source gives every face a label (:func:`label_set`); then each
 part is classified by its own inside test on the shared grid
@@ -125,8 +125,10 @@ def label_set(mesh: Mesh, source: str, *, stacklevel: int = 3) -> LabelSet:
     """The labels ``source`` gives ``mesh`` (see the module notes).
 
     ``"part"`` on a mesh whose file names no parts warns and falls back to
-    ``"component"``. ``"file"`` on a mesh that is not a scene of files
-    (:func:`scene`) gives one label, named after the file's stem.
+    ``"component"``, as does ``"feature"`` on a mesh without feature IDs
+    (:attr:`Mesh.face_feature`; see :func:`feature_labels`). ``"file"`` on a
+    mesh that is not a scene of files (:func:`scene`) gives one label, named
+    after the file's stem.
 
     Raises
     ------
@@ -140,7 +142,14 @@ def label_set(mesh: Mesh, source: str, *, stacklevel: int = 3) -> LabelSet:
         warn(f"{mesh.source}: the file names no parts (OBJ objects or groups, scene nodes); "
              f"labelling its connected components instead", stacklevel=stacklevel)
         source = "component"
-    if source == "component":
+    if source == "feature" and mesh.face_feature is None:
+        warn(f"{mesh.source}: the file has no feature IDs (glTF EXT_mesh_features); "
+             f"labelling its connected components instead", stacklevel=stacklevel)
+        source = "component"
+    if source == "feature":
+        face_label, names = feature_labels(mesh.face_feature)
+        colors = palette(len(names))
+    elif source == "component":
         face_label = components(mesh)
         names = [f"component {k + 1}" for k in range(int(face_label.max()) + 1)]
         colors = palette(len(names))
@@ -172,6 +181,31 @@ def label_set(mesh: Mesh, source: str, *, stacklevel: int = 3) -> LabelSet:
                    colors=colors)
     mesh._cache[key] = out
     return out
+
+
+def feature_labels(face_feature: np.ndarray):
+    """``(face_label, names)`` of faces' feature IDs: one label per distinct ID, in ID order.
+
+    Parameters
+    ----------
+    face_feature : (m,) int64
+        Each face's feature ID; -1 for none.
+
+    Returns
+    -------
+    face_label : (m,) int64
+        Index into ``names``; faces without a feature take the last label,
+        ``"(no feature)"``, which is there only when some face has none.
+    names : list of str
+        ``"feature 7"`` for ID 7.
+    """
+    ids = np.unique(face_feature[face_feature >= 0])
+    names = [f"feature {int(i)}" for i in ids]
+    face_label = np.searchsorted(ids, face_feature).astype(np.int64)
+    if np.any(face_feature < 0):
+        face_label[face_feature < 0] = len(names)
+        names.append("(no feature)")
+    return face_label, names
 
 
 def _stem(path: str) -> str:
@@ -215,6 +249,9 @@ def scene(sources, options=None) -> Mesh:
         return meshes[0]
     verts, faces, fm, mats, fp, parts, uvs, vcs = [], [], [], [], [], [], [], []
     offset = 0
+    any_feature = any(m.face_feature is not None for m in meshes)
+    ff = [m.face_feature if m.face_feature is not None else np.full(len(m.faces), -1, np.int64)
+          for m in meshes] if any_feature else []
     stems = [_stem(m.source) for m in meshes]
     any_uv = any(m.corner_uv is not None for m in meshes)
     any_vc = any(m.vertex_colors is not None for m in meshes)
@@ -243,7 +280,8 @@ def scene(sources, options=None) -> Mesh:
                corner_uv=np.concatenate(uvs) if any_uv else None,
                vertex_colors=np.concatenate(vcs) if any_vc else None,
                problems=[p for m in meshes for p in m.problems],
-               face_part=np.concatenate(fp), parts=parts)
+               face_part=np.concatenate(fp), parts=parts,
+               face_feature=np.concatenate(ff) if any_feature else None)
     out._cache["files"] = (np.repeat(np.arange(len(meshes), dtype=np.int64),
                                      [len(m.faces) for m in meshes]), stems)
     return out
@@ -699,7 +737,8 @@ def label_colours(labels: np.ndarray, table: list) -> np.ndarray:
     return lut[labels]
 
 
-def parts_report(mesh: Mesh, sources=("part", "component", "material"), most: int = 12) -> str:
+def parts_report(mesh: Mesh, sources=("part", "component", "material", "feature"),
+                 most: int = 12) -> str:
     """What each label source would give ``mesh``: per label its name, triangles,
     whether it is closed, and its materials (the first ``most`` labels of each)."""
     import warnings
@@ -711,6 +750,8 @@ def parts_report(mesh: Mesh, sources=("part", "component", "material"), most: in
         if source == "part" and mesh.face_part is None:
             lines.append("labels part: the file names no parts (falls back to component)")
             continue
+        if source == "feature" and mesh.face_feature is None:
+            continue  # said only for a file that has feature IDs
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             lset = label_set(mesh, source)

@@ -144,6 +144,10 @@ class Mesh:
         None when the file names no parts.
     parts : list of str
         The parts' names, in file order.
+    face_feature : (m,) int64 or None
+        Each face's feature ID (glTF ``EXT_mesh_features``: its first vertex's
+        ID in the primitive's first feature ID set); -1 for faces without one.
+        None when the file has no feature IDs.
     """
 
     vertices: np.ndarray
@@ -156,6 +160,7 @@ class Mesh:
     problems: list = field(default_factory=list)
     face_part: np.ndarray | None = None
     parts: list = field(default_factory=list)
+    face_feature: np.ndarray | None = None
     _cache: dict = field(default_factory=dict, repr=False, compare=False)
 
     @property
@@ -248,5 +253,5 @@ def check_mesh(mesh: Mesh) -> Mesh:
     """Validate a Mesh built elsewhere (shapes, indices, finite coordinates)."""
     extra = {k: getattr(mesh, k) for k in
              ("face_material", "materials", "corner_uv", "vertex_colors", "problems",
-              "face_part", "parts")}
+              "face_part", "parts", "face_feature")}
     return build_mesh(mesh.vertices, mesh.faces, mesh.source, **extra)

@@ -56,6 +56,7 @@ class LabelSource(enum.StrEnum):
     COMPONENT = "component"  #: its connected components
     MATERIAL = "material"  #: the material of the voxel's exact nearest surface point
     FILE = "file"  #: the input file (several files, one scene)
+    FEATURE = "feature"  #: the feature ID of glTF's EXT_mesh_features (3D Tiles, BIM)
 
 
 class Overlap(enum.StrEnum):
@@ -386,8 +387,9 @@ def _validate_labels(o: Options) -> None:
         raise ParameterError("`fractions` needs `labels` (a label source: "
                              + ", ".join(sources) + ")")
     if o.fractions and o.labels == LabelSource.MATERIAL:
-        raise ParameterError("`fractions` are per part (labels='part', 'component' or 'file'); "
-                             "a material's share of a voxel is not defined by its nearest point")
+        raise ParameterError("`fractions` are per part (labels='part', 'component', 'file' or "
+                             "'feature'); a material's share of a voxel is not defined by its "
+                             "nearest point")
 
 
 def colour_of(color):

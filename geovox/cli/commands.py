@@ -549,7 +549,7 @@ def run_convert(args) -> int:
     from ..output import Kind, resolve_output
 
     if args.fractions and not args.labels:
-        raise ParameterError("--fractions needs --labels (part, component, material or file)")
+        raise ParameterError("--fractions needs --labels (part, component, file or feature)")
     args.input = args.input if isinstance(args.input, list) else [args.input]
     many = _many(args)
     if many:

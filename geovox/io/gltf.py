@@ -17,7 +17,10 @@ What is read:
   ``EXT_mesh_gpu_instancing``; a transform that mirrors reverses its
   triangles, as the specification says;
 * materials as colour and ``labels="material"`` use them (see
-  :mod:`geovox.io.gltf_materials`).
+  :mod:`geovox.io.gltf_materials`);
+* ``EXT_mesh_features``: each primitive's first feature ID set (an attribute,
+  or implicit vertex IDs) as :attr:`geovox.mesh.Mesh.face_feature`, for
+  ``labels="feature"`` (:func:`face_features`); IDs in textures are not read.
 
 The Mesh is the one trimesh's reader and :func:`geovox.io.adaptor.from_trimesh`
 made before: each node's primitive is a part (``node (mesh)``), in the order
@@ -50,7 +53,7 @@ from .kinds import kind
 from .names import unique_name
 from .references import data_uri, instead, locate, why_not_read
 
-__all__ = ["read_gltf", "Document", "Damaged", "read_primitive", "instances", "transform_points", "strip_faces", "fan_faces", "unit_colours", "colours_or_white", "unique_name", "READ",
+__all__ = ["read_gltf", "Document", "Damaged", "read_primitive", "instances", "transform_points", "strip_faces", "fan_faces", "unit_colours", "colours_or_white", "face_features", "unique_name", "READ",
            "NOT_GEOMETRY", "COMPONENTS"]
 
 #: glTF component types: NumPy dtype (little-endian).
@@ -476,9 +479,10 @@ class Document:
 class Primitive:
     """One primitive read once: ``positions`` (n, 3) float64, ``faces`` (m, 3) int64, and its
     ``uv`` (n, 2) float64 or None (flipped to V up), ``colours`` (n, 3) float64 or None, and
-    ``material`` index or None. ``kind``: "triangles", "points" or "lines"."""
+    ``material`` index or None. ``kind``: "triangles", "points" or "lines". ``features``:
+    (m,) int64 feature IDs of the faces (-1: none), or None (see :func:`face_features`)."""
 
-    __slots__ = ("positions", "faces", "uv", "colours", "material", "kind", "name")
+    __slots__ = ("positions", "faces", "uv", "colours", "material", "kind", "name", "features")
 
 
 def _draco(doc: Document, prim: dict, where: str) -> dict:
@@ -543,7 +547,7 @@ def read_primitive(doc: Document, prim: dict, where: str, materials) -> Primitiv
     n = len(positions)
     if mode in (_POINTS, _LINES, _LOOP, _LINE_STRIP):
         p.kind, p.faces = ("points" if mode == _POINTS else "lines"), np.zeros((0, 3), np.int64)
-        p.uv = p.colours = None
+        p.uv = p.colours = p.features = None
         p.name = mode
         return p
     p.kind = "triangles"
@@ -594,7 +598,69 @@ def read_primitive(doc: Document, prim: dict, where: str, materials) -> Primitiv
         colours = attribute("COLOR_0")
         if len(colours) == n:
             p.colours = colours
+    p.features = face_features(doc, ext.get("EXT_mesh_features"), p.faces, n,
+                               lambda name: attribute(name) if name in attrs or name in decoded
+                               else None, where)
     return p
+
+
+def face_features(doc: Document, spec, faces: np.ndarray, n: int, attribute, where: str):
+    """(m,) int64: each face's feature ID in a primitive's first ``EXT_mesh_features`` set, or None.
+
+    A face takes its first vertex's ID (the extension gives IDs per vertex;
+    a feature's triangles carry one ID at all three corners). The set's IDs
+    are the ``_FEATURE_ID_k`` attribute its ``attribute`` names, or, with
+    neither attribute nor texture, the vertex index (the extension's
+    implicit IDs). IDs in a texture are not read: the faces get none, said in
+    ``doc.problems``. ``nullFeatureId`` and negative IDs are -1 (no feature).
+
+    Parameters
+    ----------
+    doc : Document
+    spec : dict or None
+        The primitive's ``extensions.EXT_mesh_features``.
+    faces : (m, 3) int64
+    n : int
+        The primitive's vertex count.
+    attribute : callable
+        ``attribute(name) -> (n, w) array or None``: the primitive's attribute of that name.
+    where : str
+        The primitive, as messages name it.
+
+    Returns
+    -------
+    (m,) int64 or None
+        None where the primitive has no feature ID set.
+    """
+    sets = spec.get("featureIds") if isinstance(spec, dict) else None
+    if not isinstance(sets, list) or not sets or not isinstance(sets[0], dict):
+        return None
+    first = sets[0]
+    if "attribute" in first:
+        k = first["attribute"]
+        ids = attribute(f"_FEATURE_ID_{k}") if _is_int(k) else None
+        if ids is None:
+            raise doc.damaged(f"{where}'s feature IDs name attribute {k!r}, which it does not have")
+        if ids.shape[1] != 1 or len(ids) != n:
+            raise doc.damaged(f"{where}'s _FEATURE_ID_{k} is not one number a vertex")
+        ids = ids[:, 0]
+        if ids.dtype.kind == "f":
+            if not np.all(np.isfinite(ids) & (ids == np.rint(ids))):
+                raise doc.damaged(f"{where}'s _FEATURE_ID_{k} holds numbers that are not whole")
+            ids = np.clip(ids, -1, 2.0 ** 62)
+        vertex = ids.astype(np.int64)
+    elif "texture" in first:
+        doc.problems.append(f"{where}'s feature IDs are in a texture, which geovox does not read; "
+                            f"its faces have no feature")
+        return np.full(len(faces), -1, np.int64)
+    else:
+        vertex = np.arange(n, dtype=np.int64)
+    out = vertex[faces[:, 0]]
+    null = first.get("nullFeatureId")
+    if _is_int(null):
+        out[out == null] = -1
+    out[out < 0] = -1
+    return out
 
 
 # --------------------------------------------------------------------- the scene
@@ -847,6 +913,7 @@ def _assemble(doc: Document, parts: list, materials):
         raise MeshError(_no_faces(doc, parts))
     verts, faces, fms, uvs, vcs, offset = [], [], [], [], [], 0
     have_uv = False
+    any_feature = any(p.features is not None for p, _, _ in solid)
     for p, matrix, _ in solid:
         f = p.faces
         if np.linalg.det(matrix[:3, :3]) < 0:
@@ -870,4 +937,7 @@ def _assemble(doc: Document, parts: list, materials):
         face_material=np.concatenate(fms), materials=materials.made,
         corner_uv=np.concatenate(uvs) if have_uv else None, vertex_colors=vertex_colors,
         face_part=np.repeat(np.arange(len(sizes), dtype=np.int64), sizes), parts=labels,
-        problems=[f"{doc.path}: {p}" for p in dict.fromkeys(problems)])
+        problems=[f"{doc.path}: {p}" for p in dict.fromkeys(problems)],
+        face_feature=np.concatenate([
+            p.features if p.features is not None else np.full(len(p.faces), -1, np.int64)
+            for p, _, _ in solid]) if any_feature else None)
