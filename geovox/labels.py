@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import parity
-from .errors import MeshError, ParameterError, warn
+from .errors import MeshError, ParameterError, collect_warnings, warn
 from .mesh import Mesh
 from .options import Inside, LabelSource, Occupancy, Overlap
 
@@ -464,28 +464,28 @@ def classify(mesh: Mesh, grid, lset: LabelSet, *, cast_mesh, axis: int, jobs: in
         on the block, which are the part's own (``"surface"``) or join its
         solid (``"both"``) before the overlap rule settles shared voxels.
     """
-    import warnings
-
     from . import inside as inside_tests
 
     n = len(lset.names)
+    kind, surface_of = surface if surface is not None else (None, None)
     parts, methods = part_meshes(mesh, lset), list(lset.methods)
-    if len(methods) != n:
+    if len(methods) != n and kind != Occupancy.SURFACE:
         raise ValueError("classify needs the parts' inside tests the plan chooses "
                          "(LabelSet.methods)")
     z0, frame = 0, grid
     if within is not None and axis == 2 and tuple(within[1]) != (0, within[0].shape[2]):
         frame, z0 = within[0], int(within[1][0])
-    hits, columns = cast_mesh(mesh, axis, frame)
-    part_of_hit = lset.face_label[hits.triangle]
-    by_part = np.argsort(part_of_hit, kind="stable")
-    hcuts = np.searchsorted(part_of_hit[by_part], np.arange(n + 1))
+    hits = columns = None
+    if kind != Occupancy.SURFACE:  # surface voxels alone cast no ray
+        hits, columns = cast_mesh(mesh, axis, frame)
+        part_of_hit = lset.face_label[hits.triangle]
+        by_part = np.argsort(part_of_hit, kind="stable")
+        hcuts = np.searchsorted(part_of_hit[by_part], np.arange(n + 1))
     lo_ray = (np.arange(frame.shape[axis]) + 0.5) * frame.spacing[axis]
     labels = np.zeros(grid.shape, dtype=lset.dtype, order="F")
     # Parts inside each voxel (it cannot wrap: a uint8 count for at most 255 parts).
     inside_count = np.zeros(grid.shape, dtype=lset.dtype, order="F")
     approximate = 0
-    kind, surface_of = surface if surface is not None else (None, None)
     solid_union = None
     if kind == Occupancy.BOTH:
         solid_union = np.zeros(grid.shape, dtype=bool, order="F")
@@ -505,11 +505,10 @@ def classify(mesh: Mesh, grid, lset: LabelSet, *, cast_mesh, axis: int, jobs: in
                         for a in range(3))
             box, occ = (slice(None),) * 3, votes >= 2
         else:
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")
-                occ, _, _, n = inside_tests.winding_occupancy(parts[k], grid, cast_mesh, axis,
-                                                              jobs)
-            approximate += n
+            with collect_warnings(drop=True):
+                occ, _, _, guessed = inside_tests.winding_occupancy(parts[k], grid, cast_mesh,
+                                                                    axis, jobs)
+            approximate += guessed
             box = (slice(None),) * 3
         if kind == Occupancy.BOTH:
             # The part's solid joins its surface voxels: the whole grid's box.
@@ -526,7 +525,7 @@ def classify(mesh: Mesh, grid, lset: LabelSet, *, cast_mesh, axis: int, jobs: in
 
         warn(approximate_warning(approximate, grid.size), stacklevel=3)
     return Classified(labels=labels, contested=contested, methods=methods,
-                      crossings=(hits, columns) if frame is grid else None,
+                      crossings=(hits, columns) if frame is grid and hits is not None else None,
                       approximate=approximate,
                       inside=None if solid_union is None else int(np.count_nonzero(solid_union)))
 
@@ -741,8 +740,6 @@ def parts_report(mesh: Mesh, sources=("part", "component", "material", "feature"
                  most: int = 12) -> str:
     """What each label source would give ``mesh``: per label its name, triangles,
     whether it is closed, and its materials (the first ``most`` labels of each)."""
-    import warnings
-
     from .inside import boundary_edges
 
     lines = []
@@ -752,8 +749,7 @@ def parts_report(mesh: Mesh, sources=("part", "component", "material", "feature"
             continue
         if source == "feature" and mesh.face_feature is None:
             continue  # said only for a file that has feature IDs
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
+        with collect_warnings(drop=True):
             lset = label_set(mesh, source)
         lines.append(f"labels {source}: {len(lset.names):,}")
         for k, name in enumerate(lset.names[:most]):

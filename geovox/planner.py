@@ -508,8 +508,7 @@ def _label_stage(m, o: Options, f):
     """The labels stage ``o.labels`` asks for (None without), checked against the format."""
     if o.labels is None:
         return None
-    import warnings
-
+    from .errors import collect_warnings
     from .inside import choose
     from .labels import LabelStage, label_set, part_meshes
 
@@ -519,11 +518,12 @@ def _label_stage(m, o: Options, f):
         formats.check_labels(True, f)
     methods = []
     lset = label_set(m, o.labels, stacklevel=4)
-    if lset.source != LabelSource.MATERIAL:
+    # Surface voxels alone need no part's inside test (nor its repair).
+    if lset.source != LabelSource.MATERIAL and o.occupancy != Occupancy.SURFACE:
         for part in part_meshes(m, lset):
-            with warnings.catch_warnings():
-                # A part's repair is its own business; the whole mesh's is said once.
-                warnings.simplefilter("ignore")
+            # A part's repair is its own business; the whole mesh's is said once. (geovox's
+            # own collector: warnings.catch_warnings does not reach what a CLI run collects.)
+            with collect_warnings(drop=True):
                 methods.append(Inside.PARITY if part is None else Inside(choose(part, o.inside)))
     return LabelStage.build(m, o, methods)
 

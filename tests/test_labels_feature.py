@@ -155,3 +155,43 @@ def test_a_scene_of_files_keeps_each_files_features(tmp_path):
         warnings.simplefilter("ignore")
         vol = geovox.voxelize([a, str(b)], resolution=R, labels="feature")
     assert _names(vol) == ["feature 5", "(no feature)"]
+
+
+def _open_boxes(path):
+    """Two boxes without their top faces, features 1 and 2."""
+    b = Builder()
+    for i in range(2):
+        v, f = _box((2.0 * i, 0.0, 0.0), (2.0 * i + 1, 1.0, 1.0))
+        top = v[f].mean(axis=1)[:, 2] > 0.99
+        attrs = {"POSITION": b.accessor(v.astype("f4")),
+                 "_FEATURE_ID_0": b.accessor(np.full(len(v), i + 1, np.uint16))}
+        b.mesh(attrs, b.accessor(f[~top].reshape(-1).astype("u4")),
+               extensions={"EXT_mesh_features": {"featureIds": [{"featureCount": 1,
+                                                                 "attribute": 0}]}})
+    b.write(path)
+    return str(path)
+
+
+def test_surface_labels_choose_no_inside_test_and_say_surface(tmp_path, capsys):
+    # Surface voxels alone need no part's inside test: no repair, no warning about one,
+    # and the summary says what ran.
+    path = _open_boxes(tmp_path / "o.glb")
+    out = tmp_path / "o.ply"
+    assert main(["convert", path, "--labels", "feature", "--occupancy", "surface", "-r", "16",
+                 "-o", str(out)]) == 0
+    said = capsys.readouterr()
+    text = said.out + said.err
+    assert "not closed" not in text and "repaired" not in text
+    assert "occupancy surface (the voxels the surface passes through)" in text
+    assert "inside test" not in text
+
+
+def test_a_parts_repair_is_not_said_per_part_on_the_command_line(tmp_path, capsys):
+    # The plan chooses each part's inside test quietly (the library never said it); the
+    # command line's collector used to print one warning per open part.
+    path = _open_boxes(tmp_path / "p.glb")
+    assert main(["convert", path, "--labels", "feature", "-r", "16",
+                 "-o", str(tmp_path / "p.npz")]) == 0
+    said = capsys.readouterr()
+    assert "labels feature: 2" in said.out + said.err
+    assert "[feature 1]" not in said.err and "[feature 2]" not in said.err
