@@ -1,10 +1,13 @@
-"""geovox.io.stl: STL read without trimesh, into the very Mesh trimesh's path makes.
+"""geovox.io.stl: STL read without trimesh, into the Mesh trimesh's path makes, indexed.
 
 Every case compares :func:`read_stl` with the trimesh path it replaces
 (``_trimesh_load``: ``trimesh.load(path, process=False)`` then
 ``from_trimesh``, with the problems trimesh logged) field by field and bit
-for bit, or checks that the file is left to trimesh (None) and that
-``load_mesh`` then reads it, or fails, exactly as trimesh's path does.
+for bit -- but for a single solid's vertices, which geovox merges where they
+are equal (:func:`geovox.io.stl.indexed`): there the triangles are the same
+bit for bit, and the vertices distinct and in order of first appearance --
+or checks that the file is left to trimesh (None) and that ``load_mesh``
+then reads it, or fails, exactly as trimesh's path does.
 """
 
 from __future__ import annotations
@@ -33,10 +36,29 @@ MODELS = [p for p in MODELS if p.lower().endswith(".stl")]
 LEFT = {"empty.stl"}
 
 
-def _same(a, b):
-    """Field by field, bit for bit (-0.0 is not 0.0 here)."""
+def _indexed_as(a, b):
+    """``a`` is ``b`` (three corners a facet) with equal corners merged, in order of first appearance."""
+    assert a.triangles.dtype == b.triangles.dtype and a.triangles.tobytes() == b.triangles.tobytes()
+    ids = a.faces.reshape(-1)
+    top = np.maximum.accumulate(ids)
+    new = np.r_[True, top[1:] > top[:-1]]
+    assert np.array_equal(ids[new], np.arange(len(a.vertices)))  # first appearance order
+    v = b.vertices
+    if np.signbit(v[v == 0]).any():  # -0.0 somewhere: nothing merged
+        assert len(a.vertices) == len(b.vertices)
+    else:
+        assert len(np.unique(a.vertices, axis=0)) == len(a.vertices)  # every corner merged
+
+
+def _same(a, b, indexed=False):
+    """Field by field, bit for bit (-0.0 is not 0.0 here); with ``indexed``, ``a``'s vertices
+    are ``b``'s merged (:func:`_indexed_as`)."""
     assert a.source == b.source
-    for f in ("vertices", "faces", "face_material"):
+    if indexed and a.parts == []:
+        _indexed_as(a, b)
+    fields = ("face_material",) if indexed and a.parts == [] else \
+        ("vertices", "faces", "face_material")
+    for f in fields:
         x, y = getattr(a, f), getattr(b, f)
         assert x.dtype == y.dtype and x.shape == y.shape and x.tobytes() == y.tobytes(), f
     assert a.materials == b.materials and a.problems == b.problems
@@ -65,8 +87,8 @@ def _as_trimesh_reads_it(path, accepted=True):
     if fast is None:
         _same(geovox.load_mesh(path), slow)
         return slow
-    _same(fast, slow)
-    _same(fast, from_trimesh(trimesh.load(path, process=False), source=path))
+    _same(fast, slow, indexed=True)
+    _same(fast, from_trimesh(trimesh.load(path, process=False), source=path), indexed=True)
     _same(geovox.load_mesh(path), fast)
     return fast
 
@@ -131,8 +153,8 @@ def test_binary_export_reads_as_trimesh_reads_it(tmp_path, sphere):
     path = tmp_path / "s.stl"
     trimesh.Trimesh(*sphere, process=False).export(str(path))
     mesh = _as_trimesh_reads_it(path)
-    assert len(mesh.faces) == len(sphere[1]) and len(mesh.vertices) == 3 * len(sphere[1])
-    np.testing.assert_array_equal(mesh.faces.reshape(-1), np.arange(3 * len(sphere[1])))
+    # the sphere's own vertices, each once, as the corners first use them
+    assert len(mesh.faces) == len(sphere[1]) and len(mesh.vertices) == len(sphere[0])
 
 
 @pytest.mark.parametrize("header", [b"solid sphere", b"SOLID", b"solid\nfacet normal 0 0 1\n",
@@ -324,7 +346,7 @@ def test_property_any_triangles_read_as_trimesh_reads_them(tmp_path, triangles, 
         _ascii(path, t, fmt=fmt, newline=newline, sep=sep, upper=upper)
     mesh = _as_trimesh_reads_it(path)
     if binary:
-        assert np.array_equal(mesh.vertices, t.astype(np.float32).reshape(-1, 3))
+        assert np.array_equal(mesh.triangles, t.astype(np.float32))
 
 
 # Coordinates on a coarse grid, some nudged by less than the 8 decimals trimesh merges at,
@@ -346,3 +368,31 @@ def test_property_several_solids_read_as_trimesh_reads_them(tmp_path, solids, fm
     path.write_bytes((text.upper() if upper else text).encode())
     mesh = _as_trimesh_reads_it(path)
     assert len(mesh.parts) == (len(solids) if len(solids) > 1 else 0)
+
+
+def test_equal_corners_are_one_vertex_and_minus_zero_merges_nothing(tmp_path, sphere):
+    v, f = sphere
+    t = v[f].astype(np.float32).astype(np.float64)
+    mesh = read_stl(str(_binary(tmp_path / "m.stl", t)))
+    assert len(mesh.vertices) == len(v)
+    np.testing.assert_array_equal(mesh.triangles, t)
+    t[0, 0, 0] = -0.0  # equal to 0.0 but not its bits: the file's corners are kept as they are
+    t[1, 1, 1] = 0.0
+    mesh = read_stl(str(_binary(tmp_path / "z.stl", t)))
+    assert len(mesh.vertices) == 3 * len(f)
+    assert mesh.triangles.tobytes() == t.tobytes()
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(st.lists(st.tuples(*[st.sampled_from([0.0, 1.0, -2.5, 3.0])] * 3), min_size=3,
+                max_size=60).filter(lambda c: len(c) % 3 == 0))
+def test_numpy_merge_numbers_corners_as_the_compiled_one(corners):
+    from geovox.io.stl import _merge_positions, indexed
+
+    c = np.array(corners, np.float64)
+    ids = _merge_positions(c)
+    lattice = pytest.importorskip("geovox._lattice")
+    np.testing.assert_array_equal(ids, lattice.merge_positions(c))
+    v, faces = indexed(c)
+    np.testing.assert_array_equal(v[faces].reshape(-1, 3), c)
+    assert len(v) == len({tuple(p) for p in corners})

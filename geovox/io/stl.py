@@ -2,12 +2,14 @@
 
 STL is the format of many data sets (Thingi10K is all STL) and of most CAD
 exports; for such a file, importing trimesh costs more than reading it.
-:func:`read_stl` reads the common cases itself into the very
+:func:`read_stl` reads the common cases itself into the
 :class:`~geovox.mesh.Mesh` the trimesh path (``trimesh.load(path,
-process=False)`` then :func:`geovox.io.load.from_trimesh`) makes: float64
-vertices, three for each facet in file order (no vertex is merged), int64
-faces ``0, 1, 2, 3, ...``, no material (face_material -1), no UVs, no
-colours, no problems, and no parts but for several ASCII solids (below).
+process=False)`` then :func:`geovox.io.load.from_trimesh`) makes, indexed:
+the same triangles bit for bit (float64), but equal corners are one vertex,
+in order of first appearance (:func:`indexed`; trimesh's path keeps three
+vertices a facet, six times too many for a closed scan); no material
+(face_material -1), no UVs, no colours, no problems, and no parts but for
+several ASCII solids (below).
 
 It follows trimesh's (5.2) ``trimesh/exchange/stl.py`` rule for telling the
 two kinds apart: a file is binary when its size is exactly 84 bytes plus 50
@@ -41,7 +43,7 @@ import numpy as np
 
 from .names import unique_name
 
-__all__ = ["read_stl", "RECORD", "HEADER"]
+__all__ = ["read_stl", "indexed", "RECORD", "HEADER"]
 
 #: One facet of a binary STL: normal, three corners, the attribute word (little-endian).
 RECORD = np.dtype([("normal", "<f4", (3,)), ("corners", "<f4", (3, 3)), ("attribute", "<u2")])
@@ -135,6 +137,51 @@ def _merged(vertices):
     return vertices[first[order]], rank[inverse.reshape(-1)].reshape(-1, 3)
 
 
+def indexed(corners: np.ndarray):
+    """``(vertices, faces)`` of a triangle soup: equal corners one vertex, in order of first appearance.
+
+    An STL repeats each vertex in every facet that uses it (six times, in a
+    closed mesh); merged, a scan of millions of triangles holds a sixth of
+    the vertices, and everything after the reading (the closedness checks,
+    the repair's edge tables) works on those. Only equal coordinates merge,
+    so the triangles are the file's, bit for bit; where a corner has a
+    ``-0.0`` (equal to ``0.0``, but not the same bits) nothing is merged.
+
+    Parameters
+    ----------
+    corners : (3m, 3) float64, finite
+        The facets' corners in file order.
+
+    Returns
+    -------
+    vertices : (n, 3) float64
+        The distinct corners, in order of first appearance.
+    faces : (m, 3) int64
+    """
+    nf = len(corners) // 3
+    if np.signbit(corners[corners == 0]).any():
+        return corners, np.arange(3 * nf, dtype=np.int64).reshape(nf, 3)
+    try:
+        from .._lattice import merge_positions
+    except ImportError:  # built without a compiler: the same numbering by a sort
+        merge_positions = _merge_positions
+    ids = merge_positions(corners)
+    # Numbered in order of first appearance: a vertex first appears where the
+    # running maximum of the ids grows.
+    top = np.maximum.accumulate(ids)
+    first = np.flatnonzero(np.r_[len(ids) > 0, top[1:] > top[:-1]])
+    return corners[first], ids.reshape(nf, 3)
+
+
+def _merge_positions(corners: np.ndarray) -> np.ndarray:
+    """:func:`geovox._lattice.merge_positions` by NumPy: ids by exact position, in order of first appearance."""
+    _, first, inverse = np.unique(np.ascontiguousarray(corners).view(np.dtype((np.void, 24))),
+                                  return_index=True, return_inverse=True)
+    rank = np.empty(len(first), np.int64)
+    rank[np.argsort(first)] = np.arange(len(first))
+    return rank[inverse.reshape(-1)]
+
+
 def _scene(solids: dict, path: str):
     """The Mesh ``from_trimesh`` makes of trimesh's scene of several solids (one part each), or None."""
     from ..mesh import build_mesh
@@ -166,9 +213,9 @@ def read_stl(path: str):
     Returns
     -------
     Mesh or None
-        ``vertices`` (3m, 3) float64, three per facet in file order, and
-        ``faces`` (m, 3) int64 ``[[0, 1, 2], [3, 4, 5], ...]``; for several
-        ASCII solids, each solid's merged vertices, ``parts`` (their names)
+        ``vertices`` (n, 3) float64, the distinct corners in order of first
+        appearance, and ``faces`` (m, 3) int64 (:func:`indexed`); for several
+        ASCII solids, each solid's vertices merged as trimesh merges them, ``parts`` (their names)
         and ``face_part`` (m,) int64. None where
         the file is not a case this reader takes (see the module's
         docstring): the caller reads it with trimesh.
@@ -178,7 +225,9 @@ def read_stl(path: str):
     with open(path, "rb") as f:
         data = f.read()
     vertices = _binary(data)
-    if vertices is None:
+    if vertices is not None:
+        del data  # the file's bytes, before the vertices are merged
+    else:
         solids = _ascii(data)
         if solids is False or not all(np.isfinite(v).all() for v in solids.values()):
             return None
@@ -187,7 +236,6 @@ def read_stl(path: str):
         vertices = next(iter(solids.values()))
     if vertices is False or not np.isfinite(vertices).all():
         return None
-    nf = len(vertices) // 3
-    return build_mesh(vertices, np.arange(3 * nf, dtype=np.int64).reshape(nf, 3), path,
-                      face_material=np.full(nf, -1, np.int64), materials=[], corner_uv=None,
-                      vertex_colors=None)
+    vertices, faces = indexed(vertices)
+    return build_mesh(vertices, faces, path, face_material=np.full(len(faces), -1, np.int64),
+                      materials=[], corner_uv=None, vertex_colors=None)
