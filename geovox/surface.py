@@ -255,7 +255,7 @@ def surface_voxels(triangles, grid: Grid, block=None, *, faces=None, jobs: int =
         run.compiled(out=out.view(np.uint8), zero=not fresh)
     else:
         out[...] = False
-        _numpy_surface(verts, faces, run.lo, run.h, run.n, run.s, z0, z1, out)
+        _numpy_surface(verts, faces, run, z0, z1, out)
     return out
 
 
@@ -316,7 +316,7 @@ def surface_points(triangles, grid: Grid, block=None, *, faces=None, jobs: int =
     run = _Run(verts, faces, count, grid, (z0, z1), jobs, bits)
     if run.kernel is None:
         occ = np.zeros((nx, ny, z1 - z0), dtype=bool, order="F")
-        _numpy_surface(verts, faces, run.lo, run.h, run.n, run.s, z0, z1, occ)
+        _numpy_surface(verts, faces, run, z0, z1, occ)
         flat = np.flatnonzero(occ.reshape(-1, order="F"))
         ijk = np.stack([flat % nx, (flat // nx) % ny, flat // (nx * ny) + z0], axis=1)
         if values is not None:
@@ -560,9 +560,9 @@ def _reaching(f, n, block=None):
 
 # ---- the NumPy twin ------------------------------------------------------------
 
-def _numpy_surface(verts, faces, lo, h, n, s, z0, z1, out):
-    """The compiled kernel's voxels, by the same exact tests (one thread)."""
-    S = 1 << s
+def _numpy_surface(verts, faces, run: "_Run", z0: int, z1: int, out):
+    """The compiled kernel's voxels, by the same exact tests (one thread), layers ``z0 .. z1``."""
+    lo, h, n, S = run.lo, run.h, run.n, 1 << run.s
     count = len(verts) // 3 if faces is None else len(faces)
     for start in range(0, count, _BATCH):
         f = _index_space(_triangles(verts, faces, start, start + _BATCH), lo, h)
