@@ -149,6 +149,11 @@ def label_set(mesh: Mesh, source: str, *, stacklevel: int = 3) -> LabelSet:
     if source == "feature":
         face_label, names = feature_labels(mesh.face_feature)
         colors = palette(len(names))
+        # What the reader could not read of them (IDs in textures), which the
+        # mesh's problems otherwise say only with colour.
+        for problem in mesh.problems:
+            if "feature IDs" in problem:
+                warn(problem, stacklevel=stacklevel)
     elif source == "component":
         face_label = components(mesh)
         names = [f"component {k + 1}" for k in range(int(face_label.max()) + 1)]

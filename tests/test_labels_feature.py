@@ -81,6 +81,8 @@ def test_ids_in_a_texture_are_not_read_and_said(tmp_path):
     mesh = geovox.load_mesh(path)
     assert (mesh.face_feature == -1).all()
     assert any("feature IDs are in a texture" in p for p in mesh.problems)
+    with pytest.warns(UserWarning, match="feature IDs are in a texture"):
+        geovox.voxelize(path, resolution=8, labels="feature")
 
 
 def test_a_missing_feature_attribute_is_damage_in_one_line(tmp_path, capsys):
