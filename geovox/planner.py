@@ -508,7 +508,7 @@ def _label_stage(m, o: Options, f):
     """The labels stage ``o.labels`` asks for (None without), checked against the format."""
     if o.labels is None:
         return None
-    from .errors import collect_warnings
+    from .errors import collect_warnings, warn
     from .inside import choose
     from .labels import LabelStage, label_set, part_meshes
 
@@ -520,11 +520,18 @@ def _label_stage(m, o: Options, f):
     lset = label_set(m, o.labels, stacklevel=4)
     # Surface voxels alone need no part's inside test (nor its repair).
     if lset.source != LabelSource.MATERIAL and o.occupancy != Occupancy.SURFACE:
+        repaired = 0
         for part in part_meshes(m, lset):
-            # A part's repair is its own business; the whole mesh's is said once. (geovox's
-            # own collector: warnings.catch_warnings does not reach what a CLI run collects.)
-            with collect_warnings(drop=True):
+            # Each part's own warning would be one line a part (a Cornell box: eight); they
+            # are said as one below.
+            with collect_warnings() as said:
                 methods.append(Inside.PARITY if part is None else Inside(choose(part, o.inside)))
+            repaired += bool(said)
+        if repaired:
+            name = os.path.basename(str(m.source)) or "the mesh"
+            warn(f"{name}: {repaired:,} of {len(methods):,} {lset.source} labels are not closed or "
+                 f"not consistently wound; each is inside by the winding number of its repaired "
+                 f"copy (geovox info lists them)", stacklevel=4)
     return LabelStage.build(m, o, methods)
 
 

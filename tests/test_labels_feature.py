@@ -188,12 +188,16 @@ def test_surface_labels_choose_no_inside_test_and_say_surface(tmp_path, capsys):
     assert "inside test" not in text
 
 
-def test_a_parts_repair_is_not_said_per_part_on_the_command_line(tmp_path, capsys):
-    # The plan chooses each part's inside test quietly (the library never said it); the
-    # command line's collector used to print one warning per open part.
+def test_open_parts_are_said_in_one_line(tmp_path, capsys):
+    # The plan's choice of each part's inside test is said once for all the parts (the
+    # command line used to print one warning per open part, the library none).
     path = _open_boxes(tmp_path / "p.glb")
     assert main(["convert", path, "--labels", "feature", "-r", "16",
                  "-o", str(tmp_path / "p.npz")]) == 0
     said = capsys.readouterr()
     assert "labels feature: 2" in said.out + said.err
     assert "[feature 1]" not in said.err and "[feature 2]" not in said.err
+    assert said.err.count("warning") == 1
+    assert "2 of 2 feature labels are not closed or not consistently wound" in said.err
+    with pytest.warns(UserWarning, match="2 of 2 feature labels are not closed"):
+        geovox.voxelize(path, resolution=8, labels="feature")
