@@ -14,6 +14,11 @@
    wall time and peak memory (issue 36: one line, within 5 s and 1 GiB).
 
     python benchmarks/bench_readers.py [--rounds 7] [--resolution 128] [--no-bomb]
+        [--results benchmarks/results/readers.json]
+
+``--results FILE`` also writes the three tables as a result file for
+``benchmarks/tables.py`` (the machine line and the notes are to be checked by
+hand).
 
 The sweep of public test files against trimesh is ``benchmarks/sweep_readers.py``.
 """
@@ -21,6 +26,8 @@ The sweep of public test files against trimesh is ``benchmarks/sweep_readers.py`
 from __future__ import annotations
 
 import argparse
+import datetime
+import json
 import os
 import platform
 import statistics
@@ -74,12 +81,13 @@ def convert_time(path: str, out: str, resolution: int) -> float:
     return time.perf_counter() - start
 
 
-def speed(rounds: int, resolution: int, folder: str) -> None:
+def speed(rounds: int, resolution: int, folder: str) -> list:
     print(f"## whole process, geovox convert -r {resolution} ({rounds} rounds, rotating order)")
     print("| model | format | triangles | median s | ratio to OBJ (median) | ratio range |")
     print("|---|---|---|---|---|---|")
     import geovox
 
+    rows = []
     for name, source in MODELS.items():
         paths = write_formats(name, source, folder)
         faces = len(geovox.load_mesh(paths["obj"]).faces)
@@ -93,12 +101,14 @@ def speed(rounds: int, resolution: int, folder: str) -> None:
                     times[ext].append(got[ext])
         for ext in FORMATS:
             ratios = [a / b for a, b in zip(times[ext], times["obj"])]
-            print(f"| {name} | {ext} | {faces:,} | {statistics.median(times[ext]):.3f} | "
-                  f"{statistics.median(times[ext]) / statistics.median(times['obj']):.2f} | "
-                  f"{min(ratios):.2f}-{max(ratios):.2f} |")
+            rows.append([name, ext, f"{faces:,}", f"{statistics.median(times[ext]):.3f}",
+                         f"{statistics.median(times[ext]) / statistics.median(times['obj']):.2f}",
+                         f"{min(ratios):.2f}-{max(ratios):.2f}"])
+            print("| " + " | ".join(rows[-1]) + " |", flush=True)
+    return rows
 
 
-def loading(folder: str) -> None:
+def loading(folder: str) -> list:
     import warnings
 
     import trimesh
@@ -109,6 +119,7 @@ def loading(folder: str) -> None:
     print("\n## loading alone, in one process (best of 5)")
     print("| model | format | geovox s | trimesh + adaptor s | speed-up |")
     print("|---|---|---|---|---|")
+    rows = []
     for name in MODELS:
         for ext in ("ply", "glb", "gltf"):
             path = os.path.join(folder, name, f"{name}.{ext}")
@@ -130,10 +141,13 @@ def loading(folder: str) -> None:
                     fn()
                     runs.append(time.perf_counter() - t)
                 best.append(min(runs))
-            print(f"| {name} | {ext} | {best[0]:.4f} | {best[1]:.4f} | {best[1] / best[0]:.1f}x |")
+            rows.append([name, ext, f"{best[0]:.4f}", f"{best[1]:.4f}",
+                         f"{best[1] / best[0]:.1f}x"])
+            print("| " + " | ".join(rows[-1]) + " |", flush=True)
+    return rows
 
 
-def bomb(folder: str) -> None:
+def bomb(folder: str) -> list:
     path = os.path.join(folder, "bomb.zip")
     size = 2 * 10**9
     # 40 million zero-area triangles: a binary STL header, then 50-byte zero records
@@ -152,9 +166,17 @@ def bomb(folder: str) -> None:
            path, "-o", os.path.join(folder, "bomb.raw"), "-r", "128"]
     got = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT)
     lines = got.stderr.strip().splitlines()
-    print(f"exit {got.returncode}; stderr lines: {len(lines) - 1}")
+    # /usr/bin/time adds its format line last and, on a non-zero exit, a "Command exited" line
+    ours = [line for line in lines[:-1] if not line.startswith(("Command exited",
+                                                                 "Command terminated"))]
+    print(f"exit {got.returncode}; stderr lines: {len(ours)}")
     for line in lines:
         print(f"    {line}")
+    wall, _, peak, _ = lines[-1].split()
+    return [[f"{os.path.getsize(path) / 1e6:.1f} MB zip of a {size / 1e9:.0f} GB STL",
+             str(got.returncode), str(len(ours)),
+             " / ".join(ours).replace(path, "BOMB.zip").replace("`", "'"),
+             f"{float(wall):.2f}", f"{int(peak) / 1024:.0f}"]]
 
 
 def main(argv=None) -> int:
@@ -162,16 +184,68 @@ def main(argv=None) -> int:
     ap.add_argument("--rounds", type=int, default=7)
     ap.add_argument("--resolution", type=int, default=128)
     ap.add_argument("--no-bomb", action="store_true")
+    ap.add_argument("--results", help="also write the tables as a result file here")
     args = ap.parse_args(argv)
     load = os.getloadavg()[0]
+    start = datetime.datetime.now(datetime.timezone.utc)
     print(f"# bench_readers: {time.strftime('%Y-%m-%d %H:%M')}, {platform.node()}, "
           f"{os.cpu_count()} cores, load {load:.1f}, Python {platform.python_version()}")
     with tempfile.TemporaryDirectory() as folder:
-        speed(args.rounds, args.resolution, folder)
-        loading(folder)
-        if not args.no_bomb:
-            bomb(folder)
+        fast = speed(args.rounds, args.resolution, folder)
+        alone = loading(folder)
+        zipped = [] if args.no_bomb else bomb(folder)
+    end = datetime.datetime.now(datetime.timezone.utc)
+    if args.results:
+        write_results(args, fast, alone, zipped, start, end, (load, os.getloadavg()[0]))
     return 0
+
+
+def write_results(args, fast, alone, zipped, start, end, load) -> None:
+    """The three tables as ``benchmarks/results/readers.json`` (schema: ``tables.py``)."""
+    import geovox
+
+    tables = [
+        {"caption": f"Whole process, `geovox convert MODEL -o out.raw -r {args.resolution} -q`, "
+                    f"{args.rounds} rounds in rotating order (median wall time; the ratio to "
+                    f"OBJ's median, and the range of each round's own ratio)",
+         "columns": ["model", "format", "triangles", "median (s)", "ratio to OBJ (median)",
+                     "ratio range"],
+         "rows": fast},
+        {"caption": "Loading alone, in one process: `geovox.load_mesh` against `trimesh.load` "
+                    "then the adaptor (best of 5)",
+         "columns": ["model", "format", "geovox (s)", "trimesh + adaptor (s)", "speed-up"],
+         "rows": alone},
+    ]
+    if zipped:
+        tables.append({
+            "caption": "The zip bomb: a fresh `geovox convert BOMB.zip -o out.raw -r 128` "
+                       "under /usr/bin/time",
+            "columns": ["input", "exit status", "stderr lines", "message", "wall (s)",
+                        "peak RSS (MiB)"],
+            "rows": zipped})
+    result = {
+        "benchmark": "readers",
+        "title": "geovox's own readers: GLB, glTF, PLY and STL against OBJ, and the zip bomb "
+                 "(issue 36)",
+        "script": "benchmarks/bench_readers.py",
+        "command": "python benchmarks/bench_readers.py " + " ".join(
+            [f"--rounds {args.rounds}", f"--resolution {args.resolution}"]
+            + (["--no-bomb"] if args.no_bomb else []) + [f"--results {args.results}"]),
+        "date": f"{start:%Y-%m-%d}, {start:%H:%M}-{end:%H:%M} UTC",
+        "machine": f"{os.cpu_count()} cores, {platform.machine()}, Python "
+                   f"{platform.python_version()}; load average {load[0]:.2f} before, "
+                   f"{load[1]:.2f} after",
+        "models": [f"{name} = {os.path.relpath(path, ROOT)}".replace(
+            "../shared/corpus/", "the shared corpus's ") for name, path in MODELS.items()],
+        "notes": f"geovox {geovox.__version__}. Each model's triangles written as OBJ, binary "
+                 f"PLY, GLB, glTF (+ .bin) and binary STL by trimesh from the same arrays "
+                 f"(geometry alone); the first round of the whole-process runs warms the file "
+                 f"cache and is not counted.",
+        "tables": tables,
+    }
+    with open(args.results, "w", encoding="utf-8") as f:
+        json.dump(result, f, indent=1, ensure_ascii=False)
+        f.write("\n")
 
 
 if __name__ == "__main__":

@@ -4,8 +4,9 @@ Cases (bunny105k, the 105,568-triangle watertight bunny of common.py, occupancy 
 
 - ``cli``: fresh processes of ``python -m geovox convert bunny105k.ply -r N -o v.EXT -q``
   for ``.h5`` and ``.zarr`` (each slab by slab here), and ``.zarr --local-cluster 2`` (the user's
-  path on a cluster: starting it included); wall time and the peak RSS of the largest process
-  (``RUSAGE_CHILDREN``; for the cluster run, the largest of the client and its workers).
+  path on a cluster: starting it included); wall time, CPU time (user + system of the command
+  and every process it reaped) and the peak RSS of the largest process (``RUSAGE_CHILDREN``; for
+  the cluster run, the largest of the client and its workers).
 - ``cluster``: a warm 2-worker ``LocalCluster`` (processes, one thread each) in this process;
   ``geovox.convert_to(mesh, "v.zarr", resolution=N, client=client)``: wall time, and each
   worker's own peak RSS (``VmHWM``, reset before the run, read with ``client.run``).
@@ -46,17 +47,19 @@ def cli(n, folder, repeat):
     for ext, extra in [(".h5", []), (".zarr", []), (".zarr", ["--local-cluster", "2"])]:
         for _ in range(repeat):
             out = os.path.join(folder, "v" + ext)
-            before = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
+            usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+            before, cpu0 = usage.ru_maxrss, usage.ru_utime + usage.ru_stime
             t = time.perf_counter()
             subprocess.run([sys.executable, "-m", "geovox", "convert", model, "-r", str(n), "-o", out,
                             "-q", *extra], check=True, env=env)
             wall = time.perf_counter() - t
             # ru_maxrss of children is a running maximum: only a new high is this run's.
-            peak = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
+            usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+            peak, cpu = usage.ru_maxrss, usage.ru_utime + usage.ru_stime - cpu0
             size = sum(os.path.getsize(os.path.join(d, f)) for d, _, fs in os.walk(out) for f in fs) \
                 if os.path.isdir(out) else os.path.getsize(out)
             print(json.dumps({"case": "cli", "grid": n, "out": ext, "extra": " ".join(extra),
-                              "seconds": round(wall, 2),
+                              "seconds": round(wall, 2), "cpu_s": round(cpu, 2),
                               "peak_rss_gib": round(peak / 2**20, 2) if peak > before else "<= earlier",
                               "mib": round(size / 2**20, 1), "load": os.getloadavg()[0]}), flush=True)
             shutil.rmtree(out, ignore_errors=True) if os.path.isdir(out) else os.unlink(out)

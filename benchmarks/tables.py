@@ -27,7 +27,8 @@ IMAGES = ROOT / "docs" / "img"
 
 #: the order of the page; result files not named here follow in name order
 ORDER = ["users_path", "imports", "occupancy", "agreement", "colour", "density", "big_grids",
-         "formats", "inside", "messy", "budget", "obj", "webgpu", "distributed", "dataset", "zarr"]
+         "formats", "readers", "surface", "inside", "messy", "budget", "obj", "webgpu",
+         "distributed", "dataset", "zarr"]
 
 HEADER = """\
 # Benchmarks
