@@ -309,9 +309,9 @@ def test_draco_is_decoded_as_trimesh_decodes_it(tmp_path):
     np.testing.assert_array_equal(mesh.triangles, trimesh_reading(path).triangles)
 
 
-def test_draco_with_mesh_features_converts(tmp_path):
-    # EXT_mesh_features' feature ids are not decoded by trimesh, which then
-    # warned that values were placeholder zeros; geovox needs only the geometry.
+def draco_with_features(tmp_path):
+    """A Draco-compressed sphere whose primitive has an EXT_mesh_features set over a
+    ``_FEATURE_ID_0`` accessor outside the Draco stream and without a buffer view (zeros)."""
     path = _draco_glb(tmp_path / "f.glb")
     with open(path, "rb") as f:
         data = f.read()
@@ -330,7 +330,13 @@ def test_draco_with_mesh_features_converts(tmp_path):
     out = tmp_path / "features.glb"
     out.write_bytes(b"glTF" + struct.pack("<II", 2, 20 + len(text) + len(tail))
                     + struct.pack("<II", len(text), 0x4E4F534A) + text + tail)
-    mesh = geovox.load_mesh(str(out))
+    return str(out)
+
+
+def test_draco_with_mesh_features_converts(tmp_path):
+    # EXT_mesh_features' feature ids are not decoded by trimesh, which then
+    # warned that values were placeholder zeros; geovox reads the geometry.
+    mesh = geovox.load_mesh(draco_with_features(tmp_path))
     assert len(mesh.faces) == 320
 
 

@@ -7,8 +7,6 @@ label is the box's.
 
 from __future__ import annotations
 
-import json
-import struct
 import warnings
 
 import numpy as np
@@ -18,7 +16,7 @@ import geovox
 from geovox.cli import main
 from geovox.errors import MeshError
 
-from test_gltf_reader import Builder, _box, _draco_glb
+from test_gltf_reader import Builder, _box, draco_with_features
 
 R = 30
 
@@ -112,26 +110,10 @@ def test_without_feature_ids_falls_back_to_components(tmp_path):
 def test_draco_primitive_with_a_feature_accessor(tmp_path):
     # a feature accessor outside the Draco stream and without a buffer view: zeros,
     # as the specification says; one feature.
-    src = _draco_glb(tmp_path / "d.glb")
-    with open(src, "rb") as f:
-        data = f.read()
-    n = struct.unpack_from("<I", data, 12)[0]
-    h = json.loads(data[20:20 + n])
-    prim = h["meshes"][0]["primitives"][0]
-    count = h["accessors"][prim["attributes"]["POSITION"]]["count"]
-    h["accessors"].append({"componentType": 5126, "count": count, "type": "SCALAR"})
-    prim["attributes"]["_FEATURE_ID_0"] = len(h["accessors"]) - 1
-    prim.setdefault("extensions", {})["EXT_mesh_features"] = {
-        "featureIds": [{"featureCount": 1, "attribute": 0}]}
-    text = json.dumps(h).encode()
-    text += b" " * (-len(text) % 4)
-    tail = data[20 + n:]
-    out = tmp_path / "features.glb"
-    out.write_bytes(b"glTF" + struct.pack("<II", 2, 20 + len(text) + len(tail))
-                    + struct.pack("<II", len(text), 0x4E4F534A) + text + tail)
-    mesh = geovox.load_mesh(str(out))
+    out = draco_with_features(tmp_path)
+    mesh = geovox.load_mesh(out)
     assert (mesh.face_feature == 0).all() and len(mesh.faces) == 320
-    vol = geovox.voxelize(str(out), resolution=16, labels="feature")
+    vol = geovox.voxelize(out, resolution=16, labels="feature")
     assert _names(vol) == ["feature 0"] and vol.label_table[1]["voxels"] == vol.occupancy.sum()
 
 
