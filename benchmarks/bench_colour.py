@@ -6,7 +6,7 @@ methods -- ``color="fast"`` (the nearest of the six axis crossings, the
 default until 2026-11-30) and ``color="exact"`` (the exact nearest surface
 point, the default since) -- and
 compared with a brute-force reference: the closest point over *every*
-triangle (:func:`geovox.colour.nearest.brute_force`, no pruning), its barycentrics,
+triangle (:func:`geovox.nearest.search.brute_force`, no pruning), its barycentrics,
 UVs, bilinear texel x Kd. Per model: the share of inside voxels within 2
 levels per channel, and the median and 90th percentile of the largest
 per-channel error.
@@ -75,7 +75,7 @@ def accuracy(path, res=64):
     """Errors of both methods against the brute-force reference, over every inside voxel."""
     import geovox
     from geovox.colour import load_textures, shade
-    from geovox.colour.nearest import brute_force, prepare
+    from geovox.nearest.search import brute_force, prepare
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")

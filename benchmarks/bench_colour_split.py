@@ -54,7 +54,7 @@ def _timed(fn, repeat):
 
 def split(res: int, jobs: int, repeat: int, slab: int) -> dict:
     import geovox
-    from geovox.colour.nearest import kernel_module, run_kernel
+    from geovox.nearest.search import kernel_module, run_kernel
     from geovox.colour.exact import kernel_output
     from geovox.colour.shading import Shading, constant_colours, load_textures, shading_tables
 

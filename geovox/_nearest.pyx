@@ -2,13 +2,13 @@
 # cython: initializedcheck=False, nonecheck=False
 """Compiled exact nearest triangle (and colour) of every inside voxel.
 
-The same search as :mod:`geovox.colour.nearest` -- a branch and bound over an
+The same search as :mod:`geovox.nearest.search` -- a branch and bound over an
 octree of voxel cells, a triangle leaving a cell's list only when a surface
 point provably dominates it over the whole cell -- written as a depth-first
 recursion per top cell, with OpenMP threads over the top cells. Every
-distance is :func:`geovox.colour.nearest.closest`'s float64 formula operation for
+distance is :func:`geovox.nearest.search.closest`'s float64 formula operation for
 operation (built with ``-ffp-contract=off``, no fast-math), and the tie rule
-is :func:`geovox.colour.nearest.pick`'s, so the answer is the brute-force one bit
+is :func:`geovox.nearest.search.pick`'s, so the answer is the brute-force one bit
 for bit. :meth:`Kernel.run` optionally shades each voxel too, with
 :func:`geovox.colour.shade`'s arithmetic (see ``shade_one``).
 
@@ -52,6 +52,7 @@ cdef struct Ctx:
     uint32_t *rgba         # (nx*ny*nz,) F-order, or NULL
     int32_t *tri_out       # (nx*ny*nz,) or NULL
     double *uv_out         # (nx*ny*nz, 2) or NULL
+    float *dist_out        # (nx*ny*nz,) distance to the closest point, or NULL
     # Shading (see shade_one).
     const int32_t *fmat    # (t,) material row of each face
     const double *vc       # (t, 3, 3) corner colours, or NULL
@@ -83,7 +84,7 @@ cdef struct Ctx:
 
 cdef inline double closest(const double *R, uint8_t flat, double x0, double x1, double x2,
                            double *u, double *v) noexcept nogil:
-    """geovox.colour.nearest.closest for one point and triangle, the same operations in order."""
+    """geovox.nearest.search.closest for one point and triangle, the same operations in order."""
     cdef double ap0 = x0 - R[0]
     cdef double ap1 = x1 - R[1]
     cdef double ap2 = x2 - R[2]
@@ -269,12 +270,22 @@ cdef inline uint32_t shade_one(const Ctx *c, int64_t t, double u, double v) noex
 cdef inline void emit(const Ctx *c, int64_t i, int64_t j, int64_t k, int64_t t, double u,
                       double v) noexcept nogil:
     cdef int64_t idx = i + c.nx * (j + c.ny * k)
+    cdef const double *R
+    cdef double d0, d1, d2
     if c.rgba != NULL:
         c.rgba[idx] = shade_one(c, t, u, v)
-    else:
+    elif c.tri_out != NULL:
         c.tri_out[idx] = <int32_t>t
         c.uv_out[2 * idx] = u
         c.uv_out[2 * idx + 1] = v
+    if c.dist_out != NULL:
+        # |x - (a + u ab + v ac)| in float64, as geovox.nearest.point_distances
+        # computes it (same operations in order), then rounded to float32.
+        R = c.T + 21 * t
+        d0 = ((<double>i + 0.5) * c.h0 - R[0]) - (u * R[3] + v * R[6])
+        d1 = ((<double>j + 0.5) * c.h1 - R[1]) - (u * R[4] + v * R[7])
+        d2 = ((<double>(k + c.z0) + 0.5) * c.h2 - R[2]) - (u * R[5] + v * R[8])
+        c.dist_out[idx] = <float>sqrt(d0 * d0 + d1 * d1 + d2 * d2)
 
 
 cdef inline int64_t common_key(const Ctx *c, const int32_t *cand, int64_t n) noexcept nogil:
@@ -645,7 +656,7 @@ cdef void solve(const Ctx *c, int level, int64_t ci, int64_t cj, int64_t ck,
     over the cell's box: ``d(x, T)**2 - |x - p|**2`` is concave in ``x``, so
     if it exceeds ``2 m r + m**2`` (``r`` the largest ``|corner - p|``) at
     the 8 corners it does everywhere in the box, and then ``d(x, T) > d(x,
-    surface) + m`` there (see geovox.colour.nearest). Nine points are tried: the
+    surface) + m`` there (see geovox.nearest.search). Nine points are tried: the
     nearest surface point to the centre and to each corner (among the
     candidates); a point near one corner drops what lies beyond that corner.
     """
@@ -838,6 +849,7 @@ cdef class Kernel:
         self.c.rgba = NULL
         self.c.tri_out = NULL
         self.c.uv_out = NULL
+        self.c.dist_out = NULL
         self.c.vc = NULL
         self.c.cuv = NULL
         self.c.same = NULL
@@ -861,6 +873,20 @@ cdef class Kernel:
         self.c.uv_out = &uv[0, 0]
         self.c.rgba = NULL
         self.c.same = NULL  # the raw answers are the nearest triangles themselves
+
+    def dist_output(self, float[::1] dist):
+        """Also write each voxel's distance to its nearest surface point (float32, F order).
+
+        With no other output, the answers are the distances alone; with
+        :meth:`raw_output` the triangles and barycentrics too.
+        """
+        if dist.shape[0] != self.c.nx * self.c.ny * self.c.nz:
+            raise ValueError("dist must have one entry per voxel")
+        if self.c.rgba != NULL:
+            raise ValueError("distances are not written with the colour output")
+        self.keep += [dist]
+        self.c.dist_out = &dist[0]
+        self.c.same = NULL  # every voxel's own nearest point is needed
 
     def colour_output(self, uint32_t[::1] rgba, const int32_t[::1] fmat, vc, cuv,
                       const double[:, ::1] factor, const double[:, ::1] add,
@@ -931,7 +957,7 @@ cdef class Kernel:
                  const double[:, ::1] rep):
         """Triangle boxes ``tlo, thi`` (t, 3); clusters of triangles: boxes (g, 3),
         ``members[cstart[i]:cstart[i + 1]]``; ``rep`` (r, 3) surface points
-        (see geovox.colour.nearest._Search._clusters)."""
+        (see geovox.nearest.search._Search._clusters)."""
         cdef int64_t t = self.keep[1].shape[0]
         if (tlo.shape[0] != t or thi.shape[0] != t or members.shape[0] != t
                 or cstart.shape[0] != clo.shape[0] + 1 or chi.shape[0] != clo.shape[0]
@@ -964,7 +990,7 @@ cdef class Kernel:
         cdef double **dbufs
         cdef double **wbufs
         cdef int64_t *caps
-        if self.c.rgba == NULL and self.c.tri_out == NULL:
+        if self.c.rgba == NULL and self.c.tri_out == NULL and self.c.dist_out == NULL:
             raise ValueError("no output set")
         if self.c.ncl == 0:
             raise ValueError("no clusters set")
@@ -1131,3 +1157,101 @@ def top_cells(const uint8_t[::1] occ, shape, int level, int jobs):
                         else:
                             i = i + 1
     return out
+
+
+cdef inline int64_t clamp_index(double x, int64_t lo, int64_t hi) noexcept nogil:
+    """``x`` (an index, possibly huge or NaN) clipped into ``[lo, hi]``."""
+    if not (x > <double>lo):  # NaN too
+        return lo
+    if x > <double>hi:
+        return hi
+    return <int64_t>x
+
+
+def band_distances(const double[:, ::1] rows, const uint8_t[::1] flat,
+                   const double[:, ::1] tlo, const double[:, ::1] thi, shape, int64_t z0,
+                   spacing, double limit, float[::1] out, int jobs):
+    """Every voxel within ``limit`` of a triangle: the smallest distance to the triangles.
+
+    The narrow band's exact engine (see geovox.nearest.band_distances): each
+    triangle is measured (``closest``, the reference formula) at every voxel
+    centre whose distance to it can be at most ``limit``, and each voxel keeps
+    the smallest, as float32 (rounding is monotonic, so the smallest float32
+    is the smallest distance rounded). Voxel centres are ``((i, j, k + z0) +
+    0.5) * spacing`` in the frame of ``rows`` (the whole grid's low corner);
+    ``out`` is the block's (nx * ny * nz) F-order array, lowered where a
+    triangle is nearer (values elsewhere are left as they are).
+
+    Which centres: those in the triangle's box grown by ``limit``, row by row
+    along x, each row cut to the part within ``limit`` of the box across it and
+    of the triangle's plane (both lower bounds of the distance; a zero-area
+    triangle has no plane and is cut by its box alone), widened by a voxel on
+    each side so that rounding never drops a centre. Threads take chunks of
+    layers (each voxel is written by one thread), so the result does not
+    depend on ``jobs``.
+    """
+    cdef int64_t nx, ny, nz
+    nx, ny, nz = shape
+    cdef double h0, h1, h2
+    h0, h1, h2 = spacing
+    cdef int64_t nt = rows.shape[0]
+    if rows.shape[1] != 21 or flat.shape[0] != nt or tlo.shape[0] != nt or thi.shape[0] != nt:
+        raise ValueError("rows (t, 21), flat (t,) and boxes (t, 3) must agree")
+    if out.shape[0] != nx * ny * nz:
+        raise ValueError("out must have one entry per voxel")
+    if nt == 0 or nx * ny * nz == 0:
+        return
+    cdef int64_t step = 4  # layers a chunk
+    cdef int64_t nchunk = (nz + step - 1) // step
+    cdef int64_t ch, t, k, j, i, ia, ib, ka, kb, ja, jb, row, c0, c1
+    cdef double x0, x1, x2, dy, dz, r2, rest, u, v, d2, p, n0, lim2 = limit * limit
+    cdef double wx, a0, b0
+    cdef const double *R
+    cdef float d
+    with nogil:
+        for ch in prange(nchunk, num_threads=max(1, jobs), schedule="dynamic", chunksize=1):
+            c0 = ch * step
+            c1 = min(c0 + step, nz)
+            for t in range(nt):
+                R = &rows[t, 0]
+                # Layers (block indices) whose centres are within limit of the box along z.
+                ka = clamp_index(((tlo[t, 2] - limit) / h2 - 0.5) - <double>z0 - 1.0, c0, c1)
+                kb = clamp_index(((thi[t, 2] + limit) / h2 - 0.5) - <double>z0 + 2.0, c0, c1)
+                if ka >= kb:
+                    continue
+                ja = clamp_index((tlo[t, 1] - limit) / h1 - 0.5 - 1.0, 0, ny)
+                jb = clamp_index((thi[t, 1] + limit) / h1 - 0.5 + 2.0, 0, ny)
+                for k in range(ka, kb):
+                    x2 = (<double>(k + z0) + 0.5) * h2
+                    dz = max(max(tlo[t, 2] - x2, x2 - thi[t, 2]), 0.0)
+                    for j in range(ja, jb):
+                        x1 = (<double>j + 0.5) * h1
+                        dy = max(max(tlo[t, 1] - x1, x1 - thi[t, 1]), 0.0)
+                        r2 = dy * dy + dz * dz
+                        if r2 > lim2:
+                            continue
+                        # Along x: within the box grown by what is left of limit.
+                        rest = sqrt(lim2 - r2)
+                        a0 = (tlo[t, 0] - rest) / h0 - 0.5 - 1.0
+                        b0 = (thi[t, 0] + rest) / h0 - 0.5 + 2.0
+                        if not flat[t]:
+                            # And within limit of the plane: n . (x - a) is linear in i.
+                            n0 = R[15] * h0
+                            p = (x1 - R[1]) * R[16] + (x2 - R[2]) * R[17] + (0.5 * h0 - R[0]) * R[15]
+                            if n0 > 1e-12 * h0:
+                                a0 = max(a0, (-limit - p) / n0 - 1.0)
+                                b0 = min(b0, (limit - p) / n0 + 2.0)
+                            elif n0 < -1e-12 * h0:
+                                a0 = max(a0, (limit - p) / n0 - 1.0)
+                                b0 = min(b0, (-limit - p) / n0 + 2.0)
+                            elif p > limit * 1.000001 + 1e-300 or -p > limit * 1.000001 + 1e-300:
+                                continue
+                        ia = clamp_index(a0, 0, nx)
+                        ib = clamp_index(b0, 0, nx)
+                        row = nx * (j + ny * k)
+                        for i in range(ia, ib):
+                            x0 = (<double>i + 0.5) * h0
+                            d2 = closest(R, flat[t], x0, x1, x2, &u, &v)
+                            d = <float>sqrt(d2)
+                            if d < out[row + i]:
+                                out[row + i] = d

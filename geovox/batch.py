@@ -356,7 +356,7 @@ def warm(ext: str, extensions: tuple, options) -> None:
 
     wanted = list(STACK) + list(KERNELS)
     if options.color:
-        wanted += ["geovox.colour.shading", "geovox.colour.nearest"]
+        wanted += ["geovox.colour.shading", "geovox.nearest.search"]
     if options.labels is not None:
         wanted.append("geovox.labels")
     for e in extensions:

@@ -20,7 +20,7 @@ from .errors import ParameterError
 from .grid import Grid
 from .kernels import follows_plan
 from .memory import bytes_per_voxel, check_memory
-from .options import Colour, Inside, Occupancy
+from .options import Colour, Inside, Occupancy, sdf_of
 from .planner import Plan, load
 from .volume import Progress, Volume
 
@@ -215,7 +215,7 @@ def voxelize_block(mesh, plan: Plan, block=None, *, buffers: BlockBuffers | None
     colors = dens = dist = None
     if plan.occupancy != Occupancy.SOLID:
         if o.sdf:  # the distance describes the solid: signed by it, before the surface joins
-            dist, timings["sdf"] = _sdf(m, plan, grid, occ)
+            dist, timings["sdf"] = _sdf(m, plan, grid, occ, block)
         occ, method, counts = _with_surface(m, plan, block, occ, method, classified, timings,
                                             buffers)
     if plan.colour:
@@ -231,7 +231,7 @@ def voxelize_block(mesh, plan: Plan, block=None, *, buffers: BlockBuffers | None
         timings["density"] = time.perf_counter() - t
     if o.sdf and dist is None:
         buffers.step("sdf")
-        dist, timings["sdf"] = _sdf(m, plan, grid, occ)
+        dist, timings["sdf"] = _sdf(m, plan, grid, occ, block)
     extra = {}
     if plan.labels is not None:
         extra = plan.labels.fields(m, grid, occ, classified, run=_label_run(m, plan, grid, block),
@@ -241,12 +241,15 @@ def voxelize_block(mesh, plan: Plan, block=None, *, buffers: BlockBuffers | None
                   approximate=approximate, counts=counts, **extra)
 
 
-def _sdf(m, plan: Plan, grid: Grid, solid):
-    """``(signed distance, seconds)`` of the block, signed by the solid ``solid``."""
+def _sdf(m, plan: Plan, grid: Grid, solid, block=None):
+    """``(distance, seconds)`` of the block, signed by the solid ``solid`` (unless unsigned)."""
     from .density import signed_distance
 
     t = time.perf_counter()
-    dist = signed_distance(m, grid, solid, band=float(plan.options.band), jobs=plan.jobs)
+    z0 = 0 if block is None else int(block[0])
+    dist = signed_distance(m, grid, solid, band=float(plan.options.band), jobs=plan.jobs,
+                           frame=(plan.grid.lo, plan.grid.spacing, z0),
+                           signed=sdf_of(plan.options.sdf) == "signed")
     return dist, time.perf_counter() - t
 
 

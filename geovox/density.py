@@ -19,14 +19,20 @@ as it does in the occupancy.
 Signed distance
 ---------------
 Negative inside. Within ``band`` voxels of the surface the distance is exact:
-every triangle is tested against every voxel centre in its bounding box grown
-by the band, and each voxel keeps the smallest distance. Beyond the band the
-value is clamped to ``+-band`` voxels (a truncated signed distance, as
-OpenVDB level sets have): there the true distance is at least that much. The
-sign comes from the occupancy of the chosen inside test.
+each triangle is measured at every voxel centre that can be within the band of
+it, and each voxel keeps the smallest distance (the nearest-point stage's band
+engine, :func:`geovox.nearest.band_distances`). Beyond the band the value is
+clamped to ``+-band`` voxels (a truncated signed distance, as OpenVDB level
+sets have): there the true distance is at least that much. ``band = inf``
+gives every voxel the distance of its exact nearest surface point, from the
+search exact colour uses (:func:`geovox.nearest.nearest_distances`). The
+sign comes from the occupancy of the chosen inside test (parity, or the
+winding number of a messy model); the unsigned distance needs none.
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 
@@ -35,8 +41,6 @@ from .parallel import scan_along
 
 #: Default half-width of the exact band of the signed distance, in voxels.
 BAND = 3.0
-#: (voxel, triangle) pairs per block of the distance computation.
-PAIR_BLOCK = 1 << 20
 
 
 def sub_columns(columns: Columns, k: int) -> Columns:
@@ -169,59 +173,54 @@ def _carry_below(steps, col, z0: int):
     return cols[starts], table[:, -1].copy()
 
 
-def signed_distance(mesh, grid, occupancy, band: float = BAND, jobs: int = 1) -> np.ndarray:
-    """Signed distance (negative inside) from every voxel centre, exact within ``band`` voxels.
+def signed_distance(mesh, grid, occupancy, band: float = BAND, jobs: int = 1, *, frame=None,
+                    signed: bool = True) -> np.ndarray:
+    """Distance from every voxel centre to the surface, exact within ``band`` voxels.
+
+    Every voxel centre within ``band * min(spacing)`` of the surface gets its
+    exact distance (the nearest-point stage: :func:`geovox.nearest.band_distances`);
+    the others ``band * min(spacing)``, which the true distance is at least.
+    With ``band=math.inf`` every voxel is exact, from its exact nearest
+    surface point (:func:`geovox.nearest.nearest_distances`).
+
+    Parameters
+    ----------
+    mesh : Mesh
+    grid : Grid
+        The block's grid.
+    occupancy : (nx, ny, nz) bool or None
+        The solid: negative there (``signed``). Not needed unsigned.
+    band : float
+        Half-width of the exact band in voxels, positive, or ``math.inf``.
+    jobs : int
+        Threads; the result does not depend on it.
+    frame : (lo, spacing, z0), optional
+        The whole grid's low corner and voxel size, and the block's first
+        layer in it (default: this grid, layer 0), so a slab's distances
+        are the whole grid's bit for bit.
+    signed : bool
+        Negative where ``occupancy`` is set (``-0.0`` on a surface voxel
+        centre inside); else the unsigned distance.
 
     Returns
     -------
     (nx, ny, nz) float32, Fortran order, in the mesh's units; values beyond
-    the band are clamped to ``+-band * min(spacing)``.
+    the band are clamped to ``band * min(spacing)`` (negated inside).
     """
-    from .geometry import closest_on_triangles
+    from .nearest import band_distances, nearest_distances
 
-    limit = band * float(grid.spacing.min())
-    reach = band * float(grid.spacing.max())
-    dist = np.full(grid.shape, np.float32(limit), dtype=np.float32, order="F")
-    tris = mesh.triangles
-    lo = tris.min(axis=1) - reach
-    hi = tris.max(axis=1) + reach
-    centres = [grid.centres(a) for a in range(3)]
-    first = np.stack([np.searchsorted(centres[a], lo[:, a], side="left") for a in range(3)], 1)
-    last = np.stack([np.searchsorted(centres[a], hi[:, a], side="right") for a in range(3)], 1)
-    size = np.maximum(last - first, 0)
-    counts = size.prod(axis=1)
-    ends = np.cumsum(counts)
-    starts = ends - counts
-    total = int(ends[-1]) if len(ends) else 0
-    nx, ny, _ = grid.shape
-    flat = dist.reshape(-1, order="F")
-
-    def block(a, b):
-        t0 = int(np.searchsorted(ends, a, side="right"))
-        t1 = int(np.searchsorted(ends, b - 1, side="right"))
-        tids = np.arange(t0, t1 + 1)
-        seg = np.maximum(np.minimum(ends[tids], b) - np.maximum(starts[tids], a), 0)
-        t = np.repeat(tids, seg)
-        local = np.arange(a, b, dtype=np.int64) - np.repeat(starts[tids], seg)
-        sx, sy = size[t, 0], size[t, 1]
-        ix = first[t, 0] + local % sx
-        iy = first[t, 1] + (local // sx) % sy
-        iz = first[t, 2] + local // (sx * sy)
-        p = np.stack([centres[0][ix], centres[1][iy], centres[2][iz]], axis=1)
-        tri = tris[t]
-        uv = closest_on_triangles(p, tri)
-        q = tri[:, 0] * (1 - uv[:, :1] - uv[:, 1:]) + tri[:, 1] * uv[:, :1] + tri[:, 2] * uv[:, 1:]
-        d = np.sqrt(((p - q) ** 2).sum(axis=1)).astype(np.float32)
-        return ix + nx * (iy + ny * iz), d
-
-    # Threads compute distances; the minimum is taken in this thread (ufunc.at
-    # on a shared array is not safe to run concurrently).
-    from concurrent.futures import ThreadPoolExecutor
-
-    bounds = [(s, min(s + PAIR_BLOCK, total)) for s in range(0, total, PAIR_BLOCK)]
-    with ThreadPoolExecutor(max_workers=max(1, jobs)) as pool:
-        for lin, d in pool.map(lambda ab: block(*ab), bounds):
-            np.minimum.at(flat, lin, d)
-    np.minimum(dist, np.float32(limit), out=dist)
-    dist[occupancy] *= -1.0
+    lo, spacing, z0 = frame if frame is not None else (grid.lo, grid.spacing, 0)
+    limit = band * float(np.min(spacing))
+    cache = getattr(mesh, "_cache", None)
+    if math.isinf(band):
+        flat = nearest_distances(mesh.triangles, np.ones(grid.shape, bool, order="F"), spacing,
+                                 origin=lo, z0=z0, jobs=jobs, cache=cache)
+    else:
+        flat = band_distances(mesh.triangles, grid.shape, spacing, origin=lo, z0=z0,
+                              limit=limit, jobs=jobs, cache=cache)
+    dist = flat.reshape(grid.shape, order="F")
+    limit = np.float32(limit)
+    np.minimum(dist, limit, out=dist)  # inf (not measured) -> the band's limit
+    if signed:
+        dist[occupancy] *= -1.0
     return dist

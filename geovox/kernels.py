@@ -3,7 +3,7 @@
 geovox's compiled code is optional (setup.py builds it where a C compiler
 exists) and every kernel has a NumPy twin that gives the same answers bit for
 bit: ``geovox._nearest`` (the exact nearest-surface search of colour,
-:func:`geovox.colour.nearest.kernel_module`), ``geovox._lattice`` (the column rays'
+:func:`geovox.nearest.search.kernel_module`), ``geovox._lattice`` (the column rays'
 lattice search and the inside test's mesh checks, :func:`lattice`) and
 ``geovox._winding`` (the caps' winding number of open models,
 :func:`geovox.inside.winding_kernel`) and ``geovox._objtext`` (the OBJ

@@ -17,7 +17,7 @@ wins over it is. Label 0 is the background.
 
 ``"material"`` is different: the inside is the whole mesh's, and each
 inside voxel takes the material of the face holding its exact nearest
-surface point (the search exact colour uses, :mod:`geovox.colour.nearest`).
+surface point (the search exact colour uses, :mod:`geovox.nearest.search`).
 """
 
 from __future__ import annotations
@@ -587,7 +587,7 @@ def material_labels(mesh: Mesh, grid, occupancy: np.ndarray, lset: LabelSet, *, 
                     jobs: int = 1) -> np.ndarray:
     """Each inside voxel's label: the material of its exact nearest surface point.
 
-    The search is exact colour's (:func:`geovox.colour.nearest.nearest_inside`, with
+    The search is exact colour's (:func:`geovox.nearest.search.nearest_inside`, with
     its tie rule between faces); faces of one material are interchangeable,
     so the NumPy search need not tell them apart.
 
@@ -602,7 +602,7 @@ def material_labels(mesh: Mesh, grid, occupancy: np.ndarray, lset: LabelSet, *, 
     -------
     labels : (nx, ny, nz) uint8 or uint16, Fortran order; 0 outside.
     """
-    from .colour.nearest import kernel_module, nearest_inside, run_kernel
+    from .nearest.search import kernel_module, nearest_inside, run_kernel
 
     nx, ny, _ = grid.shape
     labels = np.zeros(grid.shape, dtype=lset.dtype, order="F")

@@ -124,8 +124,10 @@ class Options:
     density: str | None = _doc("also the inside fraction of each voxel: None or 'coverage'", None)
     supersample: int = _doc("with density: rays per voxel column across the ray, per axis", 4)
     density_dtype: str = _doc("with density: 'uint8' (255 x fraction) or 'float32'", "uint8")
-    sdf: bool = _doc("also the signed distance (float32, negative inside)", False)
-    band: float = _doc("with sdf: half-width of the exact band, in voxels", 3.0)
+    sdf: object = _doc("also the distance to the surface (float32): False, True or 'signed' "
+                       "(negative inside), or 'unsigned' (open sheets and scans)", False)
+    band: float = _doc("with sdf: half-width of the exact band, in voxels (a positive number "
+                       "or math.inf: every voxel exact)", 3.0)
     jobs: int | None = _doc("threads for the array work (None or 0: one per core); the result "
                             "does not depend on it", None, record=False)
     kernel: str = _doc("exact colour's nearest-surface search: auto, compiled or numpy "
@@ -340,14 +342,14 @@ def _validate_fields(o: Options) -> None:
                              f"got {o.density_dtype!r}")
     if o.density is not None:
         check_positive_int("supersample", o.supersample)
-    if o.sdf:
+    if sdf_of(o.sdf) is not None:
         try:
             band = float(o.band)
         except (TypeError, ValueError):
-            raise ParameterError(f"`band` must be a positive number of voxels, got {o.band!r}") \
-                from None
-        if not band > 0:
-            raise ParameterError(f"`band` must be a positive number of voxels, got {o.band!r}")
+            band = math.nan
+        if isinstance(o.band, (bool, str)) or not band > 0:  # nan is not > 0
+            raise ParameterError(f"`band` must be a positive number of voxels or math.inf, "
+                                 f"got {o.band!r}")
     if o.jobs is not None and (isinstance(o.jobs, bool) or not isinstance(o.jobs, int)
                                or o.jobs < 0):
         raise ParameterError(f"`jobs` must be a non-negative integer, got {o.jobs!r}")
@@ -412,6 +414,26 @@ def colour_of(color):
     raise ParameterError(f"`color` must be True, False, 'exact' or 'fast', got {color!r}")
 
 
+def sdf_of(sdf):
+    """The distance ``sdf`` asks for: None, ``"signed"`` (True) or ``"unsigned"``.
+
+    Raises
+    ------
+    ParameterError
+        Anything but None, a bool, ``"signed"`` or ``"unsigned"``.
+    """
+    import numbers
+
+    import numpy as np
+
+    if sdf is None or isinstance(sdf, (bool, np.bool_, numbers.Integral)) \
+            and not isinstance(sdf, str):
+        return "signed" if sdf else None
+    if sdf in ("signed", "unsigned"):
+        return sdf
+    raise ParameterError(f"`sdf` must be True, False, 'signed' or 'unsigned', got {sdf!r}")
+
+
 __all__ = ["Options", "Inside", "Colour", "LabelSource", "Occupancy", "Overlap", "References",
-           "colour_of",
+           "colour_of", "sdf_of",
            "unknown_option_message", "KERNEL_ENV"]

@@ -26,7 +26,7 @@ from .grid import Grid, make_grid
 from .kernels import chosen
 from . import memory
 from .memory import bytes_per_voxel, check_memory
-from .options import Colour, Inside, LabelSource, Occupancy, Options, colour_of
+from .options import Colour, Inside, LabelSource, Occupancy, Options, colour_of, sdf_of
 from .output import Target
 
 #: Memory a slab's arrays may take, by default: 2048³ occupancy goes in
@@ -198,7 +198,7 @@ class Plan:
                  + (f"occupancy {self.occupancy}, " if self.occupancy != Occupancy.SOLID else "")
                  + f"colour {self.colour or 'none'}"
                  + (f", density {o.density} ({o.density_dtype})" if o.density else "")
-                 + (f", sdf (band {float(o.band):g} voxels)" if o.sdf else "")
+                 + (f", sdf {sdf_of(o.sdf)} (band {float(o.band):g} voxels)" if o.sdf else "")
                  + f", {self.jobs} thread{'s' if self.jobs > 1 else ''}"]
         if self.route == Route.MEMORY:
             where = "in memory, one block"
@@ -463,7 +463,7 @@ def _makes_solid(o: Options, occupancy: Occupancy, stage) -> bool:
     needs it (the distance, like density, describes the solid whatever the occupancy)."""
     if stage is not None and stage.by_parts:
         return occupancy != Occupancy.SURFACE  # each part's own solid (geovox.labels.classify)
-    return occupancy != Occupancy.SURFACE or bool(o.sdf)
+    return occupancy != Occupancy.SURFACE or sdf_of(o.sdf) == "signed"
 
 
 def _inside_tests():

@@ -24,7 +24,7 @@ from geovox.colour import Shading, load_textures, shade
 from geovox.kernels import chosen
 from geovox.errors import GeovoxWarning
 from geovox.mesh import Mesh
-from geovox.colour.nearest import TIE, nearest_inside
+from geovox.nearest.search import TIE, nearest_inside
 from geovox.api import convert_to
 import geovox.formats as F
 
@@ -342,7 +342,7 @@ def test_lower_bound_is_below_the_distance_and_exact_on_acute_triangles(seed, sq
     # above the exact distance, whatever the triangle (obtuse, needles,
     # slivers by ``squash``), and equal to it on acute triangles, vertex
     # regions included (so ties and near-ties are measured, and little else).
-    from geovox.colour.nearest import lower_bound_sq, prepare
+    from geovox.nearest.search import lower_bound_sq, prepare
     rng = np.random.default_rng(seed)
     T = rng.normal(size=(200, 3, 3)) * rng.uniform(0.1, 3.0, size=(200, 1, 3))
     T[:, :, 2] *= squash
@@ -366,7 +366,7 @@ def test_small_chunks_never_split_a_voxels_candidates(monkeypatch):
     # Pairs are handled CHUNK at a time; a cell can hold more than that, and
     # the last step must still see every candidate of a voxel at once (with
     # chunks of 64 pairs, splitting them coloured voxels from a partial list).
-    import geovox.colour.nearest as nearest
+    import geovox.nearest.search as nearest
     monkeypatch.setattr(nearest, "CHUNK", 64)
     monkeypatch.setenv("GEOVOX_KERNEL", "numpy")  # chunks are the NumPy search's
     _check_against_reference(SPOT, 16)

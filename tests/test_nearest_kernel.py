@@ -1,8 +1,8 @@
 """The compiled nearest-surface kernel (geovox/_nearest.pyx) against the NumPy reference.
 
-The kernel must give what :func:`geovox.colour.nearest.brute_force` gives -- every
-triangle measured with :func:`geovox.colour.nearest.closest`'s float64 formula, the
-tie rule of :func:`geovox.colour.nearest.pick` -- bit for bit: the same triangle and
+The kernel must give what :func:`geovox.nearest.search.brute_force` gives -- every
+triangle measured with :func:`geovox.nearest.search.closest`'s float64 formula, the
+tie rule of :func:`geovox.nearest.search.pick` -- bit for bit: the same triangle and
 the same barycentrics for every inside voxel, and so the same colours as the
 NumPy search and :func:`geovox.colour.shade`. CI builds the kernel (``pip
 install -e .``, gcc is there): these tests fail, not skip, where a C
@@ -27,7 +27,7 @@ from geovox.colour import Shading, exact_colours, load_textures, shade
 from geovox.kernels import chosen
 from geovox.errors import GeovoxWarning, ParameterError
 from geovox.mesh import Material, Mesh
-from geovox.colour.nearest import brute_force, kernel_module, nearest_inside, prepare, run_kernel
+from geovox.nearest.search import brute_force, kernel_module, nearest_inside, prepare, run_kernel
 from geovox.api import convert_to
 import geovox.formats as F
 
@@ -295,7 +295,7 @@ def test_the_numpy_search_is_used_when_asked(monkeypatch, tmp_path):
     # GEOVOX_KERNEL=numpy: the fallback (what an install without a compiler
     # runs) gives the same colours, and is what runs (the compiled run_kernel
     # is never called).
-    import geovox.colour.nearest as nearest
+    import geovox.nearest.search as nearest
 
     ref = geovox.voxelize(SPOT, resolution=16, color="exact")
     monkeypatch.setenv("GEOVOX_KERNEL", "numpy")

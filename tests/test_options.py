@@ -245,7 +245,7 @@ def test_kernel_option_reaches_slabs_and_files(tmp_path, monkeypatch):
 
 def test_outside_a_conversion_the_default_is_the_environment(monkeypatch):
     from geovox import kernels
-    from geovox.colour.nearest import kernel_module
+    from geovox.nearest.search import kernel_module
 
     monkeypatch.setenv(KERNEL_ENV, "numpy")
     assert kernel_module() is None and kernels.lattice() is None

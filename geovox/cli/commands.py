@@ -76,6 +76,25 @@ _positive_float = _number(positive=True)
 _finite_float = _number(positive=False)
 
 
+def _band(text):
+    """argparse type: the distance's band, a positive number of voxels or ``inf``."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not value > 0:  # nan, 0 and below
+        raise argparse.ArgumentTypeError(f"must be a positive number of voxels or inf, "
+                                         f"got {text!r}")
+    return value
+
+
+def _sdf_kind(text):
+    """argparse type: ``signed`` or ``unsigned``."""
+    if text not in ("signed", "unsigned"):
+        raise argparse.ArgumentTypeError(f"must be 'signed' or 'unsigned', got {text!r}")
+    return text
+
+
 class _Choices:
     """argparse ``choices`` read from a registry only when first needed.
 
@@ -203,10 +222,13 @@ def add_grid_arguments(c, *, grid_only=False):
                    help="with --density: K x K rays per voxel column (default 4)")
     c.add_argument("--density-float", action="store_true",
                    help="with --density: store float32 0..1 instead of uint8 0..255")
-    c.add_argument("--sdf", action="store_true",
-                   help="also compute the signed distance (float32, negative inside)")
-    c.add_argument("--band", type=_positive_float, default=3.0, metavar="VOXELS",
-                   help="with --sdf: half-width of the exact band, in voxels (default 3)")
+    c.add_argument("--sdf", nargs="?", const="signed", default=False, type=_sdf_kind,
+                   metavar="signed|unsigned",
+                   help="also compute the distance to the surface (float32): signed, negative "
+                        "inside (the default), or unsigned, for open sheets and scans")
+    c.add_argument("--band", type=_band, default=3.0, metavar="VOXELS",
+                   help="with --sdf: half-width of the exact band, in voxels (default 3); inf: "
+                        "every voxel exact")
     c.add_argument("-j", "--jobs", type=int, default=None, metavar="N",
                    help="threads to use (default: one per core); with several models, worker "
                         "processes; the result does not depend on it")

@@ -4,10 +4,10 @@
 |---|---|
 | :mod:`geovox.colour.shading` | the colour of a surface point: materials, textures, vertex colours |
 | :mod:`geovox.colour.exact` | exact colour: each voxel's exact nearest surface point (the default) |
-| :mod:`geovox.colour.nearest` | exact colour's nearest-surface search (NumPy, and the compiled kernel's driver) |
 | :mod:`geovox.colour.fast` | fast colour: the nearest of the six axis crossings around each voxel |
 
-:func:`colour_volume` is the stage: the block function calls it once per block.
+:func:`colour_volume` is the stage: the block function calls it once per block. Exact
+colour asks the nearest-point stage (:mod:`geovox.nearest`) for its inside voxels.
 """
 
 from __future__ import annotations

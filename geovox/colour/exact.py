@@ -5,7 +5,7 @@ The nearest surface point is exact by default (``color=True`` or
 distance from the voxel centre (ties within 1e-9 voxel sizes go to the
 smallest triangle index) and the closest point on it, for every inside
 voxel. The compiled kernel (``geovox/_nearest.pyx``, built by ``pip
-install``) finds it and shades it; without it, :func:`geovox.colour.nearest.nearest_inside`'s
+install``) finds it and shades it; without it, :func:`geovox.nearest.search.nearest_inside`'s
 NumPy search and :func:`shade` give the same colours, slower (a branch and
 bound over voxel cells that drops a triangle only where a valid bound proves
 it farther). Both search less where every triangle still in the running for
@@ -19,7 +19,7 @@ import numpy as np
 
 from ..errors import ParameterError
 from ..kernels import chosen
-from .nearest import kernel_module, nearest_inside, run_kernel
+from ..nearest.search import kernel_module, nearest_inside, run_kernel
 from .shading import Shading, constant_colours, pack, shade, shading_tables
 
 def exact_colours(mesh, grid, occupancy, *, shading: Shading = Shading(), jobs=1,
@@ -44,7 +44,7 @@ def exact_colours(mesh, grid, occupancy, *, shading: Shading = Shading(), jobs=1
 
     The compiled search and shading run, or the NumPy ones (the same
     colours), as the conversion's kernel choice says (see
-    :func:`geovox.colour.nearest.kernel_module`).
+    :func:`geovox.nearest.search.kernel_module`).
 
     Returns
     -------

@@ -781,6 +781,21 @@ def _kernel_tables(triangles, origin) -> tuple:
              c3(cstart, np.int64), c3(search._rep)))
 
 
+def kernel_tables(triangles, origin, cache=None) -> tuple:
+    """The compiled kernel's triangle tables in the frame of ``origin``, kept in ``cache``.
+
+    ``(rows, flat, clusters)``: see :func:`run_kernel`; ``clusters[0]`` and
+    ``clusters[1]`` are the triangles' boxes (t, 3).
+    """
+    key = ("nearest-kernel", np.asarray(origin, float).tobytes())
+    tables = cache.get(key) if cache is not None else None
+    if tables is None:
+        tables = _kernel_tables(triangles, origin)
+        if cache is not None:
+            cache[key] = tables
+    return tables
+
+
 def run_kernel(module, triangles, occupancy, spacing, *, origin, z0=0, jobs=1, output,
                cache=None):
     """The compiled search over one block (same answers as :func:`nearest_inside`'s NumPy one).
@@ -805,13 +820,7 @@ def run_kernel(module, triangles, occupancy, spacing, *, origin, z0=0, jobs=1, o
     occ = occupancy.reshape(-1, order="F")  # a view when F-contiguous, as the pipeline's are
     occ = np.ascontiguousarray(occ).view(np.uint8)
     origin = np.asarray(origin, float)
-    key = ("nearest-kernel", origin.tobytes())
-    tables = cache.get(key) if cache is not None else None
-    if tables is None:
-        tables = _kernel_tables(triangles, origin)
-        if cache is not None:
-            cache[key] = tables
-    rows, flat, clusters = tables
+    rows, flat, clusters = kernel_tables(triangles, origin, cache)
     spacing = np.asarray(spacing, float)
     hmin = float(spacing.min())
     levels = max(3, int(np.ceil(np.log2(max(shape) / 16.0))))
