@@ -36,7 +36,7 @@ voxel's nearest is measured exactly, with the reference formula.
 
 from cython.parallel cimport prange, parallel, threadid
 from libc.stdlib cimport malloc, calloc, free
-from libc.math cimport sqrt, fmod, isfinite, INFINITY
+from libc.math cimport sqrt, fmod, fabs, isfinite, floor, ceil, INFINITY
 from libc.stdint cimport int32_t, int64_t, uint8_t, uint32_t
 
 
@@ -48,6 +48,8 @@ cdef struct Ctx:
     double h0, h1, h2
     double m               # MARGIN in length units
     double tieh            # TIE in length units
+    double cutoff          # triangles provably farther than this from a cell are dropped
+                           # (a narrow band's half-width and the margin; INFINITY: none)
     # Output: RGBA colours, or the raw triangle and barycentrics.
     uint32_t *rgba         # (nx*ny*nz,) F-order, or NULL
     int32_t *tri_out       # (nx*ny*nz,) or NULL
@@ -564,7 +566,7 @@ cdef void leaf_planes(const Ctx *c, int64_t i0, int64_t i1, int64_t j0, int64_t 
         t = cand[q]
         dc = sqrt(dbuf[9 * q])
         d2 = dc - rh
-        if d2 > 0 and d2 * d2 > lim:
+        if d2 > 0 and (d2 * d2 > lim or d2 > c.cutoff):
             continue
         e0 = e1 = e2 = 0.0
         if dc > guard:
@@ -738,7 +740,7 @@ cdef void solve(const Ctx *c, int level, int64_t ci, int64_t cj, int64_t ck,
         t = cand[q]
         dc = sqrt(dbuf[9 * q])
         d2 = dc - rh
-        if d2 > 0 and d2 * d2 > lim:
+        if d2 > 0 and (d2 * d2 > lim or d2 > c.cutoff):
             continue
         R = c.T + 21 * t
         if dc > 0:
@@ -846,6 +848,7 @@ cdef class Kernel:
         self.c.h0, self.c.h1, self.c.h2 = spacing
         self.c.m = margin
         self.c.tieh = tie
+        self.c.cutoff = INFINITY
         self.c.rgba = NULL
         self.c.tri_out = NULL
         self.c.uv_out = NULL
@@ -936,6 +939,20 @@ cdef class Kernel:
         self.keep += [key, rgba]
         self.c.same = &key[0]
         self.c.same_rgba = &rgba[0] if rgba.shape[0] else NULL
+
+    def band(self, double limit):
+        """Answer only the voxels within ``limit`` of the surface (a narrow band).
+
+        A triangle is also dropped from a cell where it is provably farther
+        than ``limit`` (and the margin) from every point of the cell: a voxel
+        whose nearest triangle is dropped so is farther than ``limit``, and
+        gets the distance of some other triangle, or none (a cell left
+        without triangles is not answered). Voxels within ``limit`` keep
+        their exact answer: their nearest triangle is never dropped.
+        """
+        if not limit > 0:
+            raise ValueError("the band's limit must be positive")
+        self.c.cutoff = limit
 
     def limit_leaf4(self, int64_t n):
         """Let cells of 4 voxels finish by interpolated bounds only with at most
@@ -1028,7 +1045,9 @@ cdef class Kernel:
                     else:
                         n = top_list(c, level, cells[i, 0], cells[i, 1], cells[i, 2],
                                      bufs[tid], caps[tid])
-                if caps[tid] == 0 or i == c.fail_cell:
+                if n == 0 and i != c.fail_cell:
+                    pass  # a narrow band's cell beyond it (Kernel.band): nothing to answer
+                elif caps[tid] == 0 or i == c.fail_cell:
                     # A reduction (+=): a plain assignment in a prange is
                     # lastprivate, so a failure on any thread but the one
                     # that ran the last cell would be lost, its voxels left
@@ -1097,7 +1116,7 @@ cdef int64_t top_list(const Ctx *c, int level, int64_t ci, int64_t cj, int64_t c
             d = d + e * e
         if d > reach2:
             reach2 = d
-    reach2 = sqrt(reach2) + c.m
+    reach2 = min(sqrt(reach2), c.cutoff) + c.m
     reach2 = reach2 * reach2
     for q in range(c.ncl):
         g = 0.0
@@ -1159,13 +1178,115 @@ def top_cells(const uint8_t[::1] occ, shape, int level, int jobs):
     return out
 
 
-cdef inline int64_t clamp_index(double x, int64_t lo, int64_t hi) noexcept nogil:
-    """``x`` (an index, possibly huge or NaN) clipped into ``[lo, hi]``."""
-    if not (x > <double>lo):  # NaN too
+cdef inline int64_t first_index(double x, int64_t lo, int64_t hi) noexcept nogil:
+    """``ceil(x)`` less a hair for rounding, clipped into ``[lo, hi]`` (NaN: ``lo``)."""
+    x = ceil(x - 1e-6)
+    if not (x > <double>lo):
         return lo
     if x > <double>hi:
         return hi
     return <int64_t>x
+
+
+cdef inline int64_t end_index(double x, int64_t lo, int64_t hi) noexcept nogil:
+    """``floor(x) + 1`` and a hair for rounding, clipped into ``[lo, hi]`` (NaN: ``hi``)."""
+    x = floor(x + 1e-6) + 1.0
+    if not (x < <double>hi):
+        return hi
+    if x < <double>lo:
+        return lo
+    return <int64_t>x
+
+
+cdef struct Band:
+    const double *rows     # (t, 21)
+    const uint8_t *flat
+    const double *tlo      # (t, 3)
+    const double *thi
+    float *out
+    int64_t n[3]
+    int64_t stride[3]
+    double h[3]
+    double off[3]
+    double limit
+
+
+cdef void band_triangle(const Band *b, int64_t t, int64_t c0, int64_t c1) noexcept nogil:
+    """One triangle into layers ``c0 <= k < c1`` of the band (see band_distances)."""
+    cdef const double *R = b.rows + 21 * t
+    cdef const double *lo = b.tlo + 3 * t
+    cdef const double *hi = b.thi + 3 * t
+    cdef double limit = b.limit, lim2 = b.limit * b.limit
+    cdef int64_t iq, ip, ir, qa, qb, pa, pb, ra, rb, base, idx
+    cdef double xq, xp, dq, dp, r2, rest, u, v, d2, pl, nr, wx, a0, b0
+    cdef double x[3]
+    cdef int ar, ap, aq
+    cdef float d
+    cdef uint8_t fl = b.flat[t]
+    # Layers (block indices) whose centres are within limit of the box along z.
+    if end_index((hi[2] + limit) / b.h[2] - 0.5 - b.off[2], c0, c1) <= \
+            first_index((lo[2] - limit) / b.h[2] - 0.5 - b.off[2], c0, c1):
+        return
+    # Rows along the axis the normal points most along (x for a zero-area one).
+    ar = 0
+    if not fl:
+        if fabs(R[16]) > fabs(R[15]) and fabs(R[16]) >= fabs(R[17]):
+            ar = 1
+        elif fabs(R[17]) > fabs(R[15]) and fabs(R[17]) > fabs(R[16]):
+            ar = 2
+    ap = 1 if ar == 0 else 0
+    aq = 2 if ar != 2 else 1
+    qa = first_index((lo[aq] - limit) / b.h[aq] - 0.5 - b.off[aq], 0, b.n[aq])
+    qb = end_index((hi[aq] + limit) / b.h[aq] - 0.5 - b.off[aq], 0, b.n[aq])
+    pa = first_index((lo[ap] - limit) / b.h[ap] - 0.5 - b.off[ap], 0, b.n[ap])
+    pb = end_index((hi[ap] + limit) / b.h[ap] - 0.5 - b.off[ap], 0, b.n[ap])
+    if aq == 2:
+        qa = max(qa, c0)
+        qb = min(qb, c1)
+    elif ap == 2:
+        pa = max(pa, c0)
+        pb = min(pb, c1)
+    wx = limit * (1.0 + 1e-9)
+    for iq in range(qa, qb):
+        xq = (<double>iq + b.off[aq] + 0.5) * b.h[aq]
+        x[aq] = xq
+        dq = max(max(lo[aq] - xq, xq - hi[aq]), 0.0)
+        for ip in range(pa, pb):
+            xp = (<double>ip + b.off[ap] + 0.5) * b.h[ap]
+            x[ap] = xp
+            dp = max(max(lo[ap] - xp, xp - hi[ap]), 0.0)
+            r2 = dp * dp + dq * dq
+            if r2 > lim2 * (1.0 + 1e-9):
+                continue
+            # Along the row: within the box grown by what is left of limit ...
+            rest = sqrt(max(lim2 - r2, 0.0)) * (1.0 + 1e-9)
+            a0 = (lo[ar] - rest) / b.h[ar] - 0.5 - b.off[ar]
+            b0 = (hi[ar] + rest) / b.h[ar] - 0.5 - b.off[ar]
+            if not fl:
+                # ... and within limit of the plane: n . (x - a) is linear in the
+                # row's index, with slope n_r h_r, |n_r| >= 1/sqrt(3).
+                nr = R[15 + ar] * b.h[ar]
+                pl = ((xp - R[ap]) * R[15 + ap] + (xq - R[aq]) * R[15 + aq]
+                      + ((b.off[ar] + 0.5) * b.h[ar] - R[ar]) * R[15 + ar])
+                if nr > 0:
+                    a0 = max(a0, (-wx - pl) / nr)
+                    b0 = min(b0, (wx - pl) / nr)
+                else:
+                    a0 = max(a0, (wx - pl) / nr)
+                    b0 = min(b0, (-wx - pl) / nr)
+            ra = first_index(a0, 0, b.n[ar])
+            rb = end_index(b0, 0, b.n[ar])
+            if ar == 2:
+                ra = max(ra, c0)
+                rb = min(rb, c1)
+            base = ip * b.stride[ap] + iq * b.stride[aq]
+            for ir in range(ra, rb):
+                x[ar] = (<double>ir + b.off[ar] + 0.5) * b.h[ar]
+                d2 = closest(R, fl, x[0], x[1], x[2], &u, &v)
+                d = <float>sqrt(d2)
+                idx = base + ir * b.stride[ar]
+                if d < b.out[idx]:
+                    b.out[idx] = d
 
 
 def band_distances(const double[:, ::1] rows, const uint8_t[::1] flat,
@@ -1183,17 +1304,18 @@ def band_distances(const double[:, ::1] rows, const uint8_t[::1] flat,
     triangle is nearer (values elsewhere are left as they are).
 
     Which centres: those in the triangle's box grown by ``limit``, row by row
-    along x, each row cut to the part within ``limit`` of the box across it and
-    of the triangle's plane (both lower bounds of the distance; a zero-area
-    triangle has no plane and is cut by its box alone), widened by a voxel on
-    each side so that rounding never drops a centre. Threads take chunks of
-    layers (each voxel is written by one thread), so the result does not
-    depend on ``jobs``.
+    along the axis its normal points most along, each row cut to the part
+    within ``limit`` of the box across it and of the triangle's plane (both
+    lower bounds of the distance; so a row holds at most about ``2 limit
+    sqrt(3)`` of centres; a zero-area triangle has no plane and is cut by its
+    box alone), the index bounds widened by 1e-6 voxel so that rounding never
+    drops a centre. Threads take chunks of layers (each voxel is written by
+    one thread), so the result does not depend on ``jobs``.
     """
     cdef int64_t nx, ny, nz
     nx, ny, nz = shape
-    cdef double h0, h1, h2
-    h0, h1, h2 = spacing
+    cdef double h[3]
+    h[0], h[1], h[2] = spacing
     cdef int64_t nt = rows.shape[0]
     if rows.shape[1] != 21 or flat.shape[0] != nt or tlo.shape[0] != nt or thi.shape[0] != nt:
         raise ValueError("rows (t, 21), flat (t,) and boxes (t, 3) must agree")
@@ -1201,57 +1323,21 @@ def band_distances(const double[:, ::1] rows, const uint8_t[::1] flat,
         raise ValueError("out must have one entry per voxel")
     if nt == 0 or nx * ny * nz == 0:
         return
+    cdef Band b
+    b.rows = &rows[0, 0]
+    b.flat = &flat[0]
+    b.tlo = &tlo[0, 0]
+    b.thi = &thi[0, 0]
+    b.out = &out[0]
+    b.n[0], b.n[1], b.n[2] = nx, ny, nz
+    b.stride[0], b.stride[1], b.stride[2] = 1, nx, nx * ny
+    b.h[0], b.h[1], b.h[2] = h[0], h[1], h[2]
+    b.off[0], b.off[1], b.off[2] = 0.0, 0.0, <double>z0
+    b.limit = limit
     cdef int64_t step = 4  # layers a chunk
     cdef int64_t nchunk = (nz + step - 1) // step
-    cdef int64_t ch, t, k, j, i, ia, ib, ka, kb, ja, jb, row, c0, c1
-    cdef double x0, x1, x2, dy, dz, r2, rest, u, v, d2, p, n0, lim2 = limit * limit
-    cdef double wx, a0, b0
-    cdef const double *R
-    cdef float d
+    cdef int64_t ch, t
     with nogil:
         for ch in prange(nchunk, num_threads=max(1, jobs), schedule="dynamic", chunksize=1):
-            c0 = ch * step
-            c1 = min(c0 + step, nz)
             for t in range(nt):
-                R = &rows[t, 0]
-                # Layers (block indices) whose centres are within limit of the box along z.
-                ka = clamp_index(((tlo[t, 2] - limit) / h2 - 0.5) - <double>z0 - 1.0, c0, c1)
-                kb = clamp_index(((thi[t, 2] + limit) / h2 - 0.5) - <double>z0 + 2.0, c0, c1)
-                if ka >= kb:
-                    continue
-                ja = clamp_index((tlo[t, 1] - limit) / h1 - 0.5 - 1.0, 0, ny)
-                jb = clamp_index((thi[t, 1] + limit) / h1 - 0.5 + 2.0, 0, ny)
-                for k in range(ka, kb):
-                    x2 = (<double>(k + z0) + 0.5) * h2
-                    dz = max(max(tlo[t, 2] - x2, x2 - thi[t, 2]), 0.0)
-                    for j in range(ja, jb):
-                        x1 = (<double>j + 0.5) * h1
-                        dy = max(max(tlo[t, 1] - x1, x1 - thi[t, 1]), 0.0)
-                        r2 = dy * dy + dz * dz
-                        if r2 > lim2:
-                            continue
-                        # Along x: within the box grown by what is left of limit.
-                        rest = sqrt(lim2 - r2)
-                        a0 = (tlo[t, 0] - rest) / h0 - 0.5 - 1.0
-                        b0 = (thi[t, 0] + rest) / h0 - 0.5 + 2.0
-                        if not flat[t]:
-                            # And within limit of the plane: n . (x - a) is linear in i.
-                            n0 = R[15] * h0
-                            p = (x1 - R[1]) * R[16] + (x2 - R[2]) * R[17] + (0.5 * h0 - R[0]) * R[15]
-                            if n0 > 1e-12 * h0:
-                                a0 = max(a0, (-limit - p) / n0 - 1.0)
-                                b0 = min(b0, (limit - p) / n0 + 2.0)
-                            elif n0 < -1e-12 * h0:
-                                a0 = max(a0, (limit - p) / n0 - 1.0)
-                                b0 = min(b0, (-limit - p) / n0 + 2.0)
-                            elif p > limit * 1.000001 + 1e-300 or -p > limit * 1.000001 + 1e-300:
-                                continue
-                        ia = clamp_index(a0, 0, nx)
-                        ib = clamp_index(b0, 0, nx)
-                        row = nx * (j + ny * k)
-                        for i in range(ia, ib):
-                            x0 = (<double>i + 0.5) * h0
-                            d2 = closest(R, flat[t], x0, x1, x2, &u, &v)
-                            d = <float>sqrt(d2)
-                            if d < out[row + i]:
-                                out[row + i] = d
+                band_triangle(&b, t, ch * step, min(ch * step + step, nz))

@@ -38,6 +38,8 @@ class BlockBuffers:
         memory is not faulted in afresh for every block).
     colour_out : (nz_block, ny, nx, 4) uint8, C order, or None
         The same for the colours (see :func:`geovox.colour.colour_volume`).
+    sdf_out : (nx * ny * nz_block,) float32, or None
+        The same for the distance (see :func:`geovox.density.signed_distance`).
     colour_sink : callable or None
         Fast colour: ``sink(z0, rgba)`` is handed the colours chunk by chunk
         (layers from the block's first) instead of the volume holding them
@@ -72,6 +74,7 @@ class BlockBuffers:
 
     out: np.ndarray | None = None
     colour_out: np.ndarray | None = None
+    sdf_out: np.ndarray | None = None
     colour_sink: object = None
     crossings: dict | None = None
     slices: object = None
@@ -215,7 +218,7 @@ def voxelize_block(mesh, plan: Plan, block=None, *, buffers: BlockBuffers | None
     colors = dens = dist = None
     if plan.occupancy != Occupancy.SOLID:
         if o.sdf:  # the distance describes the solid: signed by it, before the surface joins
-            dist, timings["sdf"] = _sdf(m, plan, grid, occ, block)
+            dist, timings["sdf"] = _sdf(m, plan, grid, occ, block, buffers.sdf_out)
         occ, method, counts = _with_surface(m, plan, block, occ, method, classified, timings,
                                             buffers)
     if plan.colour:
@@ -231,17 +234,18 @@ def voxelize_block(mesh, plan: Plan, block=None, *, buffers: BlockBuffers | None
         timings["density"] = time.perf_counter() - t
     if o.sdf and dist is None:
         buffers.step("sdf")
-        dist, timings["sdf"] = _sdf(m, plan, grid, occ, block)
+        dist, timings["sdf"] = _sdf(m, plan, grid, occ, block, buffers.sdf_out)
     extra = {}
     if plan.labels is not None:
         extra = plan.labels.fields(m, grid, occ, classified, run=_label_run(m, plan, grid, block),
                                    timings=timings, step=buffers.step)
     return Volume(occupancy=occ, grid=grid, backend=plan.backend.name, source=m.source,
                   colors=colors, timings=timings, inside=method, density=dens, sdf=dist,
+                  band=float(o.band) if o.sdf else None,
                   approximate=approximate, counts=counts, **extra)
 
 
-def _sdf(m, plan: Plan, grid: Grid, solid, block=None):
+def _sdf(m, plan: Plan, grid: Grid, solid, block=None, out=None):
     """``(distance, seconds)`` of the block, signed by the solid ``solid`` (unless unsigned)."""
     from .density import signed_distance
 
@@ -249,7 +253,7 @@ def _sdf(m, plan: Plan, grid: Grid, solid, block=None):
     z0 = 0 if block is None else int(block[0])
     dist = signed_distance(m, grid, solid, band=float(plan.options.band), jobs=plan.jobs,
                            frame=(plan.grid.lo, plan.grid.spacing, z0),
-                           signed=sdf_of(plan.options.sdf) == "signed")
+                           signed=sdf_of(plan.options.sdf) == "signed", out=out)
     return dist, time.perf_counter() - t
 
 

@@ -174,7 +174,7 @@ def _carry_below(steps, col, z0: int):
 
 
 def signed_distance(mesh, grid, occupancy, band: float = BAND, jobs: int = 1, *, frame=None,
-                    signed: bool = True) -> np.ndarray:
+                    signed: bool = True, out=None) -> np.ndarray:
     """Distance from every voxel centre to the surface, exact within ``band`` voxels.
 
     Every voxel centre within ``band * min(spacing)`` of the surface gets its
@@ -201,6 +201,9 @@ def signed_distance(mesh, grid, occupancy, band: float = BAND, jobs: int = 1, *,
     signed : bool
         Negative where ``occupancy`` is set (``-0.0`` on a surface voxel
         centre inside); else the unsigned distance.
+    out : (nx * ny * nz,) float32, optional
+        The array to make it in (its contents are overwritten), e.g. reused
+        across slabs; the result is a view of it.
 
     Returns
     -------
@@ -212,15 +215,23 @@ def signed_distance(mesh, grid, occupancy, band: float = BAND, jobs: int = 1, *,
     lo, spacing, z0 = frame if frame is not None else (grid.lo, grid.spacing, 0)
     limit = band * float(np.min(spacing))
     cache = getattr(mesh, "_cache", None)
-    if math.isinf(band):
-        flat = nearest_distances(mesh.triangles, np.ones(grid.shape, bool, order="F"), spacing,
-                                 origin=lo, z0=z0, jobs=jobs, cache=cache)
+    # Every voxel starts at the band's limit, which only a nearer triangle lowers: the
+    # clamped distance with no pass of its own.
+    if out is None:
+        flat = np.full(grid.size, np.float32(limit), np.float32)
     else:
-        flat = band_distances(mesh.triangles, grid.shape, spacing, origin=lo, z0=z0,
-                              limit=limit, jobs=jobs, cache=cache)
+        flat = out[:grid.size]
+        flat.fill(np.float32(limit))
+    if math.isinf(band):
+        nearest_distances(mesh.triangles, np.ones(grid.shape, bool, order="F"), spacing,
+                          origin=lo, z0=z0, jobs=jobs, cache=cache, out=flat)
+    else:
+        band_distances(mesh.triangles, grid.shape, spacing, origin=lo, z0=z0, limit=limit,
+                       jobs=jobs, cache=cache, out=flat)
     dist = flat.reshape(grid.shape, order="F")
-    limit = np.float32(limit)
-    np.minimum(dist, limit, out=dist)  # inf (not measured) -> the band's limit
     if signed:
-        dist[occupancy] *= -1.0
+        # In place and in memory order (a boolean index of an F-order array took 0.5 s
+        # a 64-layer slab at 1024 voxels a side).
+        flat_occ = np.asarray(occupancy, bool).reshape(-1, order="F")
+        np.negative(flat, out=flat, where=flat_occ)
     return dist

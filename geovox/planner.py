@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 import enum
+import math
 import os
 from dataclasses import dataclass, fields
 
@@ -259,6 +260,8 @@ def streams(grid: Grid, fmt, options: Options, extra=0.0) -> bool:
     f = format_for("", fmt) if isinstance(fmt, str) else fmt
     if f.slab_writer is None:
         return False
+    if f.name == "vdb" and sdf_of(options.sdf) and math.isinf(float(options.band)):
+        return False  # a level set's slabs are padded with its background, the band's distance
     if f.can.always_streams:
         return True  # each slab writes its own chunks
     blocks = slab_plan(grid, bytes_per_voxel(options) + extra, slab_budget())

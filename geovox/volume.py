@@ -37,8 +37,11 @@ class Volume:
     density : (nx, ny, nz) uint8 or float32, or None
         Coverage: the fraction of each voxel inside the mesh (0-255 as uint8).
     sdf : (nx, ny, nz) float32 or None
-        Signed distance from each voxel centre to the surface, negative inside,
-        exact within ``band`` voxels and clamped to ``+-band`` voxels beyond.
+        Distance from each voxel centre to the surface (signed: negative
+        inside; or unsigned), exact within ``band`` voxels and clamped to
+        ``band`` voxels (``band * min(spacing)``) beyond.
+    band : float or None
+        With ``sdf``: the band's half-width in voxels (``inf``: every voxel exact).
     timings : dict
         Seconds per stage.
     mesh_space : (str, str) or None
@@ -75,6 +78,7 @@ class Volume:
     inside: str = "parity"
     density: np.ndarray | None = None
     sdf: np.ndarray | None = None
+    band: float | None = None
     mesh_space: tuple | None = None
     labels: np.ndarray | None = None
     label_table: list | None = None

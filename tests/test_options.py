@@ -122,7 +122,13 @@ def test_convert_to_refuses_a_misspelt_option_before_any_work(tmp_path):
     (dict(density="mean"), "`density` must be None or 'coverage', got 'mean'"),
     (dict(density_dtype="int8"), "`density_dtype` must be 'uint8' or 'float32'"),
     (dict(density="coverage", supersample=0), "`supersample` must be a positive integer, got 0"),
-    (dict(sdf=True, band=-1), "`band` must be a positive number of voxels, got -1"),
+    (dict(sdf=True, band=-1), "`band` must be a positive number of voxels or math.inf, got -1"),
+    (dict(sdf=True, band=0), "`band` must be a positive number of voxels or math.inf, got 0"),
+    (dict(sdf=True, band=float("nan")), "`band` must be a positive number of voxels or math.inf, "
+                                        "got nan"),
+    (dict(sdf="unsigned", band="3"), "`band` must be a positive number of voxels or math.inf, "
+                                     "got '3'"),
+    (dict(sdf="sideways"), "`sdf` must be True, False, 'signed' or 'unsigned', got 'sideways'"),
     (dict(jobs=-1), "`jobs` must be a non-negative integer, got -1"),
     (dict(kernel="gpu"), "kernel must be auto, compiled or numpy, got 'gpu'"),
     (dict(backend="optix"), "`backend` must be one of auto, embree, numpy, webgpu; got 'optix'"),

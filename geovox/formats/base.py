@@ -46,6 +46,8 @@ class Meta:
     mesh_space : (str, str) or None
         On a reference grid: the mesh's frame (``"LPS"`` or ``"RAS"``) and how
         it was decided; a point cloud's coordinates are in it.
+    band : float or None
+        With a distance: its band's half-width in voxels (``inf``: exact everywhere).
     """
 
     grid: Grid
@@ -56,6 +58,7 @@ class Meta:
     fractions: tuple | None = None
     label_table: list | None = None
     mesh_space: tuple | None = None
+    band: float | None = None
 
     @classmethod
     def of(cls, volume) -> "Meta":
@@ -67,7 +70,8 @@ class Meta:
                    colors=volume.colors is not None, fields=fields,
                    fractions=None if fr is None else (fr.shape[3], fr.dtype),
                    label_table=getattr(volume, "label_table", None),
-                   mesh_space=getattr(volume, "mesh_space", None))
+                   mesh_space=getattr(volume, "mesh_space", None),
+                   band=getattr(volume, "band", None) if fields.get("sdf") is not None else None)
 
     def dtype(self, name):
         """The dtype of scalar field ``name`` (``"density"``, ``"sdf"``, ``"labels"``), or None."""

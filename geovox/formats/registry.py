@@ -256,8 +256,9 @@ register_format("binvox", (".binvox",), "binvox:write_binvox",
                 "side; --cube-center: -cb); --voxel-size grids padded to a cube",
                 reader="binvox:read_binvox", check="binvox:check_grid", can=_PLAIN)
 register_format("vdb", (".vdb",), "vdb:write_vdb",
-                "OpenVDB for Blender/Houdini: density (fog), color (vec3s), sdf (level set) grids",
-                reader="vdb:read_vdb", can=_PLAIN)
+                "OpenVDB for Blender/Houdini: density (fog), color (vec3s), sdf (level set) "
+                "grids; written slab by slab, holding only the trees' leaves",
+                reader="vdb:read_vdb", slab_writer=_slabs("vdb:VDBWriter"), can=_PLAIN)
 register_format("vox", (".vox",), "vox:write_vox",
                 "MagicaVoxel: 256³ models in a scene graph, 255 quantised colours",
                 reader="vox:read_vox", libraries=("PIL.Image",), can=Abilities(frame=False))

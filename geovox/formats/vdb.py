@@ -40,6 +40,8 @@ import zlib
 
 import numpy as np
 
+from ..errors import ParameterError
+
 MAGIC = 0x56444220
 FILE_VERSION = 224
 #: The library whose reader the files are checked against (OpenVDB 10.0, Debian's).
@@ -114,6 +116,45 @@ def _values(vals: np.ndarray, active: np.ndarray, background, ignore=None) -> by
         return bytes([NO_MASK_AND_ALL_VALS]) + _zip(np.ascontiguousarray(vals).tobytes())
     out.append(_zip(np.ascontiguousarray(vals[active]).tobytes()))
     return b"".join(out)
+
+
+def _leaf_values(vals: np.ndarray, act: np.ndarray, background) -> list:
+    """:func:`_values` of many leaves at once: the same bytes, leaf by leaf.
+
+    ``vals`` (k, 512[, 3]) and ``act`` (k, 512): each leaf's values and active
+    mask. Which inactive values a leaf leaves out is decided for all of them
+    in whole arrays; the zlib streams are made on two threads (zlib lets go
+    of the GIL), a leaf's one at a time as before.
+    """
+    from concurrent.futures import ThreadPoolExecutor
+
+    eq = vals == background
+    neg = vals == -background
+    if vals.ndim > 2:
+        eq, neg = eq.all(axis=2), neg.all(axis=2)
+    all_eq = (eq | act).all(axis=1)
+    all_neg = (neg | act).all(axis=1)
+    either = (eq | neg | act).all(axis=1)
+    masks = np.packbits(~act & eq, axis=1, bitorder="little")
+    heads, payloads = [], []
+    for k in range(len(vals)):
+        if all_eq[k]:
+            heads.append(bytes([NO_MASK_OR_INACTIVE_VALS]))
+        elif all_neg[k]:
+            heads.append(bytes([NO_MASK_AND_MINUS_BG]))
+        elif either[k]:
+            heads.append(bytes([MASK_AND_NO_INACTIVE_VALS]) + masks[k].tobytes())
+        else:
+            heads.append(bytes([NO_MASK_AND_ALL_VALS]))
+            payloads.append(np.ascontiguousarray(vals[k]).tobytes())
+            continue
+        payloads.append(np.ascontiguousarray(vals[k][act[k]]).tobytes())
+    half = (len(payloads) + 1) // 2
+    with ThreadPoolExecutor(2) as pool:
+        parts = pool.map(lambda chunk: [_zip(p) for p in chunk],
+                         (payloads[:half], payloads[half:]))
+        zipped = [z for part in parts for z in part]
+    return [h + z for h, z in zip(heads, zipped)]
 
 
 def _pad_to(a: np.ndarray, multiple: int, value) -> np.ndarray:
@@ -249,21 +290,52 @@ def _node_values(g: _Grid, uniform: np.ndarray, lo: np.ndarray, corner, size: in
     return _mask(child) + _mask(act) + _values(vals, act, g.background, ignore=child)
 
 
-def _tree(g: _Grid):
+def _same(a, b) -> np.ndarray:
+    """Per block: its minimum equals its maximum (every component)."""
+    eq = a == b
+    return eq.reshape(eq.shape[:3] + (-1,)).all(axis=3)
+
+
+def _dense_leaves(raw: np.ndarray, pad):
+    """Leaf blocks gathered from a dense ``raw`` (see :func:`_tree`'s ``leaf_blocks``)."""
+    off = np.arange(1 << LEAF)
+    nx, ny, nz = raw.shape[:3]
+
+    def blocks(idx):
+        xs, ys, zs = (idx[:, a, None] * (1 << LEAF) + off for a in range(3))
+        # (leaves, x, y, z[, c]) raw blocks; a leaf at the grid's high edge reads its
+        # last voxel and gets the pad beyond.
+        xi, yi, zi = xs[:, :, None, None], ys[:, None, :, None], zs[:, None, None, :]
+        block = raw[np.minimum(xi, nx - 1), np.minimum(yi, ny - 1), np.minimum(zi, nz - 1)]
+        beyond = (xi >= nx) | (yi >= ny) | (zi >= nz)
+        if beyond.any():
+            block[beyond] = pad
+        return block
+
+    return blocks
+
+
+def _tree(g: _Grid, summary=None, leaf_blocks=None, shape=None):
     """``(topology, buffers, stats)``: the bytes of one grid's tree, its active voxels.
 
     Uniform blocks are found level by level from per-block extrema: 8³
     leaves, then 16³ of those, then 32³ of those; a uniform block is a tile
     of its parent, and a uniform background block is left out.
+
+    ``summary`` ``(uni8, lo8)``: per 8³ block, whether it is uniform and its
+    minimum raw value; ``leaf_blocks(idx)``: the raw blocks ``(k, 8, 8, 8[, c])``
+    of leaves ``idx`` ``(k, 3)`` (the pad beyond the grid); ``shape`` the
+    grid's. Default: all three from ``g.raw`` (a slab writer gives its own,
+    gathered slab by slab: :class:`VDBWriter`).
     """
-    raw = g.raw
-    lo, hi = _block_extrema(raw, 1 << LEAF, g.pad)
-
-    def same(a, b):
-        eq = a == b
-        return eq.reshape(eq.shape[:3] + (-1,)).all(axis=3)
-
-    uni8 = same(lo, hi)
+    if summary is None:
+        lo, hi = _block_extrema(g.raw, 1 << LEAF, g.pad)
+        summary = (_same(lo, hi), lo)
+        leaf_blocks = _dense_leaves(g.raw, g.pad)
+        shape = g.raw.shape[:3]
+    uni8, lo = summary
+    hi = lo  # where a block is uniform its maximum is its minimum; elsewhere unused
+    same = _same
     uni16, lo16, hi16 = _coarser(uni8, lo, hi, 1 << N16, g.pad)
     uni16 &= same(lo16, hi16)
     uni32, lo32, hi32 = _coarser(uni16, lo16, hi16, 1 << N32, g.pad)
@@ -280,7 +352,7 @@ def _tree(g: _Grid):
         out[tuple(slice(0, n) for n in part.shape[:3])] = part
         return out
 
-    stats = _Stats(g.raw.shape[:3])
+    stats = _Stats(shape)
     tiles, nodes = [], []  # nodes: (origin, header, [(header16, leaf indices)])
     for i32 in np.ndindex(*uni32.shape):  # C order: the root map's (x, y, z) order
         corner = np.asarray(i32) << (LEAF + N16 + N32)
@@ -306,25 +378,18 @@ def _tree(g: _Grid):
     index = [leaves for _, _, subs in nodes for _, leaves in subs]
     index = np.concatenate(index) if index else np.zeros((0, 3), dtype=np.int64)
     masks, buffers = [], []
-    off = np.arange(1 << LEAF)
     for s in range(0, len(index), BATCH):
         idx = index[s:s + BATCH]
-        xs, ys, zs = (idx[:, a, None] * (1 << LEAF) + off for a in range(3))
-        # (leaves, x, y, z[, c]) raw blocks, raveled z fastest as OpenVDB numbers voxels;
-        # a leaf at the grid's high edge reads its last voxel and gets the pad beyond.
-        nx, ny, nz = raw.shape[:3]
-        xi, yi, zi = xs[:, :, None, None], ys[:, None, :, None], zs[:, None, None, :]
-        block = raw[np.minimum(xi, nx - 1), np.minimum(yi, ny - 1), np.minimum(zi, nz - 1)]
-        beyond = (xi >= nx) | (yi >= ny) | (zi >= nz)
-        if beyond.any():
-            block[beyond] = g.pad
-        flat = block.reshape((len(idx), 1 << 3 * LEAF) + raw.shape[3:])
+        block = leaf_blocks(idx)
+        # Raveled z fastest, as OpenVDB numbers a leaf's voxels.
+        flat = block.reshape((len(idx), 1 << 3 * LEAF) + block.shape[4:])
         vals, act = g.value(flat), g.active(flat)
         stats.leaves(idx, act.reshape((len(idx),) + (1 << LEAF,) * 3))
-        for k in range(len(idx)):
-            m = _mask(act[k])
+        leaf_masks = np.packbits(act, axis=1, bitorder="little")  # each leaf's _mask
+        for m, v in zip(leaf_masks, _leaf_values(vals, act, g.background)):
+            m = m.tobytes()
             masks.append(m)
-            buffers.append(m + _values(vals[k], act[k], g.background))
+            buffers.append(m + v)
 
     topology = [struct.pack("<i", 1), g.background.tobytes(),
                 struct.pack("<II", len(tiles), len(nodes))] + tiles
@@ -337,32 +402,63 @@ def _tree(g: _Grid):
     return b"".join(topology), b"".join(buffers), stats
 
 
-def _grids(volume) -> list:
-    """The grids to write: ``density`` (fog), ``color`` (vec3s) and ``sdf`` (level set)."""
-    density = getattr(volume, "density", None)
+def _specs(meta, sdf_background=1.0) -> list:
+    """``[(grid, field), ...]``: the grids to write, ``density`` (fog), ``color`` (vec3s) and
+    ``sdf`` (level set), each with the :class:`~geovox.volume.Volume` field it is made of.
+
+    ``meta``: the whole volume's :class:`~geovox.formats.base.Meta`;
+    ``sdf_background``: the level set's background, the largest distance
+    (the clamped distance beyond the exact band: those voxels are inactive,
+    the narrow band is active).
+    """
+    density = meta.dtype("density")
     if density is None:
-        raw, scale = volume.occupancy, 1.0
+        field, scale = "occupancy", 1.0
     else:
-        raw, scale = density, (255.0 if density.dtype == np.uint8 else 1.0)
-    grids = [_Grid("density", raw, value=lambda r: r.astype(np.float32) / np.float32(scale),
-                   active=lambda r: r != 0, background=0.0, pad=0, grid_class="fog volume")]
+        field, scale = "density", (255.0 if density == np.uint8 else 1.0)
+    fog = _Grid("density", None, value=lambda r: r.astype(np.float32) / np.float32(scale),
+                active=lambda r: r != 0, background=0.0, pad=0, grid_class="fog volume")
     # How the reader gets the volume's own arrays back.
-    grids[0].stored = "occupancy" if density is None else str(density.dtype)
-    if volume.colors is not None:
+    fog.stored = "occupancy" if density is None else str(np.dtype(density))
+    specs = [(fog, field)]
+    if meta.colors:
         def colour(r):
             rgb = r[..., :3].astype(np.float32) / np.float32(255.0)
             return np.where(r[..., 3:] > 0, rgb, np.float32(0.0))
 
-        grids.append(_Grid("color", volume.colors, value=colour, active=lambda r: r[..., 3] > 0,
-                           background=np.zeros(3), pad=0, grid_class="unknown", vector=True))
-    sdf = getattr(volume, "sdf", None)
-    if sdf is not None:
-        # The clamped distance beyond the exact band is the level set's background:
-        # those voxels are inactive, the narrow band is active.
-        bg = np.float32(np.abs(sdf).max()) if sdf.size else np.float32(1.0)
-        grids.append(_Grid("sdf", sdf, value=lambda r: np.asarray(r, dtype=np.float32),
-                           active=lambda r, bg=bg: np.abs(r) < bg, background=bg, pad=bg,
-                           grid_class="level set"))
+        specs.append((_Grid("color", None, value=colour, active=lambda r: r[..., 3] > 0,
+                            background=np.zeros(3), pad=0, grid_class="unknown", vector=True),
+                      "colors"))
+    if meta.dtype("sdf") is not None:
+        bg = np.float32(sdf_background)
+        specs.append((_Grid("sdf", None, value=lambda r: np.asarray(r, dtype=np.float32),
+                            active=lambda r, bg=bg: np.abs(r) < bg, background=bg, pad=bg,
+                            grid_class="level set"), "sdf"))
+    return specs
+
+
+def level_set_background(meta, sdf=None):
+    """The level set's background: the band's clamped distance, ``band * min(spacing)``.
+
+    Known before any voxel is made (so a slab writer pads with it) where the
+    band is finite; otherwise (``band = inf``, or a volume that does not say)
+    the largest distance of ``sdf``, 1 for an empty one.
+    """
+    band = getattr(meta, "band", None)
+    if band is not None and np.isfinite(band):
+        return np.float32(band * float(np.min(meta.spacing)))
+    return np.float32(np.abs(sdf).max()) if sdf is not None and sdf.size else np.float32(1.0)
+
+
+def _grids(volume) -> list:
+    """The grids of a whole volume (see :func:`_specs`), each with its dense array."""
+    from .base import as_meta
+
+    meta = as_meta(volume)
+    grids = []
+    for g, field in _specs(meta, level_set_background(meta, getattr(volume, "sdf", None))):
+        g.raw = getattr(volume, field)
+        grids.append(g)
     return grids
 
 
@@ -399,36 +495,133 @@ def _grid_metadata(g: _Grid, shape, stats: _Stats) -> bytes:
 
 def write_vdb(volume, path) -> list:
     """Write ``volume`` as an OpenVDB file (see the module docstring)."""
+    from .base import as_meta, atomic_output
+
+    path = os.fspath(path)
+    with atomic_output(path) as tmp:
+        _write_file(tmp, as_meta(volume), [(g, _tree(g)) for g in _grids(volume)])
+    return [path]
+
+
+def _write_file(path, meta, trees) -> None:
+    """The file: header, then each grid of ``trees`` (``(grid, lazy tree)`` pairs, the tree
+    ``(topology, buffers, stats)`` made as the grid is written); ``meta`` places the voxels."""
     import uuid  # (not imported with the format registry)
 
     from ..version import __version__
-    from .base import atomic_output
 
-    path = os.fspath(path)
     header = (struct.pack("<qIIIB", MAGIC, FILE_VERSION, *LIBRARY_VERSION, 1)
               + str(uuid.uuid4()).encode()
               + _metadata({"creator": ("string", f"geovox {__version__}".encode())}))
-    grids = _grids(volume)
-    with atomic_output(path) as tmp:
-        with open(tmp, "wb") as f:
-            f.write(header + struct.pack("<i", len(grids)))
-            pos = len(header) + 4
-            for g in grids:
-                type_name = "Tree_vec3s_5_4_3" if g.vector else "Tree_float_5_4_3"
-                descriptor = _string(g.name) + _string(type_name) + _string("")
-                topology, buffers, stats = _tree(g)
-                head = (struct.pack("<I", COMPRESSION) + _grid_metadata(g, volume.shape, stats)
-                        + _transform(volume))
-                # The descriptor's offsets: the grid, its leaf buffers, its end.
-                grid_pos = pos + len(descriptor) + 24
-                block_pos = grid_pos + len(head) + len(topology)
-                end = block_pos + len(buffers)
-                f.write(descriptor + struct.pack("<3q", grid_pos, block_pos, end))
-                f.write(head)
-                f.write(topology)
-                f.write(buffers)
-                pos = end
-    return [path]
+    with open(path, "wb") as f:
+        f.write(header + struct.pack("<i", len(trees)))
+        pos = len(header) + 4
+        for g, tree in trees:
+            type_name = "Tree_vec3s_5_4_3" if g.vector else "Tree_float_5_4_3"
+            descriptor = _string(g.name) + _string(type_name) + _string("")
+            topology, buffers, stats = tree() if callable(tree) else tree
+            head = (struct.pack("<I", COMPRESSION) + _grid_metadata(g, meta.shape, stats)
+                    + _transform(meta))
+            # The descriptor's offsets: the grid, its leaf buffers, its end.
+            grid_pos = pos + len(descriptor) + 24
+            block_pos = grid_pos + len(head) + len(topology)
+            end = block_pos + len(buffers)
+            f.write(descriptor + struct.pack("<3q", grid_pos, block_pos, end))
+            f.write(head)
+            f.write(topology)
+            f.write(buffers)
+            pos = end
+
+
+class VDBWriter:
+    """Writes a ``.vdb`` one z-slab at a time, holding only what the file keeps.
+
+    Each slab is reduced as it comes to what its grids' trees need: per 8³
+    block whether it is one value (and which), and the raw values of the
+    blocks that are not -- the leaves, which a level set has only along its
+    narrow band and a fog volume only along the surface. The file is written
+    on :meth:`close` from those, with the same bytes as :func:`write_vdb` of
+    the whole volume. Slabs must start on multiples of 8 voxels in z (a
+    leaf's side); a level set needs a finite band (its background pads the
+    slabs: :func:`level_set_background`).
+
+    Memory: the blocks' summary (about 9 bytes per 512 voxels a grid) and the
+    leaves (512 values each), not the grid.
+    """
+
+    def __init__(self, path, meta, jobs: int = 1):
+        from .base import as_meta, atomic_outputs
+
+        self.path, self.meta = os.fspath(path), as_meta(meta)
+        if self.meta.dtype("sdf") is not None and not (
+                self.meta.band is not None and np.isfinite(self.meta.band)):
+            # The background (the largest distance) pads every slab: it must be known first.
+            raise ParameterError("a .vdb level set is written slab by slab only with a finite "
+                                 "band (its background); with --band inf it is written whole")
+        self._ctx = atomic_outputs()
+        self.group = self._ctx.__enter__()
+        self.tmp = self.group.add(self.path)
+        self.specs = _specs(self.meta, level_set_background(self.meta))
+        self.parts = [[] for _ in self.specs]  # per grid, per slab: (uni8, lo8, leaves, blocks)
+
+    def write(self, z0: int, vol) -> None:
+        """Take the slab ``vol`` whose first layer is ``z0`` (the next one in z)."""
+        if z0 % (1 << LEAF):
+            raise ValueError(f"a .vdb slab must start on a multiple of {1 << LEAF} layers, got {z0}")
+        for (g, field), parts in zip(self.specs, self.parts):
+            raw = getattr(vol, field)
+            lo, hi = _block_extrema(raw, 1 << LEAF, g.pad)
+            uni = _same(lo, hi)
+            local = np.argwhere(~uni)
+            blocks = _dense_leaves(raw, g.pad)(local) if len(local) else None
+            local[:, 2] += z0 >> LEAF
+            parts.append((uni, lo, local, blocks))
+
+    def close(self) -> list:
+        try:
+            trees = [(g, self._tree(g, parts)) for (g, _), parts in zip(self.specs, self.parts)]
+            _write_file(self.tmp, self.meta, trees)
+            self.parts = None
+            self._ctx.__exit__(None, None, None)
+        except BaseException:
+            self.abort()
+            raise
+        return [self.path]
+
+    def _tree(self, g, parts):
+        """The grid's tree, made when the file reaches it, from the slabs' parts."""
+        def make():
+            uni8 = np.concatenate([p[0] for p in parts], axis=2)
+            lo8 = np.concatenate([p[1] for p in parts], axis=2)
+            leaves = np.concatenate([p[2] for p in parts])
+            stored = [p[3] for p in parts if p[3] is not None]
+            blocks = np.concatenate(stored) if stored else None
+            # Where each leaf's block is among those stored.
+            where = np.full(uni8.shape, -1, np.int64)
+            where[tuple(leaves.T)] = np.arange(len(leaves))
+            parts.clear()  # the slabs' arrays are in the concatenated ones now
+
+            def leaf_blocks(idx):
+                return blocks[where[tuple(np.asarray(idx).T)]]
+
+            return _tree(g, (uni8, lo8), leaf_blocks, self.meta.shape)
+
+        return make
+
+    def write_whole(self, volume) -> list:
+        try:
+            self.write(0, volume)
+        except BaseException:
+            self.abort()
+            raise
+        return self.close()
+
+    def abort(self) -> None:
+        """Drop everything written (call from an ``except`` block)."""
+        import sys
+
+        self.parts = None
+        self._ctx.__exit__(*sys.exc_info())
 
 
 # --- reading back (the subset geovox writes: float and vec3s trees, zlib or no compression) ---

@@ -190,7 +190,7 @@ def _meta(m, p: Plan):
         label_table, fractions = labelled["label_table"], labelled["fractions"]
     return Meta(grid=p.grid, backend=p.backend.name, source=m.source, colors=bool(p.colour),
                 fields=fields, fractions=fractions, label_table=label_table,
-                mesh_space=p.mesh_space)
+                mesh_space=p.mesh_space, band=float(o.band) if o.sdf else None)
 
 
 

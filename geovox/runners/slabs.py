@@ -20,7 +20,7 @@ class SlabArrays:
 
     One occupancy (two where a slab is written while the next is made), one
     surface array (two where it is the occupancy so written), one colour
-    array (two), or with surface voxels written as points one buffer of
+    array (two), one distance array (two), or with surface voxels written as points one buffer of
     bits, reused by every slab: faulting a slab's worth of fresh memory in
     for each one cost more system time than filling it (exact colour's
     arrays are 4 bytes a voxel: spot at 1024³ faulted 4 GiB in). A slab's
@@ -29,6 +29,7 @@ class SlabArrays:
 
     def __init__(self, p: Plan):
         self.arrays = {}
+        self.layer = int(p.grid.shape[0]) * int(p.grid.shape[1])
         if not p.reuse_buffers:
             return
         nx, ny, _ = p.grid.shape
@@ -46,6 +47,9 @@ class SlabArrays:
             surface_turns = turns if p.occupancy == Occupancy.SURFACE else 1
             self.arrays["surface_out"] = [np.empty((nx, ny, p.thick), dtype=bool, order="F")
                                           for _ in range(surface_turns)]
+        if p.options.sdf:
+            self.arrays["sdf_out"] = [np.empty(nx * ny * p.thick, dtype=np.float32)
+                                      for _ in range(turns)]
         if p.colour == Colour.EXACT or (p.colour == Colour.FAST and not p.colour_sink):
             colour_turns = turns if p.colour == Colour.EXACT else 1
             self.arrays["colour_out"] = [np.empty((p.thick, ny, nx, 4), dtype=np.uint8)
@@ -60,6 +64,9 @@ class SlabArrays:
                 setattr(b, name, outs[n % len(outs)][:, :, :depth])
         if "words" in self.arrays:
             b.words = self.arrays["words"][0]
+        if "sdf_out" in self.arrays:
+            outs = self.arrays["sdf_out"]
+            b.sdf_out = outs[n % len(outs)][:self.layer * depth]
         if "colour_out" in self.arrays:
             cols = self.arrays["colour_out"]
             b.colour_out = cols[n % len(cols)][:depth]
