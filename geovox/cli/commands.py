@@ -284,8 +284,9 @@ def add_convert(sub):
     c.add_argument("--pack-bits", action="store_true",
                    help=".npz: store occupancy as np.packbits bits (occupancy_bits, shape)")
     c.add_argument("--sparse", action="store_true",
-                   help=".npz: the occupied voxels alone: coords (N, 3) int32 and colors, labels, "
-                        "... aligned with it (a .ply is always sparse: the voxel centres)")
+                   help=".npz: the occupied voxels alone (with --sdf, the band's too): coords "
+                        "(N, 3) int32 and colors, labels, sdf ... aligned with it (a .ply is always "
+                        "sparse: the voxel centres)")
     c.add_argument("--preview", metavar="PNG", help="also write a preview picture")
     c.add_argument("--overwrite", action="store_true",
                    help="with several inputs: convert even where the output exists (and "

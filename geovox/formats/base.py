@@ -234,6 +234,35 @@ class SlabWriter:
             self._ctx.__exit__(*sys.exc_info())
 
 
+def level_set_background(meta, sdf=None):
+    """The level set's background: the band's clamped distance, ``band * min(spacing)``.
+
+    Known before any voxel is made (so a slab writer pads with it) where the
+    band is finite; otherwise (``band = inf``, or a volume that does not say)
+    the largest distance of ``sdf``, 1 for an empty one.
+    """
+    band = getattr(meta, "band", None)
+    if band is not None and np.isfinite(band):
+        return np.float32(band * float(np.min(meta.spacing)))
+    return np.float32(np.abs(sdf).max()) if sdf is not None and sdf.size else np.float32(1.0)
+
+
+def point_voxels(volume) -> np.ndarray:
+    """(nx * ny * nz,) bool, F order: the voxels a point format writes.
+
+    The occupied voxels; with a distance also those of its exact band
+    (``|sdf|`` below the background of :func:`level_set_background`), so a
+    sparse file carries every exact distance, each point flagged
+    ``occupied`` or not.
+    """
+    occ = volume.occupancy.reshape(-1, order="F")
+    sdf = getattr(volume, "sdf", None)
+    if sdf is None:
+        return occ
+    bg = level_set_background(as_meta(volume) if not isinstance(volume, Meta) else volume, sdf)
+    return occ | (np.abs(sdf.reshape(-1, order="F")) < bg)
+
+
 def label_table_json(volume) -> str:
     """The volume's label table as JSON text (``"[]"`` without labels)."""
     import json

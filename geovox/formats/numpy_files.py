@@ -62,6 +62,9 @@ def write_npz(volume, path, pack_bits: bool = False, sparse: bool = False) -> li
     (N,), ``density`` (N,), ``sdf`` (N,), ``fractions`` (N, L) where made --
     with ``shape``, ``spacing``, ``bounds`` and ``origin`` (the centre of
     voxel 0; on a reference grid ``affine`` maps ``coords`` to the world).
+    With a distance, the voxels of its exact band too: ``occupied`` (N,)
+    bool says which points are occupied, and ``sdf_background`` is the
+    distance of every voxel left out (the band's, ``band * min(spacing)``).
     """
     from .base import atomic_output
     from .headers import origin_of
@@ -119,9 +122,12 @@ def write_npz(volume, path, pack_bits: bool = False, sparse: bool = False) -> li
 def _sparse(volume):
     """``({"coords", "shape"}, take)``: the occupied voxels' indices, and a function that
     gives any ``[x, y, z, ...]`` array's values there, in the same order."""
+    from .base import as_meta, level_set_background, point_voxels
+
     occ = volume.occupancy
     nx, ny, _ = occ.shape
-    idx = np.flatnonzero(occ.reshape(-1, order="F"))  # x fastest: the volume's memory order
+    # x fastest: the volume's memory order; with a distance, its band's voxels too.
+    idx = np.flatnonzero(point_voxels(volume))
     coords = np.stack([idx % nx, (idx // nx) % ny, idx // (nx * ny)], axis=1).astype(np.int32)
 
     def take(arr):
@@ -129,7 +135,13 @@ def _sparse(volume):
             return arr.reshape(-1, order="F")[idx]
         return arr.reshape(-1, arr.shape[3], order="F")[idx]
 
-    return {"coords": coords, "shape": np.asarray(occ.shape, dtype=np.int64)}, take
+    arrays = {"coords": coords, "shape": np.asarray(occ.shape, dtype=np.int64)}
+    sdf = getattr(volume, "sdf", None)
+    if sdf is not None:
+        # Which points are occupied, and the distance of every voxel left out (beyond the band).
+        arrays["occupied"] = take(occ)
+        arrays["sdf_background"] = np.float32(level_set_background(as_meta(volume), sdf))
+    return arrays, take
 
 
 def read_npz(path):
@@ -168,7 +180,7 @@ def _read_sparse(z, path):
     shape = tuple(int(n) for n in z["shape"])
     i, j, k = z["coords"].astype(np.int64).T
     occ = np.zeros(shape, dtype=bool, order="F")
-    occ[i, j, k] = True
+    occ[i, j, k] = z["occupied"] if "occupied" in z else True
     extra = {}
     if "colors" in z:
         colors = np.zeros((shape[2], shape[1], shape[0], 4), np.uint8).transpose(2, 1, 0, 3)
@@ -176,7 +188,8 @@ def _read_sparse(z, path):
         extra["colors"] = colors
     for name in ("density", "sdf", "labels"):
         if name in z:
-            arr = np.zeros(shape, dtype=z[name].dtype, order="F")
+            fill = z["sdf_background"] if name == "sdf" and "sdf_background" in z else 0
+            arr = np.full(shape, fill, dtype=z[name].dtype, order="F")
             arr[i, j, k] = z[name]
             extra[name] = arr
     if "fractions" in z:

@@ -9,7 +9,10 @@ where that places every centre to better than 1/16 of a voxel, else
 ``double``. With colour, ``red``, ``green``, ``blue`` (``uchar``, what every
 one of those tools reads as colour) and ``alpha``; with labels an ``int``
 ``label`` (0 never appears: only occupied voxels are written); with density
-or distance, ``density`` (``uchar`` or ``float``) and ``sdf`` (``float``).
+or distance, ``density`` (``uchar`` or ``float``) and ``sdf`` (``float``). With a
+distance the voxels of its exact band are points too (``|sdf|`` below the
+band's ``band * min(spacing)``, ``comment geovox sdf_background``), each
+with ``occupied`` (``uchar`` 0 or 1).
 
 The header's comments hold the grid (``comment geovox grid NX NY NZ``,
 ``comment geovox bounds ...``, ``comment geovox affine ...`` on a reference
@@ -125,7 +128,8 @@ class PlyWriter(SlabWriter):
         if meta.dtype("density") is not None:
             fields.append(("density", "u1" if meta.dtype("density") == np.uint8 else "<f4"))
         if meta.dtype("sdf") is not None:
-            fields.append(("sdf", "<f4"))
+            # With a distance the band's voxels are points too: which are occupied.
+            fields += [("sdf", "<f4"), ("occupied", "u1")]
         return np.dtype(fields)
 
     def _centres_per_axis(self, meta):
@@ -146,8 +150,12 @@ class PlyWriter(SlabWriter):
     def write(self, z0: int, vol) -> None:
         """Append the occupied voxels of ``vol`` (the next slab in z: layers z0 .. z0 + its depth)."""
         self._in_order(z0)
+        from .base import point_voxels
+
         nx, ny, nz = vol.occupancy.shape
-        flat = vol.occupancy.reshape(-1, order="F")  # x fastest: the file's order
+        # x fastest: the file's order; with a distance, the band's voxels too.
+        flat = point_voxels(vol) if "sdf" in self.dtype.names else \
+            vol.occupancy.reshape(-1, order="F")
         for start in range(0, flat.size, CHUNK_POINTS * 8):
             idx = np.flatnonzero(flat[start:start + CHUNK_POINTS * 8]) + start
             if len(idx):
@@ -195,7 +203,8 @@ class PlyWriter(SlabWriter):
             rgba = vol.colors.reshape(-1, 4, order="F")[idx] if vol.colors.flags.f_contiguous \
                 else vol.colors[i, j, k]
             out["red"], out["green"], out["blue"], out["alpha"] = rgba.T
-        for name, field in (("labels", "label"), ("density", "density"), ("sdf", "sdf")):
+        for name, field in (("labels", "label"), ("density", "density"), ("sdf", "sdf"),
+                            ("occupancy", "occupied")):
             if field in self.dtype.names:
                 out[field] = getattr(vol, name).reshape(-1, order="F")[idx]
         return out
@@ -239,6 +248,12 @@ class PlyWriter(SlabWriter):
             lines.append(f"comment geovox affine {' '.join(repr(float(v)) for v in a.reshape(-1))}")
         if meta.label_table:
             lines.append(f"comment geovox label_table {json.dumps(meta.label_table)}")
+        if meta.dtype("sdf") is not None:
+            from .base import level_set_background
+
+            if meta.band is not None and np.isfinite(meta.band):
+                lines.append(f"comment geovox sdf_background "
+                             f"{float(level_set_background(meta))!r}")
         lines.append(f"element vertex {self.count}")
         names = {"<f4": "float", "<f8": "double", "u1": "uchar", "<i4": "int"}
         for name in self.dtype.names:
@@ -341,7 +356,7 @@ def read_ply(path):
     ijk = np.rint(np.linalg.solve(axes, (xyz - origin).T).T).astype(np.int64)
     occ = np.zeros(shape, dtype=bool, order="F")
     i, j, k = ijk.T
-    occ[i, j, k] = True
+    occ[i, j, k] = data["occupied"] != 0 if "occupied" in dtype.names else True
     extra = {}
     if "red" in dtype.names:
         colors = np.zeros((shape[2], shape[1], shape[0], 4), np.uint8).transpose(2, 1, 0, 3)
@@ -349,8 +364,11 @@ def read_ply(path):
         extra["colors"] = colors
     for name, field in (("labels", "label"), ("density", "density"), ("sdf", "sdf")):
         if field in dtype.names:
-            arr = np.zeros(shape, dtype=np.uint16 if field == "label" else data[field].dtype,
-                           order="F")
+            # Voxels left out of a distance are beyond its band: the background.
+            fill = float(info["sdf_background"]) if field == "sdf" and "sdf_background" in info \
+                else 0
+            arr = np.full(shape, fill, dtype=np.uint16 if field == "label" else data[field].dtype,
+                          order="F")
             arr[i, j, k] = data[field]
             extra[name] = arr
     if "label_table" in info:

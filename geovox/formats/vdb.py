@@ -41,6 +41,7 @@ import zlib
 import numpy as np
 
 from ..errors import ParameterError
+from .base import level_set_background
 
 MAGIC = 0x56444220
 FILE_VERSION = 224
@@ -435,19 +436,6 @@ def _specs(meta, sdf_background=1.0) -> list:
                             active=lambda r, bg=bg: np.abs(r) < bg, background=bg, pad=bg,
                             grid_class="level set"), "sdf"))
     return specs
-
-
-def level_set_background(meta, sdf=None):
-    """The level set's background: the band's clamped distance, ``band * min(spacing)``.
-
-    Known before any voxel is made (so a slab writer pads with it) where the
-    band is finite; otherwise (``band = inf``, or a volume that does not say)
-    the largest distance of ``sdf``, 1 for an empty one.
-    """
-    band = getattr(meta, "band", None)
-    if band is not None and np.isfinite(band):
-        return np.float32(band * float(np.min(meta.spacing)))
-    return np.float32(np.abs(sdf).max()) if sdf is not None and sdf.size else np.float32(1.0)
 
 
 def _grids(volume) -> list:
