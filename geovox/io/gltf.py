@@ -34,7 +34,11 @@ A required extension geovox cannot read is one line naming it; anything that
 breaks the format's own rules (a byte range past its buffer, an index past
 its vertices, a node that is its own ancestor) is a file "damaged" in one
 line; a size past :func:`geovox.io.limits.input_limit` is refused before it
-is allocated.
+is allocated. Instancing (``EXT_mesh_gpu_instancing``, a mesh that several
+nodes use) is not held to that ratio of the file's size: what the scene's
+copies will take is counted from the JSON before anything is decoded or
+placed, and refused only past :func:`geovox.io.limits.scene_limit` (the
+memory available).
 """
 
 from __future__ import annotations
@@ -53,7 +57,7 @@ from .kinds import kind
 from .names import unique_name
 from .references import data_uri, instead, locate, why_not_read
 
-__all__ = ["read_gltf", "Document", "Damaged", "read_primitive", "instances", "transform_points", "strip_faces", "fan_faces", "unit_colours", "colours_or_white", "face_features", "unique_name", "READ",
+__all__ = ["read_gltf", "Document", "Damaged", "read_primitive", "instances", "placements", "transform_points", "strip_faces", "fan_faces", "unit_colours", "colours_or_white", "face_features", "unique_name", "READ",
            "NOT_GEOMETRY", "COMPONENTS"]
 
 #: glTF component types: NumPy dtype (little-endian).
@@ -247,6 +251,8 @@ class Document:
         self.stored = len(data)  # with the buffer files it reads
         self.cap = limit.of(self.stored)
         self.spent = 0
+        self.scene_cap = limit.scene()  # what placed copies may take: memory, not file size
+        self.placed = 0
         self.problems: list = []
         self.refused: list = []  # (uri, line) of references not read
         self._buffers, self._views, self._accessors = {}, {}, {}
@@ -278,6 +284,12 @@ class Document:
         self.spent += nbytes
         if self.spent > self.cap:
             raise self.limit.refuse(self.path, what, self.spent, self.cap)
+
+    def place(self, nbytes: float, what: str) -> None:
+        """Count ``nbytes`` of placed copies about to be built; refuse past :attr:`scene_cap`."""
+        self.placed += nbytes
+        if self.scene_cap is not None and self.placed > self.scene_cap:
+            raise self.limit.refuse_scene(self.path, what, self.placed, self.scene_cap)
 
     def _check_required(self) -> None:
         required = self.header.get("extensionsRequired", [])
@@ -756,14 +768,10 @@ def instances(doc: Document) -> list:
     world = next((i for i, name in names.items() if name == "world"), None)
     if world is not None:  # trimesh's base frame is "world": a node of that name is renamed
         names[world] = unique_name("world", set(names.values()))
-    scenes = doc.listed("scenes")
-    if not scenes:
+    roots = _roots(doc, nodes)
+    if roots is None:
         # No scene: every mesh once where it stands (trimesh reads nothing).
         return [(None, None, k, np.eye(4)) for k in range(len(doc.listed("meshes")))]
-    scene = doc.item("scenes", doc.header.get("scene", 0), "the file's scene")
-    roots = scene.get("nodes", [])
-    if not isinstance(roots, list) or not all(_is_int(r) and 0 <= r < len(nodes) for r in roots):
-        raise doc.damaged("the scene names nodes that do not exist")
     out, stack = [], [(np.eye(4), r) for r in roots]
     while stack:
         parent, b = stack.pop()
@@ -772,10 +780,97 @@ def instances(doc: Document) -> list:
         world = local if parent is None else _product(parent, local)
         stack.extend((world, c) for c in _children(doc, nodes, b))
         if "mesh" in node:
-            placed = _instancing(doc, node, b, world)
-            doc.spend(64 * len(placed), "the scene's instances")
-            out.extend((b, names[b], node["mesh"], matrix) for matrix in placed)
+            out.extend((b, names[b], node["mesh"], matrix)
+                       for matrix in _instancing(doc, node, b, world))
     return out
+
+
+def _roots(doc: Document, nodes: list):
+    """The scene's root nodes, or None for a file without scenes."""
+    if not doc.listed("scenes"):
+        return None
+    scene = doc.item("scenes", doc.header.get("scene", 0), "the file's scene")
+    roots = scene.get("nodes", [])
+    if not isinstance(roots, list) or not all(_is_int(r) and 0 <= r < len(nodes) for r in roots):
+        raise doc.damaged("the scene names nodes that do not exist")
+    return roots
+
+
+def _own_copies(doc: Document, node: dict, b: int) -> int:
+    """How many copies of its mesh a node places: its ``EXT_mesh_gpu_instancing`` count, or 1."""
+    ext = (node.get("extensions") or {}).get("EXT_mesh_gpu_instancing") \
+        if isinstance(node.get("extensions"), dict) else None
+    attrs = ext.get("attributes") if isinstance(ext, dict) else None
+    if not isinstance(attrs, dict) or not attrs:
+        return 1
+    counts = [doc.item("accessors", attrs[k], f"node {b}'s instance {k}").get("count")
+              for k in ("TRANSLATION", "ROTATION", "SCALE") if k in attrs]
+    # the accessors' own checks (and _instancing's) say what is wrong with a bad count
+    return max((c for c in counts if _is_int(c) and c > 0), default=0)
+
+
+def placements(doc: Document) -> tuple:
+    """What the scene places, from its JSON alone, before anything is decoded or placed.
+
+    A node's mesh is placed once for each path from a root to the node
+    (glTF allows one; a file with a node under two parents gets as many,
+    as :func:`instances` walks it) times its ``EXT_mesh_gpu_instancing``
+    count. Counted per node in topological order, never by walking the
+    copies, so a file claiming a billion copies is counted as fast as one
+    claiming two.
+
+    Returns
+    -------
+    meshes : list of int
+        The meshes placed, in the order :func:`instances` first reaches them.
+    copies : dict
+        ``{mesh: copies placed}`` (Python ints: a claim may be astronomic).
+    """
+    nodes = doc.listed("nodes")
+    _check_acyclic(doc, nodes)
+    roots = _roots(doc, nodes)
+    if roots is None:
+        return list(range(len(doc.listed("meshes")))), dict.fromkeys(
+            range(len(doc.listed("meshes"))), 1)
+    # The walk of instances() with each node entered once: the first time it
+    # reaches a node, it goes through all that node's subtree before going
+    # on, so this gives the same first-reached order of meshes.
+    seen, meshes, found, stack = set(), [], set(), list(roots)
+    parents = {}  # node -> how many times it is listed as a child of a reachable node
+    while stack:
+        b = stack.pop()
+        if b in seen:
+            continue
+        seen.add(b)
+        node = nodes[b] if isinstance(nodes[b], dict) else {}
+        kids = _children(doc, nodes, b)
+        for c in kids:
+            parents[c] = parents.get(c, 0) + 1
+        stack.extend(kids)
+        if "mesh" in node:
+            mesh = node["mesh"]
+            doc.item("meshes", mesh, f"node {b}")
+            if mesh not in found:
+                found.add(mesh)
+                meshes.append(mesh)
+    # Times each node is reached, parents before children (Kahn's order).
+    reached = dict.fromkeys(seen, 0)
+    for r in roots:
+        reached[r] += 1
+    waiting = dict(parents)
+    ready = [b for b in seen if not waiting.get(b)]
+    copies = dict.fromkeys(meshes, 0)
+    while ready:
+        b = ready.pop()
+        node = nodes[b] if isinstance(nodes[b], dict) else {}
+        for c in _children(doc, nodes, b):
+            reached[c] += reached[b]
+            waiting[c] -= 1
+            if not waiting[c]:
+                ready.append(c)
+        if "mesh" in node:
+            copies[node["mesh"]] += reached[b] * _own_copies(doc, node, b)
+    return meshes, copies
 
 
 def _product(parent: np.ndarray, local: np.ndarray) -> np.ndarray:
@@ -799,7 +894,6 @@ def _instancing(doc: Document, node: dict, b: int, world: np.ndarray) -> list:
     if len(counts) != 1:
         raise doc.damaged(f"node {b}'s instance attributes have different counts")
     n = counts.pop()
-    doc.spend(128 * n, f"node {b}'s {n:,} instances")
     out = []
     for k in range(n):
         m = np.eye(4)
@@ -869,23 +963,49 @@ def read_gltf(path: str, *, rule: str = "anywhere", limit: limits.Limit = limits
         for j in range(len(prims)):
             geometry[k, j] = unique_name(own, taken, counts)
             taken.add(geometry[k, j])
-    read, parts = {}, []
+    # Each primitive is decoded once (the file-size rule bounds that); its
+    # copies are counted against memory before one is placed (the scene rule).
+    placed, copies = placements(doc)
+    read = {}
+    for mesh in placed:
+        for j, prim in enumerate(meshes[mesh]["primitives"]):
+            if not isinstance(prim, dict):
+                raise doc.damaged(f"mesh {mesh} primitive {j} is not an object")
+            read[mesh, j] = read_primitive(doc, prim, f"mesh {mesh} primitive {j}", materials)
+    need = sum(n * (_PER_COPY + sum(_copy_size(read[mesh, j])
+                                    for j in range(len(meshes[mesh]["primitives"]))))
+               for mesh, n in copies.items())
+    total = sum(copies.values())
+    doc.place(need, f"its scene's {total:,} mesh {'copy' if total == 1 else 'copies'}")
+    parts = []
     for node, node_name, mesh, matrix in instances(doc):
-        m = doc.item("meshes", mesh, f"node {node}")
-        for j, prim in enumerate(m["primitives"]):
-            if (mesh, j) not in read:
-                if not isinstance(prim, dict):
-                    raise doc.damaged(f"mesh {mesh} primitive {j} is not an object")
-                read[mesh, j] = read_primitive(doc, prim, f"mesh {mesh} primitive {j}",
-                                               materials)
-            p = read[mesh, j]
+        for j in range(len(meshes[mesh]["primitives"])):
             name = geometry[mesh, j]
             label = (name if node_name is None or node_name == name
                      else f"{node_name} ({name})")
-            parts.append((p, matrix, label))
-            if p.kind == "triangles":
-                doc.spend(48 * len(p.positions) + 24 * len(p.faces), "the scene's triangles")
+            parts.append((read[mesh, j], matrix, label))
     return _assemble(doc, parts, materials)
+
+
+#: Bytes :func:`_assemble` keeps for each placed copy of a primitive, per vertex
+#: (its positions, and build_mesh's finite check) and per face (its vertex
+#: indices, material and part); corner texture coordinates, vertex colours and
+#: feature IDs add theirs where the primitive has them (:func:`_copy_size`).
+#: tracemalloc's peak while reading a scene of copies stays within this
+#: (tests/test_gltf_reader.py).
+_PER_VERTEX, _PER_FACE = 28, 40
+#: Bytes of one copy's transform, its entry in the scene and its part's label.
+_PER_COPY = 512
+
+
+def _copy_size(p: Primitive) -> int:
+    """Bytes one more placed copy of primitive ``p`` takes in the Mesh (see :func:`_assemble`)."""
+    if p.kind != "triangles":
+        return 0
+    n, m = len(p.positions), len(p.faces)
+    return (n * (_PER_VERTEX + (24 if p.colours is not None else 0))
+            + m * (_PER_FACE + (48 if p.uv is not None else 0)
+                   + (8 if p.features is not None else 0)))
 
 
 def _no_faces(doc: Document, parts: list) -> str:
@@ -907,37 +1027,54 @@ def _no_faces(doc: Document, parts: list) -> str:
 
 
 def _assemble(doc: Document, parts: list, materials):
-    """One Mesh of the instances, as :func:`geovox.io.adaptor.from_trimesh` made it."""
+    """One Mesh of the instances, as :func:`geovox.io.adaptor.from_trimesh` made it.
+
+    Each array is allocated once at its full size and every copy is written
+    into it: a scene of many copies then takes its size once, not twice (a
+    list of pieces and their concatenation), and no texture coordinates are
+    made for a scene without any.
+    """
     solid = [(p, m, label) for p, m, label in parts if p.kind == "triangles" and len(p.faces)]
     if not solid:
         raise MeshError(_no_faces(doc, parts))
-    verts, faces, fms, uvs, vcs, offset = [], [], [], [], [], 0
-    have_uv = False
+    vsizes = [len(p.positions) for p, _, _ in solid]
+    sizes = [len(p.faces) for p, _, _ in solid]
+    vstart = np.concatenate([[0], np.cumsum(vsizes)])
+    fstart = np.concatenate([[0], np.cumsum(sizes)])
+    index = [materials.index(p.material, p.colours is not None) for p, _, _ in solid]
+    have_uv = any(p.uv is not None and i is not None for (p, _, _), i in zip(solid, index))
     any_feature = any(p.features is not None for p, _, _ in solid)
-    for p, matrix, _ in solid:
+    verts = np.empty((vstart[-1], 3))
+    faces = np.empty((fstart[-1], 3), dtype=np.int64)
+    fm = np.empty(fstart[-1], dtype=np.int64)
+    uvs = np.full((fstart[-1], 3, 2), np.nan) if have_uv else None
+    features = np.full(fstart[-1], -1, np.int64) if any_feature else None
+    vcs = []
+    for k, (p, matrix, _) in enumerate(solid):
         f = p.faces
         if np.linalg.det(matrix[:3, :3]) < 0:
-            f = np.ascontiguousarray(f[:, ::-1])  # a mirror turns the faces inside out
-        verts.append(transform_points(p.positions, matrix))
-        faces.append(f + offset)
-        offset += len(p.positions)
-        index = materials.index(p.material, p.colours is not None)
-        fms.append(np.full(len(f), -1 if index is None else index, dtype=np.int64))
-        uv = p.uv[f] if p.uv is not None and index is not None else None
-        uvs.append(uv if uv is not None else np.full((len(f), 3, 2), np.nan))
-        have_uv |= uv is not None
+            f = f[:, ::-1]  # a mirror turns the faces inside out
+        v0, f0, f1 = vstart[k], fstart[k], fstart[k + 1]
+        verts[v0:vstart[k + 1]] = transform_points(p.positions, matrix)
+        np.add(f, v0, out=faces[f0:f1])
+        fm[f0:f1] = -1 if index[k] is None else index[k]
+        if have_uv and p.uv is not None and index[k] is not None:
+            uvs[f0:f1] = p.uv[f]
+        if any_feature and p.features is not None:
+            features[f0:f1] = p.features
         vcs.append(unit_colours(p.colours, len(p.positions), doc.problems)
-                   if index is not None else None)
-    vertex_colors = colours_or_white(vcs, [len(v) for v in verts], fms, materials.plain)
-    sizes = [len(f) for f in faces]
+                   if index[k] is not None else None)
+    fms = [fm[fstart[k]:fstart[k + 1]] for k in range(len(solid))]
+    vertex_colors = colours_or_white(vcs, vsizes, fms, materials.plain)
+    for k, piece in enumerate(fms):  # colours_or_white replaces the pieces it changes
+        if piece.base is not fm:
+            fm[fstart[k]:fstart[k + 1]] = piece
     labels = [label for _, _, label in solid]
     problems = materials.problems() + doc.problems + [line for _, line in doc.refused]
     return build_mesh(
-        np.concatenate(verts), np.concatenate(faces), doc.path,
-        face_material=np.concatenate(fms), materials=materials.made,
-        corner_uv=np.concatenate(uvs) if have_uv else None, vertex_colors=vertex_colors,
+        verts, faces, doc.path,
+        face_material=fm, materials=materials.made,
+        corner_uv=uvs, vertex_colors=vertex_colors,
         face_part=np.repeat(np.arange(len(sizes), dtype=np.int64), sizes), parts=labels,
         problems=[f"{doc.path}: {p}" for p in dict.fromkeys(problems)],
-        face_feature=np.concatenate([
-            p.features if p.features is not None else np.full(len(p.faces), -1, np.int64)
-            for p, _, _ in solid]) if any_feature else None)
+        face_feature=features)
