@@ -364,10 +364,12 @@ def test_an_instanced_forest_converts_as_its_copies_flattened_by_hand(tmp_path):
 
 
 def test_what_a_scene_of_copies_takes_is_what_is_counted(tmp_path):
-    # The scene rule counts 28 bytes a vertex, 40 a face and 512 a copy (geovox.io.gltf's
-    # _PER_VERTEX, _PER_FACE, _PER_COPY): the peak while reading stays within that and the
-    # decoded buffers. The reader before issue 41 took about three times as much.
+    # The scene rule counts PER_VERTEX bytes a vertex, PER_FACE a face and PER_COPY a copy:
+    # the peak while reading stays within that and the decoded buffers. The reader before
+    # issue 41 took about three times as much.
     import tracemalloc
+
+    from geovox.io.gltf_scene import PER_COPY, PER_FACE, PER_VERTEX
 
     b, placed = _forest(rows=20)
     path = b.write(tmp_path / "forest.glb")
@@ -377,7 +379,7 @@ def test_what_a_scene_of_copies_takes_is_what_is_counted(tmp_path):
         peak = tracemalloc.get_traced_memory()[1]
     finally:
         tracemalloc.stop()
-    counted = 28 * len(mesh.vertices) + 40 * len(mesh.faces) + 512 * len(placed)
+    counted = PER_VERTEX * len(mesh.vertices) + PER_FACE * len(mesh.faces) + PER_COPY * len(placed)
     assert peak <= counted + 10 * __import__("os").path.getsize(path)
 
 

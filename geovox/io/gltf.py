@@ -53,11 +53,12 @@ import numpy as np
 from ..errors import MeshError
 from ..mesh import build_mesh
 from . import limits
+from .gltf_scene import PER_COPY, copy_size, instances, is_int, placements, transform_points
 from .kinds import kind
 from .names import unique_name
 from .references import data_uri, instead, locate, why_not_read
 
-__all__ = ["read_gltf", "Document", "Damaged", "read_primitive", "instances", "placements", "transform_points", "strip_faces", "fan_faces", "unit_colours", "colours_or_white", "face_features", "unique_name", "READ",
+__all__ = ["read_gltf", "Document", "Damaged", "read_primitive", "strip_faces", "fan_faces", "unit_colours", "colours_or_white", "face_features", "unique_name", "READ",
            "NOT_GEOMETRY", "COMPONENTS"]
 
 #: glTF component types: NumPy dtype (little-endian).
@@ -225,10 +226,6 @@ def _container(path: str, data: bytes):
     return header, binary
 
 
-def _is_int(x) -> bool:
-    return isinstance(x, int) and not isinstance(x, bool)
-
-
 class Document:
     """A parsed glTF file: its JSON, and its buffers, views and accessors read on demand.
 
@@ -269,7 +266,7 @@ class Document:
 
     def item(self, key: str, index, what: str) -> dict:
         items = self.listed(key)
-        if not _is_int(index) or not 0 <= index < len(items) or not isinstance(items[index],
+        if not is_int(index) or not 0 <= index < len(items) or not isinstance(items[index],
                                                                                 dict):
             raise self.damaged(f"{what} names {key[:-1]} {index!r}, which does not exist "
                                f"({len(items)} in the file)")
@@ -346,7 +343,7 @@ class Document:
         else:
             data = memoryview(self.file(uri))
         length = entry.get("byteLength")
-        if not _is_int(length) or length < 0:
+        if not is_int(length) or length < 0:
             raise self.damaged(f"buffer {i} has no byteLength")
         if len(data) < length:
             raise self.damaged(f"buffer {i} says it holds {length:,} bytes, but "
@@ -368,7 +365,7 @@ class Document:
         if i in self._views:
             return self._views[i]
         stride = bv.get("byteStride")
-        if stride is not None and (not _is_int(stride) or stride <= 0):
+        if stride is not None and (not is_int(stride) or stride <= 0):
             raise self.damaged(f"buffer view {i} has byteStride {stride!r}")
         ext = bv.get("extensions") if isinstance(bv.get("extensions"), dict) else {}
         packed = next((ext[k] for k in _MESHOPT if isinstance(ext.get(k), dict)), None)
@@ -384,7 +381,7 @@ class Document:
 
     def _slice(self, buffer, offset, length, what: str) -> memoryview:
         data = self.buffer(buffer)
-        if not (_is_int(offset) and _is_int(length) and offset >= 0 and length >= 0):
+        if not (is_int(offset) and is_int(length) and offset >= 0 and length >= 0):
             raise self.damaged(f"{what} has no byte range (byteOffset {offset!r}, byteLength "
                                f"{length!r})")
         if offset + length > len(data):
@@ -400,7 +397,7 @@ class Document:
             return None  # the fallback buffer, or buffer() says what to install
         count, size = packed.get("count"), packed.get("byteStride")
         mode, filt = packed.get("mode"), packed.get("filter", "NONE")
-        if not (_is_int(count) and _is_int(size) and count > 0 and size > 0) or mode not in (
+        if not (is_int(count) and is_int(size) and count > 0 and size > 0) or mode not in (
                 "ATTRIBUTES", "TRIANGLES", "INDICES") or filt not in (
                 "NONE", "OCTAHEDRAL", "QUATERNION", "EXPONENTIAL", "COLOR"):
             raise self.damaged(f"buffer view {i}'s meshopt compression has count {count!r}, "
@@ -423,11 +420,11 @@ class Document:
         acc = self.item("accessors", i, what)
         if i in self._accessors:
             return self._accessors[i]
-        dtype = COMPONENTS.get(acc.get("componentType")) if _is_int(acc.get("componentType")) \
+        dtype = COMPONENTS.get(acc.get("componentType")) if is_int(acc.get("componentType")) \
             else None
         width = _WIDTH.get(acc.get("type")) if isinstance(acc.get("type"), str) else None
         count = acc.get("count")
-        if dtype is None or width is None or not _is_int(count) or count < 0:
+        if dtype is None or width is None or not is_int(count) or count < 0:
             raise self.damaged(f"accessor {i} has componentType {acc.get('componentType')!r}, "
                                f"type {acc.get('type')!r} and count {count!r}")
         size = dtype.itemsize * width
@@ -439,7 +436,7 @@ class Document:
             data, stride = self.view(view)
             stride = stride or size
             offset = acc.get("byteOffset", 0)
-            if not _is_int(offset) or offset < 0:
+            if not is_int(offset) or offset < 0:
                 raise self.damaged(f"accessor {i} has byteOffset {offset!r}")
             end = offset + (count - 1) * stride + size if count else offset
             if end > len(data):
@@ -463,8 +460,8 @@ class Document:
     def _sparse(self, i, sparse: dict, out: np.ndarray, count: int) -> np.ndarray:
         k = sparse.get("count")
         idx, val = sparse.get("indices"), sparse.get("values")
-        if not (_is_int(k) and 0 < k <= count and isinstance(idx, dict) and isinstance(val, dict)
-                and _is_int(idx.get("componentType")) and idx["componentType"] in _INDEX_TYPES):
+        if not (is_int(k) and 0 < k <= count and isinstance(idx, dict) and isinstance(val, dict)
+                and is_int(idx.get("componentType")) and idx["componentType"] in _INDEX_TYPES):
             raise self.damaged(f"accessor {i} has a sparse part that does not add up")
         itype = COMPONENTS[idx["componentType"]]
         where = self._packed(idx, k, itype, 1, f"accessor {i}'s sparse indices")
@@ -480,7 +477,7 @@ class Document:
         data, _ = self.view(part.get("bufferView"))
         offset = part.get("byteOffset", 0)
         n = k * dtype.itemsize * width
-        if not _is_int(offset) or offset < 0 or offset + n > len(data):
+        if not is_int(offset) or offset < 0 or offset + n > len(data):
             raise self.damaged(f"{what} run past their buffer view")
         return np.frombuffer(data, dtype, count=k * width, offset=offset).reshape(k, width)
 
@@ -504,7 +501,7 @@ def _draco(doc: Document, prim: dict, where: str) -> dict:
         raise doc.damaged(f"{where}'s Draco extension names no attributes")
     data, _ = doc.view(ext.get("bufferView"))
     count = doc.item("accessors", prim["attributes"].get("POSITION"), where).get("count")
-    if _is_int(count):
+    if is_int(count):
         doc.spend(count * 64, f"{where} (Draco, {count:,} vertices)")
     try:
         import DracoPy
@@ -517,7 +514,7 @@ def _draco(doc: Document, prim: dict, where: str) -> dict:
     except Exception as exc:  # DracoPy raises its own and RuntimeError types
         raise doc.damaged(f"{where}'s Draco data does not decode ({type(exc).__name__})") \
             from None
-    names = {ident: name for name, ident in ext["attributes"].items() if _is_int(ident)}
+    names = {ident: name for name, ident in ext["attributes"].items() if is_int(ident)}
     out = {}
     for attr in getattr(decoded, "attributes", []):
         name = names.get(attr.get("unique_id"))
@@ -540,7 +537,7 @@ def read_primitive(doc: Document, prim: dict, where: str, materials) -> Primitiv
     if not isinstance(attrs, dict) or "POSITION" not in attrs:
         raise doc.damaged(f"{where} has no POSITION attribute")
     mode = prim.get("mode", _TRIANGLES)
-    if not _is_int(mode) or mode not in range(7):
+    if not is_int(mode) or mode not in range(7):
         raise doc.damaged(f"{where} has mode {mode!r}")
     ext = prim.get("extensions") if isinstance(prim.get("extensions"), dict) else {}
     decoded = _draco(doc, prim, where) if "KHR_draco_mesh_compression" in ext else {}
@@ -567,7 +564,7 @@ def read_primitive(doc: Document, prim: dict, where: str, materials) -> Primitiv
         index = decoded["indices"].reshape(-1)
     elif prim.get("indices") is not None:
         acc = doc.item("accessors", prim["indices"], where)
-        if not _is_int(acc.get("componentType")) or acc["componentType"] not in _INDEX_TYPES \
+        if not is_int(acc.get("componentType")) or acc["componentType"] not in _INDEX_TYPES \
                 or acc.get("type") != "SCALAR":
             raise doc.damaged(f"{where}'s indices are not unsigned integers")
         index = doc.accessor(prim["indices"], f"{where}'s indices").reshape(-1)
@@ -650,7 +647,7 @@ def face_features(doc: Document, spec, faces: np.ndarray, n: int, attribute, whe
     first = sets[0]
     if "attribute" in first:
         k = first["attribute"]
-        ids = attribute(f"_FEATURE_ID_{k}") if _is_int(k) else None
+        ids = attribute(f"_FEATURE_ID_{k}") if is_int(k) else None
         if ids is None:
             raise doc.damaged(f"{where}'s feature IDs name attribute {k!r}, which it does not have")
         if ids.shape[1] != 1 or len(ids) != n:
@@ -669,251 +666,10 @@ def face_features(doc: Document, spec, faces: np.ndarray, n: int, attribute, whe
         vertex = np.arange(n, dtype=np.int64)
     out = vertex[faces[:, 0]]
     null = first.get("nullFeatureId")
-    if _is_int(null):
+    if is_int(null):
         out[out == null] = -1
     out[out < 0] = -1
     return out
-
-
-# --------------------------------------------------------------------- the scene
-
-
-def _local(node: dict, where: str, doc: Document) -> np.ndarray:
-    """(4, 4) float64: a node's own transform, ``matrix`` x T x R x S as trimesh composes it."""
-    matrix = np.eye(4)
-    if "matrix" in node:
-        m = _floats(node["matrix"], 16, where + "'s matrix", doc)
-        matrix = m.reshape(4, 4).T
-    if "translation" in node:
-        t = np.eye(4)
-        t[:3, 3] = _floats(node["translation"], 3, where + "'s translation", doc)
-        matrix = matrix @ t
-    if "rotation" in node:
-        matrix = matrix @ _quaternion(_floats(node["rotation"], 4, where + "'s rotation", doc))
-    if "scale" in node:
-        matrix = matrix @ np.diag(np.append(_floats(node["scale"], 3, where + "'s scale", doc),
-                                            1.0))
-    return matrix
-
-
-def _floats(value, n: int, what: str, doc: Document) -> np.ndarray:
-    if (not isinstance(value, list) or len(value) != n
-            or not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in value)):
-        raise doc.damaged(f"{what} is not {n} numbers")
-    out = np.asarray(value, dtype=np.float64)
-    if not np.isfinite(out).all():
-        raise doc.damaged(f"{what} is not finite")
-    return out
-
-
-def _quaternion(xyzw: np.ndarray) -> np.ndarray:
-    """(4, 4): trimesh's ``quaternion_matrix`` of glTF's (x, y, z, w), the same arithmetic."""
-    q = xyzw[[3, 0, 1, 2]].astype(np.float64)
-    n = float(np.dot(q, q))
-    if n < np.finfo(float).eps * 4.0:
-        return np.eye(4)
-    q = q * np.sqrt(2.0 / n)
-    q = np.outer(q, q)
-    return np.array([
-        [1.0 - q[2, 2] - q[3, 3], q[1, 2] - q[3, 0], q[1, 3] + q[2, 0], 0.0],
-        [q[1, 2] + q[3, 0], 1.0 - q[1, 1] - q[3, 3], q[2, 3] - q[1, 0], 0.0],
-        [q[1, 3] - q[2, 0], q[2, 3] + q[1, 0], 1.0 - q[1, 1] - q[2, 2], 0.0],
-        [0.0, 0.0, 0.0, 1.0]])
-
-
-def _check_acyclic(doc: Document, nodes: list) -> None:
-    """Refuse a node graph with a cycle (a node its own ancestor)."""
-    state = [0] * len(nodes)  # 0 new, 1 on the path, 2 done
-    for start in range(len(nodes)):
-        if state[start]:
-            continue
-        stack = [(start, iter(_children(doc, nodes, start)))]
-        state[start] = 1
-        while stack:
-            node, todo = stack[-1]
-            child = next(todo, None)
-            if child is None:
-                state[node] = 2
-                stack.pop()
-            elif state[child] == 1:
-                raise doc.damaged(f"node {child} is its own ancestor (the node graph has a "
-                                  f"cycle)")
-            elif state[child] == 0:
-                state[child] = 1
-                stack.append((child, iter(_children(doc, nodes, child))))
-
-
-def _children(doc: Document, nodes: list, i: int) -> list:
-    node = nodes[i] if isinstance(nodes[i], dict) else {}
-    kids = node.get("children", [])
-    if not isinstance(kids, list) or not all(_is_int(k) and 0 <= k < len(nodes) for k in kids):
-        raise doc.damaged(f"node {i}'s children name nodes that do not exist")
-    return kids
-
-
-def instances(doc: Document) -> list:
-    """``[(node index, node name, mesh index, (4, 4) world matrix)]`` in trimesh's scene order.
-
-    trimesh walks the scene with a stack: the roots pushed in order and
-    popped from the end, each node's children pushed in order after it.
-    ``EXT_mesh_gpu_instancing`` gives a node one matrix per instance.
-    """
-    nodes = doc.listed("nodes")
-    _check_acyclic(doc, nodes)
-    names, counts = {}, {}
-    for i, n in enumerate(nodes):
-        own = n.get("name") if isinstance(n, dict) and isinstance(n.get("name"), str) else str(i)
-        names[unique_name(own, names, counts)] = i
-    names = {i: name for name, i in names.items()}
-    world = next((i for i, name in names.items() if name == "world"), None)
-    if world is not None:  # trimesh's base frame is "world": a node of that name is renamed
-        names[world] = unique_name("world", set(names.values()))
-    roots = _roots(doc, nodes)
-    if roots is None:
-        # No scene: every mesh once where it stands (trimesh reads nothing).
-        return [(None, None, k, np.eye(4)) for k in range(len(doc.listed("meshes")))]
-    out, stack = [], [(np.eye(4), r) for r in roots]
-    while stack:
-        parent, b = stack.pop()
-        node = nodes[b] if isinstance(nodes[b], dict) else {}
-        local = _local(node, f"node {b}", doc)
-        world = local if parent is None else _product(parent, local)
-        stack.extend((world, c) for c in _children(doc, nodes, b))
-        if "mesh" in node:
-            out.extend((b, names[b], node["mesh"], matrix)
-                       for matrix in _instancing(doc, node, b, world))
-    return out
-
-
-def _roots(doc: Document, nodes: list):
-    """The scene's root nodes, or None for a file without scenes."""
-    if not doc.listed("scenes"):
-        return None
-    scene = doc.item("scenes", doc.header.get("scene", 0), "the file's scene")
-    roots = scene.get("nodes", [])
-    if not isinstance(roots, list) or not all(_is_int(r) and 0 <= r < len(nodes) for r in roots):
-        raise doc.damaged("the scene names nodes that do not exist")
-    return roots
-
-
-def _own_copies(doc: Document, node: dict, b: int) -> int:
-    """How many copies of its mesh a node places: its ``EXT_mesh_gpu_instancing`` count, or 1."""
-    ext = (node.get("extensions") or {}).get("EXT_mesh_gpu_instancing") \
-        if isinstance(node.get("extensions"), dict) else None
-    attrs = ext.get("attributes") if isinstance(ext, dict) else None
-    if not isinstance(attrs, dict) or not attrs:
-        return 1
-    counts = [doc.item("accessors", attrs[k], f"node {b}'s instance {k}").get("count")
-              for k in ("TRANSLATION", "ROTATION", "SCALE") if k in attrs]
-    # the accessors' own checks (and _instancing's) say what is wrong with a bad count
-    return max((c for c in counts if _is_int(c) and c > 0), default=0)
-
-
-def placements(doc: Document) -> tuple:
-    """What the scene places, from its JSON alone, before anything is decoded or placed.
-
-    A node's mesh is placed once for each path from a root to the node
-    (glTF allows one; a file with a node under two parents gets as many,
-    as :func:`instances` walks it) times its ``EXT_mesh_gpu_instancing``
-    count. Counted per node in topological order, never by walking the
-    copies, so a file claiming a billion copies is counted as fast as one
-    claiming two.
-
-    Returns
-    -------
-    meshes : list of int
-        The meshes placed, in the order :func:`instances` first reaches them.
-    copies : dict
-        ``{mesh: copies placed}`` (Python ints: a claim may be astronomic).
-    """
-    nodes = doc.listed("nodes")
-    _check_acyclic(doc, nodes)
-    roots = _roots(doc, nodes)
-    if roots is None:
-        return list(range(len(doc.listed("meshes")))), dict.fromkeys(
-            range(len(doc.listed("meshes"))), 1)
-    # The walk of instances() with each node entered once: the first time it
-    # reaches a node, it goes through all that node's subtree before going
-    # on, so this gives the same first-reached order of meshes.
-    seen, meshes, found, stack = set(), [], set(), list(roots)
-    parents = {}  # node -> how many times it is listed as a child of a reachable node
-    while stack:
-        b = stack.pop()
-        if b in seen:
-            continue
-        seen.add(b)
-        node = nodes[b] if isinstance(nodes[b], dict) else {}
-        kids = _children(doc, nodes, b)
-        for c in kids:
-            parents[c] = parents.get(c, 0) + 1
-        stack.extend(kids)
-        if "mesh" in node:
-            mesh = node["mesh"]
-            doc.item("meshes", mesh, f"node {b}")
-            if mesh not in found:
-                found.add(mesh)
-                meshes.append(mesh)
-    # Times each node is reached, parents before children (Kahn's order).
-    reached = dict.fromkeys(seen, 0)
-    for r in roots:
-        reached[r] += 1
-    waiting = dict(parents)
-    ready = [b for b in seen if not waiting.get(b)]
-    copies = dict.fromkeys(meshes, 0)
-    while ready:
-        b = ready.pop()
-        node = nodes[b] if isinstance(nodes[b], dict) else {}
-        for c in _children(doc, nodes, b):
-            reached[c] += reached[b]
-            waiting[c] -= 1
-            if not waiting[c]:
-                ready.append(c)
-        if "mesh" in node:
-            copies[node["mesh"]] += reached[b] * _own_copies(doc, node, b)
-    return meshes, copies
-
-
-def _product(parent: np.ndarray, local: np.ndarray) -> np.ndarray:
-    # trimesh leaves identities out of its products: the same rounding.
-    if np.abs(local - np.eye(4)).max() <= 1e-8:
-        return parent
-    if np.abs(parent - np.eye(4)).max() <= 1e-8:
-        return local
-    return parent @ local
-
-
-def _instancing(doc: Document, node: dict, b: int, world: np.ndarray) -> list:
-    ext = (node.get("extensions") or {}).get("EXT_mesh_gpu_instancing") \
-        if isinstance(node.get("extensions"), dict) else None
-    attrs = ext.get("attributes") if isinstance(ext, dict) else None
-    if not isinstance(attrs, dict) or not attrs:
-        return [world]
-    got = {k: doc.accessor(attrs[k], f"node {b}'s instance {k}").astype(np.float64)
-           for k in ("TRANSLATION", "ROTATION", "SCALE") if k in attrs}
-    counts = {len(a) for a in got.values()}
-    if len(counts) != 1:
-        raise doc.damaged(f"node {b}'s instance attributes have different counts")
-    n = counts.pop()
-    out = []
-    for k in range(n):
-        m = np.eye(4)
-        if "TRANSLATION" in got:
-            m[:3, 3] = got["TRANSLATION"][k, :3]
-        if "ROTATION" in got:
-            m = m @ _quaternion(got["ROTATION"][k, :4])
-        if "SCALE" in got:
-            m = m @ np.diag(np.append(got["SCALE"][k, :3], 1.0))
-        out.append(world @ m)
-    return out
-
-
-def transform_points(points: np.ndarray, matrix: np.ndarray) -> np.ndarray:
-    """trimesh's ``transform_points``: the same arithmetic, so the same coordinates."""
-    if np.abs(matrix - np.eye(4)).max() < 1e-8:
-        return points
-    stack = np.column_stack((points, np.ones(len(points))))
-    with np.errstate(invalid="ignore", over="ignore"):  # build_mesh names the NaN vertices
-        return np.dot(matrix, stack.T).T[:, :3]
 
 
 # --------------------------------------------------------------------- the file
@@ -972,8 +728,8 @@ def read_gltf(path: str, *, rule: str = "anywhere", limit: limits.Limit = limits
             if not isinstance(prim, dict):
                 raise doc.damaged(f"mesh {mesh} primitive {j} is not an object")
             read[mesh, j] = read_primitive(doc, prim, f"mesh {mesh} primitive {j}", materials)
-    need = sum(n * (_PER_COPY + sum(_copy_size(read[mesh, j])
-                                    for j in range(len(meshes[mesh]["primitives"]))))
+    need = sum(n * (PER_COPY + sum(copy_size(read[mesh, j])
+                                   for j in range(len(meshes[mesh]["primitives"]))))
                for mesh, n in copies.items())
     total = sum(copies.values())
     doc.place(need, f"its scene's {total:,} mesh {'copy' if total == 1 else 'copies'}")
@@ -985,27 +741,6 @@ def read_gltf(path: str, *, rule: str = "anywhere", limit: limits.Limit = limits
                      else f"{node_name} ({name})")
             parts.append((read[mesh, j], matrix, label))
     return _assemble(doc, parts, materials)
-
-
-#: Bytes :func:`_assemble` keeps for each placed copy of a primitive, per vertex
-#: (its positions, and build_mesh's finite check) and per face (its vertex
-#: indices, material and part); corner texture coordinates, vertex colours and
-#: feature IDs add theirs where the primitive has them (:func:`_copy_size`).
-#: tracemalloc's peak while reading a scene of copies stays within this
-#: (tests/test_gltf_reader.py).
-_PER_VERTEX, _PER_FACE = 28, 40
-#: Bytes of one copy's transform, its entry in the scene and its part's label.
-_PER_COPY = 512
-
-
-def _copy_size(p: Primitive) -> int:
-    """Bytes one more placed copy of primitive ``p`` takes in the Mesh (see :func:`_assemble`)."""
-    if p.kind != "triangles":
-        return 0
-    n, m = len(p.positions), len(p.faces)
-    return (n * (_PER_VERTEX + (24 if p.colours is not None else 0))
-            + m * (_PER_FACE + (48 if p.uv is not None else 0)
-                   + (8 if p.features is not None else 0)))
 
 
 def _no_faces(doc: Document, parts: list) -> str:
