@@ -156,9 +156,10 @@ def voxelize(
     max_input_size : int, optional
         The most bytes the model file may hold once read or inflated (an
         archive's members together, a glTF's decoded buffers, the file
-        itself); default 100 times the file's size (at least 64 MiB), at
-        most half the available memory. A file past it is refused in one line
-        before the memory is spent (see :mod:`geovox.io.limits`).
+        itself, a glTF's instanced copies); default 100 times the file's size
+        (at least 64 MiB), at most half the available memory, and for
+        instanced copies half the available memory. A file past it is refused
+        in one line before the memory is spent (see :mod:`geovox.io.limits`).
     progress : callable, optional
         ``progress(event)`` with a :class:`geovox.volume.Progress` as each
         stage starts (``event.stage``: "load", "rays", "colour", "density",

@@ -3,7 +3,10 @@ small meshes built to hit the edge cases of column ray casting."""
 
 from __future__ import annotations
 
+import contextlib
+import gc
 import os
+import time
 
 import numpy as np
 import pytest
@@ -29,6 +32,34 @@ def backend(request):
     test_conformance.py: sized for a software GPU, so it can run on all of them.
     """
     return request.param
+
+
+@contextlib.contextmanager
+def dask_client(*, set_as_default=False, **cluster_options):
+    """A Client of a LocalCluster started here, and everything closed before it returns.
+
+    Closing a LocalCluster removes its workers and then stops its event loop
+    within a few milliseconds. The scheduler tells the cluster of each worker
+    removed through a stream that batches for 5 ms; when that batch's timer
+    fires just before the loop stops, the timer's future holds a
+    ``TimeoutError('Timeout')`` nobody reads, and asyncio prints "Future
+    exception was never retrieved" when it is collected: at interpreter
+    exit, after pytest's summary (issue 41). So the workers go first and the
+    loop runs on until that stream is quiet; the cluster then closes with
+    nothing in flight, and what it leaves is collected here, while pytest
+    still captures the test's output.
+    """
+    import distributed
+
+    with distributed.LocalCluster(**cluster_options) as cluster:
+        with distributed.Client(cluster, set_as_default=set_as_default) as client:
+            yield client
+        cluster.scale(0)
+        deadline = time.monotonic() + 30
+        while cluster.scheduler_info.get("workers") and time.monotonic() < deadline:
+            time.sleep(0.01)
+        time.sleep(0.1)  # twenty of the status stream's 5 ms batches: its last timer has fired
+    gc.collect()
 
 
 def corpus(*parts):

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import pytest
 
-from conftest import ROOT, SPOT, corpus
+from conftest import ROOT, SPOT, corpus, dask_client
 
 distributed = pytest.importorskip("distributed")
 fsspec = pytest.importorskip("fsspec")
@@ -33,9 +33,8 @@ RES = 12
 
 @pytest.fixture(scope="module")
 def client():
-    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=False,
-                                  dashboard_address=":0") as cluster, \
-            distributed.Client(cluster, set_as_default=False) as c:
+    with dask_client(n_workers=2, threads_per_worker=1, processes=False,
+                     dashboard_address=":0") as c:
         yield c
 
 

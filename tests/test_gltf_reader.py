@@ -292,6 +292,137 @@ def test_assimps_recursive_nodes_are_refused():
         geovox.load_mesh(corpus("assimp", "RecursiveNodes.gltf"))
 
 
+# ----------------------------------------------------------------------------- instancing
+
+
+ROWS = 36  # 36 x 36 spheres: past what the file-size rule allowed, a 60 kB file
+
+
+def _forest(rows=ROWS):
+    """A forest and its copies placed by hand: ``(Builder, [(vertices, faces)])``.
+
+    A sphere stored once as a triangle soup (960 vertices, 320 faces) placed
+    ``rows`` x ``rows`` times by one node's ``EXT_mesh_gpu_instancing``
+    (translation, rotation, scale, all three), under a parent node that
+    moves it; and a box that 40 nodes share. The copies are made here with
+    trimesh's transformations from the values as the file stores them (float32)."""
+    sphere = trimesh.creation.icosphere(subdivisions=2)
+    soup = np.asarray(sphere.vertices)[np.asarray(sphere.faces).reshape(-1)].astype("f4")
+    b = Builder()
+    b.mesh({"POSITION": b.accessor(soup)})
+    rng = np.random.default_rng(41)
+    i, j = np.meshgrid(np.arange(rows), np.arange(rows), indexing="ij")
+    t = np.stack([2.5 * i.ravel(), 2.5 * j.ravel(), np.zeros(rows * rows)], axis=1).astype("f4")
+    q = rng.normal(size=(rows * rows, 4))
+    q = (q / np.linalg.norm(q, axis=1)[:, None]).astype("f4")
+    s = rng.uniform(0.5, 1.0, (rows * rows, 3)).astype("f4")
+    b.h["nodes"][0]["extensions"] = {"EXT_mesh_gpu_instancing": {"attributes": {
+        "TRANSLATION": b.accessor(t), "ROTATION": b.accessor(q), "SCALE": b.accessor(s)}}}
+    b.h["extensionsUsed"] = ["EXT_mesh_gpu_instancing"]
+    b.h["nodes"].append({"children": [0], "translation": [0.3, 0.2, 1.1]})
+    b.h["scenes"][0]["nodes"] = [1]
+    parent = trimesh.transformations.translation_matrix([0.3, 0.2, 1.1])
+    placed = []
+    for k in range(rows * rows):
+        m = (parent @ trimesh.transformations.translation_matrix(t[k].astype(float))
+             @ trimesh.transformations.quaternion_matrix(q[k, [3, 0, 1, 2]].astype(float))
+             @ np.diag(np.append(s[k].astype(float), 1.0)))
+        placed.append((trimesh.transform_points(soup.astype(float), m),
+                       np.arange(len(soup)).reshape(-1, 3)))
+    v, f = _box((-0.4, -0.4, -0.4), (0.4, 0.4, 0.4))
+    b.h["meshes"].append({"primitives": [{
+        "attributes": {"POSITION": b.accessor(v.astype("f4"))},
+        "indices": b.accessor(f.reshape(-1).astype("u4"))}]})
+    for k in range(40):
+        b.h["nodes"].append({"mesh": 1, "translation": [2.2 * k, -2.0, 1.1]})
+        b.h["scenes"][0]["nodes"].append(len(b.h["nodes"]) - 1)
+        placed.append((v + [2.2 * k, -2.0, 1.1], f))
+    return b, placed
+
+
+def test_an_instanced_forest_converts_as_its_copies_flattened_by_hand(tmp_path):
+    from geovox.io import limits
+
+    b, placed = _forest()
+    path = b.write(tmp_path / "forest.glb")
+    size = __import__("os").path.getsize(path)
+    mesh = geovox.load_mesh(path)
+    assert len(mesh.faces) == sum(len(f) for _, f in placed) == ROWS * ROWS * 320 + 40 * 12
+    assert len(mesh.parts) == len(placed)
+    # the rule before issue 41 counted 48 bytes a vertex and 24 a face against the file's
+    # limit (100 times its size, at least 64 MiB), and refused this 60 kB file
+    assert 48 * len(mesh.vertices) + 24 * len(mesh.faces) > limits.input_limit(size)
+    flat = trimesh.util.concatenate([trimesh.Trimesh(v, f, process=False) for v, f in placed])
+    flat.export(tmp_path / "flat.ply")
+    by_hand = geovox.load_mesh(str(tmp_path / "flat.ply"))
+    np.testing.assert_allclose(np.sort(mesh.triangles.reshape(-1, 9), axis=0),
+                               np.sort(by_hand.triangles.reshape(-1, 9), axis=0), atol=1e-9)
+    bounds = tuple(mesh.bounds[0] - 0.1) + tuple(mesh.bounds[1] + 0.1)
+    occ = volume(path, bounds, resolution=64)
+    assert occ.sum() > 0.05 * occ.size
+    np.testing.assert_array_equal(occ, volume(str(tmp_path / "flat.ply"), bounds, resolution=64))
+
+
+def test_what_a_scene_of_copies_takes_is_what_is_counted(tmp_path):
+    # The scene rule counts PER_VERTEX bytes a vertex, PER_FACE a face and PER_COPY a copy:
+    # the peak while reading stays within that and the decoded buffers. The reader before
+    # issue 41 took about three times as much.
+    import tracemalloc
+
+    from geovox.io.gltf_scene import PER_COPY, PER_FACE, PER_VERTEX
+
+    b, placed = _forest(rows=20)
+    path = b.write(tmp_path / "forest.glb")
+    tracemalloc.start()
+    try:
+        mesh = geovox.load_mesh(path)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    counted = PER_VERTEX * len(mesh.vertices) + PER_FACE * len(mesh.faces) + PER_COPY * len(placed)
+    assert peak <= counted + 10 * __import__("os").path.getsize(path)
+
+
+def test_a_scene_of_copies_is_held_to_memory_and_max_input_size(tmp_path, monkeypatch):
+    from geovox.io import limits
+
+    path = _forest()[0].write(tmp_path / "forest.glb")
+    with pytest.raises(MeshError, match=r"forest\.glb: its scene's 1,336 mesh copies would take "
+                                        r"5\d\.\d MB, more than 10\.0 MB \(max_input_size"):
+        geovox.load_mesh(path, max_input_size=10**7)
+    monkeypatch.setattr(limits, "available_memory", lambda: 80 * 10**6)
+    with pytest.raises(MeshError, match=r"more than 40\.0 MB \(50% of the memory available now; "
+                                        r"--max-input-size sets it\); not read"):
+        geovox.load_mesh(path)
+
+
+def test_a_billion_copies_are_refused_before_they_are_placed(tmp_path, capsys):
+    import time
+
+    b = Builder()
+    b.box()
+    b.h["nodes"][0]["extensions"] = {"EXT_mesh_gpu_instancing": {"attributes": {
+        "TRANSLATION": b.accessor(np.zeros((1, 3), "f4"), view=False, count=10**9)}}}
+    billion = b.write(tmp_path / "billion.glb")
+    # and nodes that share a child (glTF allows one parent; geovox reads it as two
+    # paths): 2**30 paths from the root to one box, in a file of 31 nodes
+    b = Builder()
+    b.box()
+    b.h["nodes"] = [{"children": [k + 1, k + 1]} for k in range(30)] + [{"mesh": 0}]
+    b.h["scenes"][0]["nodes"] = [0]
+    shared = b.write(tmp_path / "shared.gltf")
+    for path, copies in ((billion, "1,000,000,000"), (shared, "1,073,741,824")):
+        start = time.perf_counter()
+        with pytest.raises(MeshError, match=rf"its scene's {copies} mesh copies would take "
+                                            rf".* more than .*; not read"):
+            geovox.load_mesh(path)
+        assert time.perf_counter() - start < 5.0  # counted, not walked (a walk takes hours)
+        assert main(["convert", path, "-o", str(tmp_path / "v.raw")]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and "Traceback" not in err and copies in err
+        assert not (tmp_path / "v.raw").exists()
+
+
 # ----------------------------------------------------------------------------- compression
 
 

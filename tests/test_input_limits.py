@@ -46,6 +46,23 @@ def test_zip_bomb_is_refused_in_one_line_without_inflating(tmp_path, capsys):
     assert not os.path.exists(tmp_path / "v.raw")
 
 
+def test_a_ply_header_claiming_two_billion_vertices_is_one_line(tmp_path, capsys):
+    # a count the bytes do not hold is refused before anything is allocated (issue 41
+    # moved instanced copies off the file-size rule; claimed counts stay on it)
+    path = tmp_path / "claims.ply"
+    path.write_bytes(b"ply\nformat binary_little_endian 1.0\nelement vertex 2000000000\n"
+                     b"property float x\nproperty float y\nproperty float z\nelement face 1\n"
+                     b"property list uchar int vertex_indices\nend_header\n" + bytes(64))
+    start = time.perf_counter()
+    with pytest.raises(MeshError, match=r"claims\.ply: the PLY header announces 2,000,000,000 "
+                                        r"vertex, 1 face, but .* cut short"):
+        geovox.load_mesh(str(path))
+    assert time.perf_counter() - start < 1.0
+    assert main(["convert", str(path), "-o", str(tmp_path / "v.raw")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "Traceback" not in err
+
+
 def test_zipped_formats_are_checked_too(tmp_path):
     # a 3MF is a zip: the same limit, before its reader opens it
     path = _zeros_zip(tmp_path / "bomb.3mf", name="3D/3dmodel.model")

@@ -27,6 +27,7 @@ from geovox import labels as L
 from geovox.mesh import Mesh
 from geovox.planner import Route
 
+from conftest import dask_client
 from test_labels import assembly
 
 GEARS = os.path.join(os.path.dirname(__file__), "data", "assimp", "cube_gears_prod_req.3mf")
@@ -282,15 +283,14 @@ def test_cli_jobs_2_streams_labels(tmp_path, capsys, monkeypatch):
 
 
 def test_dask_cluster_slab_tasks_give_the_same_bytes(tmp_path):
-    distributed = pytest.importorskip("distributed")
+    pytest.importorskip("distributed")
     m = assembly(open_part=True)
     kw = dict(shape=(37, 26, 300), labels="part", overlap="smallest", fractions=True,
               supersample=2)
     ref = quiet(geovox.voxelize, m, **kw)
     local = quiet(geovox.convert_to, m, tmp_path / "local.zarr", slab=64, **kw)
-    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=False,
-                                  dashboard_address=None) as cluster, \
-            distributed.Client(cluster) as client:
+    with dask_client(set_as_default=True, n_workers=2, threads_per_worker=1, processes=False,
+                     dashboard_address=None) as client:
         report = quiet(geovox.convert_to, m, tmp_path / "cluster.zarr", client=client, slab=64,
                        **kw)
         results = quiet(geovox.convert_many, [GEARS], tmp_path / "many", client=client,

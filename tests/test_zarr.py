@@ -20,7 +20,7 @@ from geovox.errors import ParameterError  # noqa: E402
 from geovox.formats import zarr as Z  # noqa: E402
 from geovox.api import convert_to  # noqa: E402
 
-from conftest import SPOT  # noqa: E402
+from conftest import SPOT, dask_client  # noqa: E402
 
 # Distinct sizes catch an axis mix-up; 150 layers make 3 slabs of 64 or 2 of 128.
 OPTS = dict(shape=(40, 36, 150), color=True, density="coverage", supersample=2, sdf=True, band=1.0)
@@ -40,9 +40,8 @@ def small_top():
 def client():
     # Workers are threads of this process; TCP so that the CLI can reach the
     # scheduler by its address as it would a remote one.
-    with distributed.LocalCluster(n_workers=2, processes=False, threads_per_worker=1,
-                                  protocol="tcp", dashboard_address=":0") as cluster, \
-            distributed.Client(cluster) as c:
+    with dask_client(set_as_default=True, n_workers=2, processes=False, threads_per_worker=1,
+                     protocol="tcp", dashboard_address=":0") as c:
         yield c
 
 

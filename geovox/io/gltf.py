@@ -34,7 +34,11 @@ A required extension geovox cannot read is one line naming it; anything that
 breaks the format's own rules (a byte range past its buffer, an index past
 its vertices, a node that is its own ancestor) is a file "damaged" in one
 line; a size past :func:`geovox.io.limits.input_limit` is refused before it
-is allocated.
+is allocated. Instancing (``EXT_mesh_gpu_instancing``, a mesh that several
+nodes use) is not held to that ratio of the file's size: what the scene's
+copies will take is counted from the JSON before anything is decoded or
+placed, and refused only past :func:`geovox.io.limits.scene_limit` (the
+memory available).
 """
 
 from __future__ import annotations
@@ -49,11 +53,12 @@ import numpy as np
 from ..errors import MeshError
 from ..mesh import build_mesh
 from . import limits
+from .gltf_scene import PER_COPY, copy_size, instances, is_int, placements, transform_points
 from .kinds import kind
 from .names import unique_name
 from .references import data_uri, instead, locate, why_not_read
 
-__all__ = ["read_gltf", "Document", "Damaged", "read_primitive", "instances", "transform_points", "strip_faces", "fan_faces", "unit_colours", "colours_or_white", "face_features", "unique_name", "READ",
+__all__ = ["read_gltf", "Document", "Damaged", "read_primitive", "strip_faces", "fan_faces", "unit_colours", "colours_or_white", "face_features", "unique_name", "READ",
            "NOT_GEOMETRY", "COMPONENTS"]
 
 #: glTF component types: NumPy dtype (little-endian).
@@ -221,10 +226,6 @@ def _container(path: str, data: bytes):
     return header, binary
 
 
-def _is_int(x) -> bool:
-    return isinstance(x, int) and not isinstance(x, bool)
-
-
 class Document:
     """A parsed glTF file: its JSON, and its buffers, views and accessors read on demand.
 
@@ -247,6 +248,8 @@ class Document:
         self.stored = len(data)  # with the buffer files it reads
         self.cap = limit.of(self.stored)
         self.spent = 0
+        self.scene_cap = limit.scene()  # what placed copies may take: memory, not file size
+        self.placed = 0
         self.problems: list = []
         self.refused: list = []  # (uri, line) of references not read
         self._buffers, self._views, self._accessors = {}, {}, {}
@@ -263,7 +266,7 @@ class Document:
 
     def item(self, key: str, index, what: str) -> dict:
         items = self.listed(key)
-        if not _is_int(index) or not 0 <= index < len(items) or not isinstance(items[index],
+        if not is_int(index) or not 0 <= index < len(items) or not isinstance(items[index],
                                                                                 dict):
             raise self.damaged(f"{what} names {key[:-1]} {index!r}, which does not exist "
                                f"({len(items)} in the file)")
@@ -278,6 +281,12 @@ class Document:
         self.spent += nbytes
         if self.spent > self.cap:
             raise self.limit.refuse(self.path, what, self.spent, self.cap)
+
+    def place(self, nbytes: float, what: str) -> None:
+        """Count ``nbytes`` of placed copies about to be built; refuse past :attr:`scene_cap`."""
+        self.placed += nbytes
+        if self.scene_cap is not None and self.placed > self.scene_cap:
+            raise self.limit.refuse_scene(self.path, what, self.placed, self.scene_cap)
 
     def _check_required(self) -> None:
         required = self.header.get("extensionsRequired", [])
@@ -334,7 +343,7 @@ class Document:
         else:
             data = memoryview(self.file(uri))
         length = entry.get("byteLength")
-        if not _is_int(length) or length < 0:
+        if not is_int(length) or length < 0:
             raise self.damaged(f"buffer {i} has no byteLength")
         if len(data) < length:
             raise self.damaged(f"buffer {i} says it holds {length:,} bytes, but "
@@ -356,7 +365,7 @@ class Document:
         if i in self._views:
             return self._views[i]
         stride = bv.get("byteStride")
-        if stride is not None and (not _is_int(stride) or stride <= 0):
+        if stride is not None and (not is_int(stride) or stride <= 0):
             raise self.damaged(f"buffer view {i} has byteStride {stride!r}")
         ext = bv.get("extensions") if isinstance(bv.get("extensions"), dict) else {}
         packed = next((ext[k] for k in _MESHOPT if isinstance(ext.get(k), dict)), None)
@@ -372,7 +381,7 @@ class Document:
 
     def _slice(self, buffer, offset, length, what: str) -> memoryview:
         data = self.buffer(buffer)
-        if not (_is_int(offset) and _is_int(length) and offset >= 0 and length >= 0):
+        if not (is_int(offset) and is_int(length) and offset >= 0 and length >= 0):
             raise self.damaged(f"{what} has no byte range (byteOffset {offset!r}, byteLength "
                                f"{length!r})")
         if offset + length > len(data):
@@ -388,7 +397,7 @@ class Document:
             return None  # the fallback buffer, or buffer() says what to install
         count, size = packed.get("count"), packed.get("byteStride")
         mode, filt = packed.get("mode"), packed.get("filter", "NONE")
-        if not (_is_int(count) and _is_int(size) and count > 0 and size > 0) or mode not in (
+        if not (is_int(count) and is_int(size) and count > 0 and size > 0) or mode not in (
                 "ATTRIBUTES", "TRIANGLES", "INDICES") or filt not in (
                 "NONE", "OCTAHEDRAL", "QUATERNION", "EXPONENTIAL", "COLOR"):
             raise self.damaged(f"buffer view {i}'s meshopt compression has count {count!r}, "
@@ -411,11 +420,11 @@ class Document:
         acc = self.item("accessors", i, what)
         if i in self._accessors:
             return self._accessors[i]
-        dtype = COMPONENTS.get(acc.get("componentType")) if _is_int(acc.get("componentType")) \
+        dtype = COMPONENTS.get(acc.get("componentType")) if is_int(acc.get("componentType")) \
             else None
         width = _WIDTH.get(acc.get("type")) if isinstance(acc.get("type"), str) else None
         count = acc.get("count")
-        if dtype is None or width is None or not _is_int(count) or count < 0:
+        if dtype is None or width is None or not is_int(count) or count < 0:
             raise self.damaged(f"accessor {i} has componentType {acc.get('componentType')!r}, "
                                f"type {acc.get('type')!r} and count {count!r}")
         size = dtype.itemsize * width
@@ -427,7 +436,7 @@ class Document:
             data, stride = self.view(view)
             stride = stride or size
             offset = acc.get("byteOffset", 0)
-            if not _is_int(offset) or offset < 0:
+            if not is_int(offset) or offset < 0:
                 raise self.damaged(f"accessor {i} has byteOffset {offset!r}")
             end = offset + (count - 1) * stride + size if count else offset
             if end > len(data):
@@ -451,8 +460,8 @@ class Document:
     def _sparse(self, i, sparse: dict, out: np.ndarray, count: int) -> np.ndarray:
         k = sparse.get("count")
         idx, val = sparse.get("indices"), sparse.get("values")
-        if not (_is_int(k) and 0 < k <= count and isinstance(idx, dict) and isinstance(val, dict)
-                and _is_int(idx.get("componentType")) and idx["componentType"] in _INDEX_TYPES):
+        if not (is_int(k) and 0 < k <= count and isinstance(idx, dict) and isinstance(val, dict)
+                and is_int(idx.get("componentType")) and idx["componentType"] in _INDEX_TYPES):
             raise self.damaged(f"accessor {i} has a sparse part that does not add up")
         itype = COMPONENTS[idx["componentType"]]
         where = self._packed(idx, k, itype, 1, f"accessor {i}'s sparse indices")
@@ -468,7 +477,7 @@ class Document:
         data, _ = self.view(part.get("bufferView"))
         offset = part.get("byteOffset", 0)
         n = k * dtype.itemsize * width
-        if not _is_int(offset) or offset < 0 or offset + n > len(data):
+        if not is_int(offset) or offset < 0 or offset + n > len(data):
             raise self.damaged(f"{what} run past their buffer view")
         return np.frombuffer(data, dtype, count=k * width, offset=offset).reshape(k, width)
 
@@ -492,7 +501,7 @@ def _draco(doc: Document, prim: dict, where: str) -> dict:
         raise doc.damaged(f"{where}'s Draco extension names no attributes")
     data, _ = doc.view(ext.get("bufferView"))
     count = doc.item("accessors", prim["attributes"].get("POSITION"), where).get("count")
-    if _is_int(count):
+    if is_int(count):
         doc.spend(count * 64, f"{where} (Draco, {count:,} vertices)")
     try:
         import DracoPy
@@ -505,7 +514,7 @@ def _draco(doc: Document, prim: dict, where: str) -> dict:
     except Exception as exc:  # DracoPy raises its own and RuntimeError types
         raise doc.damaged(f"{where}'s Draco data does not decode ({type(exc).__name__})") \
             from None
-    names = {ident: name for name, ident in ext["attributes"].items() if _is_int(ident)}
+    names = {ident: name for name, ident in ext["attributes"].items() if is_int(ident)}
     out = {}
     for attr in getattr(decoded, "attributes", []):
         name = names.get(attr.get("unique_id"))
@@ -528,7 +537,7 @@ def read_primitive(doc: Document, prim: dict, where: str, materials) -> Primitiv
     if not isinstance(attrs, dict) or "POSITION" not in attrs:
         raise doc.damaged(f"{where} has no POSITION attribute")
     mode = prim.get("mode", _TRIANGLES)
-    if not _is_int(mode) or mode not in range(7):
+    if not is_int(mode) or mode not in range(7):
         raise doc.damaged(f"{where} has mode {mode!r}")
     ext = prim.get("extensions") if isinstance(prim.get("extensions"), dict) else {}
     decoded = _draco(doc, prim, where) if "KHR_draco_mesh_compression" in ext else {}
@@ -555,7 +564,7 @@ def read_primitive(doc: Document, prim: dict, where: str, materials) -> Primitiv
         index = decoded["indices"].reshape(-1)
     elif prim.get("indices") is not None:
         acc = doc.item("accessors", prim["indices"], where)
-        if not _is_int(acc.get("componentType")) or acc["componentType"] not in _INDEX_TYPES \
+        if not is_int(acc.get("componentType")) or acc["componentType"] not in _INDEX_TYPES \
                 or acc.get("type") != "SCALAR":
             raise doc.damaged(f"{where}'s indices are not unsigned integers")
         index = doc.accessor(prim["indices"], f"{where}'s indices").reshape(-1)
@@ -638,7 +647,7 @@ def face_features(doc: Document, spec, faces: np.ndarray, n: int, attribute, whe
     first = sets[0]
     if "attribute" in first:
         k = first["attribute"]
-        ids = attribute(f"_FEATURE_ID_{k}") if _is_int(k) else None
+        ids = attribute(f"_FEATURE_ID_{k}") if is_int(k) else None
         if ids is None:
             raise doc.damaged(f"{where}'s feature IDs name attribute {k!r}, which it does not have")
         if ids.shape[1] != 1 or len(ids) != n:
@@ -657,169 +666,10 @@ def face_features(doc: Document, spec, faces: np.ndarray, n: int, attribute, whe
         vertex = np.arange(n, dtype=np.int64)
     out = vertex[faces[:, 0]]
     null = first.get("nullFeatureId")
-    if _is_int(null):
+    if is_int(null):
         out[out == null] = -1
     out[out < 0] = -1
     return out
-
-
-# --------------------------------------------------------------------- the scene
-
-
-def _local(node: dict, where: str, doc: Document) -> np.ndarray:
-    """(4, 4) float64: a node's own transform, ``matrix`` x T x R x S as trimesh composes it."""
-    matrix = np.eye(4)
-    if "matrix" in node:
-        m = _floats(node["matrix"], 16, where + "'s matrix", doc)
-        matrix = m.reshape(4, 4).T
-    if "translation" in node:
-        t = np.eye(4)
-        t[:3, 3] = _floats(node["translation"], 3, where + "'s translation", doc)
-        matrix = matrix @ t
-    if "rotation" in node:
-        matrix = matrix @ _quaternion(_floats(node["rotation"], 4, where + "'s rotation", doc))
-    if "scale" in node:
-        matrix = matrix @ np.diag(np.append(_floats(node["scale"], 3, where + "'s scale", doc),
-                                            1.0))
-    return matrix
-
-
-def _floats(value, n: int, what: str, doc: Document) -> np.ndarray:
-    if (not isinstance(value, list) or len(value) != n
-            or not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in value)):
-        raise doc.damaged(f"{what} is not {n} numbers")
-    out = np.asarray(value, dtype=np.float64)
-    if not np.isfinite(out).all():
-        raise doc.damaged(f"{what} is not finite")
-    return out
-
-
-def _quaternion(xyzw: np.ndarray) -> np.ndarray:
-    """(4, 4): trimesh's ``quaternion_matrix`` of glTF's (x, y, z, w), the same arithmetic."""
-    q = xyzw[[3, 0, 1, 2]].astype(np.float64)
-    n = float(np.dot(q, q))
-    if n < np.finfo(float).eps * 4.0:
-        return np.eye(4)
-    q = q * np.sqrt(2.0 / n)
-    q = np.outer(q, q)
-    return np.array([
-        [1.0 - q[2, 2] - q[3, 3], q[1, 2] - q[3, 0], q[1, 3] + q[2, 0], 0.0],
-        [q[1, 2] + q[3, 0], 1.0 - q[1, 1] - q[3, 3], q[2, 3] - q[1, 0], 0.0],
-        [q[1, 3] - q[2, 0], q[2, 3] + q[1, 0], 1.0 - q[1, 1] - q[2, 2], 0.0],
-        [0.0, 0.0, 0.0, 1.0]])
-
-
-def _check_acyclic(doc: Document, nodes: list) -> None:
-    """Refuse a node graph with a cycle (a node its own ancestor)."""
-    state = [0] * len(nodes)  # 0 new, 1 on the path, 2 done
-    for start in range(len(nodes)):
-        if state[start]:
-            continue
-        stack = [(start, iter(_children(doc, nodes, start)))]
-        state[start] = 1
-        while stack:
-            node, todo = stack[-1]
-            child = next(todo, None)
-            if child is None:
-                state[node] = 2
-                stack.pop()
-            elif state[child] == 1:
-                raise doc.damaged(f"node {child} is its own ancestor (the node graph has a "
-                                  f"cycle)")
-            elif state[child] == 0:
-                state[child] = 1
-                stack.append((child, iter(_children(doc, nodes, child))))
-
-
-def _children(doc: Document, nodes: list, i: int) -> list:
-    node = nodes[i] if isinstance(nodes[i], dict) else {}
-    kids = node.get("children", [])
-    if not isinstance(kids, list) or not all(_is_int(k) and 0 <= k < len(nodes) for k in kids):
-        raise doc.damaged(f"node {i}'s children name nodes that do not exist")
-    return kids
-
-
-def instances(doc: Document) -> list:
-    """``[(node index, node name, mesh index, (4, 4) world matrix)]`` in trimesh's scene order.
-
-    trimesh walks the scene with a stack: the roots pushed in order and
-    popped from the end, each node's children pushed in order after it.
-    ``EXT_mesh_gpu_instancing`` gives a node one matrix per instance.
-    """
-    nodes = doc.listed("nodes")
-    _check_acyclic(doc, nodes)
-    names, counts = {}, {}
-    for i, n in enumerate(nodes):
-        own = n.get("name") if isinstance(n, dict) and isinstance(n.get("name"), str) else str(i)
-        names[unique_name(own, names, counts)] = i
-    names = {i: name for name, i in names.items()}
-    world = next((i for i, name in names.items() if name == "world"), None)
-    if world is not None:  # trimesh's base frame is "world": a node of that name is renamed
-        names[world] = unique_name("world", set(names.values()))
-    scenes = doc.listed("scenes")
-    if not scenes:
-        # No scene: every mesh once where it stands (trimesh reads nothing).
-        return [(None, None, k, np.eye(4)) for k in range(len(doc.listed("meshes")))]
-    scene = doc.item("scenes", doc.header.get("scene", 0), "the file's scene")
-    roots = scene.get("nodes", [])
-    if not isinstance(roots, list) or not all(_is_int(r) and 0 <= r < len(nodes) for r in roots):
-        raise doc.damaged("the scene names nodes that do not exist")
-    out, stack = [], [(np.eye(4), r) for r in roots]
-    while stack:
-        parent, b = stack.pop()
-        node = nodes[b] if isinstance(nodes[b], dict) else {}
-        local = _local(node, f"node {b}", doc)
-        world = local if parent is None else _product(parent, local)
-        stack.extend((world, c) for c in _children(doc, nodes, b))
-        if "mesh" in node:
-            placed = _instancing(doc, node, b, world)
-            doc.spend(64 * len(placed), "the scene's instances")
-            out.extend((b, names[b], node["mesh"], matrix) for matrix in placed)
-    return out
-
-
-def _product(parent: np.ndarray, local: np.ndarray) -> np.ndarray:
-    # trimesh leaves identities out of its products: the same rounding.
-    if np.abs(local - np.eye(4)).max() <= 1e-8:
-        return parent
-    if np.abs(parent - np.eye(4)).max() <= 1e-8:
-        return local
-    return parent @ local
-
-
-def _instancing(doc: Document, node: dict, b: int, world: np.ndarray) -> list:
-    ext = (node.get("extensions") or {}).get("EXT_mesh_gpu_instancing") \
-        if isinstance(node.get("extensions"), dict) else None
-    attrs = ext.get("attributes") if isinstance(ext, dict) else None
-    if not isinstance(attrs, dict) or not attrs:
-        return [world]
-    got = {k: doc.accessor(attrs[k], f"node {b}'s instance {k}").astype(np.float64)
-           for k in ("TRANSLATION", "ROTATION", "SCALE") if k in attrs}
-    counts = {len(a) for a in got.values()}
-    if len(counts) != 1:
-        raise doc.damaged(f"node {b}'s instance attributes have different counts")
-    n = counts.pop()
-    doc.spend(128 * n, f"node {b}'s {n:,} instances")
-    out = []
-    for k in range(n):
-        m = np.eye(4)
-        if "TRANSLATION" in got:
-            m[:3, 3] = got["TRANSLATION"][k, :3]
-        if "ROTATION" in got:
-            m = m @ _quaternion(got["ROTATION"][k, :4])
-        if "SCALE" in got:
-            m = m @ np.diag(np.append(got["SCALE"][k, :3], 1.0))
-        out.append(world @ m)
-    return out
-
-
-def transform_points(points: np.ndarray, matrix: np.ndarray) -> np.ndarray:
-    """trimesh's ``transform_points``: the same arithmetic, so the same coordinates."""
-    if np.abs(matrix - np.eye(4)).max() < 1e-8:
-        return points
-    stack = np.column_stack((points, np.ones(len(points))))
-    with np.errstate(invalid="ignore", over="ignore"):  # build_mesh names the NaN vertices
-        return np.dot(matrix, stack.T).T[:, :3]
 
 
 # --------------------------------------------------------------------- the file
@@ -869,22 +719,27 @@ def read_gltf(path: str, *, rule: str = "anywhere", limit: limits.Limit = limits
         for j in range(len(prims)):
             geometry[k, j] = unique_name(own, taken, counts)
             taken.add(geometry[k, j])
-    read, parts = {}, []
+    # Each primitive is decoded once (the file-size rule bounds that); its
+    # copies are counted against memory before one is placed (the scene rule).
+    placed, copies = placements(doc)
+    read = {}
+    for mesh in placed:
+        for j, prim in enumerate(meshes[mesh]["primitives"]):
+            if not isinstance(prim, dict):
+                raise doc.damaged(f"mesh {mesh} primitive {j} is not an object")
+            read[mesh, j] = read_primitive(doc, prim, f"mesh {mesh} primitive {j}", materials)
+    need = sum(n * (PER_COPY + sum(copy_size(read[mesh, j])
+                                   for j in range(len(meshes[mesh]["primitives"]))))
+               for mesh, n in copies.items())
+    total = sum(copies.values())
+    doc.place(need, f"its scene's {total:,} mesh {'copy' if total == 1 else 'copies'}")
+    parts = []
     for node, node_name, mesh, matrix in instances(doc):
-        m = doc.item("meshes", mesh, f"node {node}")
-        for j, prim in enumerate(m["primitives"]):
-            if (mesh, j) not in read:
-                if not isinstance(prim, dict):
-                    raise doc.damaged(f"mesh {mesh} primitive {j} is not an object")
-                read[mesh, j] = read_primitive(doc, prim, f"mesh {mesh} primitive {j}",
-                                               materials)
-            p = read[mesh, j]
+        for j in range(len(meshes[mesh]["primitives"])):
             name = geometry[mesh, j]
             label = (name if node_name is None or node_name == name
                      else f"{node_name} ({name})")
-            parts.append((p, matrix, label))
-            if p.kind == "triangles":
-                doc.spend(48 * len(p.positions) + 24 * len(p.faces), "the scene's triangles")
+            parts.append((read[mesh, j], matrix, label))
     return _assemble(doc, parts, materials)
 
 
@@ -907,37 +762,54 @@ def _no_faces(doc: Document, parts: list) -> str:
 
 
 def _assemble(doc: Document, parts: list, materials):
-    """One Mesh of the instances, as :func:`geovox.io.adaptor.from_trimesh` made it."""
+    """One Mesh of the instances, as :func:`geovox.io.adaptor.from_trimesh` made it.
+
+    Each array is allocated once at its full size and every copy is written
+    into it: a scene of many copies then takes its size once, not twice (a
+    list of pieces and their concatenation), and no texture coordinates are
+    made for a scene without any.
+    """
     solid = [(p, m, label) for p, m, label in parts if p.kind == "triangles" and len(p.faces)]
     if not solid:
         raise MeshError(_no_faces(doc, parts))
-    verts, faces, fms, uvs, vcs, offset = [], [], [], [], [], 0
-    have_uv = False
+    vsizes = [len(p.positions) for p, _, _ in solid]
+    sizes = [len(p.faces) for p, _, _ in solid]
+    vstart = np.concatenate([[0], np.cumsum(vsizes)])
+    fstart = np.concatenate([[0], np.cumsum(sizes)])
+    index = [materials.index(p.material, p.colours is not None) for p, _, _ in solid]
+    have_uv = any(p.uv is not None and i is not None for (p, _, _), i in zip(solid, index))
     any_feature = any(p.features is not None for p, _, _ in solid)
-    for p, matrix, _ in solid:
+    verts = np.empty((vstart[-1], 3))
+    faces = np.empty((fstart[-1], 3), dtype=np.int64)
+    fm = np.empty(fstart[-1], dtype=np.int64)
+    uvs = np.full((fstart[-1], 3, 2), np.nan) if have_uv else None
+    features = np.full(fstart[-1], -1, np.int64) if any_feature else None
+    vcs = []
+    for k, (p, matrix, _) in enumerate(solid):
         f = p.faces
         if np.linalg.det(matrix[:3, :3]) < 0:
-            f = np.ascontiguousarray(f[:, ::-1])  # a mirror turns the faces inside out
-        verts.append(transform_points(p.positions, matrix))
-        faces.append(f + offset)
-        offset += len(p.positions)
-        index = materials.index(p.material, p.colours is not None)
-        fms.append(np.full(len(f), -1 if index is None else index, dtype=np.int64))
-        uv = p.uv[f] if p.uv is not None and index is not None else None
-        uvs.append(uv if uv is not None else np.full((len(f), 3, 2), np.nan))
-        have_uv |= uv is not None
+            f = f[:, ::-1]  # a mirror turns the faces inside out
+        v0, f0, f1 = vstart[k], fstart[k], fstart[k + 1]
+        verts[v0:vstart[k + 1]] = transform_points(p.positions, matrix)
+        np.add(f, v0, out=faces[f0:f1])
+        fm[f0:f1] = -1 if index[k] is None else index[k]
+        if have_uv and p.uv is not None and index[k] is not None:
+            uvs[f0:f1] = p.uv[f]
+        if any_feature and p.features is not None:
+            features[f0:f1] = p.features
         vcs.append(unit_colours(p.colours, len(p.positions), doc.problems)
-                   if index is not None else None)
-    vertex_colors = colours_or_white(vcs, [len(v) for v in verts], fms, materials.plain)
-    sizes = [len(f) for f in faces]
+                   if index[k] is not None else None)
+    fms = [fm[fstart[k]:fstart[k + 1]] for k in range(len(solid))]
+    vertex_colors = colours_or_white(vcs, vsizes, fms, materials.plain)
+    for k, piece in enumerate(fms):  # colours_or_white replaces the pieces it changes
+        if piece.base is not fm:
+            fm[fstart[k]:fstart[k + 1]] = piece
     labels = [label for _, _, label in solid]
     problems = materials.problems() + doc.problems + [line for _, line in doc.refused]
     return build_mesh(
-        np.concatenate(verts), np.concatenate(faces), doc.path,
-        face_material=np.concatenate(fms), materials=materials.made,
-        corner_uv=np.concatenate(uvs) if have_uv else None, vertex_colors=vertex_colors,
+        verts, faces, doc.path,
+        face_material=fm, materials=materials.made,
+        corner_uv=uvs, vertex_colors=vertex_colors,
         face_part=np.repeat(np.arange(len(sizes), dtype=np.int64), sizes), parts=labels,
         problems=[f"{doc.path}: {p}" for p in dict.fromkeys(problems)],
-        face_feature=np.concatenate([
-            p.features if p.features is not None else np.full(len(p.faces), -1, np.int64)
-            for p, _, _ in solid]) if any_feature else None)
+        face_feature=features)

@@ -13,6 +13,15 @@ The default limit is the smaller of
   ASCII formats 3-8:1), while zeros compress 1000:1; and
 * :data:`MEMORY_SHARE` of the memory available now.
 
+Instancing is another matter: a glTF node with ``EXT_mesh_gpu_instancing``,
+a mesh that many nodes share, a 3MF component placed many times. The file
+stores a part once and says where its copies go, so a forest of one tree
+placed ten thousand times is a small file of many triangles, not a bomb.
+What the placed copies take is counted before they are built, against
+:data:`MEMORY_SHARE` of the memory available (:func:`scene_limit`), not
+against the file's size; the bytes a reader decodes (accessors, compressed
+streams, counts a header claims) stay under the file-size rule.
+
 ``max_input_size`` (the option, ``--max-input-size`` on the command line)
 replaces both with a number of bytes, for a model that really is that
 compressible or a service that wants a tighter bound. Time and processor
@@ -22,12 +31,13 @@ docs/guide/input-formats.md).
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 
 from ..errors import MeshError
 from ..memory import available_memory
 
-__all__ = ["Limit", "RATIO", "FLOOR", "MEMORY_SHARE", "input_limit", "refuse",
+__all__ = ["Limit", "RATIO", "FLOOR", "MEMORY_SHARE", "input_limit", "scene_limit", "refuse",
            "size_text", "parse_size"]
 
 #: Inflated bytes per stored byte that no real mesh reaches.
@@ -58,6 +68,17 @@ class Limit:
         """The one line for ``what`` past ``limit`` (see :func:`refuse`)."""
         return refuse(path, what, need, limit, self.most is not None)
 
+    def scene(self) -> int | None:
+        """The most bytes a file's placed instances may take (see :func:`scene_limit`)."""
+        return scene_limit(self.most)
+
+    def refuse_scene(self, path: str, what: str, need: int, limit: int) -> MeshError:
+        """The one line for a scene whose instances would take ``need`` bytes past ``limit``."""
+        why = ("max_input_size, --max-input-size" if self.most is not None else
+               f"{MEMORY_SHARE:.0%} of the memory available now; --max-input-size sets it")
+        return MeshError(f"{path}: {what} would take {size_text(need)}, more than "
+                         f"{size_text(limit)} ({why}); not read")
+
 
 def input_limit(stored: int, most: int | None = None) -> int:
     """The most bytes a file of ``stored`` bytes may become once read or inflated.
@@ -74,6 +95,29 @@ def input_limit(stored: int, most: int | None = None) -> int:
     limit = max(RATIO * int(stored), FLOOR)
     memory = available_memory()
     return limit if memory is None else min(limit, int(MEMORY_SHARE * memory))
+
+
+def scene_limit(most: int | None = None) -> int | None:
+    """The most bytes the instances a file places may take once built, or None where unknown.
+
+    Not a ratio of the file's size: instancing is the format's own
+    compression, and what it costs is memory. :data:`MEMORY_SHARE` of the
+    memory available now (of the machine's memory where that is not known).
+
+    Parameters
+    ----------
+    most : int or None
+        The option ``max_input_size``: the limit itself, when given.
+    """
+    if most is not None:
+        return int(most)
+    memory = available_memory()
+    if memory is None:
+        try:  # no /proc/meminfo (macOS): the machine's memory, still a bound
+            memory = os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+        except (AttributeError, OSError, ValueError):
+            return None
+    return int(MEMORY_SHARE * memory)
 
 
 def parse_size(text: str) -> int:

@@ -54,9 +54,10 @@ def load_mesh(source, *, references: str = "anywhere", max_input_size: int | Non
         URLs are never fetched.
     max_input_size : int, optional
         The most bytes a file may hold once read or inflated: an archive's
-        members together, a glTF's decoded buffers, the file itself. Default:
-        100 times the file's size (at least 64 MiB), at most half the
-        available memory (see :mod:`geovox.io.limits`).
+        members together, a glTF's decoded buffers, the file itself, a glTF's
+        instanced copies. Default: 100 times the file's size (at least 64
+        MiB), at most half the available memory; for instanced copies, half
+        the available memory (see :mod:`geovox.io.limits`).
 
     Returns
     -------
