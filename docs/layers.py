@@ -18,7 +18,8 @@ OUT = os.path.join(ROOT, "docs", "img", "layers.svg")
 
 #: What each layer is, in a few words (shown at its left).
 ROLES = ["the command line", "many models", "the public API and tools", "the runners",
-         "one block", "the plan", "output targets", "labels", "the stages", "reading and writing",
+         "one block", "the plan", "output targets", "labels", "the stages", "nearest points",
+         "reading and writing",
          "options and primitives", "the ground", "errors"]
 
 WIDTH, ROW, GAP, LEFT = 980, 38, 10, 190

@@ -115,10 +115,16 @@ def voxelize(
         Rays per voxel column across the ray direction, per axis.
     density_dtype : {"uint8", "float32"}
         uint8 stores ``round(255 * fraction)``.
-    sdf : bool
-        Also fill ``Volume.sdf`` (float32, negative inside).
+    sdf : {False, True, "signed", "unsigned"}
+        Also fill ``Volume.sdf`` (float32, in the mesh's units) with each voxel
+        centre's distance to the surface: signed (True, ``"signed"``: negative
+        inside, by the plan's inside test) or ``"unsigned"`` (no inside test:
+        open sheets and scans, ``occupancy="surface"`` too). See
+        :mod:`geovox.density`.
     band : float
-        Half-width in voxels of the exact band of the signed distance.
+        Half-width in voxels (of the smallest voxel edge) of the distance's
+        exact band, positive; ``math.inf``: every voxel exact. Beyond the band
+        the value is ``band * min(spacing)`` (negated inside).
     kernel : {None, "auto", "compiled", "numpy"}
         Exact colour's nearest-surface search; None reads ``GEOVOX_KERNEL``
         (default ``auto``: the compiled kernel where it was built).
