@@ -1247,6 +1247,8 @@ cdef void band_triangle(const Band *b, int64_t t, int64_t c0, int64_t c1) noexce
         pa = max(pa, c0)
         pb = min(pb, c1)
     wx = limit * (1.0 + 1e-9)
+    nr = 0.0
+    pl = 0.0
     for iq in range(qa, qb):
         xq = (<double>iq + b.off[aq] + 0.5) * b.h[aq]
         x[aq] = xq
@@ -1281,17 +1283,18 @@ cdef void band_triangle(const Band *b, int64_t t, int64_t c0, int64_t c1) noexce
                 rb = min(rb, c1)
             base = ip * b.stride[ap] + iq * b.stride[aq]
             for ir in range(ra, rb):
+                idx = base + ir * b.stride[ar]
                 x[ar] = (<double>ir + b.off[ar] + 0.5) * b.h[ar]
                 d2 = closest(R, fl, x[0], x[1], x[2], &u, &v)
                 d = <float>sqrt(d2)
-                idx = base + ir * b.stride[ar]
                 if d < b.out[idx]:
                     b.out[idx] = d
 
 
 def band_distances(const double[:, ::1] rows, const uint8_t[::1] flat,
                    const double[:, ::1] tlo, const double[:, ::1] thi, shape, int64_t z0,
-                   spacing, double limit, float[::1] out, int jobs):
+                   spacing, double limit, float[::1] out, int jobs,
+                   const int64_t[::1] order=None):
     """Every voxel within ``limit`` of a triangle: the smallest distance to the triangles.
 
     The narrow band's exact engine (see geovox.nearest.band_distances): each
@@ -1310,7 +1313,9 @@ def band_distances(const double[:, ::1] rows, const uint8_t[::1] flat,
     sqrt(3)`` of centres; a zero-area triangle has no plane and is cut by its
     box alone), the index bounds widened by 1e-6 voxel so that rounding never
     drops a centre. Threads take chunks of layers (each voxel is written by
-    one thread), so the result does not depend on ``jobs``.
+    one thread), so the result does not depend on ``jobs``. ``order``: the
+    triangles in the order to measure them (a spatial one keeps the values a
+    chunk writes in cache; the result does not depend on it).
     """
     cdef int64_t nx, ny, nz
     nx, ny, nz = shape
@@ -1336,8 +1341,17 @@ def band_distances(const double[:, ::1] rows, const uint8_t[::1] flat,
     b.limit = limit
     cdef int64_t step = 4  # layers a chunk
     cdef int64_t nchunk = (nz + step - 1) // step
-    cdef int64_t ch, t
+    cdef int64_t ch, q
+    cdef const int64_t *perm = NULL
+    if order is not None:
+        if order.shape[0] != nt:
+            raise ValueError("order must list every triangle")
+        for q in range(nt):
+            if order[q] < 0 or order[q] >= nt:
+                raise ValueError("order must list every triangle")
+        perm = &order[0]
     with nogil:
         for ch in prange(nchunk, num_threads=max(1, jobs), schedule="dynamic", chunksize=1):
-            for t in range(nt):
-                band_triangle(&b, t, ch * step, min(ch * step + step, nz))
+            for q in range(nt):
+                band_triangle(&b, perm[q] if perm != NULL else q, ch * step,
+                              min(ch * step + step, nz))

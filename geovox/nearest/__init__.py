@@ -169,10 +169,20 @@ def band_distances(triangles, shape, spacing, *, origin, limit, z0=0, jobs=1, ca
         rows, flat, boxes = kernel_tables(triangles, origin, cache)
         module.band_distances(rows, flat, boxes[0], boxes[1], (nx, ny, nz), int(z0),
                               tuple(float(h) for h in spacing), float(limit), out,
-                              openmp_threads(jobs))
+                              openmp_threads(jobs), spatial_order(boxes[0], spacing))
         return out
     _numpy_band(triangles, (nx, ny, nz), spacing, origin, float(limit), int(z0), jobs, out)
     return out
+
+
+def spatial_order(lo: np.ndarray, spacing) -> np.ndarray:
+    """(t,) int64: triangles ordered by the 4-voxel cell of their box's low corner, z, y, x.
+
+    The band engine measures them so: neighbours one after another, so the
+    values it writes stay in cache.
+    """
+    cell = np.floor(lo / (4.0 * np.asarray(spacing, float))).astype(np.int64)
+    return np.lexsort((cell[:, 0], cell[:, 1], cell[:, 2])).astype(np.int64)
 
 
 def _numpy_band(triangles, shape, spacing, origin, limit, z0, jobs, out) -> None:
