@@ -3,7 +3,8 @@
 ``geovox/_nearest.pyx`` is the exact nearest-surface search (colour),
 ``geovox/_lattice.pyx`` the column rays' lattice search and the linear mesh
 checks of the inside test, ``geovox/_winding.pyx`` the caps' winding number of
-open models, ``geovox/_objtext.pyx`` the OBJ reader's numbers and corners. The extensions are ``optional``: without a C compiler (or without
+open models, ``geovox/_objtext.pyx`` the OBJ reader's numbers and corners,
+``geovox/_blocks.pyx`` the .vdb writer's per-block extrema. The extensions are ``optional``: without a C compiler (or without
 OpenMP, or without Cython) the install still succeeds and geovox uses its NumPy
 code (:mod:`geovox.nearest`, :func:`geovox.backends.numpy.rasterise`,
 :mod:`geovox.inside`, :func:`geovox.inside.cap_winding`, :mod:`geovox.obj`), which gives the same
@@ -37,7 +38,8 @@ sources = [("geovox._nearest", "geovox/_nearest.pyx", flags, link),
            ("geovox._lattice", "geovox/_lattice.pyx", serial, []),
            ("geovox._winding", "geovox/_winding.pyx", flags, link),
            ("geovox._objtext", "geovox/_objtext.pyx", serial, []),
-           ("geovox._surface", "geovox/_surface.pyx", flags, link)]
+           ("geovox._surface", "geovox/_surface.pyx", flags, link),
+           ("geovox._blocks", "geovox/_blocks.pyx", flags, link)]
 ext = []
 # A tree without a .pyx (an old source distribution) installs without that kernel.
 if cythonize is not None:

@@ -7,7 +7,8 @@ bit: ``geovox._nearest`` (the exact nearest-surface search of colour,
 lattice search and the inside test's mesh checks, :func:`lattice`) and
 ``geovox._winding`` (the caps' winding number of open models,
 :func:`geovox.inside.winding_kernel`) and ``geovox._objtext`` (the OBJ
-reader's numbers and corners, :func:`obj_text`), each chosen by :func:`compiled`.
+reader's numbers and corners, :func:`obj_text`) and ``geovox._blocks`` (the
+.vdb writer's per-block extrema), each chosen by :func:`compiled`.
 ``numpy`` runs the NumPy code everywhere; ``compiled`` insists on the
 compiled kernels; ``auto`` (the default) uses them where they import.
 

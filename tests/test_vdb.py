@@ -312,3 +312,24 @@ def test_float_density_is_stored_as_is(tmp_path):
     back = F.read(tmp_path / "f.vdb")
     assert back.density.dtype == np.float32
     np.testing.assert_array_equal(back.density, v.density)
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.uint8, np.bool_])
+@pytest.mark.parametrize("shape", [(37, 21, 19), (64, 64, 64), (8, 8, 9), (1, 1, 1)])
+def test_block_extrema_compiled_and_numpy_agree(dtype, shape):
+    from geovox.kernels import chosen
+
+    rng = np.random.default_rng(sum(shape))
+    raw = rng.random(shape) > 0.5 if dtype == np.bool_ else (rng.random(shape) * 4).astype(dtype)
+    raw = np.asfortranarray(raw)
+    pad = np.float32(3) if dtype == np.float32 else 0
+    with chosen("numpy"):
+        lo0, hi0 = vdb._block_extrema(raw, 8, pad)
+    try:
+        with chosen("compiled"):
+            lo1, hi1 = vdb._block_extrema(raw, 8, pad)
+    except geovox.errors.ParameterError:
+        pytest.skip("the compiled kernels are not built")
+    assert lo0.dtype == lo1.dtype and lo0.shape == lo1.shape
+    np.testing.assert_array_equal(lo0, lo1)
+    np.testing.assert_array_equal(hi0, hi1)
