@@ -26,7 +26,8 @@ PAGE = ROOT / "docs" / "benchmarks.md"
 IMAGES = ROOT / "docs" / "img"
 
 #: the order of the page; result files not named here follow in name order
-ORDER = ["users_path", "imports", "occupancy", "agreement", "colour", "density", "big_grids",
+ORDER = ["users_path", "imports", "occupancy", "agreement", "colour", "density", "sdf",
+         "big_grids",
          "formats", "readers", "surface", "inside", "messy", "budget", "obj", "webgpu",
          "distributed", "dataset", "zarr"]
 

@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .search import (CHUNK, MARGIN, TIE, brute_force, closest, kernel_module, kernel_tables,
+from .search import (CHUNK, MARGIN, TIE, band_tables, brute_force, closest, kernel_module,
                      nearest_inside, prepare, run_kernel)
 
 __all__ = ["CHUNK", "MARGIN", "TIE", "band_distances", "brute_force", "closest", "kernel_module",
@@ -166,10 +166,10 @@ def band_distances(triangles, shape, spacing, *, origin, limit, z0=0, jobs=1, ca
     if module is not None:
         from ..kernels import openmp_threads
 
-        rows, flat, boxes = kernel_tables(triangles, origin, cache)
-        module.band_distances(rows, flat, boxes[0], boxes[1], (nx, ny, nz), int(z0),
+        rows, flat, lo, hi = band_tables(triangles, origin, cache)
+        module.band_distances(rows, flat, lo, hi, (nx, ny, nz), int(z0),
                               tuple(float(h) for h in spacing), float(limit), out,
-                              openmp_threads(jobs), spatial_order(boxes[0], spacing))
+                              openmp_threads(jobs), spatial_order(lo, spacing))
         return out
     _numpy_band(triangles, (nx, ny, nz), spacing, origin, float(limit), int(z0), jobs, out)
     return out
@@ -189,7 +189,7 @@ def _numpy_band(triangles, shape, spacing, origin, limit, z0, jobs, out) -> None
     """:func:`band_distances` in NumPy: every centre in each triangle's box grown by ``limit``."""
     from concurrent.futures import ThreadPoolExecutor
 
-    tris = prepare(triangles, origin)
+    tris = prepare(triangles, origin, closest_only=True)
     nx, ny, nz = shape
     lo = tris["lo"] - limit
     hi = tris["hi"] + limit

@@ -90,7 +90,7 @@ CLUSTER = 32
 _SIGNS = np.array([[(k >> a) & 1 for a in range(3)] for k in range(8)], float) * 2 - 1
 
 
-def prepare(triangles: np.ndarray, origin: np.ndarray) -> dict:
+def prepare(triangles: np.ndarray, origin: np.ndarray, closest_only: bool = False) -> dict:
     """Per-triangle constants for the bounds and the closest point.
 
     Parameters
@@ -114,7 +114,9 @@ def prepare(triangles: np.ndarray, origin: np.ndarray) -> dict:
         ``g0, g1`` (t, 3): the dual basis giving the in-plane barycentrics;
         inverse squared edge lengths ``iab, iac, ibc`` (t,); ``flat`` (t,)
         bool, zero-area triangles (bounded below by 0 and evaluated by
-        their edges); ``lo, hi`` (t, 3) bounding boxes.
+        their edges); ``lo, hi`` (t, 3) bounding boxes. With
+        ``closest_only``, what the closest point needs alone (no ``w``,
+        ``off``, ``hw``, ``rows``: the search's bounds), the same values.
     """
     a = triangles[:, 0] - origin
     b = triangles[:, 1] - origin
@@ -139,6 +141,8 @@ def prepare(triangles: np.ndarray, origin: np.ndarray) -> dict:
             m[flip] *= -1
             return np.where(flat[:, None], 0.0, m)
 
+        if closest_only:
+            return _closest_tables(a, b, c, ab, ac, bc, n, flat)
         m_ab = edge_normal(ab, ac)
         m_ac = edge_normal(ac, ab)
         m_bc = edge_normal(bc, a - b)
@@ -189,6 +193,29 @@ def prepare(triangles: np.ndarray, origin: np.ndarray) -> dict:
                 "crow": crow, "g0": g0, "g1": g1,
                 "iab": inv(dab), "iac": inv(dac), "ibc": inv(dbc), "flat": flat,
                 "lo": np.minimum(np.minimum(a, b), c), "hi": np.maximum(np.maximum(a, b), c)}
+
+
+def _closest_tables(a, b, c, ab, ac, bc, n, flat) -> dict:
+    """:func:`prepare`'s closest-point tables (``closest_only``), computed as it computes them."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        dab = np.einsum("ij,ij->i", ab, ab)
+        dac = np.einsum("ij,ij->i", ac, ac)
+        dbc = np.einsum("ij,ij->i", bc, bc)
+        x = np.einsum("ij,ij->i", ab, ac)
+        det = dab * dac - x * x
+        g0 = (dac[:, None] * ab - x[:, None] * ac) / det[:, None]
+        g1 = (dab[:, None] * ac - x[:, None] * ab) / det[:, None]
+        g0[flat] = 0.0
+        g1[flat] = 0.0
+
+        def inv(v):
+            return np.where(v > 0, 1.0 / v, 0.0)
+
+        crow = np.concatenate([a.T, ab.T, ac.T, g0.T, g1.T, n.T,
+                               np.stack([inv(dab), inv(dac), inv(dbc)])], axis=0)
+    return {"a": a, "ab": ab, "ac": ac, "n": n, "crow": crow, "g0": g0, "g1": g1,
+            "iab": inv(dab), "iac": inv(dac), "ibc": inv(dbc), "flat": flat,
+            "lo": np.minimum(np.minimum(a, b), c), "hi": np.maximum(np.maximum(a, b), c)}
 
 
 def lower_bound_sq(x: np.ndarray, t: np.ndarray, tris: dict) -> np.ndarray:
@@ -791,6 +818,30 @@ def kernel_tables(triangles, origin, cache=None) -> tuple:
     tables = cache.get(key) if cache is not None else None
     if tables is None:
         tables = _kernel_tables(triangles, origin)
+        if cache is not None:
+            cache[key] = tables
+    return tables
+
+
+def band_tables(triangles, origin, cache=None) -> tuple:
+    """``(rows, flat, lo, hi)``: the band engine's triangle tables, kept in ``cache``.
+
+    The rows of :func:`prepare` (``crow``), zero-area flags and boxes; the
+    search's own tables where ``cache`` holds them already, else only what
+    the closest point needs (no bounds, no clusters).
+    """
+    full = cache.get(("nearest-kernel", np.asarray(origin, float).tobytes())) \
+        if cache is not None else None
+    if full is not None:
+        rows, flat, clusters = full
+        return rows, flat, clusters[0], clusters[1]
+    key = ("band-kernel", np.asarray(origin, float).tobytes())
+    tables = cache.get(key) if cache is not None else None
+    if tables is None:
+        tris = prepare(np.asarray(triangles, float), origin, closest_only=True)
+        c3 = np.ascontiguousarray
+        tables = (c3(tris["crow"].T), tris["flat"].view(np.uint8), c3(tris["lo"]),
+                  c3(tris["hi"]))
         if cache is not None:
             cache[key] = tables
     return tables
