@@ -241,7 +241,7 @@ def voxelize_block(mesh, plan: Plan, block=None, *, buffers: BlockBuffers | None
                                    timings=timings, step=buffers.step)
     return Volume(occupancy=occ, grid=grid, backend=plan.backend.name, source=m.source,
                   colors=colors, timings=timings, inside=method, density=dens, sdf=dist,
-                  band=float(o.band) if o.sdf else None,
+                  band=float(o.band) if o.sdf else None, unsigned=sdf_of(o.sdf) == "unsigned",
                   approximate=approximate, counts=counts, **extra)
 
 

@@ -42,6 +42,9 @@ class Volume:
         ``band`` voxels (``band * min(spacing)``) beyond.
     band : float or None
         With ``sdf``: the band's half-width in voxels (``inf``: every voxel exact).
+    unsigned : bool
+        With ``sdf``: the distance is unsigned (``sdf="unsigned"``), not
+        negative inside.
     timings : dict
         Seconds per stage.
     mesh_space : (str, str) or None
@@ -79,6 +82,7 @@ class Volume:
     density: np.ndarray | None = None
     sdf: np.ndarray | None = None
     band: float | None = None
+    unsigned: bool = False
     mesh_space: tuple | None = None
     labels: np.ndarray | None = None
     label_table: list | None = None

@@ -297,3 +297,17 @@ def test_vdb_level_set_as_openvdb_reads_it(tmp_path):
     np.testing.assert_array_equal(g["values"][active], sdf[active])
     # Inactive: the background outside, minus it inside (tiles included).
     np.testing.assert_array_equal(g["values"][~active], np.where(sdf[~active] < 0, -h, h))
+
+
+def test_unsigned_vdb_is_no_level_set(tmp_path):
+    from test_vdb import _has_openvdb, openvdb_read
+
+    if not _has_openvdb():
+        pytest.skip("OpenVDB's reader (python3-openvdb) is not installed")
+    vol = geovox.voxelize(open_sheet(), resolution=24, occupancy="surface", sdf="unsigned")
+    assert vol.unsigned
+    geovox.formats.write(vol, tmp_path / "u.vdb")
+    g = openvdb_read(tmp_path / "u.vdb", vol.shape)["sdf"]
+    assert str(g["class"]) == "unknown"
+    active = g["active"]
+    np.testing.assert_array_equal(g["values"][active], vol.sdf[active])

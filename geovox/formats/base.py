@@ -48,6 +48,8 @@ class Meta:
         it was decided; a point cloud's coordinates are in it.
     band : float or None
         With a distance: its band's half-width in voxels (``inf``: exact everywhere).
+    unsigned : bool
+        With a distance: it is unsigned (not negative inside).
     """
 
     grid: Grid
@@ -59,6 +61,7 @@ class Meta:
     label_table: list | None = None
     mesh_space: tuple | None = None
     band: float | None = None
+    unsigned: bool = False
 
     @classmethod
     def of(cls, volume) -> "Meta":
@@ -71,7 +74,8 @@ class Meta:
                    fractions=None if fr is None else (fr.shape[3], fr.dtype),
                    label_table=getattr(volume, "label_table", None),
                    mesh_space=getattr(volume, "mesh_space", None),
-                   band=getattr(volume, "band", None) if fields.get("sdf") is not None else None)
+                   band=getattr(volume, "band", None) if fields.get("sdf") is not None else None,
+                   unsigned=bool(getattr(volume, "unsigned", False)))
 
     def dtype(self, name):
         """The dtype of scalar field ``name`` (``"density"``, ``"sdf"``, ``"labels"``), or None."""

@@ -461,9 +461,12 @@ def _specs(meta, sdf_background=1.0) -> list:
                       "colors"))
     if meta.dtype("sdf") is not None:
         bg = np.float32(sdf_background)
+        # An unsigned distance is no level set (no zero crossing to take as the surface):
+        # Houdini and Blender would read one as an SDF.
         specs.append((_Grid("sdf", None, value=lambda r: np.asarray(r, dtype=np.float32),
                             active=lambda r, bg=bg: np.abs(r) < bg, background=bg, pad=bg,
-                            grid_class="level set"), "sdf"))
+                            grid_class="unknown" if getattr(meta, "unsigned", False)
+                            else "level set"), "sdf"))
     return specs
 
 

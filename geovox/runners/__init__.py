@@ -48,7 +48,7 @@ from ..block import BlockBuffers, empty_reason, overlaps, voxelize_block
 from ..errors import warn
 from ..kernels import follows_plan
 from ..labels import LabelTally
-from ..options import Occupancy
+from ..options import Occupancy, sdf_of
 from ..planner import Plan, Route
 from ..volume import Report
 from .slabs import run_blocks, run_fill, z_once
@@ -190,7 +190,8 @@ def _meta(m, p: Plan):
         label_table, fractions = labelled["label_table"], labelled["fractions"]
     return Meta(grid=p.grid, backend=p.backend.name, source=m.source, colors=bool(p.colour),
                 fields=fields, fractions=fractions, label_table=label_table,
-                mesh_space=p.mesh_space, band=float(o.band) if o.sdf else None)
+                mesh_space=p.mesh_space, band=float(o.band) if o.sdf else None,
+                unsigned=sdf_of(o.sdf) == "unsigned")
 
 
 
