@@ -560,8 +560,8 @@ class VDBWriter:
     block whether it is one value (and which), and the raw values of the
     blocks that are not -- the leaves, which a level set has only along its
     narrow band and a fog volume only along the surface. The file is written
-    on :meth:`close` from those, with the same bytes as :func:`write_vdb` of
-    the whole volume. Slabs must start on multiples of 8 voxels in z (a
+    on :meth:`close` from those, with the trees :func:`write_vdb` makes of
+    the whole volume (tests/test_distance.py). Slabs must start on multiples of 8 voxels in z (a
     leaf's side); a level set needs a finite band (its background pads the
     slabs: :func:`level_set_background`).
 
