@@ -48,8 +48,12 @@ FILE_VERSION = 224
 #: The library whose reader the files are checked against (OpenVDB 10.0, Debian's).
 LIBRARY_VERSION = (10, 0)
 COMPRESS_ZIP, COMPRESS_ACTIVE_MASK = 0x1, 0x2
-#: What the reader is told to expect per node: zlib, and inactive values left out.
+#: What the reader is told to expect per node: zlib, and inactive values left out. A level
+#: set's grid leaves zlib out (COMPRESS_ACTIVE_MASK alone): exact float32 distances deflate
+#: by 2.6 % (spot at 200 voxels, zlib's level 6), not worth 2.7 s of a 1024-voxel grid.
 COMPRESSION = COMPRESS_ZIP | COMPRESS_ACTIVE_MASK
+#: zlib level: zlib's default, which OpenVDB's own zipToStream uses.
+ZIP_LEVEL = 6
 #: Leaves gathered per batch (bounds the memory of the values being encoded).
 BATCH = 8192
 
@@ -81,19 +85,18 @@ def _mask(bits: np.ndarray) -> bytes:
 def _zip(data: bytes) -> bytes:
     """io::zipToStream: int64 size and the zlib stream, or minus the size and the bytes.
 
-    The stream is ISA-L's deflate at its fastest level where ``isal`` is installed (a zlib
-    stream OpenVDB's inflate reads; five to ten times faster than zlib's default level,
-    which wrote a 1024-voxel level set's 126k leaves in 2.7 s), else zlib's level 1.
+    zlib, not ISA-L: ISA-L's fastest level leaves its hash table as the allocator hands
+    it over, so the same values can deflate to other (valid) bytes from one run to the
+    next; a file's bytes should depend on its values alone.
     """
-    from .chunks import compress
-
-    packed = compress(data)
+    packed = zlib.compress(data, ZIP_LEVEL)
     if len(packed) < len(data):
         return struct.pack("<q", len(packed)) + packed
     return struct.pack("<q", -len(data)) + data
 
 
-def _values(vals: np.ndarray, active: np.ndarray, background, ignore=None) -> bytes:
+def _values(vals: np.ndarray, active: np.ndarray, background, ignore=None,
+            zipped: bool = True) -> bytes:
     """io::writeCompressedValues with active-mask compression.
 
     Parameters
@@ -104,7 +107,10 @@ def _values(vals: np.ndarray, active: np.ndarray, background, ignore=None) -> by
     background : float32 scalar or (3,) float32
     ignore : (n,) bool, optional
         Slots holding children, whose values the reader never uses.
+    zipped : bool
+        The grid's values are zlib streams (:data:`COMPRESS_ZIP`), else as they are.
     """
+    pack = _zip if zipped else bytes
     inactive = ~active if ignore is None else ~active & ~ignore
     eq = vals == background
     neg = vals == -background
@@ -119,12 +125,12 @@ def _values(vals: np.ndarray, active: np.ndarray, background, ignore=None) -> by
         # The reader restores a set bit as +background, a clear one as -background.
         out += [bytes([MASK_AND_NO_INACTIVE_VALS]), _mask(inactive & eq)]
     else:
-        return bytes([NO_MASK_AND_ALL_VALS]) + _zip(np.ascontiguousarray(vals).tobytes())
-    out.append(_zip(np.ascontiguousarray(vals[active]).tobytes()))
+        return bytes([NO_MASK_AND_ALL_VALS]) + pack(np.ascontiguousarray(vals).tobytes())
+    out.append(pack(np.ascontiguousarray(vals[active]).tobytes()))
     return b"".join(out)
 
 
-def _leaf_values(vals: np.ndarray, act: np.ndarray, background) -> list:
+def _leaf_values(vals: np.ndarray, act: np.ndarray, background, zipped: bool = True) -> list:
     """:func:`_values` of many leaves at once: the same bytes, leaf by leaf.
 
     ``vals`` (k, 512[, 3]) and ``act`` (k, 512): each leaf's values and active
@@ -155,6 +161,8 @@ def _leaf_values(vals: np.ndarray, act: np.ndarray, background) -> list:
             payloads.append(np.ascontiguousarray(vals[k]).tobytes())
             continue
         payloads.append(np.ascontiguousarray(vals[k][act[k]]).tobytes())
+    if not zipped:
+        return [h + p for h, p in zip(heads, payloads)]
     half = (len(payloads) + 1) // 2
     with ThreadPoolExecutor(2) as pool:
         parts = pool.map(lambda chunk: [_zip(p) for p in chunk],
@@ -255,8 +263,10 @@ class _Grid:
     background, inactive).
     """
 
-    def __init__(self, name, raw, value, active, background, pad, grid_class, vector=False):
+    def __init__(self, name, raw, value, active, background, pad, grid_class, vector=False,
+                 zipped=True):
         self.name, self.raw, self.value, self.active = name, raw, value, active
+        self.zipped = zipped  # its values are zlib streams (COMPRESS_ZIP)
         self.background = np.asarray(background, dtype=np.float32)
         self.pad, self.grid_class, self.vector = pad, grid_class, vector
         self.stored = None
@@ -317,7 +327,8 @@ def _node_values(g: _Grid, uniform: np.ndarray, lo: np.ndarray, corner, size: in
     act = uniform & g.active(lo)
     stats.boxes(np.argwhere(act) * size + np.asarray(corner), size)
     act = act.reshape(-1)
-    return _mask(child) + _mask(act) + _values(vals, act, g.background, ignore=child)
+    return _mask(child) + _mask(act) + _values(vals, act, g.background, ignore=child,
+                                               zipped=g.zipped)
 
 
 def _same(a, b) -> np.ndarray:
@@ -416,7 +427,7 @@ def _tree(g: _Grid, summary=None, leaf_blocks=None, shape=None):
         vals, act = g.value(flat), g.active(flat)
         stats.leaves(idx, act.reshape((len(idx),) + (1 << LEAF,) * 3))
         leaf_masks = np.packbits(act, axis=1, bitorder="little")  # each leaf's _mask
-        for m, v in zip(leaf_masks, _leaf_values(vals, act, g.background)):
+        for m, v in zip(leaf_masks, _leaf_values(vals, act, g.background, g.zipped)):
             m = m.tobytes()
             masks.append(m)
             buffers.append(m + v)
@@ -466,7 +477,7 @@ def _specs(meta, sdf_background=1.0) -> list:
         specs.append((_Grid("sdf", None, value=lambda r: np.asarray(r, dtype=np.float32),
                             active=lambda r, bg=bg: np.abs(r) < bg, background=bg, pad=bg,
                             grid_class="unknown" if getattr(meta, "unsigned", False)
-                            else "level set"), "sdf"))
+                            else "level set", zipped=False), "sdf"))
     return specs
 
 
@@ -540,7 +551,8 @@ def _write_file(path, meta, trees) -> None:
             type_name = "Tree_vec3s_5_4_3" if g.vector else "Tree_float_5_4_3"
             descriptor = _string(g.name) + _string(type_name) + _string("")
             topology, buffers, stats = tree() if callable(tree) else tree
-            head = (struct.pack("<I", COMPRESSION) + _grid_metadata(g, meta.shape, stats)
+            flags = COMPRESSION if g.zipped else COMPRESS_ACTIVE_MASK
+            head = (struct.pack("<I", flags) + _grid_metadata(g, meta.shape, stats)
                     + _transform(meta))
             # The descriptor's offsets: the grid, its leaf buffers, its end.
             grid_pos = pos + len(descriptor) + 24
