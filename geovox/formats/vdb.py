@@ -85,9 +85,10 @@ def _mask(bits: np.ndarray) -> bytes:
 def _zip(data: bytes) -> bytes:
     """io::zipToStream: int64 size and the zlib stream, or minus the size and the bytes.
 
-    zlib, not ISA-L: ISA-L's fastest level leaves its hash table as the allocator hands
-    it over, so the same values can deflate to other (valid) bytes from one run to the
-    next; a file's bytes should depend on its values alone.
+    zlib, not ISA-L: with ISA-L's fastest level a slab file's bytes were seen to differ
+    from a whole write's of the same values (4 bytes, 3 runs of the suite in about 15; its
+    hash table is likely not cleared between calls); a file's bytes should depend on its
+    values alone, and zlib's do.
     """
     packed = zlib.compress(data, ZIP_LEVEL)
     if len(packed) < len(data):
