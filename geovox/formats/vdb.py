@@ -41,7 +41,7 @@ import zlib
 import numpy as np
 
 from ..errors import ParameterError
-from .base import level_set_background
+from .base import SlabWriter, level_set_background
 
 MAGIC = 0x56444220
 FILE_VERSION = 224
@@ -566,7 +566,7 @@ def _write_file(path, meta, trees) -> None:
             pos = end
 
 
-class VDBWriter:
+class VDBWriter(SlabWriter):
     """Writes a ``.vdb`` one z-slab at a time, holding only what the file keeps.
 
     Each slab is reduced as it comes to what its grids' trees need: per 8³
@@ -610,16 +610,15 @@ class VDBWriter:
             local[:, 2] += z0 >> LEAF
             parts.append((uni, lo, local, blocks))
 
-    def close(self) -> list:
-        try:
-            trees = [(g, self._tree(g, parts)) for (g, _), parts in zip(self.specs, self.parts)]
-            _write_file(self.tmp, self.meta, trees)
-            self.parts = None
-            self._ctx.__exit__(None, None, None)
-        except BaseException:
-            self.abort()
-            raise
+    def _finish(self) -> list:
+        trees = [(g, self._tree(g, parts)) for (g, _), parts in zip(self.specs, self.parts)]
+        _write_file(self.tmp, self.meta, trees)
+        self.parts = None
+        self._ctx.__exit__(None, None, None)
         return [self.path]
+
+    def _release(self) -> None:
+        self.parts = None  # no file is open between slabs
 
     def _tree(self, g, parts):
         """The grid's tree, made when the file reaches it, from the slabs' parts."""
@@ -640,21 +639,6 @@ class VDBWriter:
             return _tree(g, (uni8, lo8), leaf_blocks, self.meta.shape)
 
         return make
-
-    def write_whole(self, volume) -> list:
-        try:
-            self.write(0, volume)
-        except BaseException:
-            self.abort()
-            raise
-        return self.close()
-
-    def abort(self) -> None:
-        """Drop everything written (call from an ``except`` block)."""
-        import sys
-
-        self.parts = None
-        self._ctx.__exit__(*sys.exc_info())
 
 
 # --- reading back (the subset geovox writes: float and vec3s trees, zlib or no compression) ---

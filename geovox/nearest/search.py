@@ -169,34 +169,17 @@ def prepare(triangles: np.ndarray, origin: np.ndarray, closest_only: bool = Fals
         off[flat, 4:] = 0.0
         hw[flat] = np.inf
         w[flat] = 0.0
-        dab = np.einsum("ij,ij->i", ab, ab)
-        dac = np.einsum("ij,ij->i", ac, ac)
-        dbc = np.einsum("ij,ij->i", bc, bc)
-        x = np.einsum("ij,ij->i", ab, ac)
-        det = dab * dac - x * x
-        g0 = (dac[:, None] * ab - x[:, None] * ac) / det[:, None]
-        g1 = (dab[:, None] * ac - x[:, None] * ab) / det[:, None]
-        g0[flat] = 0.0
-        g1[flat] = 0.0
-
-        def inv(v):
-            return np.where(v > 0, 1.0 / v, 0.0)
-
         # The same by component, for gathering contiguous rows per pair:
         # rows 7 a + j hold component a of direction j; the 7 offsets after
         # them (rows 21-27), then the 3 half-widths (rows 28-30).
         rows = np.concatenate([w.transpose(2, 1, 0).reshape(21, -1), off.T, hw.T], axis=0)
-        # For the closest point: a, ab, ac, g0, g1, n, iab, iac, ibc as rows.
-        crow = np.concatenate([a.T, ab.T, ac.T, g0.T, g1.T, n.T,
-                               np.stack([inv(dab), inv(dac), inv(dbc)])], axis=0)
-        return {"a": a, "ab": ab, "ac": ac, "n": n, "w": w, "off": off, "hw": hw, "rows": rows,
-                "crow": crow, "g0": g0, "g1": g1,
-                "iab": inv(dab), "iac": inv(dac), "ibc": inv(dbc), "flat": flat,
-                "lo": np.minimum(np.minimum(a, b), c), "hi": np.maximum(np.maximum(a, b), c)}
+    return {**_closest_tables(a, b, c, ab, ac, bc, n, flat),
+            "w": w, "off": off, "hw": hw, "rows": rows}
 
 
 def _closest_tables(a, b, c, ab, ac, bc, n, flat) -> dict:
-    """:func:`prepare`'s closest-point tables (``closest_only``), computed as it computes them."""
+    """:func:`prepare`'s closest-point tables: ``crow`` (for the closest point: a, ab, ac,
+    g0, g1, n, iab, iac, ibc as rows), the dual basis, inverse squared edge lengths, boxes."""
     with np.errstate(divide="ignore", invalid="ignore"):
         dab = np.einsum("ij,ij->i", ab, ab)
         dac = np.einsum("ij,ij->i", ac, ac)
@@ -208,13 +191,10 @@ def _closest_tables(a, b, c, ab, ac, bc, n, flat) -> dict:
         g0[flat] = 0.0
         g1[flat] = 0.0
 
-        def inv(v):
-            return np.where(v > 0, 1.0 / v, 0.0)
-
-        crow = np.concatenate([a.T, ab.T, ac.T, g0.T, g1.T, n.T,
-                               np.stack([inv(dab), inv(dac), inv(dbc)])], axis=0)
+        iab, iac, ibc = (np.where(v > 0, 1.0 / v, 0.0) for v in (dab, dac, dbc))
+    crow = np.concatenate([a.T, ab.T, ac.T, g0.T, g1.T, n.T, np.stack([iab, iac, ibc])], axis=0)
     return {"a": a, "ab": ab, "ac": ac, "n": n, "crow": crow, "g0": g0, "g1": g1,
-            "iab": inv(dab), "iac": inv(dac), "ibc": inv(dbc), "flat": flat,
+            "iab": iab, "iac": iac, "ibc": ibc, "flat": flat,
             "lo": np.minimum(np.minimum(a, b), c), "hi": np.maximum(np.maximum(a, b), c)}
 
 
