@@ -199,7 +199,11 @@ def test_random_hulls(kernel, seed, res, jobs):
     rng = np.random.default_rng(seed)
     hull = trimesh.convex.convex_hull(rng.normal(size=(int(rng.integers(5, 40)), 3))
                                       * rng.uniform(0.2, 3.0, size=3))
-    _check_mesh(_mesh(hull, "hull"), res, jobs=jobs)
+    # A flat hull on a coarse grid may hold no voxel centre (seed 790 at 5 voxels): an
+    # empty volume, said as a warning, with nothing for the search to answer.
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=".*the volume is empty", category=GeovoxWarning)
+        _check_mesh(_mesh(hull, "hull"), res, jobs=jobs)
 
 
 def test_a_block_of_a_grid_is_the_whole_grids_answers(kernel):
