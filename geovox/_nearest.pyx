@@ -48,8 +48,6 @@ cdef struct Ctx:
     double h0, h1, h2
     double m               # MARGIN in length units
     double tieh            # TIE in length units
-    double cutoff          # triangles provably farther than this from a cell are dropped
-                           # (a narrow band's half-width and the margin; INFINITY: none)
     # Output: RGBA colours, or the raw triangle and barycentrics.
     uint32_t *rgba         # (nx*ny*nz,) F-order, or NULL
     int32_t *tri_out       # (nx*ny*nz,) or NULL
@@ -566,7 +564,7 @@ cdef void leaf_planes(const Ctx *c, int64_t i0, int64_t i1, int64_t j0, int64_t 
         t = cand[q]
         dc = sqrt(dbuf[9 * q])
         d2 = dc - rh
-        if d2 > 0 and (d2 * d2 > lim or d2 > c.cutoff):
+        if d2 > 0 and d2 * d2 > lim:
             continue
         e0 = e1 = e2 = 0.0
         if dc > guard:
@@ -740,7 +738,7 @@ cdef void solve(const Ctx *c, int level, int64_t ci, int64_t cj, int64_t ck,
         t = cand[q]
         dc = sqrt(dbuf[9 * q])
         d2 = dc - rh
-        if d2 > 0 and (d2 * d2 > lim or d2 > c.cutoff):
+        if d2 > 0 and d2 * d2 > lim:
             continue
         R = c.T + 21 * t
         if dc > 0:
@@ -848,7 +846,6 @@ cdef class Kernel:
         self.c.h0, self.c.h1, self.c.h2 = spacing
         self.c.m = margin
         self.c.tieh = tie
-        self.c.cutoff = INFINITY
         self.c.rgba = NULL
         self.c.tri_out = NULL
         self.c.uv_out = NULL
@@ -939,20 +936,6 @@ cdef class Kernel:
         self.keep += [key, rgba]
         self.c.same = &key[0]
         self.c.same_rgba = &rgba[0] if rgba.shape[0] else NULL
-
-    def band(self, double limit):
-        """Answer only the voxels within ``limit`` of the surface (a narrow band).
-
-        A triangle is also dropped from a cell where it is provably farther
-        than ``limit`` (and the margin) from every point of the cell: a voxel
-        whose nearest triangle is dropped so is farther than ``limit``, and
-        gets the distance of some other triangle, or none (a cell left
-        without triangles is not answered). Voxels within ``limit`` keep
-        their exact answer: their nearest triangle is never dropped.
-        """
-        if not limit > 0:
-            raise ValueError("the band's limit must be positive")
-        self.c.cutoff = limit
 
     def limit_leaf4(self, int64_t n):
         """Let cells of 4 voxels finish by interpolated bounds only with at most
@@ -1045,9 +1028,7 @@ cdef class Kernel:
                     else:
                         n = top_list(c, level, cells[i, 0], cells[i, 1], cells[i, 2],
                                      bufs[tid], caps[tid])
-                if n == 0 and i != c.fail_cell:
-                    pass  # a narrow band's cell beyond it (Kernel.band): nothing to answer
-                elif caps[tid] == 0 or i == c.fail_cell:
+                if caps[tid] == 0 or i == c.fail_cell:
                     # A reduction (+=): a plain assignment in a prange is
                     # lastprivate, so a failure on any thread but the one
                     # that ran the last cell would be lost, its voxels left
@@ -1116,7 +1097,7 @@ cdef int64_t top_list(const Ctx *c, int level, int64_t ci, int64_t cj, int64_t c
             d = d + e * e
         if d > reach2:
             reach2 = d
-    reach2 = min(sqrt(reach2), c.cutoff) + c.m
+    reach2 = sqrt(reach2) + c.m
     reach2 = reach2 * reach2
     for q in range(c.ncl):
         g = 0.0

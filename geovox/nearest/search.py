@@ -828,7 +828,7 @@ def band_tables(triangles, origin, cache=None) -> tuple:
 
 
 def run_kernel(module, triangles, occupancy, spacing, *, origin, z0=0, jobs=1, output,
-               cache=None, limit=None):
+               cache=None):
     """The compiled search over one block (same answers as :func:`nearest_inside`'s NumPy one).
 
     Parameters
@@ -858,8 +858,6 @@ def run_kernel(module, triangles, occupancy, spacing, *, origin, z0=0, jobs=1, o
     kernel = module.Kernel(rows, flat, occ, shape, int(z0), tuple(float(h) for h in spacing),
                            MARGIN * hmin, TIE * hmin)
     output(kernel)
-    if limit is not None:
-        kernel.band(float(limit))
     kernel.clusters(*clusters)
     jobs = openmp_threads(jobs)
     cells = np.argwhere(module.top_cells(occ, shape, levels, jobs)).astype(np.int64)
